@@ -1,0 +1,79 @@
+"""The FastAPI application: REST API, OpenAPI docs and downloads.
+
+Routers are thin: they validate with pydantic, call :mod:`backend.services` and
+turn :class:`InputError` into a 4xx JSON body ``{"error": {"message", "input"}}``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, RedirectResponse
+
+from backend.api import auth
+from backend.api.routes import exports, intrinsics, sessions
+from backend.api.routes import jobs as job_routes
+from backend.core.errors import InputError
+from backend.services.jobs import JobRunner
+from backend.store.session import SessionStore
+
+
+@dataclass
+class AppState:
+    """What every route needs, held on ``app.state.studio``."""
+
+    store: SessionStore
+    jobs: JobRunner
+    token: str | None = None
+    studio_url: str | None = None
+    """Where ``/`` sends a browser: the viser studio page."""
+
+
+def error_response(status: int, message: str, input: str | None = None) -> JSONResponse:
+    return JSONResponse(status_code=status, content={"error": {"message": message, "input": input}})
+
+
+def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token: str | None = None,
+               studio_url: str | None = None) -> FastAPI:
+    """Build the app over a session store. ``token`` set means every call must present it."""
+    if not isinstance(store, SessionStore):
+        store = SessionStore(Path(store))
+    app = FastAPI(title="Calibration Studio API", version="0.1.0",
+                  description="Sessions, captures, solves and exports of Calibration Studio.")
+    app.state.studio = AppState(store, jobs or JobRunner(), token, studio_url)
+
+    @app.middleware("http")
+    async def require_token(request: Request, call_next):
+        presented = auth.presented_token(request)
+        if not auth.token_ok(token, presented):
+            return error_response(401, "missing or wrong token; open the URL the server printed, "
+                                       "or send 'Authorization: Bearer <token>'", "token")
+        response = await call_next(request)
+        if token and request.query_params.get("token"):
+            response.set_cookie(auth.COOKIE, token, httponly=True, samesite="strict")
+        return response
+
+    @app.exception_handler(InputError)
+    async def input_error(request: Request, exc: InputError) -> JSONResponse:
+        return error_response(exc.status_code, exc.message, exc.input)
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        first = exc.errors()[0]
+        field = ".".join(str(p) for p in first["loc"] if p != "body")
+        return error_response(422, f"field '{field}': {first['msg']}", field)
+
+    @app.get("/api/health", tags=["meta"])
+    def health() -> dict[str, str]:
+        return {"status": "ok"}
+
+    @app.get("/", include_in_schema=False)
+    def root() -> RedirectResponse:
+        return RedirectResponse(studio_url or "/docs")
+
+    for router in (sessions.router, intrinsics.router, job_routes.router, exports.router):
+        app.include_router(router, prefix="/api")
+    return app

@@ -1,0 +1,29 @@
+"""Background job status and cancel."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Depends
+
+from backend.api.routes import deps
+from backend.api.schemas import JobStatus
+from backend.services.jobs import Job, JobRunner
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+
+def job_status(job: Job) -> dict[str, Any]:
+    return job.status() | {"result_id": job.result if isinstance(job.result, str) else None}
+
+
+@router.get("/{job_id}", response_model=JobStatus)
+def get_job(job_id: str, jobs: JobRunner = Depends(deps.jobs)) -> dict[str, Any]:
+    return job_status(jobs.get(job_id))
+
+
+@router.post("/{job_id}/cancel", response_model=JobStatus)
+def cancel_job(job_id: str, jobs: JobRunner = Depends(deps.jobs)) -> dict[str, Any]:
+    job = jobs.get(job_id)
+    job.cancel()
+    return job_status(job)

@@ -1,0 +1,69 @@
+"""Request and response models at the API edge (pydantic); the services take plain values."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+from backend.store.schema import NAME_PATTERN
+
+
+class ErrorBody(BaseModel):
+    message: str
+    input: str | None = None
+
+
+class ErrorResponse(BaseModel):
+    error: ErrorBody
+
+
+class SessionCreate(BaseModel):
+    name: str = Field(pattern=NAME_PATTERN, examples=["robot-2026-11-23"])
+    title: str = ""
+    board: str | None = Field(None, examples=["checkerboard:9x6:0.025"])
+
+
+class BoardUpdate(BaseModel):
+    board: str = Field(examples=["charuco:11x8:0.03:0.022:DICT_5X5_100"])
+
+
+class SensorCreate(BaseModel):
+    name: str = Field(pattern=NAME_PATTERN, examples=["cam_front"])
+    parent: str = "base_link"
+    kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "camera"
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ypr_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ROS yaw, pitch, roll in degrees")
+    device: dict[str, Any] = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
+                                                                     "height": 720}])
+
+
+class IntrinsicsSolveRequest(BaseModel):
+    model: Literal["pinhole-radtan", "fisheye-equidistant"] = "pinhole-radtan"
+    estimate_k3: bool = False
+    estimate_tangential: bool = True
+    fix_aspect: bool = False
+    drop_outliers: bool = False
+    outlier_factor: float = Field(3.0, gt=1.0)
+    capture_ids: list[str] | None = None
+
+
+class AcceptRequest(BaseModel):
+    result_id: str
+
+
+class JobStatus(BaseModel):
+    id: str
+    title: str
+    state: Literal["running", "done", "failed", "cancelled"]
+    fraction: float
+    message: str
+    error: ErrorBody | None = None
+    started: float
+    finished: float | None = None
+    result_id: str | None = None
+
+
+class ImportResponse(BaseModel):
+    added: list[dict[str, Any]]
+    skipped: list[ErrorBody]

@@ -1,0 +1,95 @@
+"""Camera models: intrinsics and projection, following OpenCV.
+
+``pinhole-radtan`` is OpenCV's standard model (``dist = [k1, k2, p1, p2, k3]``,
+ROS ``plumb_bob``); ``fisheye-equidistant`` is OpenCV's fisheye model
+(``dist = [k1, k2, k3, k4]``, ROS ``equidistant``). Points are in the camera's
+optical frame (x right, y down, z forward, metres); pixels follow OpenCV (centre
+of the top-left pixel is (0, 0)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+
+CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant"]
+ROS_DISTORTION_NAMES: dict[str, str] = {"pinhole-radtan": "plumb_bob", "fisheye-equidistant": "equidistant"}
+DIST_NAMES: dict[str, list[str]] = {
+    "pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"],
+    "fisheye-equidistant": ["k1", "k2", "k3", "k4"],
+}
+
+
+@dataclass
+class CameraIntrinsics:
+    """A calibrated (or nominal) camera: model, image size (px), K (px) and distortion."""
+
+    model: CameraModelName
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
+        self.dist = np.asarray(self.dist, dtype=float).ravel()
+        expected = len(DIST_NAMES[self.model])
+        if self.dist.size < expected:
+            self.dist = np.concatenate([self.dist, np.zeros(expected - self.dist.size)])
+
+    @property
+    def is_fisheye(self) -> bool:
+        return self.model == "fisheye-equidistant"
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels, as OpenCV expects."""
+        return self.width, self.height
+
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Project (N, 3) points in the optical frame (m) to (N, 2) pixels.
+
+        Points behind the camera are projected too; callers filter on ``z > 0``.
+        """
+        pts = np.ascontiguousarray(points_cam, dtype=np.float64).reshape(-1, 1, 3)
+        zero = np.zeros(3)
+        if self.is_fisheye:
+            uv, _ = cv2.fisheye.projectPoints(pts, zero, zero, self.K, self.dist[:4])
+        else:
+            uv, _ = cv2.projectPoints(pts, zero, zero, self.K, self.dist)
+        return uv.reshape(-1, 2)
+
+    def undistort_points(self, pixels: np.ndarray) -> np.ndarray:
+        """Normalised image coordinates (x/z, y/z) of (N, 2) distorted pixels."""
+        uv = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if self.is_fisheye:
+            return cv2.fisheye.undistortPoints(uv, self.K, self.dist[:4]).reshape(-1, 2)
+        return cv2.undistortPoints(uv, self.K, self.dist).reshape(-1, 2)
+
+    def rays(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit viewing rays (N, 3) in the optical frame for distorted pixels (N, 2)."""
+        xy = self.undistort_points(pixels)
+        rays = np.column_stack([xy, np.ones(len(xy))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+    @property
+    def fov_y_rad(self) -> float:
+        """Vertical field of view of the undistorted pinhole (rad), for drawing frusta."""
+        return float(2 * np.arctan2(self.height / 2, self.K[1, 1]))
+
+    def to_dict(self) -> dict:
+        """The conventions' camera JSON: model, width, height, K (nested), dist (list)."""
+        return {
+            "model": self.model,
+            "width": int(self.width),
+            "height": int(self.height),
+            "K": self.K.tolist(),
+            "dist": self.dist.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CameraIntrinsics:
+        return cls(data["model"], int(data["width"]), int(data["height"]), np.array(data["K"]), np.array(data["dist"]))

@@ -1,0 +1,94 @@
+"""The rig model: frames in a tree and the sensors mounted on them.
+
+Every frame but the root has a parent and ``T_parent_child`` (4x4, metres). A
+sensor is a frame with a kind and, for cameras, intrinsics. A transform may carry
+a 6x6 covariance over ``[tx, ty, tz, rx, ry, rz]`` (m, rad; rotation as a small
+rotation vector in the child frame), from which the 1-sigma values in exports are
+read. Plain numpy inside; the API converts with :mod:`backend.api.schemas`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError, NotFoundError
+
+SensorKind = Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"]
+
+
+@dataclass
+class Frame:
+    """One node of the frame tree."""
+
+    name: str
+    parent: str | None
+    T_parent_child: np.ndarray = field(default_factory=lambda: np.eye(4))
+    kind: SensorKind = "frame"
+    covariance: np.ndarray | None = None
+    """6x6 covariance of ``[t (m), r (rad)]`` of ``T_parent_child``, or None if unknown."""
+    intrinsics: CameraIntrinsics | None = None
+    device: dict = field(default_factory=dict)
+    """How to capture from this sensor: ``{"driver": ..., **settings}``."""
+
+    def __post_init__(self) -> None:
+        self.T_parent_child = np.asarray(self.T_parent_child, dtype=float).reshape(4, 4)
+        if self.covariance is not None:
+            self.covariance = np.asarray(self.covariance, dtype=float).reshape(6, 6)
+
+    @property
+    def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """1-sigma translation (m, per axis) and rotation (deg, about child x, y, z)."""
+        if self.covariance is None:
+            return None
+        std = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        return std[:3], np.degrees(std[3:])
+
+
+@dataclass
+class Rig:
+    """A tree of frames rooted at ``root`` (default ``base_link``)."""
+
+    root: str = "base_link"
+    frames: dict[str, Frame] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.root not in self.frames:
+            self.frames[self.root] = Frame(self.root, None)
+
+    def add(self, frame: Frame) -> Frame:
+        """Add a frame under an existing parent; names are unique."""
+        if not frame.name or not frame.name.replace("_", "").replace("-", "").isalnum():
+            raise InputError(f"frame name {frame.name!r} must be letters, digits, '_' or '-'", "name")
+        if frame.name in self.frames:
+            raise InputError(f"a frame named {frame.name!r} already exists in the rig", "name", 409)
+        if frame.parent not in self.frames:
+            raise InputError(f"parent frame {frame.parent!r} is not in the rig; known: {sorted(self.frames)}", "parent")
+        self.frames[frame.name] = frame
+        return frame
+
+    def get(self, name: str) -> Frame:
+        try:
+            return self.frames[name]
+        except KeyError:
+            raise NotFoundError(f"no sensor or frame named {name!r}; known: {sorted(self.frames)}", "sensor") from None
+
+    def sensors(self, kind: SensorKind | None = None) -> list[Frame]:
+        """Frames that are sensors (optionally of one kind), in insertion order."""
+        return [f for f in self.frames.values() if f.kind != "frame" and (kind is None or f.kind == kind)]
+
+    def T_root_frame(self, name: str) -> np.ndarray:
+        """Pose of a frame in the root frame, composed along the tree."""
+        T = np.eye(4)
+        frame = self.get(name)
+        while frame.parent is not None:
+            T = frame.T_parent_child @ T
+            frame = self.frames[frame.parent]
+        return T
+
+    def T_a_b(self, a: str, b: str) -> np.ndarray:
+        """Transform mapping points in frame ``b`` into frame ``a``."""
+        return np.linalg.solve(self.T_root_frame(a), self.T_root_frame(b))

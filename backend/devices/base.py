@@ -1,0 +1,97 @@
+"""The one capture interface every sensor driver implements.
+
+A driver is opened from a plain settings dict (stored with the sensor in the rig)
+and yields :class:`Sample` objects. Cameras fill ``image``; later LiDAR drivers
+fill ``points``. A driver that loses its device raises :class:`DeviceDisconnected`
+from :meth:`CaptureDevice.read`; samples already returned belong to the caller
+and are never lost.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+class DeviceError(RuntimeError):
+    """A device could not be opened or configured; the message says which and why."""
+
+    def __init__(self, message: str, device: str):
+        super().__init__(f"{device}: {message}")
+        self.message = message
+        self.device = device
+
+
+class DeviceDisconnected(DeviceError):
+    """The device went away mid-capture (unplugged, stream ended, read failed)."""
+
+
+@dataclass
+class Sample:
+    """One reading from a sensor."""
+
+    timestamp_s: float
+    """Capture time, seconds since the epoch (or since the start of a recording)."""
+    image: np.ndarray | None = None
+    """uint8 image, HxW (gray) or HxWx3 (BGR), for cameras."""
+    points: np.ndarray | None = None
+    """(N, 3) or (N, 4) float points in the sensor frame (m), for range sensors."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """Driver facts worth keeping (source file, frame index, ground truth in simulation)."""
+
+
+class CaptureDevice(abc.ABC):
+    """A sensor that can be opened, read sample by sample and closed."""
+
+    driver: ClassVar[str]
+    """The name stored in a sensor's ``device`` settings, e.g. ``"uvc"``."""
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Connect to the device; raise :class:`DeviceError` with the reason on failure."""
+
+    @abc.abstractmethod
+    def read(self) -> Sample:
+        """Return the next sample; raise :class:`DeviceDisconnected` when the device is gone."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the device. Safe to call twice."""
+
+    def describe(self) -> str:
+        """A short human name for status lines, e.g. ``"uvc /dev/video0 1280x720"``."""
+        return self.driver
+
+    def __enter__(self) -> CaptureDevice:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+_DRIVERS: dict[str, Callable[..., CaptureDevice]] = {}
+
+
+def register_driver(cls: type[CaptureDevice]) -> type[CaptureDevice]:
+    """Class decorator: make a driver available to :func:`open_device` by its name."""
+    _DRIVERS[cls.driver] = cls
+    return cls
+
+
+def create_device(settings: dict[str, Any]) -> CaptureDevice:
+    """Build (not open) a device from ``{"driver": name, **kwargs}``."""
+    from backend import devices  # noqa: F401  (importing registers the built-in drivers)
+
+    name = settings.get("driver")
+    if name not in _DRIVERS:
+        raise DeviceError(f"unknown driver {name!r}; available: {sorted(_DRIVERS)}", str(name))
+    kwargs = {k: v for k, v in settings.items() if k != "driver"}
+    try:
+        return _DRIVERS[name](**kwargs)
+    except TypeError as exc:
+        raise DeviceError(f"bad settings {kwargs}: {exc}", name) from None

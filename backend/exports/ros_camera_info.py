@@ -1,0 +1,227 @@
+"""ROS camera_info YAML, as written and read by ``camera_calibration_parsers``.
+
+This is the ``camera.yaml`` of ``../shared/conventions.md``: what ``intrinsics
+--out`` writes and every ``--camera`` option reads. Keys, their order and layout
+follow ``writeCalibrationYml`` in ros-perception/image_common
+``camera_calibration_parsers/src/parse_yml.cpp``: ``image_width``,
+``image_height``, ``camera_name``, ``camera_matrix``, ``distortion_model``,
+``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``; each
+matrix is a block map ``{rows, cols, data}`` with ``data`` a flow sequence in
+row-major order. Pixel quantities (``K``, ``P``) are in pixels, the image size in
+pixels, and the distortion coefficients are unitless.
+
+Floats are written at full precision (Python ``repr``), so a camera survives a
+write and read unchanged; ROS's own ``camera_calibration`` node writes its
+``ost.yaml`` with 5-8 decimals instead.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
+from backend.core.errors import InputError
+
+MODELS_BY_ROS_NAME: dict[str, CameraModelName] = {
+    "plumb_bob": "pinhole-radtan",
+    "equidistant": "fisheye-equidistant",
+}
+"""Our camera model for each ROS ``distortion_model`` we read."""
+
+_EXPECTED_FILE = (
+    "a ROS camera_info YAML mapping with image_width, image_height, camera_name, camera_matrix, "
+    "distortion_model, distortion_coefficients, rectification_matrix and projection_matrix"
+)
+
+
+def projection_matrix(camera: CameraIntrinsics) -> np.ndarray:
+    """The 3x4 projection matrix ``P`` (px) ROS ``camera_calibration`` stores for a monocular camera.
+
+    Matches ``MonoCalibrator.set_alpha(0.0)`` in ros-perception/image_pipeline
+    ``camera_calibration/calibrator.py``, which ``cal_fromcorners`` calls after
+    every calibration:
+
+    - pinhole (``plumb_bob``): ``P[:3, :3] = cv2.getOptimalNewCameraMatrix(K, D,
+      (width, height), alpha)`` with ``alpha = 0`` (every pixel of the rectified
+      image is valid), default ``newImgSize`` and ``centerPrincipalPoint=False``;
+    - fisheye (``equidistant``): ``P[:3, :3] = K`` with ``fx`` and ``fy`` divided
+      by ``1 + alpha``, i.e. ``K`` itself for ``alpha = 0`` (ROS notes that
+      ``cv2.fisheye.estimateNewCameraMatrixForUndistortRectify`` gave poor results).
+
+    The last column is zero: the rectified frame is the camera's optical frame.
+    """
+    P = np.zeros((3, 4))
+    if camera.is_fisheye:
+        P[:, :3] = camera.K
+    else:
+        P[:, :3], _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.dist, camera.image_size, 0.0)
+    return P
+
+
+def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
+    """The camera as ROS camera_info YAML text.
+
+    ``R`` is the identity (a monocular camera is not rectified against another)
+    and ``P`` is :func:`projection_matrix`. Raises ``ValueError`` if ``camera``
+    holds more distortion coefficients than its model has.
+    """
+    expected = len(DIST_NAMES[camera.model])
+    if camera.dist.size != expected:
+        raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")
+    document = {
+        "image_width": int(camera.width),
+        "image_height": int(camera.height),
+        "camera_name": str(camera_name),
+        "camera_matrix": _matrix_node(camera.K),
+        "distortion_model": ROS_DISTORTION_NAMES[camera.model],
+        "distortion_coefficients": _matrix_node(camera.dist.reshape(1, -1)),
+        "rectification_matrix": _matrix_node(np.eye(3)),
+        "projection_matrix": _matrix_node(projection_matrix(camera)),
+    }
+    # default_flow_style=None puts only the all-scalar ``data`` lists in flow style,
+    # which is exactly yaml-cpp's layout in parse_yml.cpp; an infinite width keeps
+    # each list on one line.
+    return yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=math.inf)
+
+
+def write_camera_info(path: Path, camera: CameraIntrinsics, camera_name: str) -> None:
+    """Write :func:`dump_camera_info` to ``path``, creating its folder as ROS's writer does."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dump_camera_info(camera, camera_name), encoding="utf-8")
+
+
+def load_camera_info(path: Path) -> tuple[CameraIntrinsics, str]:
+    """Read a ROS camera_info YAML file: the camera and its ``camera_name``.
+
+    Every field is checked and any problem raises :class:`InputError` whose
+    message names the file and the field and says what was expected. As in ROS's
+    reader, ``camera_name`` may be absent (giving ``"unknown"``) and so may
+    ``distortion_model`` (giving ``plumb_bob``); ``rectification_matrix`` and
+    ``projection_matrix`` must be well-formed but are not used, since the camera
+    is defined by ``K`` and the distortion alone. Numbers written as YAML 1.2
+    floats that YAML 1.1 reads as strings (``1e-05``) are accepted.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the file ({exc}); expected {_EXPECTED_FILE}", str(path)) from None
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = ""
+        mark = getattr(exc, "problem_mark", None)
+        if mark is not None:
+            where = f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = getattr(exc, "problem", None) or "syntax error"
+        raise InputError(
+            f"{path}: not valid YAML{where} ({problem}); the file may be truncated; expected {_EXPECTED_FILE}",
+            str(path),
+        ) from None
+    if not isinstance(document, dict):
+        found = "empty" if document is None else f"a {type(document).__name__}"
+        raise InputError(f"{path}: the document is {found}; expected {_EXPECTED_FILE}", str(path))
+
+    fields = _Fields(path, document)
+    width = fields.positive_int("image_width")
+    height = fields.positive_int("image_height")
+    camera_name = fields.name("camera_name")
+    K = fields.matrix("camera_matrix", 3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0])):
+        expected = "[fx, 0, cx, 0, fy, cy, 0, 0, 1] with fx, fy > 0"
+        raise fields.error("camera_matrix.data", f"is {K.ravel().tolist()}", expected)
+    model = fields.distortion_model("distortion_model")
+    dist = fields.matrix("distortion_coefficients", None, None).ravel()
+    names = DIST_NAMES[model]
+    if dist.size != len(names):
+        raise fields.error(
+            "distortion_coefficients.data",
+            f"has {dist.size} values",
+            f"{len(names)} for {ROS_DISTORTION_NAMES[model]}: [{', '.join(names)}]",
+        )
+    fields.matrix("rectification_matrix", 3, 3)
+    fields.matrix("projection_matrix", 3, 4)
+    return CameraIntrinsics(model, width, height, K, dist), camera_name
+
+
+def _matrix_node(M: np.ndarray) -> dict[str, Any]:
+    """``{rows, cols, data}`` of a 2-D array, ``data`` row-major as Python floats."""
+    return {"rows": int(M.shape[0]), "cols": int(M.shape[1]), "data": [float(v) for v in M.ravel()]}
+
+
+class _Fields:
+    """Typed, checked access to the fields of one camera_info document."""
+
+    def __init__(self, path: Path, document: dict[str, Any]):
+        self.path = path
+        self.document = document
+
+    def error(self, field: str, problem: str, expected: str) -> InputError:
+        return InputError(f"{self.path}: field '{field}' {problem}; expected {expected}", str(self.path))
+
+    def _get(self, mapping: dict[str, Any], key: str, field: str, expected: str) -> Any:
+        if key not in mapping:
+            raise self.error(field, "is missing", expected)
+        return mapping[key]
+
+    def positive_int(self, key: str) -> int:
+        value = self._get(self.document, key, key, "a positive integer (pixels)")
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise self.error(key, f"is {value!r}", "a positive integer (pixels)")
+        return value
+
+    def name(self, key: str) -> str:
+        value = self.document.get(key, "unknown")
+        if isinstance(value, bool) or not isinstance(value, str | int | float):
+            raise self.error(key, f"is {value!r}", "a camera name (a string)")
+        return str(value)
+
+    def distortion_model(self, key: str) -> CameraModelName:
+        value = self.document.get(key, "plumb_bob")
+        if value not in MODELS_BY_ROS_NAME:
+            raise self.error(key, f"is {value!r}, which is not supported", f"one of {sorted(MODELS_BY_ROS_NAME)}")
+        return MODELS_BY_ROS_NAME[value]
+
+    def matrix(self, key: str, rows: int | None, cols: int | None) -> np.ndarray:
+        """A ``{rows, cols, data}`` matrix; ``rows``/``cols`` of None accept any positive size."""
+        shape = f"{rows if rows is not None else 'R'}x{cols if cols is not None else 'C'}"
+        expected = f"a mapping {{rows, cols, data}} holding a {shape} matrix, data row-major"
+        node = self._get(self.document, key, key, expected)
+        if not isinstance(node, dict):
+            raise self.error(key, f"is {node!r}", expected)
+        size: dict[str, int] = {}
+        for part, want in (("rows", rows), ("cols", cols)):
+            value = self._get(node, part, f"{key}.{part}", expected)
+            wrong_size = want is not None and value != want
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0 or wrong_size:
+                raise self.error(f"{key}.{part}", f"is {value!r}", str(want) if want else "a positive integer")
+            size[part] = value
+        count = size["rows"] * size["cols"]
+        data = self._get(node, "data", f"{key}.data", f"a list of {count} numbers")
+        if not isinstance(data, list) or len(data) != count:
+            found = f"has {len(data)} values" if isinstance(data, list) else f"is {data!r}"
+            raise self.error(
+                f"{key}.data", f"{found} but rows*cols = {size['rows']}*{size['cols']}", f"a list of {count} numbers"
+            )
+        numbers = [self._number(value, f"{key}.data[{i}]") for i, value in enumerate(data)]
+        return np.array(numbers, dtype=float).reshape(size["rows"], size["cols"])
+
+    def _number(self, value: Any, field: str) -> float:
+        number: float | None = None
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            number = float(value)
+        elif isinstance(value, str):
+            try:
+                number = float(value)
+            except ValueError:
+                number = None
+        if number is None or not math.isfinite(number):
+            raise self.error(field, f"is {value!r}", "a finite number")
+        return number

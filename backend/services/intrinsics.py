@@ -1,0 +1,181 @@
+"""Intrinsics workflow shared by the API, the studio and the CLI.
+
+capture or import images -> detect the board -> store captures -> solve -> store
+the result -> accept it into the rig. Routers and wizard steps call these
+functions and hold no logic of their own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.rig import Rig
+from backend.devices.image_folder import IMAGE_EXTENSIONS, natural_key
+from backend.devices.image_io import decode_image_bytes, read_image
+from backend.solvers.board_detection import Detection, detect_board
+from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
+from backend.solvers.result import ProgressCallback, no_progress
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+SLOT = "intrinsics"
+
+
+@dataclass
+class DetectedImage:
+    name: str
+    image: np.ndarray
+    detection: Detection | None
+
+
+@dataclass
+class ImportReport:
+    added: list[CaptureRecord] = field(default_factory=list)
+    skipped: list[dict[str, str]] = field(default_factory=list)
+    """``{"input": file name, "message": why}`` for images that were not stored."""
+
+
+def session_board(session: Session) -> BoardSpec:
+    if not session.board:
+        raise InputError(f"session {session.name!r} has no board spec yet; set one such as checkerboard:9x6:0.025",
+                         "board")
+    return BoardSpec.parse(session.board)
+
+
+def _no_board_message(name: str, board: BoardSpec) -> str:
+    cols, rows = board.corner_grid
+    return (f"{name}: no {board.kind} with {cols}x{rows} inner corners found; check the board spec ({board}) "
+            "and that the whole board is sharp and inside the image")
+
+
+def detect_uploads(files: list[tuple[str, bytes]], board: BoardSpec,
+                   progress: ProgressCallback = no_progress) -> list[DetectedImage]:
+    """Decode and detect every file; a corrupt file raises :class:`InputError` naming it."""
+    out = []
+    for i, (name, data) in enumerate(files):
+        progress(i / max(len(files), 1), f"detecting the board in {name}")
+        image = decode_image_bytes(data, name, grayscale=False)
+        out.append(DetectedImage(name, image, detect_board(image, board)))
+    return out
+
+
+def _check_size(session: Session, sensor: str, name: str, image: np.ndarray) -> None:
+    camera = session.rig.get(sensor)
+    if camera.kind != "camera":
+        raise InputError(f"sensor {sensor!r} is a {camera.kind}, not a camera", "sensor")
+    size = (image.shape[1], image.shape[0])
+    previous = [c.image_size for c in session.captures(sensor)[:1]]
+    expected = tuple(previous[0]) if previous else None
+    if expected and size != expected:
+        raise InputError(f"{name} is {size[0]}x{size[1]} px but earlier captures of {sensor} are "
+                         f"{expected[0]}x{expected[1]} px; all images of one camera must share one size", name)
+
+
+def store_capture(session: Session, sensor: str, image: np.ndarray, detection: Detection | None, *,
+                  device: str, timestamp_s: float, source: str | None = None,
+                  meta: dict[str, Any] | None = None) -> CaptureRecord:
+    """Keep one image (live or imported) with its board detection."""
+    _check_size(session, sensor, source or "image", image)
+    return session.add_capture(sensor, image, {
+        "timestamp_s": timestamp_s, "device": device, "source": source, "board": session.board,
+        "detection": None if detection is None else detection.to_dict(), "meta": meta or {},
+    })
+
+
+def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]], *, skip_unusable: bool = False,
+                  progress: ProgressCallback = no_progress) -> ImportReport:
+    """Add uploaded images as captures. All-or-nothing unless ``skip_unusable``.
+
+    Without ``skip_unusable`` any image without the board rejects the whole batch
+    and the session stays as it was; with it, such images are reported and skipped.
+    Corrupt files always reject the batch.
+    """
+    board = session_board(session)
+    detected = detect_uploads(files, board, progress)
+    report = ImportReport()
+    missing = [d.name for d in detected if d.detection is None]
+    if missing and not skip_unusable:
+        raise InputError(_no_board_message(", ".join(missing), board), missing[0])
+    with session.lock:
+        for d in detected:
+            _check_size(session, sensor, d.name, d.image)
+        for d in detected:
+            if d.detection is None:
+                report.skipped.append({"input": d.name, "message": _no_board_message(d.name, board)})
+                continue
+            report.added.append(store_capture(session, sensor, d.image, d.detection, device="upload",
+                                              timestamp_s=0.0, source=Path(d.name).name))
+    return report
+
+
+def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
+    """Views (captures with a detection) of one camera, and its image size."""
+    captures = [c for c in session.captures(sensor) if capture_ids is None or c.id in capture_ids]
+    views = [View(c.id, Detection.from_dict(c.detection)) for c in captures if c.detection]
+    if not captures:
+        raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)
+    return views, tuple(captures[0].image_size)
+
+
+def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, capture_ids: list[str] | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, IntrinsicsResult]:
+    """Solve from the session's captures and store the result (not yet accepted)."""
+    board = session_board(session)
+    views, size = session_views(session, sensor, capture_ids)
+    result = calibrate_intrinsics(views, board, size, settings, progress)
+    result_id = session.add_result(sensor, result.to_record(), inputs=[v.name for v in views])
+    return result_id, result
+
+
+def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
+    """Write a stored intrinsics result into the rig's camera."""
+    if record.get("kind") != "intrinsics":
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not intrinsics", "result")
+    rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
+
+
+def accept(session: Session, sensor: str, result_id: str) -> None:
+    """Make a stored result the camera's intrinsics (also how a user reverts)."""
+    record = session.result(result_id)
+    if record["sensor"] != sensor:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
+    session.accept(f"{sensor}/{SLOT}", result_id, apply_intrinsics)
+
+
+def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
+                     progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
+    """The CLI's path: every image in a folder, no session. Returns the result and skipped images."""
+    if not images_dir.is_dir():
+        raise InputError(f"{images_dir} is not a folder of images", str(images_dir))
+    files = sorted((p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                   key=lambda p: natural_key(p.name))
+    if not files:
+        raise InputError(f"{images_dir} holds no images (expected {', '.join(IMAGE_EXTENSIONS)})", str(images_dir))
+    views, skipped, size = [], [], None
+    for i, path in enumerate(files):
+        progress(0.5 * i / len(files), f"detecting the board in {path.name}")
+        image = read_image(path, grayscale=True)
+        if size is None:
+            size = (image.shape[1], image.shape[0])
+        detection = detect_board(image, board)
+        if detection is None:
+            skipped.append({"input": path.name, "message": _no_board_message(path.name, board)})
+        else:
+            views.append(View(path.name, detection))
+    if len(views) < 3 and skipped:
+        names = ", ".join(s["input"] for s in skipped[:5])
+        raise InputError(f"only {len(views)} of {len(files)} images show the board ({board}); none found in {names}"
+                         " - check the board spec and capture at least 3 views", skipped[0]["input"])
+
+    def solve_progress(fraction: float, message: str) -> None:
+        progress(0.5 + 0.5 * fraction, message)
+
+    result = calibrate_intrinsics(views, board, size, settings, solve_progress)
+    return result, skipped

@@ -1,0 +1,79 @@
+"""The simulated demo rig: ground-truth intrinsics and mounting of every sensor.
+
+The rig is rooted at ``base_link`` (x forward, y left, z up). Cameras are optical
+frames (x right, y down, z forward) mounted near the front of the body; the LiDARs
+are body-like frames (x forward, y left, z up). Everything here is ground truth the
+demo and the tests compare calibration results against.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.core.camera import CameraIntrinsics
+from backend.core.rig import Frame, Rig
+from backend.core.transforms import from_xyz_ypr
+
+DEMO_BOARD = "checkerboard:9x6:0.04"
+"""The board spec the demo and the simulated cameras use by default."""
+
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+"""Rotation taking optical axes (x right, y down, z forward) to body axes (x forward, y left, z up)."""
+
+
+def _intrinsics(fx: float, fy: float, cx: float, cy: float, dist: list[float]) -> CameraIntrinsics:
+    """A 1280x720 ``pinhole-radtan`` camera; focal lengths and centre in px."""
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return CameraIntrinsics("pinhole-radtan", 1280, 720, K, np.array(dist))
+
+
+def _mount(xyz_m: tuple[float, float, float], ypr_deg: tuple[float, float, float], optical: bool) -> np.ndarray:
+    """``T_base_sensor`` for a sensor at ``xyz_m`` (m) turned by ROS yaw, pitch, roll (deg) in the body frame.
+
+    With ``optical`` the sensor frame is an optical frame whose z axis points along
+    the turned body x axis (so zero angles look straight ahead).
+    """
+    T = from_xyz_ypr(np.array(xyz_m), np.radians(ypr_deg))
+    if optical:
+        T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
+    return T
+
+
+CAM_FRONT = _intrinsics(902.5, 899.0, 645.3, 357.8, [-0.12, 0.05, 0.0008, -0.0005, 0.0])
+"""Narrow front camera with mild barrel distortion."""
+
+CAM_WIDE = _intrinsics(520.0, 519.2, 637.6, 362.9, [-0.30, 0.09, 0.0003, 0.0004, -0.005])
+"""Wide camera with strong barrel distortion (about 117 deg horizontal field of view).
+
+``k3 = -0.005`` rather than -0.01: with -0.01 the radial map stops being monotonic
+before the image corners, so the model could not be inverted over the whole image.
+"""
+
+
+def demo_rig() -> Rig:
+    """A fresh copy of the ground-truth demo rig.
+
+    Sensors: ``cam_front`` and ``cam_wide`` (cameras, 15 cm apart, a few degrees of
+    relative rotation, driven by the ``simulated`` capture driver), ``lidar_top``
+    (3D spinning LiDAR on the roof) and ``scanner_2d`` (2D scanner low at the front).
+    The LiDARs carry no capture settings here.
+    """
+    rig = Rig("base_link")
+    cameras = {
+        "cam_front": (CAM_FRONT, (0.32, 0.06, 0.48), (1.5, 2.0, -0.8)),
+        "cam_wide": (CAM_WIDE, (0.30, -0.09, 0.46), (-6.0, 4.5, 1.2)),
+    }
+    for name, (intrinsics, xyz_m, ypr_deg) in cameras.items():
+        rig.add(
+            Frame(
+                name,
+                "base_link",
+                _mount(xyz_m, ypr_deg, optical=True),
+                kind="camera",
+                intrinsics=CameraIntrinsics.from_dict(intrinsics.to_dict()),
+                device={"driver": "simulated", "camera": name, "seed": 0},
+            )
+        )
+    rig.add(Frame("lidar_top", "base_link", _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False), kind="lidar3d"))
+    rig.add(Frame("scanner_2d", "base_link", _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False), kind="lidar2d"))
+    return rig

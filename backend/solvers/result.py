@@ -1,0 +1,33 @@
+"""The result type every solver returns.
+
+As in Open3D's registration pipelines, every solver hands back the same shape of
+result so the session store, the API, the studio and the CLI treat them alike:
+``kind`` says which solver, ``summary()`` is the CLI's JSON (the contract in
+``../shared/conventions.md``), ``to_record()`` is everything worth keeping in the
+session history (inputs, settings, statistics, diagnostics).
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+ProgressCallback = Callable[[float, str], None]
+"""Called with (fraction done in [0, 1], what is happening) during long work."""
+
+
+class SolveResult(abc.ABC):
+    kind: ClassVar[str]
+
+    @abc.abstractmethod
+    def summary(self) -> dict[str, Any]:
+        """The exact JSON object the CLI prints with ``--json``."""
+
+    @abc.abstractmethod
+    def to_record(self) -> dict[str, Any]:
+        """Everything kept in the session's result history (JSON-serialisable)."""
+
+
+def no_progress(fraction: float, message: str) -> None:
+    """A :data:`ProgressCallback` that ignores progress."""

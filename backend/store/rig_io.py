@@ -1,0 +1,45 @@
+"""Convert the numpy rig model to and from its validated on-disk form."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.core.camera import CameraIntrinsics
+from backend.core.rig import Frame, Rig
+from backend.store.schema import CameraModel, FrameModel, RigModel
+
+
+def rig_to_model(rig: Rig) -> RigModel:
+    frames = [
+        FrameModel(
+            name=f.name,
+            parent=f.parent,
+            kind=f.kind,
+            T_parent_child=f.T_parent_child.tolist(),
+            covariance=None if f.covariance is None else f.covariance.tolist(),
+            intrinsics=None if f.intrinsics is None else CameraModel(**f.intrinsics.to_dict()),
+            device=f.device,
+        )
+        for f in rig.frames.values()
+    ]
+    return RigModel(root=rig.root, frames=frames)
+
+
+def rig_from_model(model: RigModel) -> Rig:
+    """Rebuild a rig; frames are stored parents-first, so adding in order keeps the tree valid."""
+    rig = Rig(root=model.root, frames={})
+    for f in model.frames:
+        frame = Frame(
+            name=f.name,
+            parent=f.parent,
+            T_parent_child=np.array(f.T_parent_child),
+            kind=f.kind,
+            covariance=None if f.covariance is None else np.array(f.covariance),
+            intrinsics=None if f.intrinsics is None else CameraIntrinsics.from_dict(f.intrinsics.model_dump()),
+            device=f.device,
+        )
+        if f.parent is None:
+            rig.frames[f.name] = frame
+        else:
+            rig.add(frame)
+    return rig

@@ -1,0 +1,85 @@
+"""On-disk schema of a session, validated with pydantic on every load.
+
+``session.json`` holds the rig and which result is accepted for what; captures and
+results live in their own write-once files beside it. ``SCHEMA_VERSION`` is bumped
+whenever the layout changes; loading a different version says so.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field, field_validator
+
+SCHEMA_VERSION = 1
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$"
+
+
+class CameraModel(BaseModel):
+    model: Literal["pinhole-radtan", "fisheye-equidistant"]
+    width: int = Field(gt=0, description="image width (px)")
+    height: int = Field(gt=0, description="image height (px)")
+    K: list[list[float]] = Field(description="3x3 camera matrix (px), row-major")
+    dist: list[float] = Field(description="distortion coefficients in the model's OpenCV order")
+
+    @field_validator("K")
+    @classmethod
+    def _three_by_three(cls, K: list[list[float]]) -> list[list[float]]:
+        if len(K) != 3 or any(len(row) != 3 for row in K):
+            raise ValueError("K must be 3x3")
+        return K
+
+
+class FrameModel(BaseModel):
+    name: str = Field(pattern=NAME_PATTERN)
+    parent: str | None
+    kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "frame"
+    T_parent_child: list[list[float]] = Field(description="4x4 transform, translation in metres")
+    covariance: list[list[float]] | None = Field(None, description="6x6 over [t (m), r (rad)]")
+    intrinsics: CameraModel | None = None
+    device: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("T_parent_child")
+    @classmethod
+    def _four_by_four(cls, T: list[list[float]]) -> list[list[float]]:
+        if len(T) != 4 or any(len(row) != 4 for row in T):
+            raise ValueError("T_parent_child must be 4x4")
+        return T
+
+
+class RigModel(BaseModel):
+    root: str = "base_link"
+    frames: list[FrameModel]
+
+
+class Acceptance(BaseModel):
+    """One entry of the acceptance log: which result became current for which slot, when."""
+
+    slot: str = Field(description="what the result calibrates, e.g. 'cam_front/intrinsics'")
+    result_id: str
+    at: float = Field(description="seconds since the epoch")
+
+
+class SessionFile(BaseModel):
+    schema_version: int
+    name: str = Field(pattern=NAME_PATTERN)
+    title: str = ""
+    created: float
+    board: str | None = None
+    rig: RigModel
+    accepted: dict[str, str] = Field(default_factory=dict, description="slot -> result id")
+    acceptance_log: list[Acceptance] = Field(default_factory=list)
+
+
+class CaptureRecord(BaseModel):
+    """Metadata of one capture (its image sits beside it as ``<id>.png``)."""
+
+    id: str
+    sensor: str
+    timestamp_s: float
+    device: str
+    source: str | None = Field(None, description="original file name of an upload or import")
+    image_size: tuple[int, int] | None = Field(None, description="(width, height) px")
+    board: str | None = None
+    detection: dict[str, Any] | None = None
+    meta: dict[str, Any] = Field(default_factory=dict)

@@ -1,0 +1,245 @@
+"""A session: one folder holding a rig, its captures and every solve result.
+
+Layout::
+
+    <root>/<name>/session.json                    rig, board, accepted results (atomic rewrite)
+    <root>/<name>/captures/<sensor>/<id>.png      captured image (write-once)
+    <root>/<name>/captures/<sensor>/<id>.json     capture metadata (write-once)
+    <root>/<name>/results/<id>.json               one solve result each (write-once)
+
+Nothing is ever overwritten but ``session.json``, and that only atomically, so
+captures and results survive crashes, and accepting an older result (revert) is
+just another entry in the acceptance log.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from backend.core.errors import InputError, NotFoundError
+from backend.core.rig import Frame, Rig
+from backend.devices.image_io import encode_png, read_image
+from backend.store.atomic import write_bytes_atomic, write_json_atomic
+from backend.store.rig_io import rig_from_model, rig_to_model
+from backend.store.schema import NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
+
+SESSION_FILE = "session.json"
+
+
+def _validation_message(path: Path, error: ValidationError) -> str:
+    first = error.errors()[0]
+    field = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    return f"{path}: field '{field}': {first['msg']}"
+
+
+def check_name(name: str, what: str) -> str:
+    """Reject names that could escape a folder or break a file name."""
+    import re
+
+    if not re.match(NAME_PATTERN, name or ""):
+        raise InputError(f"{what} {name!r} must be 1-64 letters, digits, '_' or '-', starting with a letter or digit",
+                         what)
+    return name
+
+
+class Session:
+    """An open session. Methods are thread-safe; the studio and the API share instances."""
+
+    def __init__(self, path: Path, data: SessionFile):
+        self.path = path
+        self._data = data
+        self.rig: Rig = rig_from_model(data.rig)
+        self.lock = threading.RLock()
+
+    # -- the session file -------------------------------------------------------------
+    @classmethod
+    def load(cls, path: Path) -> Session:
+        """Open a session folder, validating its schema and saying what is wrong."""
+        file = path / SESSION_FILE
+        try:
+            raw = json.loads(file.read_text())
+        except FileNotFoundError:
+            raise NotFoundError(f"no session at {path} (missing {SESSION_FILE})", str(path)) from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{file}: not valid JSON ({exc}); the file is corrupt", str(file)) from None
+        version = raw.get("schema_version") if isinstance(raw, dict) else None
+        if version != SCHEMA_VERSION:
+            raise InputError(f"{file}: field 'schema_version' is {version!r}, expected {SCHEMA_VERSION}", str(file))
+        try:
+            data = SessionFile.model_validate(raw)
+            return cls(path, data)
+        except ValidationError as exc:
+            raise InputError(_validation_message(file, exc), str(file)) from None
+
+    @classmethod
+    def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None, title: str = "") -> Session:
+        data = SessionFile(schema_version=SCHEMA_VERSION, name=name, title=title, created=time.time(),
+                           board=board, rig=rig_to_model(rig or Rig()))
+        path.mkdir(parents=True, exist_ok=False)
+        session = cls(path, data)
+        session.save()
+        return session
+
+    def save(self) -> None:
+        """Write ``session.json`` atomically from the current rig and acceptance state."""
+        with self.lock:
+            self._data.rig = rig_to_model(self.rig)
+            write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
+
+    @property
+    def name(self) -> str:
+        return self._data.name
+
+    @property
+    def board(self) -> str | None:
+        return self._data.board
+
+    def set_board(self, spec: str) -> None:
+        with self.lock:
+            self._data.board = spec
+            self.save()
+
+    def info(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "title": self._data.title,
+            "created": self._data.created,
+            "board": self.board,
+            "sensors": [f.name for f in self.rig.sensors()],
+            "accepted": dict(self._data.accepted),
+        }
+
+    # -- sensors ----------------------------------------------------------------------
+    def add_sensor(self, frame: Frame) -> Frame:
+        with self.lock:
+            check_name(frame.name, "sensor")
+            self.rig.add(frame)
+            self.save()
+            return frame
+
+    # -- captures ---------------------------------------------------------------------
+    def _capture_dir(self, sensor: str) -> Path:
+        self.rig.get(sensor)
+        return self.path / "captures" / sensor
+
+    def add_capture(self, sensor: str, image: np.ndarray, record: dict[str, Any]) -> CaptureRecord:
+        """Store an image and its metadata under a fresh, never-reused id."""
+        with self.lock:
+            folder = self._capture_dir(sensor)
+            folder.mkdir(parents=True, exist_ok=True)
+            number = len(list(folder.glob("*.json"))) + 1
+            while True:
+                capture_id = f"{number:05d}"
+                try:
+                    write_bytes_atomic(folder / f"{capture_id}.png", encode_png(image), exclusive=True)
+                    break
+                except FileExistsError:
+                    number += 1
+            capture = CaptureRecord(id=capture_id, sensor=sensor, image_size=(image.shape[1], image.shape[0]),
+                                    **record)
+            write_json_atomic(folder / f"{capture_id}.json", capture.model_dump(mode="json"), exclusive=True)
+            return capture
+
+    def captures(self, sensor: str) -> list[CaptureRecord]:
+        folder = self._capture_dir(sensor)
+        records = []
+        for meta in sorted(folder.glob("*.json")):
+            try:
+                records.append(CaptureRecord.model_validate_json(meta.read_text()))
+            except ValidationError as exc:
+                raise InputError(_validation_message(meta, exc), str(meta)) from None
+        return records
+
+    def capture_image(self, sensor: str, capture_id: str) -> np.ndarray:
+        check_name(capture_id, "capture")
+        path = self._capture_dir(sensor) / f"{capture_id}.png"
+        if not path.exists():
+            raise NotFoundError(f"no capture {capture_id!r} for sensor {sensor!r}", "capture")
+        return read_image(path)
+
+    # -- results ----------------------------------------------------------------------
+    def add_result(self, sensor: str, record: dict[str, Any], inputs: list[str]) -> str:
+        """Store a solve result as a new versioned record and return its id."""
+        with self.lock:
+            folder = self.path / "results"
+            folder.mkdir(exist_ok=True)
+            number = len(list(folder.glob("*.json"))) + 1
+            while True:
+                result_id = f"r{number:04d}"
+                full = {"id": result_id, "sensor": sensor, "created": time.time(), "inputs": inputs, **record}
+                try:
+                    write_json_atomic(folder / f"{result_id}.json", full, exclusive=True)
+                    return result_id
+                except FileExistsError:
+                    number += 1
+
+    def results(self, sensor: str | None = None, kind: str | None = None) -> list[dict[str, Any]]:
+        """All stored results, oldest first, optionally for one sensor and kind."""
+        out = []
+        for path in sorted((self.path / "results").glob("r*.json")):
+            record = json.loads(path.read_text())
+            if (sensor is None or record["sensor"] == sensor) and (kind is None or record["kind"] == kind):
+                out.append(record)
+        return out
+
+    def result(self, result_id: str) -> dict[str, Any]:
+        check_name(result_id, "result")
+        path = self.path / "results" / f"{result_id}.json"
+        if not path.exists():
+            raise NotFoundError(f"no result {result_id!r} in session {self.name!r}", "result")
+        return json.loads(path.read_text())
+
+    def accepted(self, slot: str) -> str | None:
+        return self._data.accepted.get(slot)
+
+    @property
+    def acceptance_log(self) -> list[Acceptance]:
+        return list(self._data.acceptance_log)
+
+    def accept(self, slot: str, result_id: str, apply: callable) -> None:
+        """Make ``result_id`` current for ``slot``; ``apply(rig, record)`` writes it into the rig.
+
+        Accepting an older result is how a user reverts; the log keeps every step.
+        """
+        with self.lock:
+            record = self.result(result_id)
+            apply(self.rig, record)
+            self._data.accepted[slot] = result_id
+            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=time.time()))
+            self.save()
+
+
+class SessionStore:
+    """All sessions under one root folder, opened once and shared."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._open: dict[str, Session] = {}
+        self._lock = threading.Lock()
+
+    def names(self) -> list[str]:
+        return sorted(p.name for p in self.root.iterdir() if (p / SESSION_FILE).exists())
+
+    def get(self, name: str) -> Session:
+        check_name(name, "session")
+        with self._lock:
+            if name not in self._open:
+                self._open[name] = Session.load(self.root / name)
+            return self._open[name]
+
+    def create(self, name: str, rig: Rig | None = None, board: str | None = None, title: str = "") -> Session:
+        check_name(name, "session")
+        with self._lock:
+            if (self.root / name).exists():
+                raise InputError(f"a session named {name!r} already exists in {self.root}", "name", 409)
+            session = Session.create(self.root / name, name, rig, board, title)
+            self._open[name] = session
+            return session
