@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import ROS_DISTORTION_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
 from backend.core.transforms import from_xyz_ypr, to_quaternion_xyzw
@@ -73,9 +73,7 @@ def test_ros_camera_info_layout(camera: CameraIntrinsics) -> None:
     assert list(document) == ROS_KEYS
     assert document["image_width"] == camera.width and document["image_height"] == camera.height
     assert document["camera_name"] == "narrow_stereo/left"
-    assert document["distortion_model"] == {"pinhole-radtan": "plumb_bob", "fisheye-equidistant": "equidistant"}[
-        camera.model
-    ]
+    assert document["distortion_model"] == ROS_DISTORTION_NAMES[camera.model]
     shapes = {
         "camera_matrix": (3, 3),
         "distortion_coefficients": (1, camera.dist.size),

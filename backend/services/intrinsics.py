@@ -106,6 +106,12 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     with session.lock:
         for d in detected:
             _check_size(session, sensor, d.name, d.image)
+            # also within the batch, so a camera's first upload cannot be half stored
+            first = detected[0]
+            if d.image.shape[:2] != first.image.shape[:2]:
+                raise InputError(f"{d.name} is {d.image.shape[1]}x{d.image.shape[0]} px but {first.name} in the same "
+                                 f"upload is {first.image.shape[1]}x{first.image.shape[0]} px; all images of one "
+                                 "camera must share one size", d.name)
         for d in detected:
             if d.detection is None:
                 report.skipped.append({"input": d.name, "message": _no_board_message(d.name, board)})
@@ -169,10 +175,11 @@ def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSet
             skipped.append({"input": path.name, "message": _no_board_message(path.name, board)})
         else:
             views.append(View(path.name, detection))
-    if len(views) < 3 and skipped:
-        names = ", ".join(s["input"] for s in skipped[:5])
-        raise InputError(f"only {len(views)} of {len(files)} images show the board ({board}); none found in {names}"
-                         " - check the board spec and capture at least 3 views", skipped[0]["input"])
+    if skipped and (len(views) < 3 or len(skipped) > len(files) / 2):
+        names = ", ".join(s["input"] for s in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+        raise InputError(f"only {len(views)} of {len(files)} images show the board {board} (none in {names}); "
+                         "check the board spec (inner corners for checkerboards, squares for ChArUco) and capture at "
+                         "least 3 sharp views of the whole board", skipped[0]["input"])
 
     def solve_progress(fraction: float, message: str) -> None:
         progress(0.5 + 0.5 * fraction, message)

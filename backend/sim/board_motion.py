@@ -14,10 +14,11 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
 from backend.sim.board_renderer import plate_corners_m
-from backend.sim.camera_rays import ray_field
+from backend.sim.camera_rays import ray_field, undistort_exact
 
-_GRID = 3
-"""The image is split into _GRID x _GRID cells; every _GRID**2 poses visit each cell once."""
+_CELL_EDGES = np.array([0.0, 0.08, 0.92, 1.0])
+"""Along each axis (as fractions of the image size), the target for the board centre is
+drawn from one of three bands: at one border, in the middle, at the other border."""
 _MAX_ATTEMPTS = 60
 
 
@@ -32,10 +33,7 @@ def plate_in_view(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np
     The plate outline is sampled densely, since distortion bends its straight
     edges, and must stay ``margin_px`` (px) inside the image border.
     """
-    corners = plate_corners_m(board)
-    t = np.linspace(0.0, 1.0, 24, endpoint=False)[:, None]
-    outline_board = np.concatenate([a + t * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0))])
-    outline_camera = transform_points(T_camera_board, outline_board)
+    outline_camera = transform_points(T_camera_board, _plate_outline(board))
     if np.any(outline_camera[:, 2] <= 0.05):
         return False
     normalised = outline_camera[:, :2] / outline_camera[:, 2:]
@@ -62,64 +60,103 @@ def board_poses(
     """``n`` poses ``T_camera_board`` (4x4, m) of a board waved in front of ``camera``; deterministic by ``seed``.
 
     Each pose draws how much of the image width the printed board fills (``fill``,
-    which sets the distance), tilts about the board's x and y axes (up to
-    ``max_tilt_deg``, relative to facing the camera squarely along the line of
-    sight) and an in-plane rotation (up to ``max_roll_deg``). The board centre is
-    placed in one of 3x3 image cells, every cell once per nine poses, anywhere the
-    board fits, so small boards reach the image corners. A pose whose plate would
-    leave the image (checked by :func:`plate_in_view`) is moved back and towards
-    the centre until it fits.
+    which sets the distance: about 0.4 to 1.9 m for the 0.4 m demo board in
+    ``cam_front``), tilts about the board's x and y axes (up to ``max_tilt_deg``,
+    relative to squarely facing the camera along the line of sight), an in-plane
+    rotation (up to ``max_roll_deg``) and a target pixel for the board centre in
+    one of 3x3 image cells (see ``_CELL_EDGES``; each cell once per nine poses).
+    The board slides from the image centre towards the target as far as it stays
+    wholly in view (:func:`plate_in_view`), so boards aimed at a corner end up
+    touching it; a board too large to fit even at the centre is moved back until
+    it does. The first ``k`` poses do not depend on ``n``.
     """
     rng = np.random.default_rng(seed)
-    plate = plate_corners_m(board)
-    plate_size_m = plate[2, :2] - plate[0, :2]
-    centre_board = np.append(plate[0, :2] + plate_size_m / 2, 0.0)
     poses: list[np.ndarray] = []
-    for i in range(n):
-        if i % _GRID**2 == 0:
-            cells = rng.permutation(_GRID**2)
-        cell = np.array([cells[i % _GRID**2] % _GRID, cells[i % _GRID**2] // _GRID])
-        spot = (cell + rng.uniform(size=2)) / _GRID
+    cells: list[int] = []
+    for _ in range(n):
+        if not cells:
+            cells = rng.permutation(9).tolist()
+        cell_index = cells.pop()
+        low = _CELL_EDGES[[cell_index % 3, cell_index // 3]]
+        high = _CELL_EDGES[[cell_index % 3 + 1, cell_index // 3 + 1]]
+        target_px = rng.uniform(low, high) * [camera.width - 1, camera.height - 1]
         fill_fraction = rng.uniform(*fill)
-        tilt = np.radians([rng.uniform(-max_tilt_deg, max_tilt_deg), rng.uniform(-max_tilt_deg, max_tilt_deg)])
+        tilt = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
+        # In a border cell, the board's outer edge leans away from the camera (tilt about
+        # board x: +y edge recedes for positive angles; about board y: +x edge for negative).
+        side = np.array([cell_index // 3 - 1, 1 - cell_index % 3])
+        tilt = np.where(side != 0, side * np.abs(tilt), tilt)
         roll = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
         R_facing_board = Rotation.from_euler("XYZ", [tilt[0], tilt[1], roll]).as_matrix()
         for _ in range(_MAX_ATTEMPTS):
-            T = _place(camera, plate_size_m, centre_board, fill_fraction, spot, R_facing_board)
-            if plate_in_view(camera, board, T, margin_px):
+            distance_m = camera.K[0, 0] * board.size_m[0] / (fill_fraction * camera.width)
+            T = _place(camera, board, distance_m, R_facing_board, target_px, margin_px)
+            if T is not None:
                 break
             fill_fraction *= 0.95
-            spot = 0.5 + 0.95 * (spot - 0.5)
         else:
             raise ValueError(f"cannot fit board {board} in the {camera.width}x{camera.height} image")
         poses.append(T)
     return poses
 
 
+def _plate_outline(board: BoardSpec, per_edge: int = 24) -> np.ndarray:
+    """(4 * per_edge, 3) board-frame points (m) evenly along the plate's edge."""
+    corners = plate_corners_m(board)
+    t = np.linspace(0.0, 1.0, per_edge, endpoint=False)[:, None]
+    return np.concatenate([a + t * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)])
+
+
 def _place(
     camera: CameraIntrinsics,
-    plate_size_m: np.ndarray,
-    centre_board: np.ndarray,
-    fill_fraction: float,
-    spot: np.ndarray,
+    board: BoardSpec,
+    distance_m: float,
     R_facing_board: np.ndarray,
-) -> np.ndarray:
-    """``T_camera_board`` with the plate centre on the ray through ``spot`` (fractions of the free image area).
+    target_px: np.ndarray,
+    margin_px: float,
+) -> np.ndarray | None:
+    """``T_camera_board`` with the plate centre about ``distance_m`` (m) away, as close to pixel ``target_px`` as fits.
 
-    The distance makes the plate ``fill_fraction`` of the image width wide (pinhole
-    approximation); ``R_facing_board`` turns the board away from squarely facing
-    the camera along that ray.
+    Before ``R_facing_board`` turns it, the board squarely faces the camera along
+    the ray of ``target_px``. It then slides, at a fixed depth and orientation,
+    from the image centre towards ``target_px`` until the plate would leave the
+    view, then along x alone and along y alone, so a board aimed at a corner ends up
+    in it. None if the plate does not fit even at the image centre.
     """
-    focal_px = camera.K[0, 0]
-    width_px = fill_fraction * camera.width
-    distance_m = focal_px * plate_size_m[0] / width_px
-    half_px = 0.5 * np.array([width_px, width_px * plate_size_m[1] / plate_size_m[0]])
-    image_px = np.array([camera.width - 1.0, camera.height - 1.0])
-    low, high = half_px, np.maximum(image_px - half_px, half_px)
-    centre_px = low + spot * (high - low)
-    direction = camera.rays(centre_px[None, :])[0]
-    x_axis = np.array([1.0, 0.0, 0.0]) - direction[0] * direction
+    centre_board = plate_corners_m(board).mean(axis=0)
+    target_ray = _unit_ray(camera, target_px)
+    x_axis = np.array([1.0, 0.0, 0.0]) - target_ray[0] * target_ray
     x_axis /= np.linalg.norm(x_axis)
-    R_camera_facing = np.column_stack([x_axis, np.cross(direction, x_axis), direction])
-    R_camera_board = R_camera_facing @ R_facing_board
-    return make_T(R_camera_board, distance_m * direction - R_camera_board @ centre_board)
+    R_camera_board = np.column_stack([x_axis, np.cross(target_ray, x_axis), target_ray]) @ R_facing_board
+    depth_m = distance_m * target_ray[2]
+
+    def pose(centre_px: np.ndarray) -> np.ndarray:
+        ray = _unit_ray(camera, centre_px)
+        return make_T(R_camera_board, depth_m / ray[2] * ray - R_camera_board @ centre_board)
+
+    def slide(start_px: np.ndarray, end_px: np.ndarray) -> np.ndarray:
+        """The point furthest towards ``end_px`` (bisection) at which the plate is still in view."""
+        if plate_in_view(camera, board, pose(end_px), margin_px):
+            return end_px
+        fits, leaves = 0.0, 1.0
+        for _ in range(10):
+            middle = 0.5 * (fits + leaves)
+            if plate_in_view(camera, board, pose(start_px + middle * (end_px - start_px)), margin_px):
+                fits = middle
+            else:
+                leaves = middle
+        return start_px + fits * (end_px - start_px)
+
+    centre_px = np.array([camera.width - 1.0, camera.height - 1.0]) / 2
+    if not plate_in_view(camera, board, pose(centre_px), margin_px):
+        return None
+    centre_px = slide(centre_px, target_px)
+    centre_px = slide(centre_px, np.array([target_px[0], centre_px[1]]))
+    centre_px = slide(centre_px, np.array([centre_px[0], target_px[1]]))
+    return pose(centre_px)
+
+
+def _unit_ray(camera: CameraIntrinsics, pixel: np.ndarray) -> np.ndarray:
+    """Unit viewing ray (3,) in the optical frame through a distorted ``pixel`` (px)."""
+    ray = np.append(undistort_exact(camera, pixel[None, :])[0], 1.0)
+    return ray / np.linalg.norm(ray)

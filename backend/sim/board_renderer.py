@@ -23,6 +23,7 @@ import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
+from backend.core.transforms import transform_points
 from backend.sim.camera_rays import RayField, ray_field
 
 PLATE_MARGIN_SQUARES = 1.0
@@ -41,8 +42,8 @@ class _PlateTexture:
     """Mip-mapped texture of the plate: per level (h, w, 2) uint16 of premultiplied reflectance and coverage."""
 
     levels: tuple[np.ndarray, ...]
-    origin_m: np.ndarray
-    """Board-frame (x, y) of the plate's outer top-left corner (m)."""
+    corners_m: np.ndarray
+    """(4, 3) board-frame plate corners (m), as :func:`plate_corners_m`."""
     texels_per_m: float
     """Texels per metre of level 0."""
 
@@ -94,7 +95,8 @@ def render_board_image(
     if plate is not None:
         premultiplied, coverage, rows, cols = plate
         reflectance[rows, cols] = reflectance[rows, cols] * (1.0 - coverage) + premultiplied
-    radiance = reflectance * _illumination(camera.width, camera.height, brightness, gradient, gradient_angle, vignetting)
+    illumination = _illumination(camera.width, camera.height, brightness, gradient, gradient_angle, vignetting)
+    radiance = reflectance * illumination
     if blur_px > 0:
         radiance = cv2.GaussianBlur(radiance, (0, 0), blur_px)
     radiance += noise_sigma * rng.standard_normal(radiance.shape, dtype=np.float32)
@@ -106,60 +108,70 @@ def _render_plate(
 ) -> tuple[np.ndarray, np.ndarray, slice, slice] | None:
     """Premultiplied reflectance and coverage (both (h, w) float32) of the plate over its pixel box.
 
-    Returns None when the plate is not visible from the front.
+    Returns None unless the printed side faces the camera and the whole plate is in
+    front of it (z > 0 in the optical frame).
     """
-    R_board_camera = T_camera_board[:3, :3].T
-    t_board_camera = -R_board_camera @ T_camera_board[:3, 3]
-    if t_board_camera[2] >= 0:
+    plate_camera = transform_points(T_camera_board, texture.corners_m)
+    t_board_camera = -T_camera_board[:3, :3].T @ T_camera_board[:3, 3]
+    if t_board_camera[2] >= 0 or np.any(plate_camera[:, 2] <= 0):
         return None
-    box = _plate_pixel_box(rays, texture, R_board_camera, t_board_camera)
+    H_texel_ray = _texel_homography(texture, T_camera_board)
+    box = _plate_pixel_box(rays, texture, H_texel_ray)
     if box is None:
         return None
     rows, cols = box
     s = rays.supersample
-    sub_rows, sub_cols = slice(rows.start * s, rows.stop * s), slice(cols.start * s, cols.stop * s)
-    tex_u, tex_v = _texel_coordinates(
-        rays.x[sub_rows, sub_cols], rays.y[sub_rows, sub_cols], texture, R_board_camera, t_board_camera
-    )
-    level = _mip_level(tex_u, tex_v, len(texture.levels))
-    sampled = np.zeros((*tex_u.shape, 2), np.float32)
+    sub_xy = rays.xy[rows.start * s : rows.stop * s, cols.start * s : cols.stop * s]
+    h, w = rows.stop - rows.start, cols.stop - cols.start
+    level = _mip_level(cv2.perspectiveTransform(np.ascontiguousarray(sub_xy[::s, ::s]), H_texel_ray), s, texture)
+    pixels = np.zeros((h, w, 2), np.float32)
     for k in range(int(np.floor(level.min())), int(np.ceil(level.max())) + 1):
         weight = np.clip(1.0 - np.abs(level - k), 0.0, 1.0)
-        scale = np.float32(0.5**k)
-        map_u, map_v = (tex_u + 0.5) * scale - 0.5, (tex_v + 0.5) * scale - 0.5
-        lookup = cv2.remap(texture.levels[k], map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        sampled += weight[..., None] * lookup
-    h, w = rows.stop - rows.start, cols.stop - cols.start
-    pixels = sampled.reshape(h, s, w, s, 2).mean(axis=(1, 3)) / _MAX_LEVEL_VALUE
+        used_rows, used_cols = (np.flatnonzero(np.any(weight > 0, axis=axis)) for axis in (1, 0))
+        if used_rows.size == 0:
+            continue
+        r, c = slice(used_rows[0], used_rows[-1] + 1), slice(used_cols[0], used_cols[-1] + 1)
+        # Texel centres of level k sit at level-0 coordinates (i + 0.5) * 2**k - 0.5.
+        scale = 0.5**k
+        H_level_ray = np.array([[scale, 0, 0.5 * scale - 0.5], [0, scale, 0.5 * scale - 0.5], [0, 0, 1]]) @ H_texel_ray
+        texel_map = cv2.perspectiveTransform(sub_xy[r.start * s : r.stop * s, c.start * s : c.stop * s], H_level_ray)
+        lookup = cv2.remap(texture.levels[k], texel_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        box_size = (c.stop - c.start, r.stop - r.start)
+        pixels[r, c] += weight[r, c, None] * cv2.resize(lookup, box_size, interpolation=cv2.INTER_AREA)
+    pixels /= _MAX_LEVEL_VALUE
     return pixels[..., 0], pixels[..., 1], rows, cols
 
 
-def _board_hits(
-    x: np.ndarray, y: np.ndarray, R_board_camera: np.ndarray, t_board_camera: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Board-frame (x, y) (m) where rays with normalised coordinates (x, y) meet z = 0, and which rays do.
+def _texel_homography(texture: _PlateTexture, T_camera_board: np.ndarray) -> np.ndarray:
+    """3x3 homography from normalised image coordinates (x/z, y/z) to level-0 texel coordinates.
 
-    Arithmetic stays in the dtype of ``x`` and ``y``.
+    Texel centres are at integer coordinates. Rays meeting the board plane behind the
+    camera map to points that are not on the plate, as long as the plate is wholly
+    in front of the camera.
     """
-    R, t = R_board_camera.tolist(), t_board_camera.tolist()
-    direction = [R[i][0] * x + R[i][1] * y + R[i][2] for i in range(3)]
-    hits = direction[2] > 0
-    distance = np.where(hits, -t[2] / np.where(hits, direction[2], 1), 0)
-    return t[0] + distance * direction[0], t[1] + distance * direction[1], hits
+    R_board_camera = T_camera_board[:3, :3].T
+    t_board_camera = -R_board_camera @ T_camera_board[:3, 3]
+    # A ray d meets z = 0 at t + lambda * R d with lambda = -t_z / (R d)_z, so the hit
+    # point is ((t_x R_z - t_z R_x) d, (t_y R_z - t_z R_y) d) / (R_z d).
+    r_x, r_y, r_z = R_board_camera
+    t_x, t_y, t_z = t_board_camera
+    H_board_ray = np.array([t_x * r_z - t_z * r_x, t_y * r_z - t_z * r_y, r_z])
+    texel = texture.texels_per_m
+    (x0, y0), offset = texture.corners_m[0, :2], -0.5
+    H_texel_board = np.array([[texel, 0, offset - x0 * texel], [0, texel, offset - y0 * texel], [0, 0, 1]])
+    return H_texel_board @ H_board_ray
 
 
-def _plate_pixel_box(
-    rays: RayField, texture: _PlateTexture, R_board_camera: np.ndarray, t_board_camera: np.ndarray
-) -> tuple[slice, slice] | None:
+def _plate_pixel_box(rays: RayField, texture: _PlateTexture, H_texel_ray: np.ndarray) -> tuple[slice, slice] | None:
     """Row and column slices (px) of the image that hold the plate, found on the coarse ray nodes."""
-    bx, by, hits = _board_hits(rays.node_xy[..., 0], rays.node_xy[..., 1], R_board_camera, t_board_camera)
-    size_m = np.array(texture.levels[0].shape[1::-1]) / texture.texels_per_m
-    inside = hits & (bx >= texture.origin_m[0]) & (by >= texture.origin_m[1])
-    inside &= (bx <= texture.origin_m[0] + size_m[0]) & (by <= texture.origin_m[1] + size_m[1])
+    texel_uv = cv2.perspectiveTransform(rays.node_xy, H_texel_ray)
+    height_tex, width_tex = texture.levels[0].shape[:2]
+    inside = (texel_uv[..., 0] >= -0.5) & (texel_uv[..., 0] <= width_tex - 0.5)
+    inside &= (texel_uv[..., 1] >= -0.5) & (texel_uv[..., 1] <= height_tex - 0.5)
     node_rows, node_cols = np.nonzero(inside)
     if node_rows.size == 0:
         return None
-    height, width = rays.x.shape[0] // rays.supersample, rays.x.shape[1] // rays.supersample
+    height, width = rays.xy.shape[0] // rays.supersample, rays.xy.shape[1] // rays.supersample
     v0 = rays.node_v[max(node_rows.min() - 1, 0)]
     v1 = rays.node_v[min(node_rows.max() + 1, len(rays.node_v) - 1)]
     u0 = rays.node_u[max(node_cols.min() - 1, 0)]
@@ -171,27 +183,21 @@ def _plate_pixel_box(
     return rows, cols
 
 
-def _texel_coordinates(
-    x: np.ndarray, y: np.ndarray, texture: _PlateTexture, R_board_camera: np.ndarray, t_board_camera: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Level-0 texel coordinates (texel centres at integers, float32) of the rays' board hits.
+def _mip_level(texel_uv: np.ndarray, supersample: int, texture: _PlateTexture) -> np.ndarray:
+    """Fractional mip level (float32, per pixel) whose texel spans one sub-pixel's footprint (longer axis).
 
-    Rays that miss the plane get coordinates outside the texture; all are clamped to
-    a band around it so the remap stays in range.
+    ``texel_uv`` (h, w, 2) holds level-0 texel coordinates at pixel spacing. The
+    range of levels is that of the pixels that see the plate; the other pixels
+    (whose footprint may be meaningless near the horizon) are clamped into it.
     """
-    bx, by, hits = _board_hits(x, y, R_board_camera, t_board_camera)
+    d_drow, d_dcol = np.gradient(texel_uv, axis=(0, 1))
+    footprint_sq = np.maximum(np.sum(d_dcol**2, axis=2), np.sum(d_drow**2, axis=2))
+    level = 0.5 * np.log2(np.maximum(footprint_sq, 1e-12)) - np.log2(supersample)
     height, width = texture.levels[0].shape[:2]
-    u = np.where(hits, (bx - texture.origin_m[0]) * texture.texels_per_m - 0.5, -8.0)
-    v = np.where(hits, (by - texture.origin_m[1]) * texture.texels_per_m - 0.5, -8.0)
-    return np.clip(u, -8.0, width + 8.0).astype(np.float32), np.clip(v, -8.0, height + 8.0).astype(np.float32)
-
-
-def _mip_level(tex_u: np.ndarray, tex_v: np.ndarray, n_levels: int) -> np.ndarray:
-    """Fractional mip level (float32) whose texel spans one sub-pixel's footprint (longer axis)."""
-    du_dcol, du_drow = np.gradient(tex_u)
-    dv_dcol, dv_drow = np.gradient(tex_v)
-    footprint_sq = np.maximum(du_dcol**2 + dv_dcol**2, du_drow**2 + dv_drow**2)
-    return np.clip(0.5 * np.log2(np.maximum(footprint_sq, 1e-12)), 0.0, n_levels - 1.0)
+    u, v = texel_uv[..., 0], texel_uv[..., 1]
+    on_plate = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
+    lowest, highest = (level[on_plate].min(), level[on_plate].max()) if on_plate.any() else (0.0, 0.0)
+    return np.clip(level, max(lowest, 0.0), min(highest, len(texture.levels) - 1.0))
 
 
 def _plate_texture(board: BoardSpec) -> _PlateTexture:
@@ -211,7 +217,7 @@ def _plate_texture_cached(spec: str) -> _PlateTexture:
     for _ in range(int(np.log2(TEXELS_PER_SQUARE))):
         level = cv2.resize(level, (level.shape[1] // 2, level.shape[0] // 2), interpolation=cv2.INTER_AREA)
         levels.append(level)
-    return _PlateTexture(tuple(levels), plate_corners_m(board)[0, :2], TEXELS_PER_SQUARE / board.square_m)
+    return _PlateTexture(tuple(levels), plate_corners_m(board), TEXELS_PER_SQUARE / board.square_m)
 
 
 def _background(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
@@ -222,7 +228,7 @@ def _background(rng: np.random.Generator, width: int, height: int) -> np.ndarray
         reflectance += amplitude * cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
     horizon = rng.uniform(0.2, 0.8) * height
     rows = np.arange(height, dtype=np.float32)[:, None]
-    step = 1.0 / (1.0 + np.exp((horizon - rows) / 6.0))
+    step = 0.5 + 0.5 * np.tanh((rows - horizon) / 12.0)
     reflectance += rng.uniform(-0.12, 0.12) * step
     return np.clip(reflectance, 0.05, 0.9)
 

@@ -32,10 +32,8 @@ class RayField:
     """
 
     supersample: int
-    x: np.ndarray
-    """(s*H, s*W) float32 normalised x of each sub-pixel ray."""
-    y: np.ndarray
-    """(s*H, s*W) float32 normalised y of each sub-pixel ray."""
+    xy: np.ndarray
+    """(s*H, s*W, 2) float32 normalised coordinates (x/z, y/z) of each sub-pixel ray."""
     node_u: np.ndarray
     """(nu,) pixel x of the coarse nodes (px); they extend two steps beyond the image."""
     node_v: np.ndarray
@@ -89,13 +87,12 @@ def _ray_field_cached(key: tuple) -> RayField:
     node_xy = undistort_exact(camera, np.column_stack([grid_u.ravel(), grid_v.ravel()])).reshape(len(node_v), -1, 2)
     sub_u = (np.arange(width * supersample) + 0.5) / supersample - 0.5
     sub_v = (np.arange(height * supersample) + 0.5) / supersample - 0.5
-    x, y = (
-        RectBivariateSpline(node_v, node_u, node_xy[..., i], kx=3, ky=3)(sub_v, sub_u).astype(np.float32)
-        for i in range(2)
-    )
+    xy = np.dstack(
+        [RectBivariateSpline(node_v, node_u, node_xy[..., i], kx=3, ky=3)(sub_v, sub_u) for i in range(2)]
+    ).astype(np.float32)
     corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]], dtype=float)
     visible_radius = float(np.max(np.linalg.norm(undistort_exact(camera, corners), axis=1)))
-    return RayField(supersample, x, y, node_u, node_v, node_xy, visible_radius)
+    return RayField(supersample, xy, node_u, node_v, node_xy, visible_radius)
 
 
 def _project_normalised(camera: CameraIntrinsics, xy: np.ndarray) -> np.ndarray:

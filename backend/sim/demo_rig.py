@@ -42,11 +42,14 @@ def _mount(xyz_m: tuple[float, float, float], ypr_deg: tuple[float, float, float
 CAM_FRONT = _intrinsics(902.5, 899.0, 645.3, 357.8, [-0.12, 0.05, 0.0008, -0.0005, 0.0])
 """Narrow front camera with mild barrel distortion."""
 
-CAM_WIDE = _intrinsics(520.0, 519.2, 637.6, 362.9, [-0.30, 0.09, 0.0003, 0.0004, -0.005])
-"""Wide camera with strong barrel distortion (about 117 deg horizontal field of view).
+CAM_WIDE = _intrinsics(520.0, 519.2, 637.6, 362.9, [-0.25, 0.0925, 0.0003, 0.0004, -0.0115])
+"""Wide camera with strong barrel distortion (about 116 deg horizontal field of view).
 
-``k3 = -0.005`` rather than -0.01: with -0.01 the radial map stops being monotonic
-before the image corners, so the model could not be inverted over the whole image.
+The radial polynomial is chosen so its slope falls steadily out to the image
+corners (where the image is compressed to about 0.64 of the pinhole scale) and the
+map does not fold over until 6 % beyond them. With ``k1 = -0.30, k2 = 0.09,
+k3 = -0.01`` at this focal length it folds before the image corners, so those
+pixels would have no ray at all.
 """
 
 
@@ -74,6 +77,8 @@ def demo_rig() -> Rig:
                 device={"driver": "simulated", "camera": name, "seed": 0},
             )
         )
-    rig.add(Frame("lidar_top", "base_link", _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False), kind="lidar3d"))
-    rig.add(Frame("scanner_2d", "base_link", _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False), kind="lidar2d"))
+    T_base_lidar = _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False)
+    rig.add(Frame("lidar_top", "base_link", T_base_lidar, kind="lidar3d"))
+    T_base_scanner = _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False)
+    rig.add(Frame("scanner_2d", "base_link", T_base_scanner, kind="lidar2d"))
     return rig

@@ -45,7 +45,8 @@ def view_parameters(detection: Detection, board: BoardSpec) -> np.ndarray:
     """ROS's [x, y, size, skew] of one view, each in [0, 1]."""
     width, height = detection.image_size
     ul, ur, dr, dl = _board_outline(detection, board)
-    area = 0.5 * abs(np.cross(dr - ul, dl - ur))  # quadrilateral area from its diagonals
+    d1, d2 = dr - ul, dl - ur
+    area = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])  # quadrilateral area from its diagonals
     border = np.sqrt(area)
     mean = detection.corners_px.mean(axis=0)
     p_x = np.clip((mean[0] - border / 2) / max(width - border, 1e-9), 0, 1)

@@ -233,7 +233,12 @@ def _covariance(camera, views, board, rvecs, tvecs, used, A):
     r = np.concatenate(rows_r)
     dof = max(len(r) - jac.shape[1], 1)
     sigma2 = float(r @ r / dof)
-    cov_all = sigma2 * np.linalg.pinv(jac.T @ jac)
+    # Scale columns to unit norm first: focal lengths (~1e3 px) and k3 (~1e-1) differ by
+    # orders of magnitude, and the scaled normal matrix inverts to full precision.
+    scale = 1.0 / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
+    normal = (jac * scale).T @ (jac * scale)
+    cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
+    cov_all = 0.5 * (cov_all + cov_all.T)
     return residuals, A @ cov_all[:n_free, :n_free] @ A.T, sigma2
 
 

@@ -1,0 +1,31 @@
+"""The studio: a viser page with the rig in 3D and the wizard panel beside it."""
+
+from __future__ import annotations
+
+import viser
+
+from backend.services.jobs import JobRunner
+from backend.store.session import Session, SessionStore
+from studio.context import StudioContext
+from studio.scene import RigScene
+from studio.wizard.intrinsics_step import IntrinsicsStep
+from studio.wizard.sensors_step import SensorsStep
+from studio.wizard.session_step import SessionStep
+
+
+class StudioApp:
+    """Builds the wizard on a viser server and opens an initial session."""
+
+    def __init__(self, server: viser.ViserServer, store: SessionStore, jobs: JobRunner,
+                 session: Session | None = None):
+        server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
+        server.gui.add_markdown("## Calibration Studio\nFrom raw sensors to trusted transforms, step by step.")
+        self.ctx = StudioContext(server, store, jobs, RigScene(server))
+        self.session_step = SessionStep(self.ctx)
+        self.sensors_step = SensorsStep(self.ctx)
+        self.intrinsics_step = IntrinsicsStep(self.ctx)
+        if session is not None:
+            self.ctx.open_session(session)
+
+    def close(self) -> None:
+        self.intrinsics_step._stop_live()

@@ -1,0 +1,97 @@
+"""The rig in 3D: frames, camera frusta with their images, and boards at their poses.
+
+Holds viser scene handles and updates them; all geometry comes from
+:mod:`backend.core` (poses are ``T_root_frame`` from the rig). The root frame is
+drawn z-up, like ROS's ``base_link``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import viser
+import viser.transforms as vtf
+
+from backend.core.boards import BoardSpec
+from backend.core.rig import Rig
+
+DEFAULT_FOV_RAD = np.radians(60.0)
+FRUSTUM_SCALE_M = 0.15
+BOARD_TEXTURE_PX = 24
+"""Pixels per square of the board texture drawn in 3D."""
+R_PLANE_BOARD = np.diag([1.0, -1.0, -1.0])
+"""Rotation from board axes (x right, y down the printed rows) to a viser image plane (x right, y up)."""
+SENSOR_COLOURS = {"camera": (40, 110, 220), "lidar3d": (220, 120, 30), "lidar2d": (200, 60, 160), "depth": (40, 170, 90)}
+
+
+def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
+    """viser ``wxyz`` / ``position`` keyword arguments of a 4x4 transform."""
+    se3 = vtf.SE3.from_matrix(T)
+    return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
+
+
+def _thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
+    scale = width / image.shape[1]
+    small = cv2.resize(image, (width, int(round(image.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(small, cv2.COLOR_GRAY2RGB) if small.ndim == 2 else cv2.cvtColor(small, cv2.COLOR_BGR2RGB)
+
+
+class RigScene:
+    """Draws one session's rig and keeps the handles to update it."""
+
+    def __init__(self, server: viser.ViserServer):
+        self.server = server
+        self._frusta: dict[str, viser.CameraFrustumHandle] = {}
+        self._boards: dict[str, list[viser.ImageHandle]] = {"live": [], "captured": []}
+        server.scene.set_up_direction("+z")
+        server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
+
+    def show_rig(self, rig: Rig) -> None:
+        """Redraw every frame of ``rig``: axes for all, a frustum for each camera."""
+        self.server.scene.reset()
+        self.server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
+        self._frusta.clear()
+        self._boards = {"live": [], "captured": []}
+        for frame in rig.frames.values():
+            T_root_frame = rig.T_root_frame(frame.name)
+            node = f"/rig/{frame.name}"
+            self.server.scene.add_frame(node, axes_length=0.08, axes_radius=0.004, **_pose(T_root_frame))
+            self.server.scene.add_label(f"{node}/label", frame.name, position=(0.0, 0.0, 0.03),
+                                        font_screen_scale=0.8)
+            if frame.kind == "camera":
+                self._frusta[frame.name] = self._add_frustum(node, frame)
+            elif frame.kind in SENSOR_COLOURS:
+                self.server.scene.add_box(f"{node}/body", color=SENSOR_COLOURS[frame.kind],
+                                          dimensions=(0.06, 0.06, 0.05))
+
+    def _add_frustum(self, node: str, frame, image: np.ndarray | None = None) -> viser.CameraFrustumHandle:
+        camera = frame.intrinsics
+        fov = camera.fov_y_rad if camera else DEFAULT_FOV_RAD
+        aspect = camera.width / camera.height if camera else 16 / 9
+        return self.server.scene.add_camera_frustum(
+            f"{node}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M, color=SENSOR_COLOURS["camera"],
+            image=None if image is None else _thumbnail(image), format="jpeg")
+
+    def show_camera_image(self, camera: str, image: np.ndarray) -> None:
+        """Paint the latest live or captured image into a camera's frustum."""
+        handle = self._frusta.get(camera)
+        if handle is not None:
+            handle.image = _thumbnail(image)
+
+    def show_boards(self, rig: Rig, camera: str, board: BoardSpec, T_camera_boards: list[np.ndarray],
+                    live: bool = False) -> None:
+        """Draw the board at each pose in front of ``camera`` (captured views, or the live view)."""
+        group = "live" if live else "captured"
+        for handle in self._boards[group]:
+            handle.remove()
+        texture = cv2.cvtColor(board.render(BOARD_TEXTURE_PX), cv2.COLOR_GRAY2RGB)
+        width_m, height_m = board.size_m
+        T_board_plane = np.eye(4)
+        T_board_plane[:3, :3] = R_PLANE_BOARD
+        T_board_plane[:3, 3] = board.outer_origin_m + np.array([width_m / 2, height_m / 2, 0.0])
+        T_root_camera = rig.T_root_frame(camera)
+        self._boards[group] = [
+            self.server.scene.add_image(f"/boards/{group}/{i}", texture, render_width=width_m, render_height=height_m,
+                                        format="png", **_pose(T_root_camera @ T_camera_board @ T_board_plane))
+            for i, T_camera_board in enumerate(T_camera_boards)
+        ]

@@ -1,0 +1,59 @@
+"""One process: the FastAPI backend (uvicorn) and the viser studio, started by the CLI."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+
+import uvicorn
+import viser
+
+from backend.api.app import create_app
+from backend.api.auth import is_loopback, new_token
+from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
+from backend.services.demo import ensure_demo_session
+from backend.services.jobs import JobRunner
+from backend.store.session import SessionStore
+from studio.app import StudioApp
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Run until interrupted. The first stdout line is the URL to open."""
+    store = SessionStore(args.sessions)
+    session = None
+    if args.command == "demo":
+        _log(f"preparing the demo session in {store.root}/demo ...")
+        session = ensure_demo_session(store, fresh=args.fresh, progress=lambda f, m: None)
+    loopback = is_loopback(args.host)
+    token = args.token or (None if loopback else new_token())
+    # Beyond loopback the viewer stays on 127.0.0.1 and is reached through the API's token-checked proxy.
+    with contextlib.redirect_stdout(sys.stderr):  # viser's banner; stdout's first line is our URL
+        viewer = viser.ViserServer(host=args.host if token is None else "127.0.0.1", port=args.viewer_port,
+                                   verbose=False)
+    viewer_port = viewer.get_port()
+    if token is None:
+        studio_url = f"http://{args.host}:{viewer_port}/"
+    else:
+        studio_url = f"http://{args.host}:{args.port}/studio/?token={token}"
+    jobs = JobRunner()
+    app = create_app(store, jobs, token=token, studio_url=studio_url if token is None else "/studio/")
+    if token is not None:
+        mount_viewer_proxy(app, viewer_port, token)
+    studio = StudioApp(viewer, store, jobs, session)
+    print(studio_url, flush=True)
+    _log(f"API and docs: http://{args.host}:{args.port}/docs")
+    logging.getLogger("uvicorn.error").setLevel(logging.WARNING)
+    try:
+        uvicorn.run(app, host=args.host, port=args.port, log_level="warning", ws_max_size=MAX_MESSAGE_BYTES,
+                    ws_per_message_deflate=False)
+    finally:
+        studio.close()
+        jobs.shutdown()
+        viewer.stop()
+    return 0

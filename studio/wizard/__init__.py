@@ -1,0 +1,1 @@
+"""The guided wizard: one module per step, each holding its GUI handles."""

@@ -1,0 +1,286 @@
+"""Step 3: camera intrinsics - live capture with coverage guidance, solve, inspect, accept, export."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import cv2
+import numpy as np
+
+from backend.core.errors import InputError
+from backend.core.transforms import from_rvec_tvec
+from backend.services import exports as export_service
+from backend.services import intrinsics as intrinsics_service
+from backend.services.jobs import Job
+from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
+from backend.solvers.board_detection import Detection
+from backend.solvers.coverage import PARAM_NAMES, Coverage
+from backend.solvers.intrinsics import IntrinsicsSettings
+from backend.store.schema import CaptureRecord
+from studio import plots
+from studio.context import StudioContext
+
+NO_CAMERA = "(no camera)"
+GUIDANCE = (
+    "Hold the board still, then move it: **left ↔ right**, **top ↔ bottom**, **near ↔ far**, and "
+    "**tilt** it 20–40° in each direction. A frame is kept automatically when it adds coverage; the green tint "
+    "shows where corners have been seen - aim to tint the whole image, corners included."
+)
+
+
+class IntrinsicsStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self.live: LiveCapture | None = None
+        self.job: Job | None = None
+        self._last_preview = 0.0
+        gui = ctx.server.gui
+        with gui.add_folder("3 · Camera intrinsics"):
+            self.camera = gui.add_dropdown("Camera", options=[NO_CAMERA])
+            gui.add_markdown(GUIDANCE)
+            with gui.add_folder("Capture"):
+                self.start_button = gui.add_button("Start live capture", color="green")
+                self.stop_button = gui.add_button("Stop", color="red", visible=False)
+                self.auto = gui.add_checkbox("Auto-capture when it adds coverage", initial_value=True)
+                self.capture_button = gui.add_button("Capture this frame")
+                self.preview = gui.add_image(np.full((270, 480, 3), 40, np.uint8), label="Live", format="jpeg")
+                self.bars = {name: gui.add_progress_bar(0.0, color="teal") for name in PARAM_NAMES}
+                self.coverage_text = gui.add_markdown("No views yet.")
+            with gui.add_folder("Solve"):
+                self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant"])
+                self.k3 = gui.add_checkbox("Estimate k3", initial_value=False)
+                self.tangential = gui.add_checkbox("Estimate p1, p2", initial_value=True)
+                self.fix_aspect = gui.add_checkbox("Fix aspect (fx = fy)", initial_value=False)
+                self.drop_outliers = gui.add_checkbox("Drop outlier views and re-solve", initial_value=False)
+                self.solve_button = gui.add_button("Solve", color="blue")
+                self.cancel_button = gui.add_button("Cancel solve", visible=False)
+                self.progress = gui.add_progress_bar(0.0, animated=False)
+                self.progress_text = gui.add_markdown("")
+            with gui.add_folder("Result"):
+                self.result_text = gui.add_markdown("No result yet.")
+                self.rms_plot = gui.add_image(plots.view_rms_bars([], [], []), label="Per-view RMS")
+                self.uncertainty_plot = gui.add_image(np.full((270, 480, 3), 255, np.uint8),
+                                                      label="Projection σ (px, far points)")
+                self.history = gui.add_dropdown("History", options=["(none)"])
+                self.accept_button = gui.add_button("Accept selected result", color="green")
+            with gui.add_folder("Export"):
+                self.export_ros = gui.add_button("Download ROS camera_info YAML")
+                self.export_opencv = gui.add_button("Download OpenCV YAML")
+                self.export_rig = gui.add_button("Download rig transforms YAML")
+
+        self.camera.on_update(lambda _: self._select_camera())
+        self.start_button.on_click(lambda _: self._start_live())
+        self.stop_button.on_click(lambda _: self._stop_live())
+        self.auto.on_update(lambda _: setattr(self.live, "auto_capture", self.auto.value) if self.live else None)
+        self.capture_button.on_click(lambda _: self._capture_now())
+        self.solve_button.on_click(lambda _: self._solve())
+        self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
+        self.history.on_update(lambda _: self._show_result(self.history.value))
+        self.accept_button.on_click(lambda _: self._accept())
+        self.export_ros.on_click(lambda event: self._download(event, "camera_info"))
+        self.export_opencv.on_click(lambda event: self._download(event, "opencv"))
+        self.export_rig.on_click(lambda event: self._download(event, "rig"))
+        ctx.on_session_changed(self._on_session)
+
+    # -- session and camera -------------------------------------------------------------
+    def _on_session(self, session) -> None:
+        self._stop_live()
+        cameras = [f.name for f in session.rig.sensors("camera")] or [NO_CAMERA]
+        self.camera.options = cameras
+        if self.camera.value not in cameras:
+            self.camera.value = cameras[0]
+        self._select_camera()
+
+    @property
+    def sensor(self) -> str | None:
+        return None if self.camera.value == NO_CAMERA or self.ctx.session is None else self.camera.value
+
+    def _select_camera(self) -> None:
+        self._stop_live()
+        session, sensor = self.ctx.session, self.sensor
+        if sensor is None:
+            return
+        board = intrinsics_service.session_board(session)
+        coverage = coverage_from_captures(session, sensor, board)
+        self._show_coverage(coverage)
+        captures = session.captures(sensor)
+        if captures:
+            last = captures[-1]
+            image = session.capture_image(sensor, last.id)
+            detection = Detection.from_dict(last.detection) if last.detection else None
+            self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
+            self.ctx.scene.show_camera_image(sensor, image)
+        results = session.results(sensor, "intrinsics")
+        self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
+        accepted = session.accepted(f"{sensor}/intrinsics")
+        self.history.value = accepted or self.history.options[0]
+        self._show_result(self.history.value)
+
+    # -- live capture ---------------------------------------------------------------------
+    def _start_live(self) -> None:
+        if self.sensor is None:
+            self.ctx.notify("No camera", "Add a camera in step 2 first.", error=True)
+            return
+        self._stop_live()
+        try:
+            self.live = LiveCapture(self.ctx.session, self.sensor, LiveCallbacks(
+                frame=self._on_frame, captured=self._on_captured, status=self._on_status),
+                auto_capture=self.auto.value)
+        except InputError as exc:
+            self.ctx.notify("Cannot start", exc.message, error=True)
+            return
+        self.live.start()
+        self.start_button.visible, self.stop_button.visible = False, True
+
+    def _stop_live(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+        self.start_button.visible, self.stop_button.visible = True, False
+
+    def _capture_now(self) -> None:
+        if self.live is None:
+            self.ctx.notify("Not live", "Start live capture first.", error=True)
+        else:
+            self.live.capture_now()
+
+    def _on_frame(self, image: np.ndarray, detection: Detection | None, coverage: Coverage | None) -> None:
+        now = time.monotonic()
+        if now - self._last_preview < 0.1:  # 10 Hz is plenty for the panel and keeps the socket free
+            return
+        self._last_preview = now
+        board = self.live.board if self.live else intrinsics_service.session_board(self.ctx.session)
+        self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
+        self.ctx.scene.show_camera_image(self.sensor, image)
+        camera = self.ctx.session.rig.get(self.sensor).intrinsics
+        if detection is not None and camera is not None:
+            ok, rvec, tvec = cv2.solvePnP(detection.object_points(board), detection.corners_px, camera.K, camera.dist)
+            if ok:
+                self.ctx.scene.show_boards(self.ctx.session.rig, self.sensor, board, [from_rvec_tvec(rvec, tvec)],
+                                           live=True)
+
+    def _on_captured(self, record: CaptureRecord, coverage: Coverage) -> None:
+        self._show_coverage(coverage)
+
+    def _on_status(self, message: str, error: bool) -> None:
+        self.coverage_text.content = f"{'⚠️ ' if error else ''}{message}\n\n" + self._coverage_summary()
+        if error:
+            self.ctx.notify("Capture", message, error=True)
+            self.start_button.visible, self.stop_button.visible = True, False
+
+    def _coverage_summary(self, coverage: Coverage | None = None) -> str:
+        coverage = coverage or (self.live.coverage if self.live else None)
+        if coverage is None:
+            return "No views yet."
+        state = ("✅ **Enough data** - press Solve." if coverage.enough
+                 else "Keep moving the board to fill the bars.")
+        return f"**{len(coverage.params)} views** · {coverage.cells_seen:.0%} of the image seen by corners · {state}"
+
+    def _show_coverage(self, coverage: Coverage | None) -> None:
+        progress = coverage.progress if coverage else dict.fromkeys(PARAM_NAMES, 0.0)
+        for name, bar in self.bars.items():
+            bar.value = 100.0 * progress[name]
+            bar.color = "green" if progress[name] >= 1.0 else "teal"
+        labels = " · ".join(f"{name.upper()} {progress[name]:.0%}" for name in PARAM_NAMES)
+        self.coverage_text.content = f"{labels}\n\n{self._coverage_summary(coverage)}"
+
+    # -- solve ------------------------------------------------------------------------------
+    def _settings(self) -> IntrinsicsSettings:
+        return IntrinsicsSettings(model=self.model.value, estimate_k3=self.k3.value,
+                                  estimate_tangential=self.tangential.value, fix_aspect=self.fix_aspect.value,
+                                  drop_outliers=self.drop_outliers.value)
+
+    def _solve(self) -> None:
+        session, sensor = self.ctx.session, self.sensor
+        if sensor is None:
+            self.ctx.notify("No camera", "Pick a camera first.", error=True)
+            return
+        if self.job is not None and self.job.state == "running":
+            return
+        settings = self._settings()
+        self.job = self.ctx.jobs.submit(
+            f"intrinsics of {sensor}",
+            lambda progress: intrinsics_service.solve_session(session, sensor, settings, progress=progress)[0])
+        self.solve_button.disabled, self.cancel_button.visible = True, True
+        threading.Thread(target=self._watch, args=(self.job,), daemon=True).start()
+
+    def _watch(self, job: Job) -> None:
+        """Mirror a job's progress into the panel until it ends (runs off the GUI thread)."""
+        while not job.wait(0.1):
+            self.progress.value = 100.0 * job.fraction
+            self.progress_text.content = job.message
+        self.progress.value = 100.0 * job.fraction
+        self.solve_button.disabled, self.cancel_button.visible = False, False
+        if job.state == "done":
+            self.progress_text.content = f"Solved in {job.finished - job.started:.2f} s."
+            self.history.options = [r["id"] for r in reversed(self.ctx.session.results(self.sensor, "intrinsics"))]
+            self.history.value = job.result
+            self._show_result(job.result)
+        elif job.state == "cancelled":
+            self.progress_text.content = "Cancelled; nothing was changed."
+        else:
+            self.progress_text.content = f"⚠️ {job.message}"
+            self.ctx.notify("Solve failed", job.message, error=True)
+
+    def _show_result(self, result_id: str) -> None:
+        session = self.ctx.session
+        if session is None or result_id in (None, "(none)"):
+            self.result_text.content = "No result yet."
+            return
+        record = session.result(result_id)
+        self.result_text.content = result_markdown(record, accepted=session.accepted(f"{self.sensor}/intrinsics"))
+        views = record["views"]
+        self.rms_plot.image = plots.view_rms_bars([v["image"] for v in views], [v["rms_px"] for v in views],
+                                                  [v["used"] for v in views])
+        self.uncertainty_plot.image = plots.uncertainty_map(record["projection_uncertainty"]["sigma_px"])
+        board = intrinsics_service.session_board(session)
+        poses = [np.array(v["T_camera_board"]) for v in views if v["used"] and v["T_camera_board"]]
+        self.ctx.scene.show_boards(session.rig, self.sensor, board, poses)
+
+    def _accept(self) -> None:
+        if self.sensor is None or self.history.value == "(none)":
+            return
+        try:
+            intrinsics_service.accept(self.ctx.session, self.sensor, self.history.value)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.notify("Accepted", f"{self.history.value} is now the intrinsics of {self.sensor}.")
+        self.ctx.scene.show_rig(self.ctx.session.rig)
+        self._show_result(self.history.value)
+
+    def _download(self, event, fmt: str) -> None:
+        try:
+            filename, text = export_service.export_text(self.ctx.session, fmt, self.sensor)
+        except InputError as exc:
+            self.ctx.notify("Nothing to export", exc.message, error=True)
+            return
+        event.client.send_file_download(filename, text.encode())
+
+
+def result_markdown(record: dict, accepted: str | None) -> str:
+    """The result table: values with 1-sigma, RMS, strong correlations, outliers and uncertainty."""
+    camera, std = record["camera"], record["std"]
+    K = camera["K"]
+    names = {"pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"], "fisheye-equidistant": ["k1", "k2", "k3", "k4"]}
+    rows = [("fx", K[0][0], std["fx"]), ("fy", K[1][1], std["fy"]), ("cx", K[0][2], std["cx"]),
+            ("cy", K[1][2], std["cy"])]
+    rows += list(zip(names[camera["model"]], camera["dist"], std["dist"], strict=True))
+    table = "\n".join(f"| {n} | {v:.6g} | {s:.2g} |" for n, v, s in rows)
+    corr = record["correlation"]
+    matrix = np.array(corr["matrix"])
+    strong = [f"{corr['names'][i]}–{corr['names'][j]} {matrix[i, j]:+.2f}"
+              for i in range(len(matrix)) for j in range(i + 1, len(matrix)) if abs(matrix[i, j]) > 0.9]
+    used = sum(v["used"] for v in record["views"])
+    outliers = [v["image"] for v in record["views"] if v["outlier"]]
+    unc = record["projection_uncertainty"]
+    status = "✅ accepted" if record["id"] == accepted else "not accepted"
+    return (
+        f"**{record['id']}** ({status}) · {camera['model']} {camera['width']}×{camera['height']}\n\n"
+        f"**RMS {record['rms_px']:.3f} px** over {used} views\n\n"
+        f"| param | value | σ |\n|---|---|---|\n{table}\n\n"
+        f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
+        f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
+        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
+    )

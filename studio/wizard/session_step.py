@@ -1,0 +1,57 @@
+"""Step 1: choose or create a session and set its calibration board."""
+
+from __future__ import annotations
+
+from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from studio.context import StudioContext
+
+NEW_SESSION = "(new session)"
+
+
+class SessionStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        gui = ctx.server.gui
+        with gui.add_folder("1 · Session"):
+            self.choice = gui.add_dropdown("Session", options=self._options(), initial_value=NEW_SESSION)
+            self.open_button = gui.add_button("Open session")
+            self.new_name = gui.add_text("New name", initial_value="")
+            self.new_board = gui.add_text("Board", initial_value="checkerboard:9x6:0.025",
+                                          hint="checkerboard:COLSxROWS:SQUARE_M or "
+                                               "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT")
+            self.create_button = gui.add_button("Create session")
+            self.summary = gui.add_markdown("No session open.")
+        self.open_button.on_click(lambda _: self._open())
+        self.create_button.on_click(lambda _: self._create())
+        ctx.on_session_changed(self._show)
+
+    def _options(self) -> list[str]:
+        return [NEW_SESSION, *self.ctx.store.names()]
+
+    def _open(self) -> None:
+        if self.choice.value == NEW_SESSION:
+            self.ctx.notify("Pick a session", "Choose a session in the list, or create one below.")
+            return
+        try:
+            self.ctx.open_session(self.ctx.store.get(self.choice.value))
+        except InputError as exc:
+            self.ctx.notify("Cannot open session", exc.message, error=True)
+
+    def _create(self) -> None:
+        try:
+            board = str(BoardSpec.parse(self.new_board.value))
+            session = self.ctx.store.create(self.new_name.value.strip(), board=board)
+        except InputError as exc:
+            self.ctx.notify("Cannot create session", exc.message, error=True)
+            return
+        self.choice.options = self._options()
+        self.ctx.open_session(session)
+
+    def _show(self, session) -> None:
+        self.choice.options = self._options()
+        if self.choice.value != session.name:
+            self.choice.value = session.name
+        sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
+        self.summary.content = (f"**{session.name}** {session._data.title}\n\n"
+                                f"Board: `{session.board}`  \nSensors: {sensors}")

@@ -1,0 +1,178 @@
+"""The viser studio reverse-proxied at ``/studio/`` behind the API token (real servers on 127.0.0.1)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import msgspec
+import pytest
+import uvicorn
+import viser
+import websockets.exceptions
+from viser import _messages
+from websockets.sync.client import connect
+
+from backend.api.app import create_app
+from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
+
+TOKEN = "secret"
+SUBPROTOCOL = "viser-v" + viser.__version__
+"""What the viser client offers (``WebsocketClientWorker.ts``); viser's server picks any ``viser-v*``."""
+CAMERA = msgspec.msgpack.encode(_messages.ViewerCameraMessage(
+    wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.0, -2.0), fov=1.0, near=0.01, far=100.0, image_height=480,
+    image_width=640, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, -1.0, 0.0)).as_serializable_dict())
+"""What the viser client sends first: a pose of its viewer camera."""
+ARTIFACTS = Path(__file__).parent / "artifacts"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@dataclass
+class Servers:
+    viewer: viser.ViserServer
+    api_port: int
+
+    @property
+    def base(self) -> str:
+        return f"http://127.0.0.1:{self.api_port}"
+
+    @property
+    def ws(self) -> str:
+        return f"ws://127.0.0.1:{self.api_port}/studio"
+
+
+@pytest.fixture(scope="module")
+def servers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Servers]:
+    viewer_port = free_port()
+    viewer = viser.ViserServer(host="127.0.0.1", port=viewer_port, verbose=False)
+    viewer.scene.add_frame("/probe")
+    viewer.gui.add_markdown("proxy-ok")
+
+    app = create_app(tmp_path_factory.mktemp("sessions"), token=TOKEN)
+    mount_viewer_proxy(app, viewer_port, TOKEN)
+    api_port = free_port()
+    config = uvicorn.Config(app, host="127.0.0.1", port=api_port, log_level="warning",
+                            ws_max_size=MAX_MESSAGE_BYTES, ws_per_message_deflate=False)
+    api = uvicorn.Server(config)
+    thread = threading.Thread(target=api.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 10
+    while not api.started:
+        assert time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.05)
+    try:
+        yield Servers(viewer, api_port)
+    finally:
+        api.should_exit = True
+        thread.join(timeout=10)
+        viewer.stop()
+
+
+def test_page_needs_token(servers: Servers) -> None:
+    response = httpx.get(f"{servers.base}/studio/")
+    assert response.status_code == 401
+    assert response.json()["error"]["input"] == "token"
+
+
+def test_page_with_token_is_viser(servers: Servers) -> None:
+    response = httpx.get(f"{servers.base}/studio/?token={TOKEN}", headers={"Accept-Encoding": "gzip"})
+    assert response.status_code == 200
+    assert response.headers["content-encoding"] == "gzip"
+    assert response.headers["content-type"].startswith("text/html")
+    assert '<div id="root">' in response.text  # httpx decodes the gzip body
+    assert response.cookies.get("calib_token") == TOKEN
+
+    cookie = {"Cookie": f"calib_token={TOKEN}", "Accept-Encoding": "identity"}
+    plain = httpx.get(f"{servers.base}/studio/", headers=cookie)
+    assert plain.status_code == 200
+    assert plain.headers.get("content-encoding", "identity") == "identity"
+    assert plain.content == response.content
+
+
+def test_redirect_keeps_query(servers: Servers) -> None:
+    response = httpx.get(f"{servers.base}/studio?token={TOKEN}")
+    assert response.status_code in (302, 307)
+    assert response.headers["location"] == f"/studio/?token={TOKEN}"
+
+
+def test_missing_asset_is_404(servers: Servers) -> None:
+    assert httpx.get(f"{servers.base}/studio/nope.js?token={TOKEN}").status_code == 404
+
+
+@pytest.mark.parametrize("query", ["", "?token=wrong"])
+def test_websocket_refused_without_token(servers: Servers, query: str) -> None:
+    with pytest.raises(websockets.exceptions.InvalidStatus) as refused:
+        connect(servers.ws + query, subprotocols=[SUBPROTOCOL], open_timeout=5)
+    assert refused.value.response.status_code == 403
+
+
+@pytest.mark.parametrize("path, auth", [
+    ("/studio", {"query": True}),
+    ("/studio/", {"cookie": True}),
+    ("/studio/anything", {"query": True}),
+])
+def test_websocket_relays_viser_messages(servers: Servers, path: str, auth: dict[str, bool]) -> None:
+    url = f"ws://127.0.0.1:{servers.api_port}{path}" + (f"?token={TOKEN}" if auth.get("query") else "")
+    headers = {"Cookie": f"calib_token={TOKEN}"} if auth.get("cookie") else None
+    with connect(url, subprotocols=[SUBPROTOCOL], additional_headers=headers, open_timeout=5,
+                 max_size=MAX_MESSAGE_BYTES) as ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        message = ws.recv(timeout=5)
+        assert isinstance(message, bytes) and message
+        ws.send(CAMERA)  # viser lists a client once its first camera message arrives
+        deadline = time.monotonic() + 5
+        while not servers.viewer.get_clients():
+            assert time.monotonic() < deadline, "viser never saw the proxied client"
+            time.sleep(0.05)
+    deadline = time.monotonic() + 5
+    while servers.viewer.get_clients():  # closing the proxied socket disconnects the viser client
+        assert time.monotonic() < deadline, "viser client outlived the proxied websocket"
+        time.sleep(0.05)
+
+
+def test_viewer_side_close_reaches_client(servers: Servers) -> None:
+    with connect(f"{servers.ws}?token={TOKEN}", subprotocols=[SUBPROTOCOL], open_timeout=5,
+                 max_size=MAX_MESSAGE_BYTES) as ws:
+        ws.recv(timeout=5)
+        servers.viewer._websock_server.disconnect_all_clients()  # viser's documented test hook
+        with pytest.raises(websockets.exceptions.ConnectionClosed):
+            while True:
+                ws.recv(timeout=5)
+
+
+@pytest.mark.browser
+def test_browser_renders_studio_through_proxy(servers: Servers) -> None:
+    sync_api = pytest.importorskip("playwright.sync_api")
+    if not Path("/usr/bin/chromium").exists():
+        pytest.skip("Debian chromium not installed")
+    args = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+            "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
+            "--no-first-run"]
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            sockets: list[str] = []
+            page.on("websocket", lambda ws: sockets.append(ws.url))
+            page.goto(f"{servers.base}/studio/?token={TOKEN}")
+            page.get_by_text("proxy-ok").first.wait_for(timeout=20_000)
+            deadline = time.monotonic() + 10
+            while not servers.viewer.get_clients():
+                assert time.monotonic() < deadline, "viser never saw the browser"
+                page.wait_for_timeout(100)
+            assert f"ws://127.0.0.1:{servers.api_port}/studio" in sockets
+            page.wait_for_timeout(1000)  # let the 3D canvas draw a few frames
+            ARTIFACTS.mkdir(exist_ok=True)
+            page.screenshot(path=str(ARTIFACTS / "viewer_proxy.png"))
+        finally:
+            browser.close()
