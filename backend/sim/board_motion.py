@@ -7,6 +7,8 @@ whole image including its corners, with the whole plate always in view.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -14,12 +16,13 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
 from backend.sim.board_renderer import plate_corners_m
-from backend.sim.camera_rays import ray_field, undistort_exact
+from backend.sim.camera_rays import undistort_exact, visible_radius
 
 _CELL_EDGES = np.array([0.0, 0.08, 0.92, 1.0])
 """Along each axis (as fractions of the image size), the target for the board centre is
 drawn from one of three bands: at one border, in the middle, at the other border."""
 _MAX_ATTEMPTS = 60
+"""How many times a board too large to fit is moved 5 % further away before giving up."""
 
 
 def project_corners(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np.ndarray) -> np.ndarray:
@@ -31,14 +34,15 @@ def plate_in_view(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np
     """Whether the whole plate (print plus white margin) is in front of the camera and inside the image.
 
     The plate outline is sampled densely, since distortion bends its straight
-    edges, and must stay ``margin_px`` (px) inside the image border.
+    edges; it must be at least 5 cm in front of the camera, within the widest angle
+    any pixel sees, and ``margin_px`` (px) inside the image border.
     """
     outline_camera = transform_points(T_camera_board, _plate_outline(board))
     if np.any(outline_camera[:, 2] <= 0.05):
         return False
     normalised = outline_camera[:, :2] / outline_camera[:, 2:]
     # Beyond the largest angle the image sees, the lens model may fold points back into the image.
-    if np.any(np.linalg.norm(normalised, axis=1) > ray_field(camera).visible_radius):
+    if np.any(np.linalg.norm(normalised, axis=1) > visible_radius(camera)):
         return False
     uv = camera.project(outline_camera)
     inside_u = (uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
@@ -100,8 +104,9 @@ def board_poses(
     return poses
 
 
+@lru_cache(maxsize=8)
 def _plate_outline(board: BoardSpec, per_edge: int = 24) -> np.ndarray:
-    """(4 * per_edge, 3) board-frame points (m) evenly along the plate's edge."""
+    """(4 * per_edge, 3) board-frame points (m) evenly along the plate's edge (cached: do not modify)."""
     corners = plate_corners_m(board)
     t = np.linspace(0.0, 1.0, per_edge, endpoint=False)[:, None]
     return np.concatenate([a + t * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)])

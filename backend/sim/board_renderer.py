@@ -33,8 +33,11 @@ SUPERSAMPLE = 2
 TEXELS_PER_SQUARE = 256
 """Resolution of the finest texture level (a power of two; each mip level halves it)."""
 PAPER_REFLECTANCE = 0.85
+"""Fraction of light the white paper reflects (0..1)."""
 INK_REFLECTANCE = 0.06
-_MAX_LEVEL_VALUE = 65535.0
+"""Fraction of light the black print reflects (0..1)."""
+_TEXTURE_ONE = 65535.0
+"""uint16 texture value standing for 1.0."""
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,8 @@ def render_board_image(
         camera: the simulated camera; its distortion is rendered exactly.
         board: the board printed on the plate (checkerboard or ChArUco).
         T_camera_board: 4x4 pose of the board in the camera's optical frame (m).
-            A board seen from behind, or behind the camera, is not drawn.
+            A board seen from behind, or not wholly in front of the camera, is
+            not drawn.
         rng: the only source of randomness (lighting, background, noise).
         blur_px: sigma of the Gaussian lens blur (px); 0 for none.
         noise_sigma: sigma of the additive Gaussian sensor noise (grey levels).
@@ -138,7 +142,7 @@ def _render_plate(
         lookup = cv2.remap(texture.levels[k], texel_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         box_size = (c.stop - c.start, r.stop - r.start)
         pixels[r, c] += weight[r, c, None] * cv2.resize(lookup, box_size, interpolation=cv2.INTER_AREA)
-    pixels /= _MAX_LEVEL_VALUE
+    pixels /= _TEXTURE_ONE
     return pixels[..., 0], pixels[..., 1], rows, cols
 
 
@@ -156,9 +160,10 @@ def _texel_homography(texture: _PlateTexture, T_camera_board: np.ndarray) -> np.
     r_x, r_y, r_z = R_board_camera
     t_x, t_y, t_z = t_board_camera
     H_board_ray = np.array([t_x * r_z - t_z * r_x, t_y * r_z - t_z * r_y, r_z])
+    # Texel (0, 0) is centred half a texel inside the plate's top-left corner (x0, y0).
     texel = texture.texels_per_m
-    (x0, y0), offset = texture.corners_m[0, :2], -0.5
-    H_texel_board = np.array([[texel, 0, offset - x0 * texel], [0, texel, offset - y0 * texel], [0, 0, 1]])
+    x0, y0 = texture.corners_m[0, :2]
+    H_texel_board = np.array([[texel, 0, -0.5 - x0 * texel], [0, texel, -0.5 - y0 * texel], [0, 0, 1]])
     return H_texel_board @ H_board_ray
 
 
@@ -200,19 +205,14 @@ def _mip_level(texel_uv: np.ndarray, supersample: int, texture: _PlateTexture) -
     return np.clip(level, max(lowest, 0.0), min(highest, len(texture.levels) - 1.0))
 
 
-def _plate_texture(board: BoardSpec) -> _PlateTexture:
-    """The (cached) mip-mapped texture of the plate carrying ``board``."""
-    return _plate_texture_cached(str(board))
-
-
 @lru_cache(maxsize=4)
-def _plate_texture_cached(spec: str) -> _PlateTexture:
-    board = BoardSpec.parse(spec)
+def _plate_texture(board: BoardSpec) -> _PlateTexture:
+    """The (cached) mip-mapped texture of the plate carrying ``board``, down to one texel per square."""
     pattern = board.render(TEXELS_PER_SQUARE).astype(np.float32) / 255.0
     reflectance = INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * pattern
     margin = int(round(PLATE_MARGIN_SQUARES * TEXELS_PER_SQUARE))
     reflectance = np.pad(reflectance, margin, constant_values=PAPER_REFLECTANCE)
-    level = np.rint(np.dstack([reflectance, np.ones_like(reflectance)]) * _MAX_LEVEL_VALUE).astype(np.uint16)
+    level = np.rint(np.dstack([reflectance, np.ones_like(reflectance)]) * _TEXTURE_ONE).astype(np.uint16)
     levels = [level]
     for _ in range(int(np.log2(TEXELS_PER_SQUARE))):
         level = cv2.resize(level, (level.shape[1] // 2, level.shape[0] // 2), interpolation=cv2.INTER_AREA)

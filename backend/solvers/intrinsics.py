@@ -52,6 +52,8 @@ class IntrinsicsSettings:
     """Re-solve without views flagged as outliers."""
     outlier_factor: float = 3.0
     """A view is an outlier when its RMS exceeds this many times the median view RMS."""
+    jackknife: bool = True
+    """Also estimate sigmas by leaving out one view at a time, and report the larger (see :func:`_jackknife_std`)."""
 
 
 @dataclass
@@ -146,25 +148,30 @@ def _check_views(views: list[View], board: BoardSpec) -> None:
         )
 
 
-def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings):
-    """Run OpenCV's solver; returns (K, dist, rvecs, tvecs)."""
+def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                      guess: CameraIntrinsics | None = None):
+    """Run OpenCV's solver, from ``guess`` if given; returns (K, dist, rvecs, tvecs)."""
     object_points = [v.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3) for v in views]
     image_points = [v.detection.corners_px.reshape(-1, 1, 2) for v in views]
     if settings.model == "fisheye-equidistant":
         flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+        flags |= cv2.fisheye.CALIB_USE_INTRINSIC_GUESS if guess else 0
         try:
-            _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(object_points, image_points, size, None, None,
-                                                             flags=flags, criteria=TERM_CRITERIA)
+            _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+                object_points, image_points, size, guess.K.copy() if guess else None,
+                guess.dist[:4].copy() if guess else None, flags=flags, criteria=TERM_CRITERIA)
         except cv2.error as exc:
             raise InputError(f"the fisheye solve failed ({exc.err}); check the board spec and add varied views",
                              "views") from None
         return K, dist.ravel(), rvecs, tvecs
     flags = cv2.CALIB_FIX_K3 * (not settings.estimate_k3) | cv2.CALIB_ZERO_TANGENT_DIST * (
         not settings.estimate_tangential) | cv2.CALIB_FIX_ASPECT_RATIO * settings.fix_aspect
-    K0 = np.eye(3)
+    flags |= cv2.CALIB_USE_INTRINSIC_GUESS if guess else 0
     _, K, dist, rvecs, tvecs = cv2.calibrateCamera([p.astype(np.float32) for p in object_points],
-                                                   [p.astype(np.float32) for p in image_points],
-                                                   size, K0, None, flags=flags, criteria=TERM_CRITERIA)
+                                                   [p.astype(np.float32) for p in image_points], size,
+                                                   guess.K.copy() if guess else np.eye(3),
+                                                   guess.dist.copy() if guess else None,
+                                                   flags=flags, criteria=TERM_CRITERIA)
     return K, dist.ravel()[:5], rvecs, tvecs
 
 
@@ -242,6 +249,31 @@ def _covariance(camera, views, board, rvecs, tvecs, used, A):
     return residuals, A @ cov_all[:n_free, :n_free] @ A.T, sigma2
 
 
+def _embed(matrix: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Place a square matrix over the ``mask`` rows/columns of a zero matrix."""
+    full = np.zeros((mask.size, mask.size))
+    full[np.ix_(mask, mask)] = matrix
+    return full
+
+
+def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics, settings: IntrinsicsSettings,
+                   progress: ProgressCallback) -> np.ndarray:
+    """Leave-one-view-out jackknife standard deviation of [fx, fy, cx, cy, dist...].
+
+    Views, not corners, are the independent units: lighting, blur and board
+    flatness shift all corners of a view together, which the i.i.d. corner-noise
+    covariance cannot see. ``var = (n - 1) / n * sum((theta_i - mean)^2)``.
+    """
+    estimates = []
+    for i in range(len(views)):
+        progress(0.6 + 0.3 * i / len(views), f"jackknife: re-solving without view {i + 1} of {len(views)}")
+        K, dist, _, _ = _opencv_calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
+        estimates.append(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()])
+    estimates = np.array(estimates)
+    n = len(estimates)
+    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+
+
 def _projection_uncertainty(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> dict[str, Any]:
     """1-sigma (worst direction) error in pixels of projecting a far-away point, across the image.
 
@@ -317,6 +349,11 @@ def calibrate_intrinsics(
     corr_cov = cov[np.ix_(estimated, estimated)]
     d = np.sqrt(np.diag(corr_cov))
     correlation = corr_cov / np.outer(d, d)
+    std_jackknife = (_jackknife_std([v for v, u in zip(views, used, strict=True) if u], board, camera, settings,
+                                    progress) if settings.jackknife else np.zeros_like(std_all))
+    # Report the larger of the two sigmas per parameter, keeping the analytic correlation structure.
+    std_all = np.where(estimated, np.maximum(std_all, std_jackknife), 0.0)
+    cov = np.outer(std_all, std_all) * _embed(correlation, estimated)
     all_res = np.concatenate([r for (r, _), u in zip(residuals, used, strict=True) if u])
     view_results = [
         ViewResidual(v.name, bool(u), bool(o), float(rms), v.detection.ids, r, T)
