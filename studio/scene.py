@@ -21,7 +21,12 @@ BOARD_TEXTURE_PX = 24
 """Pixels per square of the board texture drawn in 3D."""
 R_PLANE_BOARD = np.diag([1.0, -1.0, -1.0])
 """Rotation from board axes (x right, y down the printed rows) to a viser image plane (x right, y up)."""
-SENSOR_COLOURS = {"camera": (40, 110, 220), "lidar3d": (220, 120, 30), "lidar2d": (200, 60, 160), "depth": (40, 170, 90)}
+SENSOR_COLOURS = {
+    "camera": (40, 110, 220),
+    "lidar3d": (220, 120, 30),
+    "lidar2d": (200, 60, 160),
+    "depth": (40, 170, 90),
+}
 
 
 def _pose(T: np.ndarray) -> dict[str, np.ndarray]:

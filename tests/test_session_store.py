@@ -272,3 +272,26 @@ def test_crash_during_save_keeps_old_file(session: Session, monkeypatch: pytest.
     assert json.loads(before)["board"] == BOARD
     assert sorted(p.name for p in session.path.iterdir()) == [SESSION_FILE]
     assert Session.load(session.path).board == BOARD
+
+
+def test_failed_accept_leaves_memory_as_on_disk(tmp_path, monkeypatch):
+    """A save that fails must not leave the open session believing the change happened."""
+    from backend.core.camera import CameraIntrinsics
+
+    session = SessionStore(tmp_path).create("s")
+    session.add_sensor(Frame("cam", "base_link", kind="camera"))
+    camera = CameraIntrinsics("pinhole-radtan", 640, 480, np.diag([500.0, 500.0, 1.0]))
+    result_id = session.add_result("cam", {"kind": "intrinsics", "camera": camera.to_dict()}, inputs=[])
+
+    def broken_replace(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk full"):
+        session.accept("cam/intrinsics", result_id, service.apply_intrinsics)
+    with pytest.raises(OSError, match="disk full"):
+        session.set_board("checkerboard:9x6:0.025")
+    assert session.accepted("cam/intrinsics") is None
+    assert session.rig.get("cam").intrinsics is None
+    assert session.board is None
+    assert session.acceptance_log == []

@@ -57,26 +57,29 @@ class BoardSpec:
             cols_text, rows_text = parts[1].lower().split("x")
             cols, rows = int(cols_text), int(rows_text)
         except ValueError:
-            raise InputError(f"board size {parts[1]!r} in {spec!r} is not COLSxROWS; expected {expected[kind]}", "board") from None
+            raise InputError(f"board size {parts[1]!r} in {spec!r} is not COLSxROWS; expected {expected[kind]}",
+                             "board") from None
         try:
             square_m = float(parts[2])
             marker_m = float(parts[3]) if kind == "charuco" else 0.0
         except ValueError:
             raise InputError(f"square or marker size in {spec!r} is not a number in metres", "board") from None
-        minimum = 3 if kind == "checkerboard" else 3
-        if cols < minimum or rows < minimum - 1:
-            raise InputError(f"board {spec!r} is too small: at least {minimum}x{minimum - 1}", "board")
+        if cols < 3 or rows < 2:
+            raise InputError(f"board {spec!r} is too small: at least 3x2", "board")
         if not 0 < square_m < 2:
             raise InputError(f"square size {square_m} m in {spec!r} must be in metres, between 0 and 2", "board")
         board = cls(kind, cols, rows, square_m, marker_m, parts[4] if kind == "charuco" else "")
         if kind == "charuco":
             if not 0 < marker_m < square_m:
-                raise InputError(f"marker size {marker_m} m in {spec!r} must be smaller than the square {square_m} m", "board")
+                raise InputError(f"marker size {marker_m} m in {spec!r} must be smaller than the square {square_m} m",
+                                 "board")
             if not hasattr(cv2.aruco, board.dictionary) or not board.dictionary.startswith("DICT_"):
-                raise InputError(f"unknown ArUco dictionary {board.dictionary!r} in {spec!r}; e.g. DICT_5X5_100", "board")
+                raise InputError(f"unknown ArUco dictionary {board.dictionary!r} in {spec!r}; e.g. DICT_5X5_100",
+                                 "board")
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
             if dictionary.bytesList.shape[0] < (cols * rows) // 2:
-                raise InputError(f"dictionary {board.dictionary} has too few markers for a {cols}x{rows} ChArUco board", "board")
+                raise InputError(f"dictionary {board.dictionary} has too few markers for a {cols}x{rows} ChArUco "
+                                 "board", "board")
         return board
 
     def __str__(self) -> str:

@@ -10,9 +10,10 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from backend.core.errors import CancelledError, InputError, NotFoundError
 from backend.solvers.result import ProgressCallback

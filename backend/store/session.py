@@ -14,9 +14,13 @@ just another entry in the acceptance log.
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import json
+import re
 import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +45,6 @@ def _validation_message(path: Path, error: ValidationError) -> str:
 
 def check_name(name: str, what: str) -> str:
     """Reject names that could escape a folder or break a file name."""
-    import re
-
     if not re.match(NAME_PATTERN, name or ""):
         raise InputError(f"{what} {name!r} must be 1-64 letters, digits, '_' or '-', starting with a letter or digit",
                          what)
@@ -79,7 +81,8 @@ class Session:
             raise InputError(_validation_message(file, exc), str(file)) from None
 
     @classmethod
-    def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None, title: str = "") -> Session:
+    def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None,
+               title: str = "") -> Session:
         data = SessionFile(schema_version=SCHEMA_VERSION, name=name, title=title, created=time.time(),
                            board=board, rig=rig_to_model(rig or Rig()))
         path.mkdir(parents=True, exist_ok=False)
@@ -93,6 +96,18 @@ class Session:
             self._data.rig = rig_to_model(self.rig)
             write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
 
+    @contextlib.contextmanager
+    def _change(self) -> Iterator[None]:
+        """Apply a change and save it; if anything fails, memory goes back to what is on disk."""
+        with self.lock:
+            data, rig = self._data.model_copy(deep=True), copy.deepcopy(self.rig)
+            try:
+                yield
+                self.save()
+            except BaseException:
+                self._data, self.rig = data, rig
+                raise
+
     @property
     def name(self) -> str:
         return self._data.name
@@ -102,9 +117,8 @@ class Session:
         return self._data.board
 
     def set_board(self, spec: str) -> None:
-        with self.lock:
+        with self._change():
             self._data.board = spec
-            self.save()
 
     def info(self) -> dict[str, Any]:
         return {
@@ -118,11 +132,10 @@ class Session:
 
     # -- sensors ----------------------------------------------------------------------
     def add_sensor(self, frame: Frame) -> Frame:
-        with self.lock:
-            check_name(frame.name, "sensor")
+        check_name(frame.name, "sensor")
+        with self._change():
             self.rig.add(frame)
-            self.save()
-            return frame
+        return frame
 
     # -- captures ---------------------------------------------------------------------
     def _capture_dir(self, sensor: str) -> Path:
@@ -203,17 +216,16 @@ class Session:
     def acceptance_log(self) -> list[Acceptance]:
         return list(self._data.acceptance_log)
 
-    def accept(self, slot: str, result_id: str, apply: callable) -> None:
+    def accept(self, slot: str, result_id: str, apply: Callable[[Rig, dict[str, Any]], None]) -> None:
         """Make ``result_id`` current for ``slot``; ``apply(rig, record)`` writes it into the rig.
 
         Accepting an older result is how a user reverts; the log keeps every step.
         """
-        with self.lock:
-            record = self.result(result_id)
+        record = self.result(result_id)
+        with self._change():
             apply(self.rig, record)
             self._data.accepted[slot] = result_id
             self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=time.time()))
-            self.save()
 
 
 class SessionStore:

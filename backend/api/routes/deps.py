@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from fastapi import Request
+from typing import Annotated
+
+from fastapi import Depends, Request
 
 from backend.services.jobs import JobRunner
 from backend.store.session import Session, SessionStore
@@ -18,3 +20,8 @@ def jobs(request: Request) -> JobRunner:
 
 def session(name: str, request: Request) -> Session:
     return store(request).get(name)
+
+
+StoreDep = Annotated[SessionStore, Depends(store)]
+JobsDep = Annotated[JobRunner, Depends(jobs)]
+SessionDep = Annotated[Session, Depends(session)]

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Query
 from fastapi.responses import PlainTextResponse
 
 from backend.api.routes import deps
 from backend.services.exports import EXPORT_FORMATS, ExportFormat, export_text
-from backend.store.session import Session
 
 router = APIRouter(tags=["exports"])
 
@@ -20,22 +19,23 @@ def formats() -> dict[str, str]:
 
 
 @router.get("/sessions/{name}/results")
-def list_results(sensor: str | None = None, kind: str | None = None,
-                 session: Session = Depends(deps.session)) -> list[dict[str, Any]]:
+def list_results(session: deps.SessionDep, sensor: str | None = None,
+                 kind: str | None = None) -> list[dict[str, Any]]:
     """Every stored result (oldest first), summarised; fetch one for its full record."""
     keep = ("id", "sensor", "kind", "created", "rms_px", "camera", "std", "seconds")
     return [{k: r.get(k) for k in keep} for r in session.results(sensor, kind)]
 
 
 @router.get("/sessions/{name}/results/{result_id}")
-def get_result(result_id: str, session: Session = Depends(deps.session)) -> dict[str, Any]:
+def get_result(result_id: str, session: deps.SessionDep) -> dict[str, Any]:
     return session.result(result_id)
 
 
 @router.get("/sessions/{name}/export/{fmt}", response_class=PlainTextResponse,
             responses={200: {"content": {"application/yaml": {}}}})
-def export(fmt: ExportFormat, sensor: str | None = Query(None, description="camera for camera_info / opencv"),
-           session: Session = Depends(deps.session)) -> PlainTextResponse:
+def export(fmt: ExportFormat, session: deps.SessionDep,
+           sensor: Annotated[str | None, Query(description="camera for camera_info / opencv")] = None
+           ) -> PlainTextResponse:
     filename, text = export_text(session, fmt, sensor)
     return PlainTextResponse(text, media_type="application/yaml",
                              headers={"Content-Disposition": f'attachment; filename="{filename}"'})

@@ -2,32 +2,33 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, File, Query, Response, UploadFile
+from fastapi import APIRouter, File, Query, Response, UploadFile
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, ImportResponse, IntrinsicsSolveRequest, JobStatus
 from backend.devices.image_io import encode_jpeg
 from backend.services import intrinsics as service
-from backend.services.jobs import JobRunner
 from backend.solvers.intrinsics import IntrinsicsSettings
-from backend.store.session import Session
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}", tags=["intrinsics"])
 
 
 @router.get("/captures")
-def list_captures(sensor: str, session: Session = Depends(deps.session)) -> list[dict[str, Any]]:
+def list_captures(sensor: str, session: deps.SessionDep) -> list[dict[str, Any]]:
     return [c.model_dump(exclude={"detection"}) | {"board_found": c.detection is not None}
             for c in session.captures(sensor)]
 
 
 @router.post("/captures", status_code=201, response_model=ImportResponse)
-async def upload_captures(sensor: str, files: list[UploadFile] = File(...),
-                          skip_unusable: bool = Query(False, description="store the images with a board and report "
-                                                                         "the others, instead of rejecting the batch"),
-                          session: Session = Depends(deps.session)) -> dict[str, Any]:
+async def upload_captures(
+    sensor: str,
+    files: Annotated[list[UploadFile], File()],
+    session: deps.SessionDep,
+    skip_unusable: Annotated[bool, Query(description="store the images with a board and report the others, "
+                                                     "instead of rejecting the batch")] = False,
+) -> dict[str, Any]:
     """Add images of the board. Only the base name of an upload is kept; files are stored under new ids."""
     payload = [(f.filename or "upload", await f.read()) for f in files]
     report = service.import_images(session, sensor, payload, skip_unusable=skip_unusable)
@@ -35,13 +36,13 @@ async def upload_captures(sensor: str, files: list[UploadFile] = File(...),
 
 
 @router.get("/captures/{capture_id}/image", responses={200: {"content": {"image/jpeg": {}}}})
-def capture_image(sensor: str, capture_id: str, session: Session = Depends(deps.session)) -> Response:
+def capture_image(sensor: str, capture_id: str, session: deps.SessionDep) -> Response:
     return Response(encode_jpeg(session.capture_image(sensor, capture_id)), media_type="image/jpeg")
 
 
 @router.post("/intrinsics/solve", status_code=202, response_model=JobStatus)
-def solve(sensor: str, body: IntrinsicsSolveRequest, session: Session = Depends(deps.session),
-          jobs: JobRunner = Depends(deps.jobs)) -> dict[str, Any]:
+def solve(sensor: str, body: IntrinsicsSolveRequest, session: deps.SessionDep,
+          jobs: deps.JobsDep) -> dict[str, Any]:
     """Start a solve in the background; poll ``/api/jobs/{id}``, whose ``result_id`` names the stored result."""
     settings = IntrinsicsSettings(**body.model_dump(exclude={"capture_ids"}))
     session.rig.get(sensor)
@@ -51,6 +52,6 @@ def solve(sensor: str, body: IntrinsicsSolveRequest, session: Session = Depends(
 
 
 @router.post("/intrinsics/accept")
-def accept(sensor: str, body: AcceptRequest, session: Session = Depends(deps.session)) -> dict[str, Any]:
+def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
     service.accept(session, sensor, body.result_id)
     return session.info()

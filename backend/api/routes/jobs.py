@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter
 
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus
-from backend.services.jobs import Job, JobRunner
+from backend.services.jobs import Job
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -18,12 +18,12 @@ def job_status(job: Job) -> dict[str, Any]:
 
 
 @router.get("/{job_id}", response_model=JobStatus)
-def get_job(job_id: str, jobs: JobRunner = Depends(deps.jobs)) -> dict[str, Any]:
+def get_job(job_id: str, jobs: deps.JobsDep) -> dict[str, Any]:
     return job_status(jobs.get(job_id))
 
 
 @router.post("/{job_id}/cancel", response_model=JobStatus)
-def cancel_job(job_id: str, jobs: JobRunner = Depends(deps.jobs)) -> dict[str, Any]:
+def cancel_job(job_id: str, jobs: deps.JobsDep) -> dict[str, Any]:
     job = jobs.get(job_id)
     job.cancel()
     return job_status(job)

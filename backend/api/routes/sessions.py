@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter
 
 from backend.api.routes import deps
 from backend.api.schemas import BoardUpdate, SensorCreate, SessionCreate
@@ -13,40 +13,39 @@ from backend.core.boards import BoardSpec
 from backend.core.rig import Frame
 from backend.core.transforms import from_xyz_ypr
 from backend.store.rig_io import rig_to_model
-from backend.store.session import Session, SessionStore
 
 router = APIRouter(tags=["sessions"])
 
 
 @router.get("/sessions")
-def list_sessions(store: SessionStore = Depends(deps.store)) -> list[dict[str, Any]]:
+def list_sessions(store: deps.StoreDep) -> list[dict[str, Any]]:
     return [store.get(name).info() for name in store.names()]
 
 
 @router.post("/sessions", status_code=201)
-def create_session(body: SessionCreate, store: SessionStore = Depends(deps.store)) -> dict[str, Any]:
+def create_session(body: SessionCreate, store: deps.StoreDep) -> dict[str, Any]:
     board = str(BoardSpec.parse(body.board)) if body.board else None
     return store.create(body.name, board=board, title=body.title).info()
 
 
 @router.get("/sessions/{name}")
-def get_session(session: Session = Depends(deps.session)) -> dict[str, Any]:
+def get_session(session: deps.SessionDep) -> dict[str, Any]:
     return session.info()
 
 
 @router.put("/sessions/{name}/board")
-def set_board(body: BoardUpdate, session: Session = Depends(deps.session)) -> dict[str, Any]:
+def set_board(body: BoardUpdate, session: deps.SessionDep) -> dict[str, Any]:
     session.set_board(str(BoardSpec.parse(body.board)))
     return session.info()
 
 
 @router.get("/sessions/{name}/rig")
-def get_rig(session: Session = Depends(deps.session)) -> dict[str, Any]:
+def get_rig(session: deps.SessionDep) -> dict[str, Any]:
     return rig_to_model(session.rig).model_dump()
 
 
 @router.post("/sessions/{name}/sensors", status_code=201)
-def add_sensor(body: SensorCreate, session: Session = Depends(deps.session)) -> dict[str, Any]:
+def add_sensor(body: SensorCreate, session: deps.SessionDep) -> dict[str, Any]:
     T = from_xyz_ypr(np.array(body.xyz_m), np.radians(body.ypr_deg))
     session.add_sensor(Frame(body.name, body.parent, T, kind=body.kind, device=body.device))
     return session.info()
