@@ -75,8 +75,10 @@ def test_analytic_sigmas_alone_would_be_too_small():
     with_jackknife = calibrate_intrinsics(views, BOARD, truth.image_size)
     analytic_only = calibrate_intrinsics(views, BOARD, truth.image_size, IntrinsicsSettings(jackknife=False))
     np.testing.assert_allclose(with_jackknife.camera.K, analytic_only.camera.K)
-    assert with_jackknife.std["fx"] >= analytic_only.std["fx"]
-    assert all(a >= b for a, b in zip(with_jackknife.std["dist"], analytic_only.std["dist"], strict=True))
+    reported = np.r_[[with_jackknife.std[k] for k in ("fx", "fy", "cx", "cy")], with_jackknife.std["dist"]]
+    analytic = np.r_[[analytic_only.std[k] for k in ("fx", "fy", "cx", "cy")], analytic_only.std["dist"]]
+    assert np.all(reported >= analytic * (1 - 1e-9))
+    assert with_jackknife.std["fx"] > 2 * analytic_only.std["fx"]  # per-view errors dominate the focal length
 
 
 def test_degenerate_views_are_rejected():
