@@ -21,6 +21,10 @@ BOARD_TEXTURE_PX = 24
 """Pixels per square of the board texture drawn in 3D."""
 R_PLANE_BOARD = np.diag([1.0, -1.0, -1.0])
 """Rotation from board axes (x right, y down the printed rows) to a viser image plane (x right, y up)."""
+INITIAL_CAMERA_POSITION_M = (-0.9, -1.5, 1.4)
+INITIAL_LOOK_AT_M = (0.6, 0.0, 0.3)
+"""Where a new page's view starts (and "Reset View" returns): close enough to read the frame labels, with the
+rig and the boards in front of its cameras in view."""
 SENSOR_COLOURS = {
     "camera": (40, 110, 220),
     "lidar3d": (220, 120, 30),
@@ -49,6 +53,8 @@ class RigScene:
         self._frusta: dict[str, viser.CameraFrustumHandle] = {}
         self._boards: dict[str, list[viser.ImageHandle]] = {"live": [], "captured": []}
         server.scene.set_up_direction("+z")
+        server.initial_camera.position = INITIAL_CAMERA_POSITION_M
+        server.initial_camera.look_at = INITIAL_LOOK_AT_M
         server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
 
     def show_rig(self, rig: Rig) -> None:
@@ -83,12 +89,18 @@ class RigScene:
         if handle is not None:
             handle.image = _thumbnail(image)
 
+    def clear_boards(self, live: bool = False) -> None:
+        """Remove the boards drawn by :meth:`show_boards` (the live one, or the captured views)."""
+        group = "live" if live else "captured"
+        for handle in self._boards[group]:
+            handle.remove()
+        self._boards[group] = []
+
     def show_boards(self, rig: Rig, camera: str, board: BoardSpec, T_camera_boards: list[np.ndarray],
                     live: bool = False) -> None:
         """Draw the board at each pose in front of ``camera`` (captured views, or the live view)."""
         group = "live" if live else "captured"
-        for handle in self._boards[group]:
-            handle.remove()
+        self.clear_boards(live)
         texture = cv2.cvtColor(board.render(BOARD_TEXTURE_PX), cv2.COLOR_GRAY2RGB)
         width_m, height_m = board.size_m
         T_board_plane = np.eye(4)

@@ -23,6 +23,7 @@ import numpy as np
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
+from backend.exports.text_file import read_text
 
 CAMERA_KEYS = ("image_width", "image_height", "distortion_model", "camera_matrix", "distortion_coefficients")
 """The nodes this module writes for the camera itself; extras may not reuse them."""
@@ -85,10 +86,7 @@ def read_opencv_yaml(path: Path) -> CameraIntrinsics:
     the file and the node for an unreadable file or a missing or malformed node.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the file ({exc}); expected {_EXPECTED_FILE}", str(path)) from None
+    text = read_text(path, _EXPECTED_FILE)
     try:
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError):

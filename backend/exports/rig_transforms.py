@@ -36,6 +36,7 @@ import numpy as np
 import yaml
 
 from backend.core.errors import InputError
+from backend.exports.text_file import read_text
 from backend.core.rig import Rig
 from backend.core.transforms import (
     from_quaternion_xyzw,
@@ -103,11 +104,7 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
     root nor an earlier child and a child listed twice.
     """
     if isinstance(source, Path):
-        origin = str(source)
-        try:
-            text = source.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"{origin}: cannot read the file ({exc}); expected a {FORMAT} YAML file", origin) from None
+        origin, text = str(source), read_text(source, f"a {FORMAT} YAML file")
     else:
         origin, text = "rig transforms text", source
     try:

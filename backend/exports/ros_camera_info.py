@@ -27,6 +27,7 @@ import yaml
 
 from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
+from backend.exports.text_file import read_text
 
 MODELS_BY_ROS_NAME: dict[str, CameraModelName] = {
     "plumb_bob": "pinhole-radtan",
@@ -109,10 +110,7 @@ def load_camera_info(path: Path) -> tuple[CameraIntrinsics, str]:
     floats that YAML 1.1 reads as strings (``1e-05``) are accepted.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the file ({exc}); expected {_EXPECTED_FILE}", str(path)) from None
+    text = read_text(path, _EXPECTED_FILE)
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -137,6 +137,7 @@ class IntrinsicsStep:
         if self.live is not None:
             self.live.stop()
             self.live = None
+            self.ctx.scene.clear_boards(live=True)
         self.start_button.visible, self.stop_button.visible = True, False
 
     def _capture_now(self) -> None:
@@ -226,7 +227,11 @@ class IntrinsicsStep:
     def _show_result(self, result_id: str) -> None:
         session = self.ctx.session
         if session is None or result_id in (None, "(none)"):
+            # Nothing solved for this camera: drop the previous camera's plots and boards too.
             self.result_text.content = "No result yet."
+            self.rms_plot.image = plots.view_rms_bars([], [], [])
+            self.uncertainty_plot.image = np.full((270, 480, 3), 255, np.uint8)
+            self.ctx.scene.clear_boards()
             return
         record = session.result(result_id)
         self.result_text.content = result_markdown(record, accepted=session.accepted(f"{self.sensor}/intrinsics"))
