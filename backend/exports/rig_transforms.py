@@ -36,7 +36,6 @@ import numpy as np
 import yaml
 
 from backend.core.errors import InputError
-from backend.exports.text_file import read_text
 from backend.core.rig import Rig
 from backend.core.transforms import (
     from_quaternion_xyzw,
@@ -45,6 +44,7 @@ from backend.core.transforms import (
     to_quaternion_xyzw,
     to_xyz_ypr,
 )
+from backend.exports.text_file import read_text
 
 FORMAT = "calib-studio-rig-transforms"
 VERSION = 1
