@@ -111,6 +111,8 @@ class IntrinsicsStep:
             detection = Detection.from_dict(last.detection) if last.detection else None
             self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
             self.ctx.scene.show_camera_image(sensor, image)
+        else:  # not the previous camera's last frame
+            self.preview.image = np.full((270, 480, 3), 40, np.uint8)
         results = session.results(sensor, "intrinsics")
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
         accepted = session.accepted(f"{sensor}/intrinsics")
