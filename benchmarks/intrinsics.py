@@ -69,6 +69,8 @@ def median_time(function, repeats=REPEATS):
 def main():
     started = time.perf_counter()
     board = BoardSpec.parse(DEMO_BOARD)
+    log(f"load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores "
+        "(other processes skew the timings, the solve's numpy/BLAS part most)")
 
     # 1. Render the views and detect the board in each (full accuracy, as for captures).
     log(f"rendering {N_VIEWS} views of simulated cam_front ...")
@@ -131,7 +133,7 @@ def main():
 
     # 3. Report.
     peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
-    log(f"done in {time.perf_counter() - started:.1f} s")
+    log(f"done in {time.perf_counter() - started:.1f} s; load average at end: {os.getloadavg()[0]:.2f}")
     result = {
         "benchmark": "intrinsics",
         "views": N_VIEWS,

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import socket
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from playwright.sync_api import Browser, sync_playwright
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 STEREO_CHESSBOARD = SHARED_DATA / "opencv_stereo_chessboard"
@@ -20,3 +23,36 @@ def stereo_chessboard() -> Path:
 @pytest.fixture(scope="session")
 def left_images(stereo_chessboard: Path) -> list[Path]:
     return sorted(stereo_chessboard.glob("left*.jpg"))
+
+
+ARTIFACTS = Path(__file__).parent / "artifacts"
+"""Screenshots the browser tests leave for a person to look at."""
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
+                 "--no-first-run"]
+"""Debian's chromium with software WebGL (see ../shared/stack-notes.md); Playwright cannot fetch its own."""
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture(scope="session")
+def free_port() -> Callable[[], int]:
+    """A function returning a free TCP port on 127.0.0.1."""
+    return _free_port
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Browser]:
+    """One headless Debian chromium for the whole run, driven by Playwright."""
+    ARTIFACTS.mkdir(exist_ok=True)
+    with sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield chromium
+        finally:
+            chromium.close()

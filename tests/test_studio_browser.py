@@ -12,29 +12,24 @@ from __future__ import annotations
 import io
 import queue
 import re
-import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
+from conftest import ARTIFACTS
 from PIL import Image
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Browser, Page, expect
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
-ARTIFACTS = Path(__file__).parent / "artifacts"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
-                 "--no-first-run"]
 VIEWPORT = {"width": 1600, "height": 1000}
 PANEL_LEFT_PX = 1150
 """The wizard panel floats over the right of the page; the 3D view is checked left of this."""
@@ -43,12 +38,6 @@ CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
 MIN_VIEWS = 12
 VIEWS_RE = re.compile(r"(\d+) views ·")
 RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · pinhole-radtan 1280×720")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @dataclass
@@ -68,7 +57,7 @@ class Studio:
 
 
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Studio]:
+def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Studio]:
     tmp = tmp_path_factory.mktemp("studio")
     api_port, viewer_port = free_port(), free_port()
     while viewer_port == api_port:
@@ -112,16 +101,6 @@ def studio(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Studio]:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait(timeout=10)
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            yield browser
-        finally:
-            browser.close()
 
 
 @pytest.fixture

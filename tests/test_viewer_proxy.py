@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import httpx
 import msgspec
@@ -15,6 +13,8 @@ import pytest
 import uvicorn
 import viser
 import websockets.exceptions
+from conftest import ARTIFACTS
+from playwright.sync_api import Browser
 from viser import _messages
 from websockets.sync.client import connect
 
@@ -28,13 +28,6 @@ CAMERA = msgspec.msgpack.encode(_messages.ViewerCameraMessage(
     wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.0, -2.0), fov=1.0, near=0.01, far=100.0, image_height=480,
     image_width=640, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, -1.0, 0.0)).as_serializable_dict())
 """What the viser client sends first: a pose of its viewer camera."""
-ARTIFACTS = Path(__file__).parent / "artifacts"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @dataclass
@@ -52,7 +45,7 @@ class Servers:
 
 
 @pytest.fixture(scope="module")
-def servers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Servers]:
+def servers(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Servers]:
     viewer_port = free_port()
     viewer = viser.ViserServer(host="127.0.0.1", port=viewer_port, verbose=False)
     viewer.scene.add_frame("/probe")
@@ -151,28 +144,19 @@ def test_viewer_side_close_reaches_client(servers: Servers) -> None:
 
 
 @pytest.mark.browser
-def test_browser_renders_studio_through_proxy(servers: Servers) -> None:
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not Path("/usr/bin/chromium").exists():
-        pytest.skip("Debian chromium not installed")
-    args = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-            "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
-            "--no-first-run"]
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 800})
-            sockets: list[str] = []
-            page.on("websocket", lambda ws: sockets.append(ws.url))
-            page.goto(f"{servers.base}/studio/?token={TOKEN}")
-            page.get_by_text("proxy-ok").first.wait_for(timeout=20_000)
-            deadline = time.monotonic() + 10
-            while not servers.viewer.get_clients():
-                assert time.monotonic() < deadline, "viser never saw the browser"
-                page.wait_for_timeout(100)
-            assert f"ws://127.0.0.1:{servers.api_port}/studio" in sockets
-            page.wait_for_timeout(1000)  # let the 3D canvas draw a few frames
-            ARTIFACTS.mkdir(exist_ok=True)
-            page.screenshot(path=str(ARTIFACTS / "viewer_proxy.png"))
-        finally:
-            browser.close()
+def test_browser_renders_studio_through_proxy(servers: Servers, browser: Browser) -> None:
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    try:
+        sockets: list[str] = []
+        page.on("websocket", lambda ws: sockets.append(ws.url))
+        page.goto(f"{servers.base}/studio/?token={TOKEN}")
+        page.get_by_text("proxy-ok").first.wait_for(timeout=20_000)
+        deadline = time.monotonic() + 10
+        while not servers.viewer.get_clients():
+            assert time.monotonic() < deadline, "viser never saw the browser"
+            page.wait_for_timeout(100)
+        assert f"ws://127.0.0.1:{servers.api_port}/studio" in sockets
+        page.wait_for_timeout(1000)  # let the 3D canvas draw a few frames
+        page.screenshot(path=str(ARTIFACTS / "viewer_proxy.png"))
+    finally:
+        page.close()
