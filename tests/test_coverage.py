@@ -1,0 +1,52 @@
+"""Coverage guidance: ROS-style bars, the heat map, auto-capture decisions and the enough-data signal."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.core.boards import BoardSpec
+from backend.solvers.board_detection import Detection
+from backend.solvers.coverage import Coverage, view_parameters
+
+BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
+SIZE = (1280, 720)
+
+
+def grid_detection(centre_px: tuple[float, float], spacing_px: float, shear: float = 0.0) -> Detection:
+    """A synthetic detection: the 9x6 corner grid centred at ``centre_px``, optionally sheared."""
+    cols, rows = BOARD.corner_grid
+    gx, gy = np.meshgrid(np.arange(cols) - (cols - 1) / 2, np.arange(rows) - (rows - 1) / 2)
+    xy = np.column_stack([gx.ravel() + shear * gy.ravel(), gy.ravel()]) * spacing_px + centre_px
+    return Detection(xy, np.arange(BOARD.n_corners), SIZE)
+
+
+def test_view_parameters_follow_position_size_and_skew():
+    def params(centre_px, spacing_px, shear=0.0):
+        return view_parameters(grid_detection(centre_px, spacing_px, shear), BOARD)
+
+    left, right = params((200, 360), 30), params((1080, 360), 30)
+    assert left[0] < 0.1 and right[0] > 0.9 and abs(left[1] - 0.5) < 0.05
+    assert params((640, 360), 60)[2] > 2.5 * params((640, 360), 20)[2]
+    assert params((640, 360), 40)[3] < 0.01 < 0.5 < params((640, 360), 40, shear=0.4)[3]
+
+
+def test_only_new_views_add_coverage_and_bars_fill():
+    coverage = Coverage(BOARD, SIZE)
+    first = grid_detection((640, 360), 40)
+    assert coverage.adds_coverage(first)
+    coverage.add(first)
+    assert not coverage.adds_coverage(grid_detection((645, 362), 40))  # the same view, barely moved
+    assert coverage.adds_coverage(grid_detection((250, 360), 40))
+    assert coverage.progress["x"] == 0.0 and not coverage.enough
+
+    for centre in [(200, 150), (1080, 150), (200, 570), (1080, 570)]:
+        for spacing, shear in [(25, 0.0), (70, 0.0), (40, 0.45)]:
+            coverage.add(grid_detection(centre, spacing, shear))
+    coverage.add(grid_detection((640, 360), 120))  # close to the camera: fills the size bar
+    assert all(value == 1.0 for value in coverage.progress.values()), coverage.progress
+    assert coverage.enough
+    assert coverage.heatmap.sum() == len(coverage.params) * BOARD.n_corners
+    assert coverage.cells_seen > 0.5
+    summary = coverage.summary()
+    assert summary["views"] == 14 and summary["enough"] is True
+    assert np.array(summary["heatmap"]).shape == (9, 16)
