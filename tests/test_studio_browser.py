@@ -252,3 +252,21 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     for name in ("cx", "cy"):
         tolerance = max(10.0, 4.0 * record["std"][name])
         assert abs(got[name] - CAM_WIDE_TRUTH[name]) < tolerance, (name, got, record["std"])
+
+
+def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_chessboard: Path) -> None:
+    """A truncated JPEG imported in the intrinsics step: a red notification names it, nothing is stored."""
+    camera = page.get_by_label("Camera", exact=True).input_value()  # GUI state persists across pages
+    captures_url = f"{studio.api}/api/sessions/demo/sensors/{camera}/captures"
+    before = httpx.get(captures_url).json()
+    data = (stereo_chessboard / "left01.jpg").read_bytes()
+    with page.expect_file_chooser() as chooser:
+        _button(page, "Import an image file").click()
+    chooser.value.set_files({"name": "broken_shot.jpg", "mimeType": "image/jpeg", "buffer": data[: len(data) // 2]})
+    notice = page.locator(".mantine-Notification-root", has_text="Image not added")
+    expect(notice).to_be_visible(timeout=15_000)
+    expect(notice).to_contain_text("broken_shot.jpg")
+    expect(notice).to_contain_text("not a readable image")
+    page.wait_for_timeout(1000)  # let the toast finish sliding in before the picture
+    page.screenshot(path=ARTIFACTS / "studio_bad_upload.png")
+    assert httpx.get(captures_url).json() == before

@@ -44,6 +44,8 @@ class IntrinsicsStep:
                 self.stop_button = gui.add_button("Stop", color="red", visible=False)
                 self.auto = gui.add_checkbox("Auto-capture when it adds coverage", initial_value=True)
                 self.capture_button = gui.add_button("Capture this frame")
+                self.import_button = gui.add_upload_button("Import an image file", mime_type="image/*",
+                                                           hint="add a photo of the board taken elsewhere")
                 self.preview = gui.add_image(np.full((270, 480, 3), 40, np.uint8), label="Live", format="jpeg")
                 self.bars = {name: gui.add_progress_bar(0.0, color="teal") for name in PARAM_NAMES}
                 self.coverage_text = gui.add_markdown("No views yet.")
@@ -74,6 +76,7 @@ class IntrinsicsStep:
         self.stop_button.on_click(lambda _: self._stop_live())
         self.auto.on_update(lambda _: setattr(self.live, "auto_capture", self.auto.value) if self.live else None)
         self.capture_button.on_click(lambda _: self._capture_now())
+        self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
         self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
         self.history.on_update(lambda _: self._show_result(self.history.value))
@@ -147,6 +150,19 @@ class IntrinsicsStep:
             self.ctx.notify("Not live", "Start live capture first.", error=True)
         else:
             self.live.capture_now()
+
+    def _import(self, upload) -> None:
+        """Add an uploaded image as a capture; a corrupt file or a missing board is reported by name."""
+        if self.sensor is None:
+            self.ctx.notify("No camera", "Pick a camera first.", error=True)
+            return
+        try:
+            report = intrinsics_service.import_images(self.ctx.session, self.sensor, [(upload.name, upload.content)])
+        except InputError as exc:
+            self.ctx.notify("Image not added", exc.message, error=True)
+            return
+        self.ctx.notify("Image added", f"{upload.name} is capture {report.added[0].id} of {self.sensor}.")
+        self._select_camera()
 
     def _on_frame(self, image: np.ndarray, detection: Detection | None, coverage: Coverage | None) -> None:
         now = time.monotonic()
