@@ -28,4 +28,4 @@ class StudioApp:
             self.ctx.open_session(session)
 
     def close(self) -> None:
-        self.intrinsics_step._stop_live()
+        self.intrinsics_step.stop_live()

@@ -13,7 +13,7 @@ import viser
 import viser.transforms as vtf
 
 from backend.core.boards import BoardSpec
-from backend.core.rig import Rig
+from backend.core.rig import Frame, Rig
 
 DEFAULT_FOV_RAD = np.radians(60.0)
 FRUSTUM_SCALE_M = 0.15
@@ -75,13 +75,13 @@ class RigScene:
                 self.server.scene.add_box(f"{node}/body", color=SENSOR_COLOURS[frame.kind],
                                           dimensions=(0.06, 0.06, 0.05))
 
-    def _add_frustum(self, node: str, frame, image: np.ndarray | None = None) -> viser.CameraFrustumHandle:
+    def _add_frustum(self, node: str, frame: Frame) -> viser.CameraFrustumHandle:
         camera = frame.intrinsics
         fov = camera.fov_y_rad if camera else DEFAULT_FOV_RAD
         aspect = camera.width / camera.height if camera else 16 / 9
         return self.server.scene.add_camera_frustum(
             f"{node}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M, color=SENSOR_COLOURS["camera"],
-            image=None if image is None else _thumbnail(image), format="jpeg")
+            format="jpeg")
 
     def show_camera_image(self, camera: str, image: np.ndarray) -> None:
         """Paint the latest live or captured image into a camera's frustum."""

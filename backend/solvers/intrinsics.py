@@ -23,8 +23,9 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
-from backend.core.transforms import from_rvec_tvec
+from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
 from backend.solvers.board_detection import Detection
+from backend.solvers.board_pose import board_pose
 from backend.solvers.coverage import view_parameters
 from backend.solvers.result import ProgressCallback, SolveResult, no_progress
 
@@ -208,10 +209,13 @@ def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> 
     return np.column_stack(columns)
 
 
-def _covariance(camera, views, board, rvecs, tvecs, used, A):
-    """Residuals per view and the covariance of all intrinsics ([fx, fy, cx, cy, dist...]).
+def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, rvecs, tvecs, used: np.ndarray,
+                A: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """Residuals and pose of every view, and the covariance of [fx, fy, cx, cy, dist...].
 
-    Returns (residuals per view, intrinsic covariance, sigma^2 of one corner coordinate).
+    ``rvecs``/``tvecs`` are OpenCV's poses of the used views; excluded views get a
+    pose by PnP so their residuals can still be shown. Covariance units are px^2
+    for fx, fy, cx, cy and unitless^2 for the distortion coefficients.
     """
     n_free = A.shape[1]
     n_used = int(np.count_nonzero(used))
@@ -223,8 +227,7 @@ def _covariance(camera, views, board, rvecs, tvecs, used, A):
             rvec, tvec = rvecs[k], tvecs[k]
             k += 1
         else:  # an excluded view still gets a pose for its residuals (PnP with the solved model)
-            ok, rvec, tvec = cv2.solvePnP(obj, camera.undistort_points(view.detection.corners_px),
-                                          np.eye(3), None)
+            rvec, tvec = to_rvec_tvec(board_pose(camera, board, view.detection))
         uv, J = _project(camera, obj, rvec, tvec)
         residuals.append((view.detection.corners_px - uv, from_rvec_tvec(rvec, tvec)))
         if is_used:
@@ -246,7 +249,7 @@ def _covariance(camera, views, board, rvecs, tvecs, used, A):
     normal = (jac * scale).T @ (jac * scale)
     cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
     cov_all = 0.5 * (cov_all + cov_all.T)
-    return residuals, A @ cov_all[:n_free, :n_free] @ A.T, sigma2
+    return residuals, A @ cov_all[:n_free, :n_free] @ A.T
 
 
 def _embed(matrix: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -330,7 +333,7 @@ def calibrate_intrinsics(
         camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
         progress(0.6 + 0.2 * attempt, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
-        residuals, cov, _ = _covariance(camera, views, board, rvecs, tvecs, used, A)
+        residuals, cov = _covariance(camera, views, board, rvecs, tvecs, used, A)
         view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
         outlier = view_rms > settings.outlier_factor * np.median(view_rms[used])
         if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):

@@ -113,6 +113,10 @@ class Session:
         return self._data.name
 
     @property
+    def title(self) -> str:
+        return self._data.title
+
+    @property
     def board(self) -> str | None:
         return self._data.board
 

@@ -5,16 +5,15 @@ from __future__ import annotations
 import threading
 import time
 
-import cv2
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.core.transforms import from_rvec_tvec
 from backend.services import exports as export_service
 from backend.services import intrinsics as intrinsics_service
 from backend.services.jobs import Job
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
 from backend.solvers.board_detection import Detection
+from backend.solvers.board_pose import board_pose, nominal_camera
 from backend.solvers.coverage import PARAM_NAMES, Coverage
 from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.schema import CaptureRecord
@@ -73,7 +72,7 @@ class IntrinsicsStep:
 
         self.camera.on_update(lambda _: self._select_camera())
         self.start_button.on_click(lambda _: self._start_live())
-        self.stop_button.on_click(lambda _: self._stop_live())
+        self.stop_button.on_click(lambda _: self.stop_live())
         self.auto.on_update(lambda _: setattr(self.live, "auto_capture", self.auto.value) if self.live else None)
         self.capture_button.on_click(lambda _: self._capture_now())
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
@@ -88,7 +87,7 @@ class IntrinsicsStep:
 
     # -- session and camera -------------------------------------------------------------
     def _on_session(self, session) -> None:
-        self._stop_live()
+        self.stop_live()
         cameras = [f.name for f in session.rig.sensors("camera")] or [NO_CAMERA]
         self.camera.options = cameras
         if self.camera.value not in cameras:
@@ -100,7 +99,7 @@ class IntrinsicsStep:
         return None if self.camera.value == NO_CAMERA or self.ctx.session is None else self.camera.value
 
     def _select_camera(self) -> None:
-        self._stop_live()
+        self.stop_live()
         session, sensor = self.ctx.session, self.sensor
         if sensor is None:
             return
@@ -127,7 +126,7 @@ class IntrinsicsStep:
         if self.sensor is None:
             self.ctx.notify("No camera", "Add a camera in step 2 first.", error=True)
             return
-        self._stop_live()
+        self.stop_live()
         try:
             self.live = LiveCapture(self.ctx.session, self.sensor, LiveCallbacks(
                 frame=self._on_frame, captured=self._on_captured, status=self._on_status),
@@ -138,7 +137,7 @@ class IntrinsicsStep:
         self.live.start()
         self.start_button.visible, self.stop_button.visible = False, True
 
-    def _stop_live(self) -> None:
+    def stop_live(self) -> None:
         if self.live is not None:
             self.live.stop()
             self.live = None
@@ -172,12 +171,11 @@ class IntrinsicsStep:
         board = self.live.board if self.live else intrinsics_service.session_board(self.ctx.session)
         self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
         self.ctx.scene.show_camera_image(self.sensor, image)
-        camera = self.ctx.session.rig.get(self.sensor).intrinsics
-        if detection is not None and camera is not None:
-            ok, rvec, tvec = cv2.solvePnP(detection.object_points(board), detection.corners_px, camera.K, camera.dist)
-            if ok:
-                self.ctx.scene.show_boards(self.ctx.session.rig, self.sensor, board, [from_rvec_tvec(rvec, tvec)],
-                                           live=True)
+        if detection is not None:
+            camera = self.ctx.session.rig.get(self.sensor).intrinsics or nominal_camera(*detection.image_size)
+            T_camera_board = board_pose(camera, board, detection)
+            if T_camera_board is not None:
+                self.ctx.scene.show_boards(self.ctx.session.rig, self.sensor, board, [T_camera_board], live=True)
 
     def _on_captured(self, record: CaptureRecord, coverage: Coverage) -> None:
         self._show_coverage(coverage)

@@ -53,5 +53,5 @@ class SessionStep:
         if self.choice.value != session.name:
             self.choice.value = session.name
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
-        self.summary.content = (f"**{session.name}** {session._data.title}\n\n"
+        self.summary.content = (f"**{session.name}** {session.title}\n\n"
                                 f"Board: `{session.board}`  \nSensors: {sensors}")
