@@ -39,7 +39,9 @@ class Sample:
     image: np.ndarray | None = None
     """uint8 image, HxW (gray) or HxWx3 (BGR), for cameras."""
     points: np.ndarray | None = None
-    """(N, 3) or (N, 4) float points in the sensor frame (m), for range sensors."""
+    """(N, 3) float64 points in the sensor's frame (m), for range sensors; z = 0 for a 2D scanner."""
+    intensity: np.ndarray | None = None
+    """(N,) float32 return intensity of each point, in the sensor's own units, when it reports one."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Driver facts worth keeping (source file, frame index, ground truth in simulation)."""
 
