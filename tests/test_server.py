@@ -10,6 +10,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from conftest import stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,8 +45,4 @@ def test_serve_with_token_guards_api_and_studio(tmp_path: Path, free_port: Calla
         missing = httpx.get(f"{base}/api/no-such-route", headers={"Authorization": "Bearer t0ken"})
         assert missing.status_code == 404 and missing.json()["error"]["input"] == "/api/no-such-route"
     finally:
-        process.terminate()
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        stop_process(process)

@@ -23,7 +23,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS
+from conftest import ARTIFACTS, stop_process
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
@@ -95,12 +95,7 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
             time.sleep(0.2)
         yield studio
     finally:
-        process.terminate()
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=10)
+        stop_process(process)
 
 
 @pytest.fixture
