@@ -1,6 +1,15 @@
-"""Sensor drivers behind the one capture interface in :mod:`backend.devices.base`."""
+"""Sensor drivers behind the one capture interface in :mod:`backend.devices.base`.
+
+Importing the package registers every built-in driver with :func:`backend.devices.base.create_device`.
+"""
+
 from backend.devices import (  # noqa: F401
+    cloud_files,
     image_folder,
-    simulated_camera,  # noqa: F401
+    rosbag_source,
+    simulated_camera,
+    simulated_lidar,
     uvc_camera,
+    velodyne,
+    ydlidar,
 )

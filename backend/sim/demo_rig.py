@@ -59,7 +59,7 @@ def demo_rig() -> Rig:
     Sensors: ``cam_front`` and ``cam_wide`` (cameras, 15 cm apart, a few degrees of
     relative rotation, driven by the ``simulated`` capture driver), ``lidar_top``
     (3D spinning LiDAR on the roof) and ``scanner_2d`` (2D scanner low at the front).
-    The LiDARs carry no capture settings here.
+    The LiDARs are driven by the ``simulated_lidar`` driver (scans of :mod:`backend.sim.lidar_scene`).
     """
     rig = Rig("base_link")
     cameras = {
@@ -78,7 +78,9 @@ def demo_rig() -> Rig:
             )
         )
     T_base_lidar = _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False)
-    rig.add(Frame("lidar_top", "base_link", T_base_lidar, kind="lidar3d"))
+    rig.add(Frame("lidar_top", "base_link", T_base_lidar, kind="lidar3d",
+                  device={"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0}))
     T_base_scanner = _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False)
-    rig.add(Frame("scanner_2d", "base_link", T_base_scanner, kind="lidar2d"))
+    rig.add(Frame("scanner_2d", "base_link", T_base_scanner, kind="lidar2d",
+                  device={"driver": "simulated_lidar", "sensor": "scanner_2d", "seed": 0}))
     return rig

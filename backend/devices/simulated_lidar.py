@@ -1,0 +1,130 @@
+"""A LiDAR of the simulated demo rig scanning the simulated yard.
+
+Scans are ray-cast from ground truth (:mod:`backend.sim.lidar_scene`): the sensor's
+true pose ``T_base_sensor`` in :func:`backend.sim.demo_rig.demo_rig` and the scene
+with the calibration board, either standing still or carried through a cycle of
+poses. A ``lidar3d`` sensor gives a VLP-16-like 16-beam spinning scan, a ``lidar2d``
+sensor a 360 deg planar scan (points with z = 0).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.sim.demo_rig import demo_rig
+from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses
+
+
+@register_driver
+class SimulatedLidar(CaptureDevice):
+    """Simulated scans of a demo-rig LiDAR; ``points`` in the sensor frame (m), ``intensity`` float32 (0..255).
+
+    Sample ``i`` sees board pose ``i % board_poses`` (or the static board) and its
+    noise and spin phase come from ``(seed, i)``, so a sample is the same whatever was
+    read before it. ``meta`` holds ``frame_index``, ``sensor``, ``kind``,
+    ``simulated: True``, the ground-truth ``T_base_sensor`` and ``T_base_board``
+    (4x4 nested lists, metres, into ``base_link``).
+    """
+
+    driver = "simulated_lidar"
+
+    def __init__(
+        self,
+        sensor: str = "lidar_top",
+        seed: int = 0,
+        rate_hz: float = 0,
+        board_poses: int = 0,
+        disconnect_after: int | None = None,
+    ):
+        """Settings as stored in the rig.
+
+        Args:
+            sensor: name of a ``lidar3d`` or ``lidar2d`` sensor in the demo rig.
+            seed: seeds the range noise, the spin phase and the board motion.
+            rate_hz: scan rate to emulate (Hz); 0 scans as fast as possible.
+            board_poses: if above 0, the board moves through a cycle of this many poses
+                (:func:`~backend.sim.lidar_scene.moving_board_poses`); else it stands still.
+            disconnect_after: if set, reads after this many samples raise
+                :class:`DeviceDisconnected`, to exercise capture robustness.
+        """
+        self.sensor = sensor
+        self.seed = seed
+        self.rate_hz = rate_hz
+        self.board_poses = board_poses
+        self.disconnect_after = disconnect_after
+        self._kind: str | None = None
+        self._T_base_sensor: np.ndarray | None = None
+        self._poses: list[np.ndarray] = []
+        self._scenes: dict[int, LidarScene] = {}
+        self._frames_read = 0
+        self._next_frame_s = 0.0
+
+    def open(self) -> None:
+        """Look the sensor up in the demo rig and plan the board's poses."""
+        rig = demo_rig()
+        frame = rig.frames.get(self.sensor)
+        if frame is None or frame.kind not in ("lidar3d", "lidar2d"):
+            lidars = [f.name for f in rig.sensors() if f.kind in ("lidar3d", "lidar2d")]
+            raise DeviceError(f"no simulated LiDAR named {self.sensor!r}; available: {lidars}", self.describe())
+        if self.board_poses < 0:
+            raise DeviceError(f"board_poses must be 0 (static board) or more, not {self.board_poses}",
+                              self.describe())
+        if self.rate_hz < 0:
+            raise DeviceError(f"rate_hz must be 0 or more, not {self.rate_hz}", self.describe())
+        self._kind = frame.kind
+        self._T_base_sensor = rig.T_root_frame(self.sensor)
+        self._poses = moving_board_poses(self.board_poses, self.seed) if self.board_poses > 0 else [
+            default_board_pose()]
+        self._scenes = {}
+        self._frames_read = 0
+        self._next_frame_s = time.monotonic()
+
+    def scan(self, index: int) -> LidarScan:
+        """The full simulated scan of sample ``index`` (rings, labels and noise-free points included)."""
+        if self._T_base_sensor is None:
+            raise DeviceError("scan() before open()", self.describe())
+        pose_index = index % len(self._poses)
+        scene = self._scenes.get(pose_index)
+        if scene is None:
+            scene = self._scenes[pose_index] = LidarScene(self._poses[pose_index])
+        rng = np.random.default_rng([self.seed, index])
+        if self._kind == "lidar3d":
+            return scene.scan_3d(self._T_base_sensor, rng=rng)
+        return scene.scan_2d(self._T_base_sensor, rng=rng)
+
+    def read(self) -> Sample:
+        """Scan once more; raise :class:`DeviceDisconnected` once ``disconnect_after`` scans were read."""
+        if self._T_base_sensor is None:
+            raise DeviceError("read() before open()", self.describe())
+        if self.disconnect_after is not None and self._frames_read >= self.disconnect_after:
+            raise DeviceDisconnected(f"simulated disconnect after {self.disconnect_after} scans", self.describe())
+        if self.rate_hz > 0:
+            time.sleep(max(0.0, self._next_frame_s - time.monotonic()))
+            self._next_frame_s = max(self._next_frame_s, time.monotonic()) + 1.0 / self.rate_hz
+        index = self._frames_read
+        scan = self.scan(index)
+        self._frames_read += 1
+        meta = {
+            "frame_index": index,
+            "sensor": self.sensor,
+            "kind": self._kind,
+            "simulated": True,
+            "T_base_sensor": self._T_base_sensor.tolist(),
+            "T_base_board": self._poses[index % len(self._poses)].tolist(),
+        }
+        return Sample(time.time(), points=scan.points, intensity=scan.intensity, meta=meta)
+
+    def close(self) -> None:
+        """Forget the scene; safe to call twice."""
+        self._T_base_sensor = None
+        self._kind = None
+        self._poses = []
+        self._scenes = {}
+
+    def describe(self) -> str:
+        if self._kind is None:
+            return f"simulated_lidar {self.sensor}"
+        return f"simulated_lidar {self.sensor} ({self._kind})"

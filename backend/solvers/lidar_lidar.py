@@ -1,0 +1,658 @@
+"""LiDAR-to-LiDAR extrinsic calibration: ``T_target_source`` with honest uncertainties.
+
+Pipeline, as in the issue: an initial guess (given by the user, or
+:func:`global_initial_guess` with Open3D FPFH features and RANSAC when there is
+none), then GICP refinement with small_gicp (coarse stages with wide correspondence
+distances for the basin, then a fine stage with a tight one for accuracy), then quality
+numbers on the full-resolution clouds and a 1-sigma uncertainty of the transform.
+
+small_gicp's Hessian convention (read from ``small_gicp/factors/gicp_factor.hpp``
+and ``registration/optimizer.hpp``, v1.0): the update is a *right* perturbation,
+``T <- T @ se3_exp(delta)`` with ``delta = [omega (3, rad), v (3, m)]`` -- rotation
+first, then translation, both expressed in the *source* (child) frame. Each
+correspondence contributes ``J^T M J`` with ``J = [R @ skew(p_src), -R]`` (the
+residual ``r = mu_target - T @ p_src``) and ``M = (C_target + R C_source R^T)^-1``;
+``result.H`` is the sum at the last linearisation and ``result.error`` is
+``0.5 * sum(r^T M r)`` there.
+
+Noise model behind the Hessian sigma: the residuals are independent Gaussians
+whose covariance is the GICP-fused covariance up to one unknown scale
+``sigma^2``. small_gicp normalises its point covariances (plane-like, eigenvalues
+1e-3, 1, 1), so the scale is estimated from the residual:
+``sigma^2 = 2 * error / (inliers - 6)`` and ``cov(delta) = sigma^2 * H^-1``. That
+is mapped to the reported parameters ``[t_x, t_y, t_z (m, parent/target axes),
+r_x, r_y, r_z (rad, about the child/source axes)]``: ``dt = R @ v``, rotation
+``omega`` as is. Neighbouring residuals are correlated (they share surfaces,
+downsampling and scan-line patterns), which this model cannot see, so the reported
+sigma is the larger of the Hessian sigma and the *spread*: the jackknife over frame
+pairs when several are given (:func:`register_pairs`), and otherwise the jackknife
+over azimuth sectors of the one pair (re-registering without each sector of the
+source), as the intrinsics solver does with views.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from backend.core.errors import InputError
+from backend.core.transforms import make_T, transform_points
+from backend.solvers.result import ProgressCallback, SolveResult, no_progress
+
+MIN_POINTS = 50
+"""Fewest finite points a cloud needs before registration makes sense."""
+MAX_EXTENT_M = 1000.0
+"""A cloud wider than this (m, 1st-99th percentile per axis) or with a larger median range
+from the sensor looks like millimetres, not metres."""
+NO_OVERLAP_FITNESS = 0.005
+"""Below this fitness the clouds are said not to overlap at all."""
+ROTATION_EPSILON_RAD = np.radians(0.01)
+TRANSLATION_EPSILON_M = 1e-4
+"""Convergence of the fine stage: the last Gauss-Newton step was smaller than this (rad, m).
+Tighter thresholds make real clouds oscillate between correspondence sets without gaining accuracy."""
+CYCLE_TOLERANCE = (1e-3, np.radians(0.01))
+"""A fine stage that ran out of iterations still counts as converged when one more Gauss-Newton
+step moves less than this (m, rad): it is alternating between two correspondence sets
+(seen on the real OpenCalib pair: a 0.5 mm / 0.004 deg two-cycle), not diverging."""
+MAX_ROTATION_DEVIATION = 0.05
+"""Largest ``|R^T R - I|`` of a given transform still taken as a (rounded or scaled) rotation."""
+GLOBAL_VOXEL_FACTORS = (0.6, 1.0, 1.6)
+GLOBAL_SEEDS = 3
+"""Global registration tries these multiples of ``global_voxel_m``, each with this many RANSAC seeds."""
+SECTORS = 8
+"""Azimuth sectors of the source cloud for the single-pair jackknife."""
+
+
+@dataclass
+class LidarLidarSettings:
+    """How to register. Lengths in metres."""
+
+    voxel_m: float = 0.1
+    """Downsampling resolution of the fine GICP stage (m)."""
+    max_correspondence_m: float = 0.2
+    """Largest source-target distance that counts as a correspondence in the fine stage, and the
+    inlier distance for fitness, RMSE and cloud-to-cloud statistics (m). Keep it tight: points
+    without a true counterpart (parts only one LiDAR sees) that still find a partner within this
+    distance bias the result (in simulation: 0 mm at 0.2 m, 5 mm at 0.5 m, 11 mm at 1 m)."""
+    num_neighbors: int = 20
+    """Neighbours used to estimate each point's covariance for GICP."""
+    max_iterations: int = 50
+    """Gauss-Newton iterations per GICP stage."""
+    num_threads: int = 2
+    coarse_to_fine: bool = True
+    """Run coarse stages before the fine one, to widen the basin of convergence."""
+    coarse_voxel_m: float = 0.3
+    """Downsampling resolution of the coarse stages (m)."""
+    coarse_max_correspondence_m: tuple[float, ...] = (1.5, 0.5)
+    """Correspondence distances of the successive coarse stages (m)."""
+    min_fitness: float = 0.05
+    """A result with a smaller fitness (fraction of source points with a target point within
+    ``max_correspondence_m``) is a poor fit: ``converged=False`` and a warning."""
+    spread: bool = True
+    """Also estimate sigmas from the spread (jackknife over frame pairs, or over azimuth sectors
+    of a single pair) and report the larger sigma per axis."""
+    global_voxel_m: float = 0.5
+    """Voxel size of the FPFH + RANSAC global registration when no initial guess is given (m)."""
+
+
+@dataclass
+class PairResult:
+    """One frame pair's own registration, kept in the record of a multi-pair solve."""
+
+    T_target_source: np.ndarray
+    fitness: float
+    rmse_m: float
+    converged: bool
+    iterations: int
+    std_trans_m: list[float | None]
+    std_rot_deg: list[float | None]
+
+    def to_record(self) -> dict[str, Any]:
+        return {
+            "T_target_source": self.T_target_source.tolist(),
+            "fitness": self.fitness,
+            "rmse_m": self.rmse_m,
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "std": {"trans_m": self.std_trans_m, "rot_deg": self.std_rot_deg},
+        }
+
+
+@dataclass
+class LidarLidarResult(SolveResult):
+    kind = "lidar_lidar"
+
+    T_target_source: np.ndarray
+    """4x4, maps source-LiDAR points into the target-LiDAR frame (m)."""
+    fitness: float
+    """Fraction of source points with a target point within ``settings.max_correspondence_m``."""
+    rmse_m: float
+    """RMS distance of those inlier points to their nearest target point (m)."""
+    c2c_m: dict[str, float]
+    """Cloud-to-cloud distance of the inlier source points to the target: mean, median, p95, std (m)."""
+    covariance: np.ndarray
+    """6x6 over ``[t_x, t_y, t_z (m, target axes), r_x, r_y, r_z (rad, source axes)]``; the
+    reported (larger-per-axis) sigmas with the Hessian's correlation structure."""
+    settings: LidarLidarSettings
+    converged: bool
+    """False when GICP did not converge or the fit is poor: do not accept this result."""
+    seconds: float
+    T_init: np.ndarray
+    init_method: str
+    """"given" or "global" (FPFH + RANSAC)."""
+    std_hessian: np.ndarray
+    """(6,) 1-sigma from ``sigma^2 H^-1`` (m, m, m, rad, rad, rad); NaN where undetermined."""
+    std_spread: np.ndarray | None
+    """(6,) 1-sigma from the jackknife spread, or None when not computed."""
+    spread_source: str | None
+    """"pairs" or "sectors": what the spread was taken over."""
+    iterations: int
+    num_inliers: int
+    pairs: list[PairResult] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def std(self) -> np.ndarray:
+        """(6,) reported 1-sigma: translation (m, target axes), rotation (rad, source axes)."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+
+    def _std_lists(self) -> tuple[list[float | None], list[float | None]]:
+        std = self.std
+        trans = [float(s) if np.isfinite(s) else None for s in std[:3]]
+        rot = [float(np.degrees(s)) if np.isfinite(s) else None for s in std[3:]]
+        return trans, rot
+
+    def summary(self) -> dict[str, Any]:
+        trans, rot = self._std_lists()
+        return {
+            "T_target_source": self.T_target_source.tolist(),
+            "fitness": self.fitness,
+            "rmse_m": self.rmse_m,
+            "c2c_m": dict(self.c2c_m),
+            "std": {"trans_m": trans, "rot_deg": rot},
+            "seconds": self.seconds,
+        }
+
+    def to_record(self) -> dict[str, Any]:
+        def finite_or_none(values) -> list[float | None] | None:
+            if values is None:
+                return None
+            return [float(v) if np.isfinite(v) else None for v in np.asarray(values).ravel()]
+
+        record = self.summary()
+        record.update(
+            kind=self.kind,
+            settings=asdict(self.settings),
+            converged=self.converged,
+            warnings=list(self.warnings),
+            covariance=[finite_or_none(row) for row in self.covariance],
+            covariance_order=["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"],
+            std_hessian=finite_or_none(self.std_hessian),
+            std_spread=finite_or_none(self.std_spread),
+            spread_source=self.spread_source,
+            T_init=self.T_init.tolist(),
+            init_method=self.init_method,
+            iterations=self.iterations,
+            num_inliers=self.num_inliers,
+            pairs=[p.to_record() for p in self.pairs],
+        )
+        return record
+
+
+# ---------------------------------------------------------------- input checks
+
+
+def check_cloud(points: Any, name: str) -> tuple[np.ndarray, int]:
+    """Finite (N, 3) float64 points (m) of a cloud and how many non-finite rows were dropped.
+
+    Raises :class:`InputError` naming ``name`` for a wrong shape, an empty cloud, a cloud
+    with no finite point, too few points, or one whose extent looks like millimetres.
+    """
+    arr = np.asarray(points, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] < 3:
+        raise InputError(f"expected an (N, 3) array of points in metres, got shape {arr.shape}", name)
+    arr = arr[:, :3]
+    if len(arr) == 0:
+        raise InputError("the cloud is empty (0 points)", name)
+    finite = np.isfinite(arr).all(axis=1)
+    if not finite.any():
+        raise InputError(f"none of the {len(arr)} points is finite (all NaN or inf)", name)
+    dropped = int(len(arr) - np.count_nonzero(finite))
+    arr = np.ascontiguousarray(arr[finite])
+    if len(arr) < MIN_POINTS:
+        raise InputError(f"only {len(arr)} finite points; at least {MIN_POINTS} are needed", name)
+    lo, hi = np.percentile(arr, [1, 99], axis=0)
+    extent = float(np.max(hi - lo))
+    median_range = float(np.median(np.linalg.norm(arr, axis=1)))
+    if extent > MAX_EXTENT_M or median_range > MAX_EXTENT_M:
+        raise InputError(f"the cloud looks like millimetres, not metres (it spans {extent:.0f} units, median range "
+                         f"{median_range:.0f}); points must be in metres in the sensor frame: scale by 0.001", name)
+    return arr, dropped
+
+
+def check_transform(T: Any, name: str) -> tuple[np.ndarray, float]:
+    """A rigid 4x4 transform and how far its 3x3 was from a rotation (max ``|R^T R - I|``).
+
+    A 3x3 within :data:`MAX_ROTATION_DEVIATION` of a rotation (e.g. a rounded or slightly scaled
+    matrix from a manual tool) is projected onto the nearest rotation; anything else raises
+    :class:`InputError` naming ``name``.
+    """
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(f"expected a finite 4x4 transform, got shape {T.shape}", name)
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+        raise InputError(f"the last row of the 4x4 must be 0 0 0 1, got {T[3].tolist()}", name)
+    R = T[:3, :3]
+    deviation = float(np.abs(R.T @ R - np.eye(3)).max())
+    if deviation > MAX_ROTATION_DEVIATION or np.linalg.det(R) <= 0:
+        raise InputError(f"the upper-left 3x3 is not a rotation (max |R^T R - I| = {deviation:.3g}, "
+                         f"det {np.linalg.det(R):.3g}); expected an orthonormal matrix with det +1", name)
+    return make_T(Rotation.from_matrix(R).as_matrix(), T[:3, 3]), deviation
+
+
+# ---------------------------------------------------------------- evaluation
+
+
+def evaluate_alignment(source_points: np.ndarray, target_points: np.ndarray, T_target_source: np.ndarray,
+                       max_distance_m: float, target_tree: cKDTree | None = None,
+                       num_threads: int = 2) -> dict[str, Any]:
+    """Fitness, inlier RMSE and cloud-to-cloud statistics of an alignment, as Open3D's
+    ``evaluate_registration``: a source point is an inlier when its nearest target point is
+    within ``max_distance_m`` (m) once mapped by ``T_target_source``.
+
+    Returns ``{"fitness", "rmse_m", "c2c_m": {"mean", "median", "p95", "std"}, "distances_m"}``
+    with the inlier distances (m); statistics are 0 when there are no inliers.
+    """
+    tree = target_tree if target_tree is not None else cKDTree(target_points)
+    aligned = transform_points(T_target_source, source_points)
+    d, _ = tree.query(aligned, k=1, distance_upper_bound=max_distance_m, workers=num_threads)
+    inlier = np.isfinite(d)
+    d = d[inlier]
+    if d.size == 0:
+        c2c = {"mean": 0.0, "median": 0.0, "p95": 0.0, "std": 0.0}
+        rmse = 0.0
+    else:
+        c2c = {"mean": float(d.mean()), "median": float(np.median(d)), "p95": float(np.percentile(d, 95)),
+               "std": float(d.std())}
+        rmse = float(np.sqrt(np.mean(d**2)))
+    return {"fitness": float(inlier.mean()), "rmse_m": rmse, "c2c_m": c2c, "distances_m": d}
+
+
+# ---------------------------------------------------------------- global registration
+
+
+def global_initial_guess(source_points: np.ndarray, target_points: np.ndarray, voxel_m: float = 0.5,
+                         seed: int = 0) -> tuple[np.ndarray, float]:
+    """``T_target_source`` from FPFH features and RANSAC (Open3D) when no guess exists.
+
+    Downsamples both clouds at ``voxel_m`` (m), estimates normals (radius 2 voxels) and FPFH
+    (radius 5 voxels), and runs ``registration_ransac_based_on_feature_matching`` with a
+    1.5-voxel inlier distance. Returns the transform and RANSAC's fitness. Only a starting
+    point for GICP: its accuracy is about a voxel.
+    """
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+
+    def features(points: np.ndarray):
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(voxel_m)
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel_m, max_nn=30))
+        fpfh = reg.compute_fpfh_feature(cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel_m, max_nn=100))
+        return cloud, fpfh
+
+    source, source_fpfh = features(source_points)
+    target, target_fpfh = features(target_points)
+    distance = 1.5 * voxel_m
+    result = reg.registration_ransac_based_on_feature_matching(
+        source, target, source_fpfh, target_fpfh, True, distance,
+        reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(distance)],
+        reg.RANSACConvergenceCriteria(200000, 0.999))
+    return np.asarray(result.transformation).copy(), float(result.fitness)
+
+
+# ---------------------------------------------------------------- GICP
+
+
+def _gicp(source_points: np.ndarray, target, target_tree, T_init: np.ndarray, settings: LidarLidarSettings,
+          voxel_m: float, max_distance_m: float, fine: bool, max_iterations: int | None = None):
+    """One small_gicp GICP run of raw source points against a preprocessed target."""
+    import small_gicp
+
+    source, _ = small_gicp.preprocess_points(source_points, downsampling_resolution=voxel_m,
+                                             num_neighbors=settings.num_neighbors, num_threads=settings.num_threads)
+    kwargs = {"rotation_epsilon": ROTATION_EPSILON_RAD, "translation_epsilon": TRANSLATION_EPSILON_M} if fine else {}
+    result = small_gicp.align(target, source, target_tree, init_T_target_source=T_init, registration_type="GICP",
+                              max_correspondence_distance=max_distance_m, num_threads=settings.num_threads,
+                              max_iterations=max_iterations or settings.max_iterations, **kwargs)
+    return result, source.size()
+
+
+def _preprocess_target(target_points: np.ndarray, voxel_m: float, settings: LidarLidarSettings):
+    import small_gicp
+
+    return small_gicp.preprocess_points(target_points, downsampling_resolution=voxel_m,
+                                        num_neighbors=settings.num_neighbors, num_threads=settings.num_threads)
+
+
+def _delta_to_params(T: np.ndarray) -> np.ndarray:
+    """Jacobian (6x6) from small_gicp's ``delta = [omega, v]`` (source frame) to our
+    ``[t (target axes), r (source axes)]``: ``dt = R v``, ``dr = omega``."""
+    A = np.zeros((6, 6))
+    A[:3, 3:] = T[:3, :3]
+    A[3:, :3] = np.eye(3)
+    return A
+
+
+def _hessian_covariance(result, T: np.ndarray) -> np.ndarray:
+    """``sigma^2 H^-1`` in our parameters (see the module docstring); NaN if undetermined."""
+    H = np.asarray(result.H, dtype=float)
+    dof = int(result.num_inliers) - 6
+    if dof <= 0 or not np.isfinite(H).all():
+        return np.full((6, 6), np.nan)
+    sigma2 = 2.0 * float(result.error) / dof
+    # Scale to unit diagonal before inverting: rotation and translation blocks differ in scale.
+    d = np.sqrt(np.clip(np.diag(H), 1e-300, None))
+    Hs = H / np.outer(d, d)
+    if np.linalg.cond(Hs) > 1e12:
+        return np.full((6, 6), np.nan)
+    cov_delta = sigma2 * np.linalg.inv(Hs) / np.outer(d, d)
+    A = _delta_to_params(T)
+    cov = A @ cov_delta @ A.T
+    return 0.5 * (cov + cov.T)
+
+
+def params_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``[t - t_ref (m, target axes), rotvec(R_ref^T R) (rad, source axes)]`` of ``T`` about ``T_ref``."""
+    return np.r_[T[:3, 3] - T_ref[:3, 3], Rotation.from_matrix(T_ref[:3, :3].T @ T[:3, :3]).as_rotvec()]
+
+
+def apply_params(T_ref: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`params_between`."""
+    return make_T(T_ref[:3, :3] @ Rotation.from_rotvec(p[3:]).as_matrix(), T_ref[:3, 3] + p[:3])
+
+
+def _sector_jackknife(source_points: np.ndarray, target, target_tree, T: np.ndarray,
+                      settings: LidarLidarSettings, progress: ProgressCallback) -> np.ndarray | None:
+    """Leave-one-azimuth-sector-out jackknife std (6,) of the fine stage, or None.
+
+    The source's points are split into ``SECTORS`` wedges by azimuth around the source origin;
+    each is left out in turn and GICP re-run from ``T``. ``var = (n-1)/n * sum((p_i - mean)^2)``.
+    Whole structures (a wall, a row of poles) are the correlated units here, as views are for
+    the intrinsics solver.
+    """
+    azimuth = np.arctan2(source_points[:, 1], source_points[:, 0])
+    sector = np.minimum(((azimuth + np.pi) / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1)
+    estimates = []
+    for i in range(SECTORS):
+        progress(0.7 + 0.25 * i / SECTORS, f"spread: re-registering without azimuth sector {i + 1} of {SECTORS}")
+        keep = source_points[sector != i]
+        if len(keep) < MIN_POINTS or len(keep) == len(source_points):
+            continue
+        result, _ = _gicp(keep, target, target_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
+                          fine=True)
+        estimates.append(params_between(T, np.asarray(result.T_target_source)))
+    if len(estimates) < 3:
+        return None
+    estimates = np.array(estimates)
+    n = len(estimates)
+    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+
+
+def _combine(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> np.ndarray:
+    """Covariance with the larger sigma per axis and the Hessian's correlation structure."""
+    std_h = np.sqrt(np.clip(np.diag(cov_hessian), 0, None))
+    std = std_h if std_spread is None else np.fmax(std_h, std_spread)
+    if not np.isfinite(cov_hessian).all():
+        return np.diag(std**2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_hessian / np.outer(std_h, std_h)
+    corr = np.where(np.isfinite(corr), np.clip(corr, -1, 1), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return np.outer(std, std) * corr
+
+
+def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings: LidarLidarSettings,
+            progress: ProgressCallback):
+    """Coarse-to-fine GICP; returns (fine small_gicp result, T, converged, a note or None, fine target, its tree)."""
+    T = T_init
+    if settings.coarse_to_fine:
+        coarse_target, coarse_tree = _preprocess_target(target, settings.coarse_voxel_m, settings)
+        for distance in settings.coarse_max_correspondence_m:
+            progress(0.25, f"coarse GICP ({settings.coarse_voxel_m} m voxels, {distance} m correspondences)")
+            coarse, _ = _gicp(source, coarse_target, coarse_tree, T, settings, settings.coarse_voxel_m, distance,
+                              fine=False)
+            T = np.asarray(coarse.T_target_source)
+    progress(0.45, f"fine GICP ({settings.voxel_m} m voxels, {settings.max_correspondence_m} m correspondences)")
+    fine_target, fine_tree = _preprocess_target(target, settings.voxel_m, settings)
+    result, _ = _gicp(source, fine_target, fine_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
+                      fine=True)
+    T = np.asarray(result.T_target_source).copy()
+    converged, note = bool(result.converged), None
+    if not converged:
+        step, _ = _gicp(source, fine_target, fine_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
+                        fine=True, max_iterations=1)
+        motion = params_between(T, np.asarray(step.T_target_source))
+        dt, dr = float(np.linalg.norm(motion[:3])), float(np.linalg.norm(motion[3:]))
+        if dt < CYCLE_TOLERANCE[0] and dr < CYCLE_TOLERANCE[1]:
+            converged = True
+            note = (f"fine GICP alternates between correspondence sets (last step {dt * 1000:.2f} mm, "
+                    f"{np.degrees(dr):.4f} deg); taken as converged")
+    return result, T, converged, note, fine_target, fine_tree
+
+
+def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLidarSettings,
+                       progress: ProgressCallback) -> np.ndarray:
+    """The best of several FPFH + RANSAC guesses, judged after a coarse GICP from each.
+
+    One RANSAC run is fast but unreliable on sparse scans (in simulation it lands 0.3-3 m off
+    about half the time), so it is run at ``GLOBAL_VOXEL_FACTORS`` x ``settings.global_voxel_m``
+    with ``GLOBAL_SEEDS`` seeds each; every candidate gets the coarse GICP stages and the one
+    with the highest fitness at ``coarse_max_correspondence_m[-1]`` wins.
+    """
+    coarse_target, coarse_tree = _preprocess_target(target, settings.coarse_voxel_m, settings)
+    tree = cKDTree(target)
+    best, best_fitness = np.eye(4), -1.0
+    candidates = [(f * settings.global_voxel_m, seed) for f in GLOBAL_VOXEL_FACTORS for seed in range(GLOBAL_SEEDS)]
+    for i, (voxel, seed) in enumerate(candidates):
+        progress(0.2 * i / len(candidates), f"no initial guess: global registration (FPFH + RANSAC, "
+                                            f"{voxel:.2f} m voxels, seed {seed})")
+        T, _ = global_initial_guess(source, target, voxel, seed)
+        for distance in settings.coarse_max_correspondence_m:
+            coarse, _ = _gicp(source, coarse_target, coarse_tree, T, settings, settings.coarse_voxel_m, distance,
+                              fine=False)
+            T = np.asarray(coarse.T_target_source)
+        fitness = evaluate_alignment(source, target, T, settings.coarse_max_correspondence_m[-1], tree,
+                                     settings.num_threads)["fitness"]
+        if fitness > best_fitness:
+            best, best_fitness = T.copy(), fitness
+    return best
+
+
+def _quality_warnings(fitness: float, converged: bool, settings: LidarLidarSettings) -> list[str]:
+    """Why a refinement must not be accepted (empty when it may be)."""
+    warnings = []
+    if not converged:
+        warnings.append(f"GICP did not converge within {settings.max_iterations} iterations; not accepted - "
+                        "give a better initial guess")
+    if fitness < NO_OVERLAP_FITNESS:
+        warnings.append(f"the clouds do not overlap after alignment (fitness {fitness:.3f}); not accepted - "
+                        "check the initial guess and that both LiDARs see the same scene")
+    elif fitness < settings.min_fitness:
+        warnings.append(f"poor fit: fitness {fitness:.3f} < {settings.min_fitness} at "
+                        f"{settings.max_correspondence_m} m; not accepted")
+    return warnings
+
+
+def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: np.ndarray | None = None,
+                  settings: LidarLidarSettings | None = None, progress: ProgressCallback = no_progress,
+                  source_name: str = "source", target_name: str = "target") -> LidarLidarResult:
+    """Estimate ``T_target_source`` (maps source points into the target frame) from one frame pair.
+
+    ``source_points`` / ``target_points`` are (N, 3) arrays in metres (non-finite rows are dropped
+    with a warning). ``T_init`` is the initial ``T_target_source``; without one, FPFH + RANSAC
+    (:func:`global_initial_guess`) provides it. Raises :class:`InputError` naming
+    ``source_name`` / ``target_name`` for empty, all-non-finite, too small or millimetre-looking
+    clouds and for a non-rigid ``T_init``. A refinement that did not converge or fits poorly is
+    returned with ``converged=False`` and a warning: the caller must not accept it.
+    """
+    settings = settings or LidarLidarSettings()
+    started = time.perf_counter()
+    source, dropped_s = check_cloud(source_points, source_name)
+    target, dropped_t = check_cloud(target_points, target_name)
+    warnings = [f"{name}: dropped {n} non-finite points" for name, n in ((source_name, dropped_s),
+                                                                          (target_name, dropped_t)) if n]
+    if T_init is None:
+        T_init = _best_global_guess(source, target, settings, progress)
+        init_method = "global"
+        warnings.append("no initial guess: started from global registration (FPFH + RANSAC); "
+                        "check the alignment by eye, symmetric scenes can fool it")
+    else:
+        T_init, deviation = check_transform(T_init, "T_init")
+        init_method = "given"
+        if deviation > 1e-4:
+            warnings.append(f"T_init: the 3x3 was not orthonormal (max |R^T R - I| = {deviation:.3g}); "
+                            "projected onto the nearest rotation")
+
+    result, T, converged, note, fine_target, fine_tree = _refine(source, target, T_init, settings, progress)
+    progress(0.65, "evaluating the alignment")
+    quality = evaluate_alignment(source, target, T, settings.max_correspondence_m, num_threads=settings.num_threads)
+    warnings += [note] if note else []
+    quality_warnings = _quality_warnings(quality["fitness"], converged, settings)
+    warnings += quality_warnings
+    ok = not quality_warnings
+    cov_h = _hessian_covariance(result, T)
+    std_spread = None
+    if settings.spread and ok:
+        std_spread = _sector_jackknife(source, fine_target, fine_tree, T, settings, progress)
+    progress(1.0, "done")
+    return LidarLidarResult(
+        T_target_source=T,
+        fitness=quality["fitness"],
+        rmse_m=quality["rmse_m"],
+        c2c_m=quality["c2c_m"],
+        covariance=_combine(cov_h, std_spread),
+        settings=settings,
+        converged=ok,
+        seconds=time.perf_counter() - started,
+        T_init=np.asarray(T_init, dtype=float),
+        init_method=init_method,
+        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
+        std_spread=std_spread,
+        spread_source="sectors" if std_spread is not None else None,
+        iterations=int(result.iterations),
+        num_inliers=int(result.num_inliers),
+        warnings=warnings,
+    )
+
+
+def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarray | None = None,
+                   settings: LidarLidarSettings | None = None,
+                   progress: ProgressCallback = no_progress) -> LidarLidarResult:
+    """Estimate one ``T_target_source`` from several (source, target) frame pairs of a static rig.
+
+    Each pair is registered on its own (the first from ``T_init`` or global registration, the
+    rest from the first's result); the estimate is the information-weighted mean (weights: each
+    pair's Hessian information) of the converged pairs in ``[t, r]`` about the first, i.e. one
+    Gauss-Newton step of the joint problem. Sigma per axis is the larger of the joint Hessian
+    sigma ``(sum_i cov_i^-1)^-1`` and the leave-one-pair-out jackknife of the weighted mean.
+    """
+    settings = settings or LidarLidarSettings()
+    if not pairs:
+        raise InputError("no frame pairs given", "pairs")
+    if len(pairs) == 1:
+        return register_pair(pairs[0][0], pairs[0][1], T_init, settings, progress)
+    started = time.perf_counter()
+    per_pair_settings = replace(settings, spread=False)
+    results: list[LidarLidarResult] = []
+    checked: list[tuple[np.ndarray, np.ndarray]] = []
+    for i, (source_points, target_points) in enumerate(pairs):
+        def pair_progress(fraction: float, message: str, i: int = i) -> None:
+            progress(0.9 * (i + fraction) / len(pairs), f"pair {i + 1} of {len(pairs)}: {message}")
+
+        init = T_init if i == 0 or not results[0].converged else results[0].T_target_source
+        result = register_pair(source_points, target_points, init, per_pair_settings, pair_progress,
+                               f"pair {i + 1} source", f"pair {i + 1} target")
+        results.append(result)
+        checked.append((check_cloud(source_points, "source")[0], check_cloud(target_points, "target")[0]))
+
+    good = [i for i, r in enumerate(results) if r.converged and np.isfinite(r.std_hessian).all()]
+    warnings = [w for i, r in enumerate(results) for w in (f"pair {i + 1}: {x}" for x in r.warnings)]
+    if not good:
+        base = results[0]
+        T, cov_h, std_spread = base.T_target_source, np.full((6, 6), np.nan), None
+        converged = False
+        warnings.append("no frame pair converged to a good fit; not accepted")
+    else:
+        T_ref = results[good[0]].T_target_source
+        params = np.array([params_between(T_ref, results[i].T_target_source) for i in good])
+        infos = np.array([np.linalg.inv(_hessian_cov_of(results[i])) for i in good])
+
+        def weighted_mean(rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
+            info = infos[rows].sum(axis=0)
+            return np.linalg.solve(info, np.einsum("nij,nj->i", infos[rows], params[rows])), info
+
+        mean, info = weighted_mean(list(range(len(good))))
+        T = apply_params(T_ref, mean)
+        cov_h = np.linalg.inv(info)
+        cov_h = 0.5 * (cov_h + cov_h.T)
+        std_spread = None
+        if settings.spread and len(good) >= 2:
+            n = len(good)
+            loo = np.array([weighted_mean([j for j in range(n) if j != k])[0] for k in range(n)])
+            std_spread = np.sqrt((n - 1) / n * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+        converged = True
+
+    progress(0.95, "evaluating the joint alignment")
+    qualities = [evaluate_alignment(s, t, T, settings.max_correspondence_m, num_threads=settings.num_threads)
+                 for s, t in checked]
+    fitness = float(np.mean([q["fitness"] for q in qualities]))
+    d = np.concatenate([q["distances_m"] for q in qualities])
+    if d.size:
+        c2c = {"mean": float(d.mean()), "median": float(np.median(d)), "p95": float(np.percentile(d, 95)),
+               "std": float(d.std())}
+    else:
+        c2c = {"mean": 0.0, "median": 0.0, "p95": 0.0, "std": 0.0}
+    if converged and fitness < settings.min_fitness:
+        converged = False
+        warnings.append(f"poor fit: mean fitness {fitness:.3f} < {settings.min_fitness}; not accepted")
+    progress(1.0, "done")
+    return LidarLidarResult(
+        T_target_source=T,
+        fitness=fitness,
+        rmse_m=float(np.sqrt(np.mean(d**2))) if d.size else 0.0,
+        c2c_m=c2c,
+        covariance=_combine(cov_h, std_spread),
+        settings=settings,
+        converged=converged,
+        seconds=time.perf_counter() - started,
+        T_init=results[0].T_init,
+        init_method=results[0].init_method,
+        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
+        std_spread=std_spread,
+        spread_source="pairs" if std_spread is not None else None,
+        iterations=max(r.iterations for r in results),
+        num_inliers=sum(r.num_inliers for r in results),
+        pairs=[PairResult(r.T_target_source, r.fitness, r.rmse_m, r.converged, r.iterations, *r._std_lists())
+               for r in results],
+        warnings=warnings,
+    )
+
+
+def _hessian_cov_of(result: LidarLidarResult) -> np.ndarray:
+    """The Hessian-only covariance of a single-pair result (its covariance carries no spread)."""
+    return result.covariance
+
+
+def transform_error(T_estimate: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis error of an estimate in the reported parameters: translation (m, target axes)
+    and rotation (deg, about the source axes), as ``params_between(T_true, T_estimate)``."""
+    p = params_between(T_true, T_estimate)
+    return p[:3], np.degrees(p[3:])
+
