@@ -16,7 +16,8 @@ import pytest
 
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, create_device
-from backend.devices.image_folder import ImageFolder, natural_key
+from backend.devices.file_sequence import natural_key
+from backend.devices.image_folder import ImageFolder
 from backend.devices.image_io import decode_image_bytes, encode_jpeg, encode_png, read_image
 from backend.devices.uvc_camera import UvcCamera
 

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
-from backend.devices.image_folder import natural_key
+from backend.devices.base import Sample, register_driver
+from backend.devices.file_sequence import FileSequence
 
 CLOUD_EXTENSIONS = (".pcd", ".ply", ".las", ".laz", ".npy")
 """File extensions read as point clouds (compared case-insensitively)."""
@@ -381,7 +381,7 @@ def _as_float(path: Path, array: np.ndarray) -> np.ndarray:
 
 
 @register_driver
-class CloudFolder(CaptureDevice):
+class CloudFolder(FileSequence):
     """Replays point-cloud files, one per :meth:`read`, as a range sensor.
 
     ``path`` is a folder (its files matching the glob ``pattern`` with a
@@ -397,58 +397,11 @@ class CloudFolder(CaptureDevice):
     """
 
     driver = "cloud_files"
+    extensions = CLOUD_EXTENSIONS
+    noun = "point clouds"
+    end_message = "end of recording after {count} clouds"
 
-    def __init__(self, path: str, pattern: str = "*", loop: bool = False):
-        self.path = Path(path)
-        self.pattern = pattern
-        self.loop = loop
-        self._files: list[Path] | None = None
-        self._next = 0
-
-    @property
-    def files(self) -> list[Path]:
-        """The cloud files in reading order (empty until opened)."""
-        return list(self._files or [])
-
-    def open(self) -> None:
-        """List the clouds; raise :class:`DeviceError` if the path is missing or holds none."""
-        if self.path.is_file():
-            if self.path.suffix.lower() not in CLOUD_EXTENSIONS:
-                raise DeviceError(
-                    f"{self.path.name} is not a point-cloud file (expected one of {', '.join(CLOUD_EXTENSIONS)})",
-                    str(self.path),
-                )
-            files = [self.path]
-        elif self.path.is_dir():
-            files = [p for p in self.path.glob(self.pattern) if p.is_file() and p.suffix.lower() in CLOUD_EXTENSIONS]
-            if not files:
-                raise DeviceError(
-                    f"folder {self.path} holds no point clouds matching {self.pattern!r} "
-                    f"(expected files ending in {', '.join(CLOUD_EXTENSIONS)})",
-                    str(self.path),
-                )
-        else:
-            raise DeviceError(f"{self.path} does not exist (expected a folder of point clouds or one file)",
-                              str(self.path))
-        self._files = sorted(files, key=lambda p: natural_key(p.name))
-        self._next = 0
-
-    def read(self) -> Sample:
-        """Return the next cloud.
-
-        Raises :class:`DeviceDisconnected` after the last file (unless ``loop``)
-        and :class:`InputError` naming a file that is not a readable cloud; the
-        following ``read()`` continues with the next file.
-        """
-        if self._files is None:
-            raise DeviceError("not open; call open() first", str(self.path))
-        if self._next >= len(self._files):
-            if not self.loop:
-                raise DeviceDisconnected(f"end of recording after {len(self._files)} clouds", str(self.path))
-            self._next = 0
-        index = self._next
-        self._next += 1
-        file = self._files[index]
+    def load(self, file: Path, index: int) -> Sample:
         cloud = read_cloud(file)
         return Sample(
             timestamp_s=time.time(),
@@ -456,11 +409,3 @@ class CloudFolder(CaptureDevice):
             intensity=cloud.intensity,
             meta={"source": file.name, "frame_index": index, "dropped_non_finite": cloud.dropped_non_finite},
         )
-
-    def close(self) -> None:
-        """Forget the file list; safe to call twice."""
-        self._files = None
-
-    def describe(self) -> str:
-        count = f" ({len(self._files)} clouds)" if self._files is not None else ""
-        return f"{self.driver} {self.path}{count}"

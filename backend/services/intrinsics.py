@@ -17,7 +17,8 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.rig import Rig
-from backend.devices.image_folder import IMAGE_EXTENSIONS, natural_key
+from backend.devices.file_sequence import natural_key
+from backend.devices.image_folder import IMAGE_EXTENSIONS
 from backend.devices.image_io import decode_image_bytes, read_image
 from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
