@@ -48,6 +48,7 @@ def test_demo_rig_ground_truth() -> None:
         "cam_front": "camera",
         "cam_wide": "camera",
         "lidar_top": "lidar3d",
+        "lidar_front": "lidar3d",
         "scanner_2d": "lidar2d",
     }
     T_front_wide = rig.T_a_b("cam_front", "cam_wide")

@@ -58,7 +58,8 @@ def demo_rig() -> Rig:
 
     Sensors: ``cam_front`` and ``cam_wide`` (cameras, 15 cm apart, a few degrees of
     relative rotation, driven by the ``simulated`` capture driver), ``lidar_top``
-    (3D spinning LiDAR on the roof) and ``scanner_2d`` (2D scanner low at the front).
+    (3D spinning LiDAR on the roof), ``lidar_front`` (a second 3D LiDAR on the front,
+    pitched down) and ``scanner_2d`` (2D scanner low at the front).
     The LiDARs are driven by the ``simulated_lidar`` driver (scans of :mod:`backend.sim.lidar_scene`).
     """
     rig = Rig("base_link")
@@ -80,6 +81,9 @@ def demo_rig() -> Rig:
     T_base_lidar = _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False)
     rig.add(Frame("lidar_top", "base_link", T_base_lidar, kind="lidar3d",
                   device={"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0}))
+    T_base_front = _mount((0.42, -0.05, 0.55), (-3.0, 6.0, 1.2), optical=False)  # pitched down, like a Livox
+    rig.add(Frame("lidar_front", "base_link", T_base_front, kind="lidar3d",
+                  device={"driver": "simulated_lidar", "sensor": "lidar_front", "seed": 0}))
     T_base_scanner = _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False)
     rig.add(Frame("scanner_2d", "base_link", T_base_scanner, kind="lidar2d",
                   device={"driver": "simulated_lidar", "sensor": "scanner_2d", "seed": 0}))

@@ -72,7 +72,7 @@ class SessionFile(BaseModel):
 
 
 class CaptureRecord(BaseModel):
-    """Metadata of one capture (its image sits beside it as ``<id>.png``)."""
+    """Metadata of one capture; its data sits beside it as ``<id>.png`` (image) or ``<id>.npy`` (cloud)."""
 
     id: str
     sensor: str
@@ -80,6 +80,7 @@ class CaptureRecord(BaseModel):
     device: str
     source: str | None = Field(None, description="original file name of an upload or import")
     image_size: tuple[int, int] | None = Field(None, description="(width, height) px")
+    n_points: int | None = Field(None, description="points in a cloud capture")
     board: str | None = None
     detection: dict[str, Any] | None = None
     meta: dict[str, Any] = Field(default_factory=dict)

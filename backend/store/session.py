@@ -3,7 +3,7 @@
 Layout::
 
     <root>/<name>/session.json                    rig, board, accepted results (atomic rewrite)
-    <root>/<name>/captures/<sensor>/<id>.png      captured image (write-once)
+    <root>/<name>/captures/<sensor>/<id>.png      captured image, or <id>.npy for a cloud (write-once)
     <root>/<name>/captures/<sensor>/<id>.json     capture metadata (write-once)
     <root>/<name>/results/<id>.json               one solve result each (write-once)
 
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import io
 import json
 import re
 import threading
@@ -146,8 +147,8 @@ class Session:
         self.rig.get(sensor)
         return self.path / "captures" / sensor
 
-    def add_capture(self, sensor: str, image: np.ndarray, record: dict[str, Any]) -> CaptureRecord:
-        """Store an image and its metadata under a fresh, never-reused id."""
+    def _add_capture_file(self, sensor: str, suffix: str, data: bytes, record: dict[str, Any]) -> CaptureRecord:
+        """Store one capture's data and metadata under a fresh, never-reused id."""
         with self.lock:
             folder = self._capture_dir(sensor)
             folder.mkdir(parents=True, exist_ok=True)
@@ -155,14 +156,28 @@ class Session:
             while True:
                 capture_id = f"{number:05d}"
                 try:
-                    write_bytes_atomic(folder / f"{capture_id}.png", encode_png(image), exclusive=True)
+                    write_bytes_atomic(folder / f"{capture_id}{suffix}", data, exclusive=True)
                     break
                 except FileExistsError:
                     number += 1
-            capture = CaptureRecord(id=capture_id, sensor=sensor, image_size=(image.shape[1], image.shape[0]),
-                                    **record)
+            capture = CaptureRecord(id=capture_id, sensor=sensor, **record)
             write_json_atomic(folder / f"{capture_id}.json", capture.model_dump(mode="json"), exclusive=True)
             return capture
+
+    def add_capture(self, sensor: str, image: np.ndarray, record: dict[str, Any]) -> CaptureRecord:
+        """Store an image (as PNG) and its metadata."""
+        return self._add_capture_file(sensor, ".png", encode_png(image),
+                                      {**record, "image_size": (image.shape[1], image.shape[0])})
+
+    def add_cloud_capture(self, sensor: str, points: np.ndarray, intensity: np.ndarray | None,
+                          record: dict[str, Any]) -> CaptureRecord:
+        """Store a point cloud (sensor frame, m) as an N x 4 float32 ``.npy`` (x, y, z, intensity or NaN)."""
+        columns = [np.asarray(points, np.float32).reshape(-1, 3),
+                   np.full((len(points), 1), np.nan, np.float32) if intensity is None
+                   else np.asarray(intensity, np.float32).reshape(-1, 1)]
+        buffer = io.BytesIO()
+        np.save(buffer, np.hstack(columns), allow_pickle=False)
+        return self._add_capture_file(sensor, ".npy", buffer.getvalue(), {**record, "n_points": len(points)})
 
     def captures(self, sensor: str) -> list[CaptureRecord]:
         folder = self._capture_dir(sensor)
@@ -173,6 +188,16 @@ class Session:
             except ValidationError as exc:
                 raise InputError(_validation_message(meta, exc), str(meta)) from None
         return records
+
+    def capture_cloud(self, sensor: str, capture_id: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """Points (N, 3) float64 in the sensor frame (m) and intensity (N,) (None if never recorded)."""
+        check_name(capture_id, "capture")
+        path = self._capture_dir(sensor) / f"{capture_id}.npy"
+        if not path.exists():
+            raise NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture")
+        data = np.load(path, allow_pickle=False)
+        intensity = data[:, 3]
+        return data[:, :3].astype(np.float64), None if np.all(np.isnan(intensity)) else intensity
 
     def capture_image(self, sensor: str, capture_id: str) -> np.ndarray:
         check_name(capture_id, "capture")

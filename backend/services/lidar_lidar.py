@@ -1,0 +1,134 @@
+"""LiDAR-to-LiDAR workflow shared by the API, the studio and the CLI.
+
+capture or import clouds -> store them -> solve ``T_target_source`` from pairs of
+captures -> store the result -> accept it into the rig as the source LiDAR's
+``T_parent_child`` with its covariance. A result that did not converge is stored
+(so the user can see why) but cannot be accepted.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.core.errors import InputError
+from backend.core.rig import Rig
+from backend.devices.base import Sample
+from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
+from backend.solvers.lidar_lidar import LidarLidarResult, LidarLidarSettings, register_pairs
+from backend.solvers.result import ProgressCallback, no_progress
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
+
+
+def _check_lidar(session: Session, sensor: str) -> None:
+    kind = session.rig.get(sensor).kind
+    if kind not in LIDAR_KINDS:
+        raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
+
+
+def slot(source: str, target: str) -> str:
+    """The acceptance slot of a source-to-target transform."""
+    return f"{source}/T_{target}_{source}"
+
+
+def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
+                ) -> CaptureRecord:
+    """Keep one cloud (live or imported) in the sensor's frame."""
+    _check_lidar(session, sensor)
+    if sample.points is None or len(sample.points) == 0:
+        raise InputError(f"{source or device}: the cloud holds no points", source or device)
+    meta = {k: v for k, v in sample.meta.items() if isinstance(v, (int, float, str, bool))}
+    return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
+        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": meta})
+
+
+def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
+                  progress: ProgressCallback = no_progress) -> list[CaptureRecord]:
+    """Add uploaded cloud files as captures; any unreadable file rejects the whole batch, naming it."""
+    _check_lidar(session, sensor)
+    clouds = []
+    with tempfile.TemporaryDirectory() as folder:
+        for i, (name, data) in enumerate(files):
+            progress(i / max(len(files), 1), f"reading {name}")
+            safe_name = Path(name).name
+            if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
+                raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})",
+                                 safe_name)
+            path = Path(folder) / safe_name
+            path.write_bytes(data)
+            clouds.append((safe_name, read_cloud(path)))
+    return [store_cloud(session, sensor, Sample(0.0, points=c.points, intensity=c.intensity,
+                                                meta={"dropped_non_finite": c.dropped_non_finite}),
+                        device="upload", source=name) for name, c in clouds]
+
+
+def capture_pairs(session: Session, source: str, target: str,
+                  pairs: list[tuple[str, str]] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Clouds to register: the given (source id, target id) pairs, or the i-th capture of each sensor."""
+    _check_lidar(session, source)
+    _check_lidar(session, target)
+    if pairs is None:
+        source_ids = [c.id for c in session.captures(source) if c.n_points]
+        target_ids = [c.id for c in session.captures(target) if c.n_points]
+        if not source_ids or not target_ids:
+            empty = source if not source_ids else target
+            raise InputError(f"no clouds captured for {empty} yet; capture or import clouds of both LiDARs", empty)
+        pairs = list(zip(source_ids, target_ids, strict=False))
+    return [(session.capture_cloud(source, s)[0], session.capture_cloud(target, t)[0]) for s, t in pairs]
+
+
+def solve_session(session: Session, source: str, target: str, *, T_init: np.ndarray | None = None,
+                  use_rig_guess: bool = True, settings: LidarLidarSettings | None = None,
+                  pairs: list[tuple[str, str]] | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, LidarLidarResult]:
+    """Register ``source`` into ``target`` and store the result (not yet accepted).
+
+    The initial guess is ``T_init`` if given, else the rig's current transform
+    (manual nudges included) when ``use_rig_guess``, else global registration.
+    """
+    clouds = capture_pairs(session, source, target, pairs)
+    if T_init is None and use_rig_guess:
+        T_init = session.rig.T_a_b(target, source)
+    result = register_pairs(clouds, T_init, settings, progress)
+    record = result.to_record() | {"target": target}
+    result_id = session.add_result(source, record, inputs=[f"{s}:{t}" for s, t in (pairs or [])])
+    return result_id, result
+
+
+def apply_lidar_lidar(rig: Rig, record: dict[str, Any]) -> None:
+    """Write a stored ``T_target_source`` into the rig as the source frame's ``T_parent_child``.
+
+    The covariance (translation in target axes, rotation about source axes) is
+    carried into the parent frame to first order: the translation block is
+    rotated by ``R_parent_target``; rotations stay about the source axes, as
+    the rig's convention wants.
+    """
+    if record.get("kind") != "lidar_lidar":
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not lidar_lidar", "result")
+    if not record.get("converged", False):
+        raise InputError(f"result {record['id']} did not converge to a good fit and cannot be accepted: "
+                         + "; ".join(record.get("warnings", [])), "result")
+    source, target = rig.get(record["sensor"]), rig.get(record["target"])
+    T_parent_target = rig.T_a_b(source.parent, target.name)
+    source.T_parent_child = T_parent_target @ np.array(record["T_target_source"])
+    covariance = np.array([[np.nan if v is None else v for v in row] for row in record["covariance"]], float)
+    if np.all(np.isfinite(covariance)):
+        rotate = np.eye(6)
+        rotate[:3, :3] = T_parent_target[:3, :3]
+        source.covariance = rotate @ covariance @ rotate.T
+    else:
+        source.covariance = None
+
+
+def accept(session: Session, source: str, result_id: str) -> None:
+    """Make a stored LiDAR-to-LiDAR result the source LiDAR's mounting (also how a user reverts)."""
+    record = session.result(result_id)
+    if record["sensor"] != source:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
+    session.accept(slot(source, record["target"]), result_id, apply_lidar_lidar)
