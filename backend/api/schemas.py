@@ -67,3 +67,18 @@ class JobStatus(BaseModel):
 class ImportResponse(BaseModel):
     added: list[dict[str, Any]]
     skipped: list[ErrorBody]
+
+
+class LidarLidarSolveRequest(BaseModel):
+    source: str = Field(examples=["lidar_front"])
+    target: str = Field(examples=["lidar_top"])
+    init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_target_source translation (m)")
+    init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
+    use_rig_guess: bool = Field(True, description="start from the rig's current transform when no init is given; "
+                                                  "false runs global registration")
+    voxel_m: float | None = Field(None, gt=0, description="fine GICP voxel size (m)")
+    pairs: list[tuple[str, str]] | None = Field(None, description="(source capture id, target capture id) pairs")
+
+
+class LidarLidarAccept(BaseModel):
+    result_id: str

@@ -1,0 +1,47 @@
+"""LiDAR clouds and the LiDAR-to-LiDAR solve."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, File, UploadFile
+
+from backend.api.routes import deps
+from backend.api.schemas import JobStatus, LidarLidarAccept, LidarLidarSolveRequest
+from backend.core.transforms import from_xyz_ypr
+from backend.services import lidar_lidar as service
+from backend.solvers.lidar_lidar import LidarLidarSettings
+
+router = APIRouter(prefix="/sessions/{name}", tags=["lidar"])
+
+
+@router.post("/sensors/{sensor}/clouds", status_code=201)
+async def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
+                        session: deps.SessionDep) -> dict[str, Any]:
+    """Add cloud files (.pcd, .ply, .las, .laz, .npy); an unreadable file rejects the batch, naming it."""
+    payload = [(f.filename or "upload", await f.read()) for f in files]
+    return {"added": [c.model_dump() for c in service.import_clouds(session, sensor, payload)]}
+
+
+@router.post("/lidar-lidar/solve", status_code=202, response_model=JobStatus)
+def solve(body: LidarLidarSolveRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
+    """Register ``source`` into ``target`` in the background; poll ``/api/jobs/{id}`` for ``result_id``."""
+    service.capture_pairs(session, body.source, body.target, body.pairs)  # fail fast, before queueing
+    T_init = None
+    if body.init_xyz_m is not None or body.init_ypr_deg is not None:
+        T_init = from_xyz_ypr(np.array(body.init_xyz_m or (0, 0, 0)), np.radians(body.init_ypr_deg or (0, 0, 0)))
+    settings = LidarLidarSettings()
+    if body.voxel_m is not None:
+        settings = replace(settings, voxel_m=body.voxel_m)
+    job = jobs.submit(f"{body.source} to {body.target}", lambda progress: service.solve_session(
+        session, body.source, body.target, T_init=T_init, use_rig_guess=body.use_rig_guess, settings=settings,
+        pairs=body.pairs, progress=progress)[0])
+    return job.status() | {"result_id": None}
+
+
+@router.post("/sensors/{sensor}/lidar-lidar/accept")
+def accept(sensor: str, body: LidarLidarAccept, session: deps.SessionDep) -> dict[str, Any]:
+    service.accept(session, sensor, body.result_id)
+    return session.info()
