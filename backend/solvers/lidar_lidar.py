@@ -320,25 +320,33 @@ def global_initial_guess(source_points: np.ndarray, target_points: np.ndarray, v
 # ---------------------------------------------------------------- GICP
 
 
-def _gicp(source_points: np.ndarray, target, target_tree, T_init: np.ndarray, settings: LidarLidarSettings,
-          voxel_m: float, max_distance_m: float, fine: bool, max_iterations: int | None = None):
-    """One small_gicp GICP run of raw source points against a preprocessed target."""
+def _gicp(source, target, target_tree, T_init: np.ndarray, settings: LidarLidarSettings, max_distance_m: float,
+          fine: bool, max_iterations: int | None = None):
+    """One small_gicp GICP run between preprocessed clouds (see :func:`_preprocess`)."""
     import small_gicp
 
-    source, _ = small_gicp.preprocess_points(source_points, downsampling_resolution=voxel_m,
-                                             num_neighbors=settings.num_neighbors, num_threads=settings.num_threads)
     kwargs = {"rotation_epsilon": ROTATION_EPSILON_RAD, "translation_epsilon": TRANSLATION_EPSILON_M} if fine else {}
-    result = small_gicp.align(target, source, target_tree, init_T_target_source=T_init, registration_type="GICP",
-                              max_correspondence_distance=max_distance_m, num_threads=settings.num_threads,
-                              max_iterations=max_iterations or settings.max_iterations, **kwargs)
-    return result, source.size()
+    return small_gicp.align(target, source, target_tree, init_T_target_source=T_init, registration_type="GICP",
+                            max_correspondence_distance=max_distance_m, num_threads=settings.num_threads,
+                            max_iterations=max_iterations or settings.max_iterations, **kwargs)
 
 
-def _preprocess_target(target_points: np.ndarray, voxel_m: float, settings: LidarLidarSettings):
+def _preprocess(points: np.ndarray, voxel_m: float, settings: LidarLidarSettings):
+    """Voxel-downsampled small_gicp cloud with covariances, and its KD-tree."""
     import small_gicp
 
-    return small_gicp.preprocess_points(target_points, downsampling_resolution=voxel_m,
+    return small_gicp.preprocess_points(points, downsampling_resolution=voxel_m,
                                         num_neighbors=settings.num_neighbors, num_threads=settings.num_threads)
+
+
+def _coarse_stages(coarse_source, coarse_target, coarse_tree, T: np.ndarray, settings: LidarLidarSettings,
+                   progress: ProgressCallback = no_progress) -> np.ndarray:
+    """The coarse GICP stages (``coarse_max_correspondence_m``, widest first) from ``T``."""
+    for distance in settings.coarse_max_correspondence_m:
+        progress(0.25, f"coarse GICP ({settings.coarse_voxel_m} m voxels, {distance} m correspondences)")
+        T = np.asarray(_gicp(coarse_source, coarse_target, coarse_tree, T, settings, distance,
+                             fine=False).T_target_source)
+    return T
 
 
 def _delta_to_params(T: np.ndarray) -> np.ndarray:
@@ -395,8 +403,8 @@ def _sector_jackknife(source_points: np.ndarray, target, target_tree, T: np.ndar
         keep = source_points[sector != i]
         if len(keep) < MIN_POINTS or len(keep) == len(source_points):
             continue
-        result, _ = _gicp(keep, target, target_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
-                          fine=True)
+        kept, _ = _preprocess(keep, settings.voxel_m, settings)
+        result = _gicp(kept, target, target_tree, T, settings, settings.max_correspondence_m, fine=True)
         estimates.append(params_between(T, np.asarray(result.T_target_source)))
     if len(estimates) < 3:
         return None
@@ -423,21 +431,18 @@ def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings
     """Coarse-to-fine GICP; returns (fine small_gicp result, T, converged, a note or None, fine target, its tree)."""
     T = T_init
     if settings.coarse_to_fine:
-        coarse_target, coarse_tree = _preprocess_target(target, settings.coarse_voxel_m, settings)
-        for distance in settings.coarse_max_correspondence_m:
-            progress(0.25, f"coarse GICP ({settings.coarse_voxel_m} m voxels, {distance} m correspondences)")
-            coarse, _ = _gicp(source, coarse_target, coarse_tree, T, settings, settings.coarse_voxel_m, distance,
-                              fine=False)
-            T = np.asarray(coarse.T_target_source)
+        coarse_source, _ = _preprocess(source, settings.coarse_voxel_m, settings)
+        coarse_target, coarse_tree = _preprocess(target, settings.coarse_voxel_m, settings)
+        T = _coarse_stages(coarse_source, coarse_target, coarse_tree, T, settings, progress)
     progress(0.45, f"fine GICP ({settings.voxel_m} m voxels, {settings.max_correspondence_m} m correspondences)")
-    fine_target, fine_tree = _preprocess_target(target, settings.voxel_m, settings)
-    result, _ = _gicp(source, fine_target, fine_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
-                      fine=True)
+    fine_source, _ = _preprocess(source, settings.voxel_m, settings)
+    fine_target, fine_tree = _preprocess(target, settings.voxel_m, settings)
+    result = _gicp(fine_source, fine_target, fine_tree, T, settings, settings.max_correspondence_m, fine=True)
     T = np.asarray(result.T_target_source).copy()
     converged, note = bool(result.converged), None
     if not converged:
-        step, _ = _gicp(source, fine_target, fine_tree, T, settings, settings.voxel_m, settings.max_correspondence_m,
-                        fine=True, max_iterations=1)
+        step = _gicp(fine_source, fine_target, fine_tree, T, settings, settings.max_correspondence_m, fine=True,
+                     max_iterations=1)
         motion = params_between(T, np.asarray(step.T_target_source))
         dt, dr = float(np.linalg.norm(motion[:3])), float(np.linalg.norm(motion[3:]))
         if dt < CYCLE_TOLERANCE[0] and dr < CYCLE_TOLERANCE[1]:
@@ -456,7 +461,8 @@ def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLi
     with ``GLOBAL_SEEDS`` seeds each; every candidate gets the coarse GICP stages and the one
     with the highest fitness at ``coarse_max_correspondence_m[-1]`` wins.
     """
-    coarse_target, coarse_tree = _preprocess_target(target, settings.coarse_voxel_m, settings)
+    coarse_source, _ = _preprocess(source, settings.coarse_voxel_m, settings)
+    coarse_target, coarse_tree = _preprocess(target, settings.coarse_voxel_m, settings)
     tree = cKDTree(target)
     best, best_fitness = np.eye(4), -1.0
     candidates = [(f * settings.global_voxel_m, seed) for f in GLOBAL_VOXEL_FACTORS for seed in range(GLOBAL_SEEDS)]
@@ -464,10 +470,7 @@ def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLi
         progress(0.2 * i / len(candidates), f"no initial guess: global registration (FPFH + RANSAC, "
                                             f"{voxel:.2f} m voxels, seed {seed})")
         T, _ = global_initial_guess(source, target, voxel, seed)
-        for distance in settings.coarse_max_correspondence_m:
-            coarse, _ = _gicp(source, coarse_target, coarse_tree, T, settings, settings.coarse_voxel_m, distance,
-                              fine=False)
-            T = np.asarray(coarse.T_target_source)
+        T = _coarse_stages(coarse_source, coarse_target, coarse_tree, T, settings)
         fitness = evaluate_alignment(source, target, T, settings.coarse_max_correspondence_m[-1], tree,
                                      settings.num_threads)["fitness"]
         if fitness > best_fitness:
