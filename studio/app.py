@@ -9,6 +9,7 @@ from backend.store.session import Session, SessionStore
 from studio.context import StudioContext
 from studio.scene import RigScene
 from studio.wizard.intrinsics_step import IntrinsicsStep
+from studio.wizard.lidar_step import LidarStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
 
@@ -24,8 +25,10 @@ class StudioApp:
         self.session_step = SessionStep(self.ctx)
         self.sensors_step = SensorsStep(self.ctx)
         self.intrinsics_step = IntrinsicsStep(self.ctx)
+        self.lidar_step = LidarStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 
     def close(self) -> None:
         self.intrinsics_step.stop_live()
+        self.lidar_step.stop_live()

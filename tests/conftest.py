@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import queue
 import socket
 import subprocess
+import sys
+import threading
+import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
+import httpx
 import pytest
-from playwright.sync_api import Browser, sync_playwright
+from playwright.sync_api import Browser, Page, sync_playwright
 
+ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 STEREO_CHESSBOARD = SHARED_DATA / "opencv_stereo_chessboard"
 
@@ -67,3 +74,72 @@ def stop_process(process: subprocess.Popen) -> None:
     except subprocess.TimeoutExpired:
         process.kill()
         process.wait(timeout=10)
+
+
+@dataclass
+class Studio:
+    url: str
+    api: str
+    process: subprocess.Popen
+    log: Path
+
+    def log_tail(self, lines: int = 30) -> str:
+        return "\n".join(self.log.read_text(errors="replace").splitlines()[-lines:])
+
+    def get(self, path: str) -> dict | list:
+        response = httpx.get(f"{self.api}{path}", timeout=10)
+        assert response.status_code == 200, f"GET {path}: {response.status_code} {response.text}"
+        return response.json()
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Studio]:
+    tmp = tmp_path_factory.mktemp("studio")
+    api_port, viewer_port = free_port(), free_port()
+    while viewer_port == api_port:
+        viewer_port = free_port()
+    log = tmp / "studio.log"
+    with log.open("wb") as stderr:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(tmp / "sessions"), "--port", str(api_port),
+             "--viewer-port", str(viewer_port)],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    lines: queue.Queue[str] = queue.Queue()
+
+    def drain() -> None:  # keep reading so the studio never blocks on a full pipe
+        for line in process.stdout:
+            lines.put(line)
+
+    threading.Thread(target=drain, daemon=True).start()
+    studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
+    try:
+        try:
+            first = lines.get(timeout=90)  # building the demo session takes ~10 s
+        except queue.Empty:
+            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
+        studio.url = first.strip()
+        assert studio.url == f"http://127.0.0.1:{viewer_port}/", studio.url
+        deadline = time.monotonic() + 30
+        while True:
+            assert process.poll() is None, f"the studio exited with {process.returncode}:\n{studio.log_tail()}"
+            try:
+                if httpx.get(f"{studio.api}/api/health", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, f"/api/health never answered 200:\n{studio.log_tail()}"
+            time.sleep(0.2)
+        yield studio
+    finally:
+        stop_process(process)
+
+
+def dismiss_webgl_warning(page: Page) -> None:
+    """Close viser's "Software WebGL rendering detected" toast (SwiftShader) so it hides nothing."""
+    toast = page.locator(".mantine-Notification-root", has_text="Software WebGL")
+    try:
+        toast.wait_for(timeout=3_000)
+        toast.locator("button").first.click()
+        toast.wait_for(state="hidden", timeout=3_000)
+    except Exception:  # noqa: BLE001 - cosmetic only: absent on GPU machines, harmless if it stays
+        pass

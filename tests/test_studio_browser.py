@@ -10,26 +10,20 @@ the outcome is checked through the HTTP API against the simulator's truth.
 from __future__ import annotations
 
 import io
-import queue
 import re
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, stop_process
+from conftest import ARTIFACTS, Studio, dismiss_webgl_warning
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-ROOT = Path(__file__).resolve().parents[1]
 VIEWPORT = {"width": 1600, "height": 1000}
 PANEL_LEFT_PX = 1150
 """The wizard panel floats over the right of the page; the 3D view is checked left of this."""
@@ -40,64 +34,6 @@ VIEWS_RE = re.compile(r"(\d+) views ·")
 RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · pinhole-radtan 1280×720")
 
 
-@dataclass
-class Studio:
-    url: str
-    api: str
-    process: subprocess.Popen
-    log: Path
-
-    def log_tail(self, lines: int = 30) -> str:
-        return "\n".join(self.log.read_text(errors="replace").splitlines()[-lines:])
-
-    def get(self, path: str) -> dict | list:
-        response = httpx.get(f"{self.api}{path}", timeout=10)
-        assert response.status_code == 200, f"GET {path}: {response.status_code} {response.text}"
-        return response.json()
-
-
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Studio]:
-    tmp = tmp_path_factory.mktemp("studio")
-    api_port, viewer_port = free_port(), free_port()
-    while viewer_port == api_port:
-        viewer_port = free_port()
-    log = tmp / "studio.log"
-    with log.open("wb") as stderr:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(tmp / "sessions"), "--port", str(api_port),
-             "--viewer-port", str(viewer_port)],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    lines: queue.Queue[str] = queue.Queue()
-
-    def drain() -> None:  # keep reading so the studio never blocks on a full pipe
-        for line in process.stdout:
-            lines.put(line)
-
-    threading.Thread(target=drain, daemon=True).start()
-    studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
-    try:
-        try:
-            first = lines.get(timeout=90)  # building the demo session takes ~10 s
-        except queue.Empty:
-            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
-        studio.url = first.strip()
-        assert studio.url == f"http://127.0.0.1:{viewer_port}/", studio.url
-        deadline = time.monotonic() + 30
-        while True:
-            assert process.poll() is None, f"the studio exited with {process.returncode}:\n{studio.log_tail()}"
-            try:
-                if httpx.get(f"{studio.api}/api/health", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert time.monotonic() < deadline, f"/api/health never answered 200:\n{studio.log_tail()}"
-            time.sleep(0.2)
-        yield studio
-    finally:
-        stop_process(process)
-
-
 @pytest.fixture
 def page(browser: Browser, studio: Studio) -> Iterator[Page]:
     context = browser.new_context(viewport=VIEWPORT)
@@ -106,22 +42,11 @@ def page(browser: Browser, studio: Studio) -> Iterator[Page]:
     page.goto(studio.url)
     expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
     expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
-    _dismiss_webgl_warning(page)
+    dismiss_webgl_warning(page)
     try:
         yield page
     finally:
         context.close()
-
-
-def _dismiss_webgl_warning(page: Page) -> None:
-    """Close viser's "Software WebGL rendering detected" toast (SwiftShader) so it hides nothing."""
-    toast = page.locator(".mantine-Notification-root", has_text="Software WebGL")
-    try:
-        toast.wait_for(timeout=3_000)
-        toast.locator("button").first.click()
-        toast.wait_for(state="hidden", timeout=3_000)
-    except Exception:  # noqa: BLE001 - cosmetic only: absent on GPU machines, harmless if it stays
-        pass
 
 
 def _body(page: Page) -> str:
@@ -181,7 +106,7 @@ def test_intrinsics_step_with_simulated_camera(browser: Browser, studio: Studio)
         page.set_default_timeout(30_000)
         page.goto(studio.url)
         expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
-        _dismiss_webgl_warning(page)
+        dismiss_webgl_warning(page)
         _run_intrinsics_wizard(page, studio)
     finally:
         context.close()

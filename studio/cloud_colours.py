@@ -1,0 +1,108 @@
+"""Colours for point clouds in the 3D view, all vectorised, as (N, 3) uint8 RGB.
+
+Perceptual colour maps come from OpenCV (``cv2.applyColorMap`` on a uint8
+column: TURBO for height / range / intensity, VIRIDIS for cloud-to-cloud
+distance), so no plotting library is needed. The range window is applied
+before anything is coloured or drawn.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+COLOUR_MODES = ("sensor", "intensity", "height", "range")
+SENSOR_PALETTE = ((230, 120, 30), (40, 120, 230), (200, 50, 160), (40, 170, 90), (220, 190, 30), (120, 80, 200))
+"""RGB of the 1st, 2nd, ... LiDAR of the rig (by its order in the rig)."""
+HEIGHT_RANGE_M = (-0.5, 3.0)
+"""Height (z in the rig's root frame, m) mapped onto the colour map's ends."""
+RANGE_RANGE_M = (0.0, 20.0)
+"""Range from the sensor (m) mapped onto the colour map's ends."""
+
+
+def colormap(values: np.ndarray, lo: float, hi: float, cmap: int = cv2.COLORMAP_TURBO) -> np.ndarray:
+    """(N,) values -> (N, 3) uint8 RGB through an OpenCV colour map, ``lo`` and ``hi`` at its ends."""
+    values = np.asarray(values, np.float32).ravel()
+    scaled = np.clip((values - lo) / max(hi - lo, 1e-9), 0.0, 1.0) * 255.0
+    bgr = cv2.applyColorMap(scaled.astype(np.uint8)[:, None], cmap)  # (N, 1, 3)
+    return np.ascontiguousarray(bgr[:, 0, ::-1])
+
+
+def range_window(points: np.ndarray, intensity: np.ndarray | None, min_m: float, max_m: float
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Keep the points whose range from the sensor (m) lies in ``[min_m, max_m]``."""
+    r2 = np.einsum("ij,ij->i", points, points)
+    keep = (r2 >= min_m * min_m) & (r2 <= max_m * max_m)
+    return points[keep], (intensity[keep] if intensity is not None else None)
+
+
+def display_subset(points: np.ndarray, intensity: np.ndarray | None, max_points: int
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+    """At most ``max_points`` points for drawing: an even stride through the cloud (no copy if it fits)."""
+    if len(points) <= max_points:
+        return points, intensity
+    index = np.linspace(0, len(points) - 1, max_points).astype(np.int64)
+    return points[index], (intensity[index] if intensity is not None else None)
+
+
+def sensor_colour(index: int) -> tuple[int, int, int]:
+    return SENSOR_PALETTE[index % len(SENSOR_PALETTE)]
+
+
+def colour_points(mode: str, points: np.ndarray, intensity: np.ndarray | None, T_root_sensor: np.ndarray,
+                  sensor_index: int) -> np.ndarray:
+    """Colours of a cloud in its sensor's frame (m) by ``mode`` (one of :data:`COLOUR_MODES`).
+
+    ``height`` is z in the rig's root frame (``base_link``), hence ``T_root_sensor``;
+    ``intensity`` spreads the 1st to 99th percentile of the cloud's own intensities
+    (units differ between drivers); a cloud without intensity falls back to its sensor colour.
+    """
+    n = len(points)
+    if mode == "height":
+        z = points @ T_root_sensor[2, :3] + T_root_sensor[2, 3]
+        return colormap(z, *HEIGHT_RANGE_M)
+    if mode == "range":
+        return colormap(np.sqrt(np.einsum("ij,ij->i", points, points)), *RANGE_RANGE_M)
+    if mode == "intensity" and intensity is not None and n:
+        lo, hi = np.percentile(intensity, [1, 99])
+        return colormap(intensity, float(lo), float(hi))
+    return np.tile(np.array(sensor_colour(sensor_index), np.uint8), (n, 1))
+
+
+def distance_colours(distances_m: np.ndarray, max_m: float) -> np.ndarray:
+    """Cloud-to-cloud distances (m) on VIRIDIS from 0 (dark) to ``max_m`` (yellow); beyond (inf too) is red."""
+    d = np.asarray(distances_m, np.float32)
+    colours = colormap(np.where(np.isfinite(d), d, max_m), 0.0, max_m, cv2.COLORMAP_VIRIDIS)
+    colours[~(d <= max_m)] = (230, 40, 40)
+    return colours
+
+
+def distance_histogram(distances_m: np.ndarray, max_m: float, width: int = 480, height: int = 170,
+                       bins: int = 40) -> np.ndarray:
+    """Histogram of cloud-to-cloud distances (mm on the axis), bars coloured as in the 3D view (RGB)."""
+    canvas = np.full((height, width, 3), 255, np.uint8)
+    d = np.asarray(distances_m, float)
+    d = d[np.isfinite(d)]
+    left, bottom, top = 40, height - 28, 18
+    cv2.line(canvas, (left, bottom), (width - 8, bottom), (0, 0, 0), 1)
+    if d.size == 0:
+        cv2.putText(canvas, "no distances yet", (left + 10, height // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (90, 90, 90),
+                    1)
+        return canvas
+    counts, edges = np.histogram(np.clip(d, 0, max_m), bins=bins, range=(0.0, max_m))
+    colours = distance_colours((edges[:-1] + edges[1:]) / 2, max_m)
+    bar_w = (width - 8 - left) / bins
+    scale = (bottom - top) / max(counts.max(), 1)
+    for i, count in enumerate(counts):
+        x0, x1 = int(left + i * bar_w), int(left + (i + 1) * bar_w) - 1
+        cv2.rectangle(canvas, (x0, bottom - int(count * scale)), (max(x0, x1), bottom),
+                      tuple(int(c) for c in colours[i]), -1)
+    for fraction in (0.0, 0.25, 0.5, 0.75, 1.0):
+        x = int(left + fraction * (width - 8 - left))
+        cv2.line(canvas, (x, bottom), (x, bottom + 4), (0, 0, 0), 1)
+        cv2.putText(canvas, f"{fraction * max_m * 1000:.0f}", (x - 10, bottom + 17), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 0), 1)
+    cv2.putText(canvas, f"{counts.max()} pts", (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    cv2.putText(canvas, "cloud-to-cloud distance (mm)", (width - 235, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0),
+                1)
+    return canvas

@@ -1,0 +1,457 @@
+"""Step 4: LiDARs - live clouds, capture, and LiDAR-to-LiDAR extrinsics (guess, refine, inspect, accept).
+
+Live: one :class:`~backend.services.live_clouds.LiveClouds` thread per ticked LiDAR
+draws its cloud under ``/rig/<sensor>/live`` (so the rig places it), range-windowed,
+coloured by sensor, intensity, height or range, at most :data:`MAX_DISPLAY_POINTS`
+points per sensor (an even stride; the full scan is what gets captured).
+
+LiDAR to LiDAR: the six sliders *are* ``T_target_source`` (m, ROS yaw/pitch/roll in
+degrees). The target's latest captured cloud is drawn under ``/rig/<target>/l2l`` and
+the source's as a child node posed by the sliders, so moving a slider only re-poses
+that node (no points re-sent). "Global guess" and "Refine (GICP)" run as jobs and
+write their transform back into the sliders; refine starts from the sliders. Half a
+second after the last nudge the source cloud is recoloured by its distance to the
+target at the new pose (colours only).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import viser
+import viser.transforms as vtf
+from scipy.spatial import cKDTree
+
+from backend.core.errors import InputError
+from backend.core.transforms import from_xyz_ypr, to_xyz_ypr, transform_points
+from backend.exports.rig_transforms import static_transform_publisher
+from backend.services import lidar_lidar as lidar_service
+from backend.services.jobs import Job
+from backend.services.live_clouds import CloudCallbacks, LiveClouds
+from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
+from studio import cloud_colours as cc
+from studio.context import StudioContext
+
+NONE = "(no LiDAR)"
+MAX_DISPLAY_POINTS = 100_000
+"""Per sensor. 100k float32 points + RGB are 1.5 MB a frame; see README / the report for measured rates."""
+LIVE_HZ = 12.0
+"""Upper bound of each live thread's draw rate (Hz)."""
+POINT_SIZE_M = 0.02
+TARGET_COLOUR = (150, 150, 150)
+RECOLOUR_DELAY_S = 0.5
+AXES = ("x", "y", "z", "yaw", "pitch", "roll")
+LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
+             "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
+
+
+def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
+    se3 = vtf.SE3.from_matrix(T)
+    return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
+
+
+class LidarStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self.live: dict[str, LiveClouds] = {}
+        self.show: dict[str, viser.GuiCheckboxHandle] = {}
+        self.job: Job | None = None
+        self.result_id: str | None = None
+        self._status: dict[str, str] = {}
+        self._last_text = 0.0
+        self._source_node: viser.PointCloudHandle | None = None
+        self._source_points: np.ndarray | None = None
+        self._target_tree: cKDTree | None = None
+        self._recolour_timer: threading.Timer | None = None
+        self._l2l_nodes: list[viser.SceneNodeHandle] = []
+        self._live_nodes: dict[str, viser.PointCloudHandle] = {}
+        self._lock = threading.Lock()
+        self.max_correspondence_m = LidarLidarSettings().max_correspondence_m
+        gui = ctx.server.gui
+        with gui.add_folder("4 · LiDARs", expand_by_default=False):
+            gui.add_markdown(LIVE_HELP)
+            self.sensor_folder = gui.add_folder("Show live")
+            self.start_button = gui.add_button("Start live", color="green")
+            self.stop_button = gui.add_button("Stop live", color="red", visible=False)
+            self.colour_by = gui.add_dropdown("Colour by", options=cc.COLOUR_MODES, initial_value="sensor")
+            self.accumulate = gui.add_number("Accumulate frames", initial_value=1, min=1, max=50, step=1,
+                                             hint="merge the last N scans into a 3 cm voxel map")
+            self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
+                                               initial_value=(0.0, 100.0))
+            self.point_size = gui.add_slider("Point size (m)", min=0.005, max=0.1, step=0.005,
+                                             initial_value=POINT_SIZE_M)
+            self.live_text = gui.add_markdown("Not live.")
+            self.capture_button = gui.add_button("Capture clouds")
+            self.captures_text = gui.add_markdown("")
+            with gui.add_folder("LiDAR to LiDAR"):
+                self.source = gui.add_dropdown("Source LiDAR", options=[NONE])
+                self.target = gui.add_dropdown("Target LiDAR", options=[NONE])
+                gui.add_markdown("T_target_source: where the source sits in the target's frame (ROS yaw, pitch, "
+                                 "roll). Nudge, then refine from here.")
+                self.sliders = {
+                    axis: gui.add_slider(f"{axis} (m)", min=-5.0, max=5.0, step=0.001, initial_value=0.0)
+                    for axis in AXES[:3]
+                } | {
+                    axis: gui.add_slider(f"{axis} (°)", min=-180.0, max=180.0, step=0.05, initial_value=0.0)
+                    for axis in AXES[3:]
+                }
+                self.tf_text = gui.add_markdown("")
+                self.reset_button = gui.add_button("Reset to rig")
+                self.global_button = gui.add_button("Global guess")
+                self.refine_button = gui.add_button("Refine (GICP)", color="blue")
+                self.cancel_button = gui.add_button("Cancel", visible=False)
+                self.progress = gui.add_progress_bar(0.0, animated=False)
+                self.progress_text = gui.add_markdown("")
+                self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
+                self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
+                                               label="Cloud-to-cloud distances")
+                self.accept_button = gui.add_button("Accept", color="green")
+
+        self.start_button.on_click(lambda _: self.start_live())
+        self.stop_button.on_click(lambda _: self.stop_live())
+        self.accumulate.on_update(lambda _: self._set_accumulate())
+        self.capture_button.on_click(lambda _: self._capture())
+        self.source.on_update(lambda _: self._select_pair())
+        self.target.on_update(lambda _: self._select_pair())
+        for slider in self.sliders.values():
+            slider.on_update(lambda _: self._on_slider())
+        self.reset_button.on_click(lambda _: self._set_sliders(self._rig_T()))
+        self.global_button.on_click(lambda _: self._global_guess())
+        self.refine_button.on_click(lambda _: self._refine())
+        self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
+        self.accept_button.on_click(lambda _: self._accept())
+        ctx.on_session_changed(self._on_session)
+
+    # -- session ------------------------------------------------------------------------------
+    def _lidars(self) -> list[str]:
+        session = self.ctx.session
+        if session is None:
+            return []
+        return [f.name for f in session.rig.frames.values() if f.kind in lidar_service.LIDAR_KINDS]
+
+    def _on_session(self, session) -> None:
+        self.stop_live()
+        for box in self.show.values():
+            box.remove()
+        lidars = self._lidars()
+        with self.sensor_folder:
+            self.show = {name: self.ctx.server.gui.add_checkbox(
+                name, initial_value=session.rig.get(name).kind == "lidar3d") for name in lidars}
+        options = lidars or [NONE]
+        self.source.options, self.target.options = options, options
+        if self.target.value not in options:
+            self.target.value = options[0]
+        if self.source.value not in options or self.source.value == self.target.value:
+            self.source.value = next((o for o in options if o != self.target.value), options[0])
+        self._show_captures()
+        self._select_pair()
+
+    # -- live -----------------------------------------------------------------------------------
+    def start_live(self) -> None:
+        session = self.ctx.session
+        chosen = [name for name, box in self.show.items() if box.value]
+        if session is None or not chosen:
+            self.ctx.notify("No LiDAR", "Tick at least one LiDAR to show live.", error=True)
+            return
+        self.stop_live()
+        self._status = {}
+        for name in chosen:
+            self.live[name] = LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
+                                         accumulate=int(self.accumulate.value), max_hz=LIVE_HZ)
+            self.live[name].start()
+        self.start_button.visible, self.stop_button.visible = False, True
+
+    def stop_live(self) -> None:
+        live, self.live = self.live, {}
+        for thread in live.values():
+            thread.stop()
+        for node in self._live_nodes.values():  # leave the view to the captured clouds
+            try:
+                node.remove()
+            except RuntimeError:  # already gone with a redrawn rig
+                pass
+        self._live_nodes = {}
+        self.start_button.visible, self.stop_button.visible = True, False
+        if live:
+            self.live_text.content = "Not live. " + self._rates(live)
+
+    def _set_accumulate(self) -> None:
+        for thread in self.live.values():
+            thread.accumulate = int(self.accumulate.value)
+
+    def _on_frame(self, sensor: str, points: np.ndarray, intensity: np.ndarray | None) -> None:
+        session = self.ctx.session
+        if session is None or sensor not in self.live:
+            return
+        lo, hi = self.window.value
+        points, intensity = cc.range_window(points, intensity, lo, hi)
+        points, intensity = cc.display_subset(points, intensity, MAX_DISPLAY_POINTS)
+        lidars = self._lidars()
+        colours = cc.colour_points(self.colour_by.value, points, intensity, session.rig.T_root_frame(sensor),
+                                   lidars.index(sensor) if sensor in lidars else 0)
+        self._live_nodes[sensor] = self.ctx.server.scene.add_point_cloud(
+            f"/rig/{sensor}/live", points.astype(np.float32), colours, point_size=float(self.point_size.value),
+            precision="float32")
+        self._status[sensor] = f"{len(points):,} pts drawn"
+        now = time.monotonic()
+        if now - self._last_text > 0.5:
+            self._last_text = now
+            self.live_text.content = "Live · " + self._rates(self.live)
+
+    def _rates(self, live: dict[str, LiveClouds]) -> str:
+        return " · ".join(f"**{name}** {thread.rate_hz:.1f} Hz, {self._status.get(name, 'no frame yet')}"
+                          for name, thread in live.items())
+
+    def _on_status(self, message: str, error: bool) -> None:
+        if error:
+            self.ctx.notify("LiDAR", message, error=True)
+            self.live_text.content = f"⚠️ {message}"
+            others = [t for t in self.live.values() if t.running and t.sensor != message.split(":")[0]]
+            if not others:
+                self.start_button.visible, self.stop_button.visible = True, False
+
+    def _capture(self) -> None:
+        session = self.ctx.session
+        kept = []
+        for name, thread in self.live.items():
+            sample = thread.latest
+            if sample is None:
+                continue
+            try:
+                record = lidar_service.store_cloud(session, name, sample, device=thread.device_name)
+            except InputError as exc:
+                self.ctx.notify("Cloud not kept", exc.message, error=True)
+                continue
+            kept.append(f"{name} {record.id} ({len(sample.points):,} pts)")
+        if not kept:
+            self.ctx.notify("Nothing captured", "Start live on the LiDARs first and wait for a scan.", error=True)
+            return
+        self.ctx.notify("Clouds captured", ", ".join(kept))
+        self._show_captures()
+        self._load_pair_clouds()
+
+    def _show_captures(self) -> None:
+        session = self.ctx.session
+        if session is None:
+            return
+        counts = [f"{name}: {len([c for c in session.captures(name) if c.n_points])}" for name in self._lidars()]
+        self.captures_text.content = "Captured clouds · " + " · ".join(counts)
+
+    # -- LiDAR to LiDAR: pair, sliders and the source node -------------------------------------
+    @property
+    def pair(self) -> tuple[str, str] | None:
+        source, target = self.source.value, self.target.value
+        if self.ctx.session is None or NONE in (source, target) or source == target:
+            return None
+        return source, target
+
+    def _rig_T(self) -> np.ndarray:
+        pair = self.pair
+        return np.eye(4) if pair is None else self.ctx.session.rig.T_a_b(pair[1], pair[0])
+
+    def slider_T(self) -> np.ndarray:
+        """``T_target_source`` from the six sliders (m, degrees)."""
+        xyz = [self.sliders[a].value for a in AXES[:3]]
+        ypr = [self.sliders[a].value for a in AXES[3:]]
+        return from_xyz_ypr(np.array(xyz, float), np.radians(ypr))
+
+    def _set_sliders(self, T: np.ndarray) -> None:
+        xyz, ypr = to_xyz_ypr(T)
+        for axis, value in zip(AXES, [*xyz, *np.degrees(ypr)], strict=True):
+            self.sliders[axis].value = float(value)  # each fires _on_slider, which reads all six
+
+    def _on_slider(self) -> None:
+        T = self.slider_T()
+        pair = self.pair
+        if pair is None:
+            self.tf_text.content = "Pick two different LiDARs."
+            return
+        self.tf_text.content = f"```\n{static_transform_publisher(pair[1], pair[0], T)}\n```"
+        node = self._source_node
+        if node is not None:  # the live nudge: only the pose travels
+            pose = _pose(T)
+            node.wxyz, node.position = pose["wxyz"], pose["position"]
+            self._schedule_recolour()
+
+    def _select_pair(self) -> None:
+        self.result_id = None
+        self._set_sliders(self._rig_T())
+        self._on_slider()
+        self._load_pair_clouds()
+        pair = self.pair
+        if pair is None:
+            self._show_result(None)
+            return
+        results = [r for r in self.ctx.session.results(pair[0], "lidar_lidar") if r.get("target") == pair[1]]
+        accepted = self.ctx.session.accepted(lidar_service.slot(*pair))
+        self._show_result(accepted or (results[-1]["id"] if results else None), move_sliders=False)
+
+    def _load_pair_clouds(self) -> None:
+        """Draw the latest captured cloud of the target, and of the source posed by the sliders."""
+        scene, session, pair = self.ctx.server.scene, self.ctx.session, self.pair
+        with self._lock:
+            self._source_node, self._source_points, self._target_tree = None, None, None
+        for node in self._l2l_nodes:
+            node.remove()
+        self._l2l_nodes = []
+        if pair is None:
+            return
+        source, target = pair
+        clouds = {}
+        for name in pair:
+            captures = [c for c in session.captures(name) if c.n_points]
+            if captures:
+                clouds[name] = cc.display_subset(session.capture_cloud(name, captures[-1].id)[0], None,
+                                                 MAX_DISPLAY_POINTS)[0]
+        if target not in clouds:
+            return
+        size = float(self.point_size.value)
+        root = f"/rig/{target}/l2l"
+        self._l2l_nodes.append(scene.add_point_cloud(f"{root}/target", clouds[target].astype(np.float32),
+                                                     TARGET_COLOUR, point_size=size, precision="float32"))
+        if source in clouds:
+            points = clouds[source].astype(np.float32)
+            lidars = self._lidars()
+            node = scene.add_point_cloud(f"{root}/source", points, cc.sensor_colour(lidars.index(source)),
+                                         point_size=size, precision="float32", **_pose(self.slider_T()))
+            self._l2l_nodes.append(node)
+            with self._lock:
+                self._source_node, self._source_points = node, points
+                self._target_tree = cKDTree(clouds[target])
+            self._schedule_recolour(0.0)
+
+    def _schedule_recolour(self, delay_s: float = RECOLOUR_DELAY_S) -> None:
+        if self._recolour_timer is not None:
+            self._recolour_timer.cancel()
+        self._recolour_timer = threading.Timer(delay_s, self._recolour)
+        self._recolour_timer.daemon = True
+        self._recolour_timer.start()
+
+    def _recolour(self) -> None:
+        """Colour the source cloud by its distance to the target at the slider pose; update the histogram."""
+        with self._lock:
+            node, points, tree = self._source_node, self._source_points, self._target_tree
+        if node is None or points is None or tree is None:
+            return
+        max_m = self.max_correspondence_m
+        d, _ = tree.query(transform_points(self.slider_T(), points.astype(float)), k=1,
+                          distance_upper_bound=2 * max_m, workers=2)
+        try:
+            node.colors = cc.distance_colours(d, max_m)
+        except RuntimeError:  # the cloud was replaced (new capture, accept) while this ran
+            return
+        inliers = d[d <= max_m]
+        self.histogram.image = cc.distance_histogram(inliers, max_m)
+        fitness = len(inliers) / max(len(d), 1)
+        mean = 1000 * float(inliers.mean()) if inliers.size else float("nan")
+        self.progress_text.content = (f"At the slider pose: fitness {fitness:.3f}, c2c mean {mean:.1f} mm "
+                                      f"(distances in mm: 0 dark … {max_m * 1000:.0f} yellow, beyond red).")
+
+    # -- jobs ---------------------------------------------------------------------------------------
+    def _busy(self) -> bool:
+        return self.job is not None and self.job.state == "running"
+
+    def _submit(self, title: str, work, on_done) -> None:
+        if self.pair is None:
+            self.ctx.notify("Pick two LiDARs", "Source and target must be two different LiDARs.", error=True)
+            return
+        if self._busy():
+            return
+        self.job = self.ctx.jobs.submit(title, work)
+        self.refine_button.disabled = self.global_button.disabled = True
+        self.cancel_button.visible = True
+        threading.Thread(target=self._watch, args=(self.job, on_done), daemon=True).start()
+
+    def _watch(self, job: Job, on_done) -> None:
+        while not job.wait(0.1):
+            self.progress.value = 100.0 * job.fraction
+            self.progress_text.content = job.message
+        self.progress.value = 100.0 * job.fraction
+        self.refine_button.disabled = self.global_button.disabled = False
+        self.cancel_button.visible = False
+        if job.state == "done":
+            self.progress_text.content = f"{job.title}: done in {job.finished - job.started:.2f} s."
+            on_done(job.result)
+        elif job.state == "cancelled":
+            self.progress_text.content = "Cancelled; nothing was changed."
+        else:
+            self.progress_text.content = f"⚠️ {job.message}"
+            self.ctx.notify(f"{job.title} failed", job.message, error=True)
+
+    def _global_guess(self) -> None:
+        session, pair = self.ctx.session, self.pair
+        voxel_m = LidarLidarSettings().global_voxel_m
+
+        def work(progress):
+            progress(0.05, "FPFH features + RANSAC on the latest pair")
+            source_points, target_points = lidar_service.capture_pairs(session, *pair)[-1]
+            return global_initial_guess(source_points, target_points, voxel_m=voxel_m)
+
+        def done(result) -> None:
+            T, fitness = result
+            self._set_sliders(T)
+            self.ctx.notify("Global guess", f"RANSAC fitness {fitness:.2f}; the sliders hold the guess - press Refine.")
+
+        self._submit("Global guess", work, done)
+
+    def _refine(self) -> None:
+        session, pair, T_init = self.ctx.session, self.pair, self.slider_T()
+
+        def work(progress):
+            return lidar_service.solve_session(session, pair[0], pair[1], T_init=T_init, progress=progress)[0]
+
+        self._submit("Refine (GICP)", work, self._show_result)
+
+    # -- result ----------------------------------------------------------------------------------------
+    def _show_result(self, result_id: str | None, move_sliders: bool = True) -> None:
+        session = self.ctx.session
+        self.result_id = result_id
+        if session is None or result_id is None:
+            self.stats_text.content = "No LiDAR-to-LiDAR result yet."
+            return
+        record = session.result(result_id)
+        self.max_correspondence_m = record["settings"]["max_correspondence_m"]
+        if move_sliders:
+            self._set_sliders(np.array(record["T_target_source"]))  # also recolours the source cloud
+        self.stats_text.content = result_markdown(
+            record, accepted=session.accepted(lidar_service.slot(record["sensor"], record["target"])))
+
+    def _accept(self) -> None:
+        session, pair = self.ctx.session, self.pair
+        if pair is None or self.result_id is None:
+            self.ctx.notify("Nothing to accept", "Refine first.", error=True)
+            return
+        try:
+            lidar_service.accept(session, pair[0], self.result_id)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.notify("Accepted", f"{self.result_id} is now the mounting of {pair[0]}.")
+        self._l2l_nodes = []  # show_rig clears the whole scene
+        self.ctx.scene.show_rig(session.rig)
+        self._load_pair_clouds()
+        self._show_result(self.result_id, move_sliders=False)
+
+
+def _mm(values: list[float | None]) -> str:
+    return ", ".join("n/a" if v is None else f"{1000 * v:.2f}" for v in values)
+
+
+def result_markdown(record: dict, accepted: str | None) -> str:
+    """Fit, cloud-to-cloud statistics, 1-sigma and convergence of a LiDAR-to-LiDAR result."""
+    c2c, std = record["c2c_m"], record["std"]
+    status = "✅ accepted" if record["id"] == accepted else "not accepted"
+    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
+    rot = ", ".join("n/a" if v is None else f"{v:.3f}" for v in std["rot_deg"])
+    return (
+        f"**{record['id']}** ({status}) · {record['sensor']} → {record['target']} · {verdict}\n\n"
+        f"fitness **{record['fitness']:.3f}** · RMSE **{1000 * record['rmse_m']:.1f} mm** · "
+        f"{record.get('seconds', 0.0):.2f} s\n\n"
+        f"c2c mean / median / p95: {1000 * c2c['mean']:.1f} / {1000 * c2c['median']:.1f} / "
+        f"{1000 * c2c['p95']:.1f} mm\n\n"
+        f"1σ translation (mm): {_mm(std['trans_m'])}\n\n"
+        f"1σ rotation (°): {rot}{warnings}"
+    )
