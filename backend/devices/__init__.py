@@ -5,6 +5,7 @@ Importing the package registers every built-in driver with :func:`backend.device
 
 from backend.devices import (  # noqa: F401
     cloud_files,
+    dynamixel_servo,
     image_folder,
     rosbag_source,
     simulated_camera,
