@@ -31,16 +31,12 @@ Faults: ``corrupt_every`` spoils the CRC of every n-th status packet (the SDK th
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import select
-import shutil
 import struct
-import tempfile
 import threading
 import time
-import tty
+
+from backend.sim.pty_device import PtyDevice
 
 TICKS_PER_REV = 4096
 CENTER_TICKS = 2048
@@ -136,7 +132,7 @@ def status_packet(dxl_id: int, error: int, params: bytes = b"", corrupt: bool = 
     return build_packet(dxl_id, bytes([INST_STATUS, error]) + params, corrupt=corrupt)
 
 
-class DynamixelSimulator:
+class DynamixelSimulator(PtyDevice):
     """A simulated XM430 behind a pty; :attr:`port` is the path a driver opens."""
 
     def __init__(self, *, dxl_id: int = 1, model_number: int = XM430_W350_MODEL, speed_deg_s: float = 240.0,
@@ -170,14 +166,8 @@ class DynamixelSimulator:
         """Instruction packets rejected for a wrong CRC."""
         self.status_sent = 0
         self.corrupted_sent = 0
-        self._dir = tempfile.mkdtemp(prefix="dynamixel-sim-")
-        self.port = os.path.join(self._dir, "ttyDXL")
-        """Stable path (a symlink to the current pty slave) for the driver to open."""
-        self._master = -1
-        self._slave = -1
+        super().__init__("ttyDXL")
         self._buf = b""
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
 
     # ------------------------------------------------------------------ physics
     def _update(self) -> None:
@@ -280,55 +270,15 @@ class DynamixelSimulator:
         self._buf = buf
         return b"".join(out)
 
-    # ------------------------------------------------------------------ lifecycle
-    def start(self) -> DynamixelSimulator:
-        """Power up: create the pty, point :attr:`port` at it and start answering."""
-        if self._thread is not None:
-            return self
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        tmp = self.port + ".new"
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        os.symlink(os.ttyname(self._slave), tmp)
-        os.replace(tmp, self.port)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="dynamixel-sim", daemon=True)
-        self._thread.start()
-        return self
+    # ------------------------------------------------------------------ device loop
+    def on_plug(self) -> None:
+        """A power cycle loses half-received instructions; the horn stays where it is."""
+        self._buf = b""
 
-    def stop(self) -> None:
-        """Power off and remove the temporary folder. Safe twice."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master = self._slave = -1
-        shutil.rmtree(self._dir, ignore_errors=True)
-
-    def __enter__(self) -> DynamixelSimulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                readable, _, _ = select.select([self._master], [], [], 0.01)
-                data = os.read(self._master, 4096) if readable else b""
-            except (OSError, ValueError):
+    def serve(self) -> None:
+        while not self.stopping:
+            data = self.read(0.01)
+            if data is None:
                 return
-            if not data:
-                continue
-            reply = self.handle(data)
-            view = memoryview(reply)
-            while view and not self._stop.is_set():
-                try:
-                    view = view[os.write(self._master, view):]
-                except (OSError, ValueError):
-                    return
+            if data and not self.write(self.handle(data)):
+                return

@@ -27,18 +27,13 @@ for a real USB adapter; a driver that reopens the same path finds the device aga
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import select
-import shutil
 import struct
-import tempfile
-import threading
 import time
-import tty
 
 import numpy as np
+
+from backend.sim.pty_device import PtyDevice
 
 SCAN_RESPONSE = bytes([0xA5, 0x5A, 0x05, 0x00, 0x00, 0x40, 0x81])
 TG30_MODEL = 101
@@ -65,7 +60,7 @@ def encode_packet(ct: int, fsa_q6: int, lsa_q6: int, distances: np.ndarray | lis
     return struct.pack("<HBBHHH", 0x55AA, ct, lsn, fsa, lsa, cs) + samples.tobytes()
 
 
-class YdlidarSimulator:
+class YdlidarSimulator(PtyDevice):
     """A simulated TG30 behind a pty; :attr:`port` is the path a driver opens."""
 
     def __init__(
@@ -123,13 +118,7 @@ class YdlidarSimulator:
         self.scanning = False
         self.commands: list[int] = []
         """Command bytes received (after ``A5``), in order."""
-        self._dir = tempfile.mkdtemp(prefix="ydlidar-sim-")
-        self.port = os.path.join(self._dir, "ttyYDLIDAR")
-        """Stable path (a symlink to the current pty slave) for the driver to open."""
-        self._master = -1
-        self._slave = -1
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        super().__init__("ttyYDLIDAR")
         self._packets = self._scan_packets()
 
     # ------------------------------------------------------------------ geometry
@@ -189,67 +178,12 @@ class YdlidarSimulator:
         return one * scans
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> YdlidarSimulator:
-        """Plug in: create the pty, point :attr:`port` at it and start answering."""
-        if self._thread is not None:
-            return self
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # pyserial does this too; raw before anyone writes
-        tmp = self.port + ".new"
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        os.symlink(os.ttyname(self._slave), tmp)
-        os.replace(tmp, self.port)
+    def on_plug(self) -> None:
+        """Powered up (again): idle until told to scan, with no half-received command."""
         self.scanning = False
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="ydlidar-sim", daemon=True)
-        self._thread.start()
-        return self
-
-    def unplug(self) -> None:
-        """Pull the cable: the path disappears and the driver's next read fails."""
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.port)
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master = self._slave = -1
-        self.scanning = False
-
-    def replug(self) -> None:
-        """Plug back in (a new pty behind the same :attr:`port`); idle until told to scan."""
-        self.unplug()
-        self.start()
-
-    def stop(self) -> None:
-        """Unplug for good and remove the temporary folder."""
-        self.unplug()
-        shutil.rmtree(self._dir, ignore_errors=True)
-
-    def __enter__(self) -> YdlidarSimulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+        self._cmd_buf = b""
 
     # ------------------------------------------------------------------ device loop
-    def _write(self, data: bytes) -> bool:
-        """Write all of ``data`` unless stopped; False when the pty is gone."""
-        view = memoryview(data)
-        while view and not self._stop.is_set():
-            try:
-                _, writable, _ = select.select([], [self._master], [], 0.05)
-                if writable:
-                    view = view[os.write(self._master, view):]
-            except (OSError, ValueError):
-                return False
-        return True
-
     def _handle(self, data: bytes) -> None:
         if self.wrong_baud:
             return  # the device cannot make sense of bytes at the wrong rate either
@@ -264,7 +198,7 @@ class YdlidarSimulator:
             self.commands.append(cmd)
             if cmd in (0x60, 0x61):
                 if not self.scanning:
-                    self._write(SCAN_RESPONSE)
+                    self.write(SCAN_RESPONSE)
                     self.scanning = True
                     self._t0 = time.monotonic()
                     self._sent_in_run = 0
@@ -272,20 +206,18 @@ class YdlidarSimulator:
                 self.scanning = False
             elif cmd == 0x90 and not self.scanning:
                 serial_digits = bytes([2, 0, 2, 4, 0, 1, 0, 1, 0, 0, 0, 0, 0, 0, 0, 1])
-                self._write(response(0x04, struct.pack("<BHB", TG30_MODEL, 0x0105, 1) + serial_digits))
+                self.write(response(0x04, struct.pack("<BHB", TG30_MODEL, 0x0105, 1) + serial_digits))
             elif cmd == 0x92 and not self.scanning:
-                self._write(response(0x06, bytes([0, 0, 0])))
+                self.write(response(0x06, bytes([0, 0, 0])))
         self._cmd_buf = buf[i:]
 
-    def _run(self) -> None:
+    def serve(self) -> None:
         period = 1.0 / (self.scan_hz * len(self._packets))
         self._cmd_buf = b""
         last_noise = time.monotonic()
-        while not self._stop.is_set():
-            try:
-                readable, _, _ = select.select([self._master], [], [], 0.005)
-                data = os.read(self._master, 4096) if readable else b""
-            except (OSError, ValueError):
+        while not self.stopping:
+            data = self.read(0.005)
+            if data is None:
                 return
             if data:
                 self._handle(data)
@@ -294,7 +226,7 @@ class YdlidarSimulator:
                 n = int((now - last_noise) * 45000)  # about the TG30's byte rate
                 if n > 0:
                     last_noise = now
-                    if not self._write(self._rng.integers(0, 256, n, dtype=np.uint8).tobytes()):
+                    if not self.write(self._rng.integers(0, 256, n, dtype=np.uint8).tobytes()):
                         return
                 continue
             last_noise = now
@@ -318,5 +250,5 @@ class YdlidarSimulator:
                 if self.garbage_every > 0 and self.packets_sent % self.garbage_every == 0:
                     out.append(self._rng.integers(0, 256, self.garbage_len, dtype=np.uint8).tobytes())
                     self.garbage_sent += self.garbage_len
-            if out and not self._write(b"".join(out)):
+            if out and not self.write(b"".join(out)):
                 return
