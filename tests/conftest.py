@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import socket
 import subprocess
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from playwright.sync_api import Browser, Page, sync_playwright
+from playwright.sync_api import Browser, Page, expect, sync_playwright
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -143,3 +144,19 @@ def dismiss_webgl_warning(page: Page) -> None:
         toast.wait_for(state="hidden", timeout=3_000)
     except Exception:  # noqa: BLE001 - cosmetic only: absent on GPU machines, harmless if it stays
         pass
+
+
+@contextlib.contextmanager
+def studio_page(browser: Browser, url: str, viewport: dict[str, int]) -> Iterator[Page]:
+    """The studio page in a fresh browser context, connected, with the WebGL toast dismissed."""
+    context = browser.new_context(viewport=viewport)
+    try:
+        page = context.new_page()
+        page.set_default_timeout(30_000)
+        page.goto(url)
+        expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
+        expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
+        dismiss_webgl_warning(page)
+        yield page
+    finally:
+        context.close()

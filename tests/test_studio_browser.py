@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, dismiss_webgl_warning
+from conftest import ARTIFACTS, Studio, studio_page
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
@@ -36,17 +36,8 @@ RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · pinhole-rad
 
 @pytest.fixture
 def page(browser: Browser, studio: Studio) -> Iterator[Page]:
-    context = browser.new_context(viewport=VIEWPORT)
-    page = context.new_page()
-    page.set_default_timeout(30_000)
-    page.goto(studio.url)
-    expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
-    expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
-    dismiss_webgl_warning(page)
-    try:
+    with studio_page(browser, studio.url, VIEWPORT) as page:
         yield page
-    finally:
-        context.close()
 
 
 def _body(page: Page) -> str:
@@ -100,16 +91,8 @@ def test_demo_page_renders_rig(page: Page) -> None:
 
 def test_intrinsics_step_with_simulated_camera(browser: Browser, studio: Studio) -> None:
     # A tall page so the live image, the coverage bars and the result all fit in one screenshot.
-    context = browser.new_context(viewport={"width": 1600, "height": 2000})
-    try:
-        page = context.new_page()
-        page.set_default_timeout(30_000)
-        page.goto(studio.url)
-        expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
-        dismiss_webgl_warning(page)
+    with studio_page(browser, studio.url, {"width": 1600, "height": 2000}) as page:
         _run_intrinsics_wizard(page, studio)
-    finally:
-        context.close()
 
 
 def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:

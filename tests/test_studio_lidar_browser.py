@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, dismiss_webgl_warning
+from conftest import ARTIFACTS, Studio, studio_page
 from playwright.sync_api import Browser, Page, expect
 
 from backend.core.transforms import invert
@@ -54,16 +54,8 @@ def _wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
 
 
 def test_lidar_to_lidar_in_the_studio(browser: Browser, studio: Studio) -> None:
-    context = browser.new_context(viewport=VIEWPORT)
-    try:
-        page = context.new_page()
-        page.set_default_timeout(30_000)
-        page.goto(studio.url)
-        expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
-        dismiss_webgl_warning(page)
+    with studio_page(browser, studio.url, VIEWPORT) as page:
         _run_lidar_step(page, studio)
-    finally:
-        context.close()
 
 
 def _run_lidar_step(page: Page, studio: Studio) -> None:
