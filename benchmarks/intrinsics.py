@@ -30,13 +30,11 @@ Usage:
 
 import json
 import os
-import resource
-import statistics
-import sys
 import time
 
 import cv2
 import numpy as np
+from bench_util import REPEATS, log, median_time, peak_rss_mb
 
 from backend.core.boards import BoardSpec
 from backend.devices.base import create_device
@@ -46,24 +44,9 @@ from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intri
 
 N_VIEWS = 50
 IMAGE_SIZE = (1280, 720)
-REPEATS = 3
 DETECT_EVERY = 5
 """Detection throughput is timed on every 5th image (10 of the 50)."""
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
-
-
-def log(message):
-    print(message, file=sys.stderr, flush=True)
-
-
-def median_time(function, repeats=REPEATS):
-    """Median wall time (s) of ``repeats`` calls of ``function()``."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main():
@@ -132,7 +115,7 @@ def main():
     baseline_detect_fps = len(subset) / median_time(baseline_detect_all)
 
     # 3. Report.
-    peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
+    peak_memory_mb = peak_rss_mb()
     log(f"done in {time.perf_counter() - started:.1f} s; load average at end: {os.getloadavg()[0]:.2f}")
     result = {
         "benchmark": "intrinsics",
@@ -148,7 +131,7 @@ def main():
         "baseline_detect_fps": round(baseline_detect_fps, 2),
         "detect_ratio": round(detect_fps / baseline_detect_fps, 4),
         "detect_live_ratio": round(detect_live_fps / baseline_detect_fps, 4),
-        "peak_rss_mb": round(peak_rss_mb, 1),
+        "peak_rss_mb": round(peak_memory_mb, 1),
         "cpu_count": os.cpu_count(),
     }
     print(json.dumps(result))

@@ -45,13 +45,11 @@ Usage:
 import json
 import multiprocessing
 import os
-import resource
 import socket
-import statistics
-import sys
 import time
 
 import numpy as np
+from bench_util import REPEATS, log, median_time, peak_rss_mb
 from scipy.spatial.transform import Rotation
 
 from backend.core.transforms import from_xyz_ypr, invert, make_T
@@ -63,7 +61,6 @@ from backend.sim.velodyne_packets import simulate_vlp16_scan
 from backend.sim.ydlidar_sim import YdlidarSimulator
 from backend.solvers.lidar_lidar import LidarLidarSettings, register_pair, transform_error
 
-REPEATS = 3
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))
 """The two LiDARs on the robot (as in tests/test_lidar_lidar.py): 106 deg apart in yaw, 12 deg in pitch."""
@@ -82,20 +79,6 @@ UDP_BURST = 40
 """The sender paces itself in bursts of this many packets."""
 DECODER_PASSES = 5
 """The decoder-only baseline decodes all the packets this many times per repeat."""
-
-
-def log(message):
-    print(message, file=sys.stderr, flush=True)
-
-
-def median_time(function, repeats=REPEATS):
-    """Median wall time (s) of ``repeats`` calls of ``function()``."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def pose_error(T, T_true):
@@ -260,7 +243,7 @@ def main():
         log("  the driver kept up with the sender: the UDP rate is the sender's cap, a lower bound of the driver's")
 
     # 4. Report.
-    peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
+    peak_memory_mb = peak_rss_mb()
     log(f"done in {time.perf_counter() - started:.1f} s; load average at end: {os.getloadavg()[0]:.2f}")
     result = {
         "benchmark": "lidar_lidar",
@@ -277,7 +260,7 @@ def main():
         "velodyne_udp_points_per_s": round(velodyne_udp_points_per_s),
         "velodyne_decoder_points_per_s": round(velodyne_decoder_points_per_s),
         "udp_ratio": round(velodyne_udp_points_per_s / velodyne_decoder_points_per_s, 4),
-        "peak_rss_mb": round(peak_rss_mb, 1),
+        "peak_rss_mb": round(peak_memory_mb, 1),
         "cpu_count": os.cpu_count(),
     }
     print(json.dumps(result))
