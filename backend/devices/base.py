@@ -45,6 +45,10 @@ class Sample:
     meta: dict[str, Any] = field(default_factory=dict)
     """Driver facts worth keeping (source file, frame index, ground truth in simulation)."""
 
+    def storable_meta(self) -> dict[str, Any]:
+        """The JSON-friendly part of :attr:`meta` (numbers, text, flags, lists), for a capture record."""
+        return {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str, bool, list))}
+
 
 class CaptureDevice(abc.ABC):
     """A sensor that can be opened, read sample by sample and closed."""

@@ -43,9 +43,8 @@ def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, s
     _check_lidar(session, sensor)
     if sample.points is None or len(sample.points) == 0:
         raise InputError(f"{source or device}: the cloud holds no points", source or device)
-    meta = {k: v for k, v in sample.meta.items() if isinstance(v, (int, float, str, bool))}
     return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
-        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": meta})
+        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": sample.storable_meta()})
 
 
 def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],

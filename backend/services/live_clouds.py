@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import collections
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from backend.devices.base import DeviceDisconnected, DeviceError, Sample, create_device
+from backend.devices.base import Sample
+from backend.services.sensor_stream import SensorStream
 from backend.store.session import Session
 
 DEFAULT_VOXEL_M = 0.03
@@ -55,24 +55,18 @@ class CloudCallbacks:
     """(message, is_error); the message names the sensor."""
 
 
-class LiveClouds:
+class LiveClouds(SensorStream):
     """One LiDAR's live loop: read, keep the latest scan, accumulate, report."""
+
+    kept_phrase = "cloud(s) captured"
 
     def __init__(self, session: Session, sensor: str, callbacks: CloudCallbacks, *, accumulate: int = 1,
                  voxel_m: float = DEFAULT_VOXEL_M, max_hz: float = 10.0):
-        self.session = session
-        self.sensor = sensor
+        super().__init__(session, sensor, callbacks.status, max_hz)
         self.callbacks = callbacks
         self.voxel_m = voxel_m
-        self._min_period_s = 1.0 / max_hz if max_hz > 0 else 0.0
         self._frames: collections.deque[Sample] = collections.deque(maxlen=max(1, int(accumulate)))
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.device_name = sensor
-        self.frames_seen = 0
-        self.rate_hz = 0.0
-        """Frames per second reported to ``callbacks.frame`` (smoothed)."""
 
     @property
     def accumulate(self) -> int:
@@ -103,54 +97,10 @@ class LiveClouds:
             intensity = np.concatenate([f.intensity for f in frames])
         return voxel_downsample(points, intensity, self.voxel_m)
 
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name=f"live-cloud-{self.sensor}", daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout: float = 5.0) -> None:
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout)
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
-
-    def _run(self) -> None:
-        settings = self.session.rig.get(self.sensor).device
-        try:
-            if not settings:
-                raise DeviceError("no capture device configured for this sensor; set one in the sensors step",
-                                  self.sensor)
-            device = create_device(settings)
-            device.open()
-        except DeviceError as exc:
-            self.callbacks.status(f"{self.sensor}: {exc}", True)
+    def handle(self, sample: Sample) -> None:
+        if sample.points is None or len(sample.points) == 0:
             return
-        self.device_name = device.describe()
-        self.callbacks.status(f"{self.sensor}: live from {self.device_name}", False)
-        last = time.perf_counter()
-        period = 1.0
-        try:
-            while not self._stop.is_set():
-                started = time.perf_counter()
-                sample = device.read()
-                if sample.points is None or len(sample.points) == 0:
-                    continue
-                with self._lock:
-                    self._frames.append(sample)
-                self.frames_seen += 1
-                points, intensity = self.accumulated()
-                self.callbacks.frame(self.sensor, points, intensity)
-                now = time.perf_counter()
-                period = now - last if self.frames_seen == 1 else 0.8 * period + 0.2 * (now - last)
-                self.rate_hz = 1.0 / max(period, 1e-6)
-                last = now
-                time.sleep(max(0.0, self._min_period_s - (time.perf_counter() - started)))
-        except DeviceDisconnected as exc:
-            kept = len(self.session.captures(self.sensor))
-            self.callbacks.status(f"{self.sensor}: {exc} - the {kept} cloud(s) captured so far are kept", True)
-        except Exception as exc:  # noqa: BLE001 - a live thread must end with a message, never silently
-            self.callbacks.status(f"{self.sensor}: live stopped: {exc!r}", True)
-        finally:
-            device.close()
+        with self._lock:
+            self._frames.append(sample)
+        points, intensity = self.accumulated()
+        self.callbacks.frame(self.sensor, points, intensity)

@@ -1,0 +1,101 @@
+"""Reading one of the rig's sensors live, on its own thread, at a capped rate.
+
+The device comes from the sensor's capture settings in the rig. A corrupt sample
+(e.g. a bad file in a replayed folder) is reported and skipped; a device that goes
+away ends the stream with a message saying how many captures are kept, since
+captures are stored as they are taken and nothing is lost.
+"""
+
+from __future__ import annotations
+
+import abc
+import threading
+import time
+from collections.abc import Callable
+from typing import ClassVar
+
+from backend.core.errors import InputError
+from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, create_device
+from backend.store.session import Session
+
+StatusCallback = Callable[[str, bool], None]
+"""(message naming the sensor, is_error)."""
+
+
+class SensorStream(abc.ABC):
+    """Opens a rig sensor's device and hands every sample to :meth:`handle` until stopped."""
+
+    kept_phrase: ClassVar[str]
+    """How kept captures are counted in the disconnect message, e.g. ``"capture(s) taken"``."""
+
+    def __init__(self, session: Session, sensor: str, status: StatusCallback, max_hz: float):
+        self.session = session
+        self.sensor = sensor
+        self.status = status
+        self._min_period_s = 1.0 / max_hz if max_hz > 0 else 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.device_name = sensor
+        """The open device's description (the sensor name until opened)."""
+        self.frames_seen = 0
+        self.rate_hz = 0.0
+        """Samples handled per second (smoothed)."""
+
+    @abc.abstractmethod
+    def handle(self, sample: Sample) -> None:
+        """Use one sample; runs on the stream's thread."""
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=f"live-{self.sensor}", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _open(self) -> CaptureDevice:
+        settings = self.session.rig.get(self.sensor).device
+        if not settings:
+            raise DeviceError("no capture device configured for this sensor; set one in the sensors step",
+                              self.sensor)
+        device = create_device(settings)
+        device.open()
+        return device
+
+    def _run(self) -> None:
+        try:
+            device = self._open()
+        except DeviceError as exc:
+            self.status(f"{self.sensor}: {exc}", True)
+            return
+        self.device_name = device.describe()
+        self.status(f"{self.sensor}: live from {self.device_name}", False)
+        last = time.perf_counter()
+        try:
+            while not self._stop.is_set():
+                started = time.perf_counter()
+                try:
+                    sample = device.read()
+                except InputError as exc:  # one corrupt sample: say so and read on
+                    self.status(f"{self.sensor}: {exc.message}", True)
+                    continue
+                self.frames_seen += 1
+                self.handle(sample)
+                now = time.perf_counter()
+                period = now - last
+                self.rate_hz = 1.0 / max(period, 1e-6) if self.frames_seen == 1 else (
+                    0.8 * self.rate_hz + 0.2 / max(period, 1e-6))
+                last = now
+                time.sleep(max(0.0, self._min_period_s - (time.perf_counter() - started)))
+        except DeviceDisconnected as exc:
+            kept = len(self.session.captures(self.sensor))
+            self.status(f"{self.sensor}: {exc} - the {kept} {self.kept_phrase} so far are kept", True)
+        except Exception as exc:  # noqa: BLE001 - a live thread must end with a message, never silently
+            self.status(f"{self.sensor}: live stopped: {exc!r}", True)
+        finally:
+            device.close()
