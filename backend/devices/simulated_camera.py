@@ -15,7 +15,8 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
+from backend.devices.simulated_timing import SimulatedTiming
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
@@ -58,13 +59,10 @@ class SimulatedCamera(CaptureDevice):
         self.seed = seed
         self.board = board
         self.n_poses = n_poses
-        self.fps = fps
-        self.disconnect_after = disconnect_after
+        self._timing = SimulatedTiming(fps, disconnect_after, "frames")
         self._intrinsics: CameraIntrinsics | None = None
         self._board_spec: BoardSpec | None = None
         self._poses: list[np.ndarray] = []
-        self._frames_read = 0
-        self._next_frame_s = 0.0
 
     def open(self) -> None:
         """Look the camera up in the demo rig and plan the board motion."""
@@ -80,23 +78,16 @@ class SimulatedCamera(CaptureDevice):
             raise DeviceError(f"n_poses must be at least 1, not {self.n_poses}", self.describe())
         self._intrinsics, self._board_spec = frame.intrinsics, board
         self._poses = board_poses(frame.intrinsics, board, self.n_poses, self.seed)
-        self._frames_read = 0
-        self._next_frame_s = time.monotonic()
+        self._timing.restart()
 
     def read(self) -> Sample:
         """Render the next frame; raise :class:`DeviceDisconnected` once ``disconnect_after`` frames were read."""
         if self._intrinsics is None or self._board_spec is None:
             raise DeviceError("read() before open()", self.describe())
-        if self.disconnect_after is not None and self._frames_read >= self.disconnect_after:
-            raise DeviceDisconnected(f"simulated disconnect after {self.disconnect_after} frames", self.describe())
-        if self.fps > 0:
-            time.sleep(max(0.0, self._next_frame_s - time.monotonic()))
-            self._next_frame_s = max(self._next_frame_s, time.monotonic()) + 1.0 / self.fps
-        index = self._frames_read
+        index = self._timing.next_frame(self.describe())
         T_camera_board = self._poses[index % len(self._poses)]
         rng = np.random.default_rng([self.seed, index])
         image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
-        self._frames_read += 1
         meta = {"frame_index": index, "T_camera_board": T_camera_board.tolist(), "simulated": True}
         return Sample(time.time(), image=image, meta=meta)
 

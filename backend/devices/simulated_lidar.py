@@ -13,7 +13,8 @@ import time
 
 import numpy as np
 
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
+from backend.devices.simulated_timing import SimulatedTiming
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses
 
@@ -52,15 +53,12 @@ class SimulatedLidar(CaptureDevice):
         """
         self.sensor = sensor
         self.seed = seed
-        self.rate_hz = rate_hz
         self.board_poses = board_poses
-        self.disconnect_after = disconnect_after
+        self._timing = SimulatedTiming(rate_hz, disconnect_after, "scans")
         self._kind: str | None = None
         self._T_base_sensor: np.ndarray | None = None
         self._poses: list[np.ndarray] = []
         self._scenes: dict[int, LidarScene] = {}
-        self._frames_read = 0
-        self._next_frame_s = 0.0
 
     def open(self) -> None:
         """Look the sensor up in the demo rig and plan the board's poses."""
@@ -72,15 +70,14 @@ class SimulatedLidar(CaptureDevice):
         if self.board_poses < 0:
             raise DeviceError(f"board_poses must be 0 (static board) or more, not {self.board_poses}",
                               self.describe())
-        if self.rate_hz < 0:
-            raise DeviceError(f"rate_hz must be 0 or more, not {self.rate_hz}", self.describe())
+        if self._timing.rate_hz < 0:
+            raise DeviceError(f"rate_hz must be 0 or more, not {self._timing.rate_hz}", self.describe())
         self._kind = frame.kind
         self._T_base_sensor = rig.T_root_frame(self.sensor)
         self._poses = moving_board_poses(self.board_poses, self.seed) if self.board_poses > 0 else [
             default_board_pose()]
         self._scenes = {}
-        self._frames_read = 0
-        self._next_frame_s = time.monotonic()
+        self._timing.restart()
 
     def scan(self, index: int) -> LidarScan:
         """The full simulated scan of sample ``index`` (rings, labels and noise-free points included)."""
@@ -99,14 +96,8 @@ class SimulatedLidar(CaptureDevice):
         """Scan once more; raise :class:`DeviceDisconnected` once ``disconnect_after`` scans were read."""
         if self._T_base_sensor is None:
             raise DeviceError("read() before open()", self.describe())
-        if self.disconnect_after is not None and self._frames_read >= self.disconnect_after:
-            raise DeviceDisconnected(f"simulated disconnect after {self.disconnect_after} scans", self.describe())
-        if self.rate_hz > 0:
-            time.sleep(max(0.0, self._next_frame_s - time.monotonic()))
-            self._next_frame_s = max(self._next_frame_s, time.monotonic()) + 1.0 / self.rate_hz
-        index = self._frames_read
+        index = self._timing.next_frame(self.describe())
         scan = self.scan(index)
-        self._frames_read += 1
         meta = {
             "frame_index": index,
             "sensor": self.sensor,
