@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
@@ -10,7 +9,6 @@ import numpy as np
 from backend.core.errors import InputError
 from backend.services import exports as export_service
 from backend.services import intrinsics as intrinsics_service
-from backend.services.jobs import Job
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
 from backend.solvers.board_detection import Detection
 from backend.solvers.board_pose import board_pose, nominal_camera
@@ -19,6 +17,7 @@ from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.schema import CaptureRecord
 from studio import plots
 from studio.context import StudioContext
+from studio.job_panel import JobPanel
 
 NO_CAMERA = "(no camera)"
 GUIDANCE = (
@@ -32,7 +31,6 @@ class IntrinsicsStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
         self.live: LiveCapture | None = None
-        self.job: Job | None = None
         self._last_preview = 0.0
         gui = ctx.server.gui
         with gui.add_folder("3 · Camera intrinsics"):
@@ -55,9 +53,7 @@ class IntrinsicsStep:
                 self.fix_aspect = gui.add_checkbox("Fix aspect (fx = fy)", initial_value=False)
                 self.drop_outliers = gui.add_checkbox("Drop outlier views and re-solve", initial_value=False)
                 self.solve_button = gui.add_button("Solve", color="blue")
-                self.cancel_button = gui.add_button("Cancel solve", visible=False)
-                self.progress = gui.add_progress_bar(0.0, animated=False)
-                self.progress_text = gui.add_markdown("")
+                self.jobs = JobPanel(ctx, [self.solve_button], cancel_label="Cancel solve")
             with gui.add_folder("Result"):
                 self.result_text = gui.add_markdown("No result yet.")
                 self.rms_plot = gui.add_image(plots.view_rms_bars([], [], []), label="Per-view RMS")
@@ -77,7 +73,6 @@ class IntrinsicsStep:
         self.capture_button.on_click(lambda _: self._capture_now())
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
-        self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
         self.history.on_update(lambda _: self._show_result(self.history.value))
         self.accept_button.on_click(lambda _: self._accept())
         self.export_ros.on_click(lambda event: self._download(event, "camera_info"))
@@ -213,32 +208,16 @@ class IntrinsicsStep:
         if sensor is None:
             self.ctx.notify("No camera", "Pick a camera first.", error=True)
             return
-        if self.job is not None and self.job.state == "running":
-            return
         settings = self._settings()
-        self.job = self.ctx.jobs.submit(
-            f"intrinsics of {sensor}",
-            lambda progress: intrinsics_service.solve_session(session, sensor, settings, progress=progress)[0])
-        self.solve_button.disabled, self.cancel_button.visible = True, True
-        threading.Thread(target=self._watch, args=(self.job,), daemon=True).start()
+        self.jobs.run(f"intrinsics of {sensor}",
+                      lambda progress: intrinsics_service.solve_session(session, sensor, settings,
+                                                                        progress=progress)[0],
+                      self._solved, done_message="Solved in {seconds:.2f} s.")
 
-    def _watch(self, job: Job) -> None:
-        """Mirror a job's progress into the panel until it ends (runs off the GUI thread)."""
-        while not job.wait(0.1):
-            self.progress.value = 100.0 * job.fraction
-            self.progress_text.content = job.message
-        self.progress.value = 100.0 * job.fraction
-        self.solve_button.disabled, self.cancel_button.visible = False, False
-        if job.state == "done":
-            self.progress_text.content = f"Solved in {job.finished - job.started:.2f} s."
-            self.history.options = [r["id"] for r in reversed(self.ctx.session.results(self.sensor, "intrinsics"))]
-            self.history.value = job.result
-            self._show_result(job.result)
-        elif job.state == "cancelled":
-            self.progress_text.content = "Cancelled; nothing was changed."
-        else:
-            self.progress_text.content = f"⚠️ {job.message}"
-            self.ctx.notify("Solve failed", job.message, error=True)
+    def _solved(self, result_id: str) -> None:
+        self.history.options = [r["id"] for r in reversed(self.ctx.session.results(self.sensor, "intrinsics"))]
+        self.history.value = result_id
+        self._show_result(result_id)
 
     def _show_result(self, result_id: str) -> None:
         session = self.ctx.session

@@ -28,11 +28,11 @@ from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, to_xyz_ypr, transform_points
 from backend.exports.rig_transforms import static_transform_publisher
 from backend.services import lidar_lidar as lidar_service
-from backend.services.jobs import Job
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
 from studio.context import StudioContext
+from studio.job_panel import JobPanel
 
 NONE = "(no LiDAR)"
 MAX_DISPLAY_POINTS = 100_000
@@ -57,7 +57,6 @@ class LidarStep:
         self.ctx = ctx
         self.live: dict[str, LiveClouds] = {}
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
-        self.job: Job | None = None
         self.result_id: str | None = None
         self._status: dict[str, str] = {}
         self._last_text = 0.0
@@ -101,9 +100,7 @@ class LidarStep:
                 self.reset_button = gui.add_button("Reset to rig")
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
-                self.cancel_button = gui.add_button("Cancel", visible=False)
-                self.progress = gui.add_progress_bar(0.0, animated=False)
-                self.progress_text = gui.add_markdown("")
+                self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
                 self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
@@ -120,7 +117,6 @@ class LidarStep:
         self.reset_button.on_click(lambda _: self._set_sliders(self._rig_T()))
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
-        self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
         self.accept_button.on_click(lambda _: self._accept())
         ctx.on_session_changed(self._on_session)
 
@@ -346,39 +342,15 @@ class LidarStep:
         self.histogram.image = cc.distance_histogram(inliers, max_m)
         fitness = len(inliers) / max(len(d), 1)
         mean = 1000 * float(inliers.mean()) if inliers.size else float("nan")
-        self.progress_text.content = (f"At the slider pose: fitness {fitness:.3f}, c2c mean {mean:.1f} mm "
+        self.jobs.text.content = (f"At the slider pose: fitness {fitness:.3f}, c2c mean {mean:.1f} mm "
                                       f"(distances in mm: 0 dark … {max_m * 1000:.0f} yellow, beyond red).")
 
     # -- jobs ---------------------------------------------------------------------------------------
-    def _busy(self) -> bool:
-        return self.job is not None and self.job.state == "running"
-
     def _submit(self, title: str, work, on_done) -> None:
         if self.pair is None:
             self.ctx.notify("Pick two LiDARs", "Source and target must be two different LiDARs.", error=True)
             return
-        if self._busy():
-            return
-        self.job = self.ctx.jobs.submit(title, work)
-        self.refine_button.disabled = self.global_button.disabled = True
-        self.cancel_button.visible = True
-        threading.Thread(target=self._watch, args=(self.job, on_done), daemon=True).start()
-
-    def _watch(self, job: Job, on_done) -> None:
-        while not job.wait(0.1):
-            self.progress.value = 100.0 * job.fraction
-            self.progress_text.content = job.message
-        self.progress.value = 100.0 * job.fraction
-        self.refine_button.disabled = self.global_button.disabled = False
-        self.cancel_button.visible = False
-        if job.state == "done":
-            self.progress_text.content = f"{job.title}: done in {job.finished - job.started:.2f} s."
-            on_done(job.result)
-        elif job.state == "cancelled":
-            self.progress_text.content = "Cancelled; nothing was changed."
-        else:
-            self.progress_text.content = f"⚠️ {job.message}"
-            self.ctx.notify(f"{job.title} failed", job.message, error=True)
+        self.jobs.run(title, work, on_done)
 
     def _global_guess(self) -> None:
         session, pair = self.ctx.session, self.pair

@@ -1,0 +1,60 @@
+"""A progress bar, a status line and a Cancel button that follow one background job."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from backend.services.jobs import Job
+from backend.solvers.result import ProgressCallback
+from studio.context import StudioContext
+
+
+class JobPanel:
+    """Runs work through the studio's job runner and mirrors it in the panel, off the GUI thread.
+
+    ``buttons`` are disabled while a job runs, so the same work cannot be started twice.
+    """
+
+    def __init__(self, ctx: StudioContext, buttons: list, cancel_label: str = "Cancel"):
+        gui = ctx.server.gui
+        self.ctx = ctx
+        self.buttons = buttons
+        self.cancel_button = gui.add_button(cancel_label, visible=False)
+        self.progress = gui.add_progress_bar(0.0, animated=False)
+        self.text = gui.add_markdown("")
+        self.job: Job | None = None
+        self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
+
+    @property
+    def busy(self) -> bool:
+        return self.job is not None and self.job.state == "running"
+
+    def run(self, title: str, work: Callable[[ProgressCallback], Any], on_done: Callable[[Any], None],
+            done_message: str = "{title}: done in {seconds:.2f} s.") -> None:
+        """Start ``work`` unless a job is running; ``on_done(result)`` runs once it succeeds."""
+        if self.busy:
+            return
+        self.job = self.ctx.jobs.submit(title, work)
+        for button in self.buttons:
+            button.disabled = True
+        self.cancel_button.visible = True
+        threading.Thread(target=self._watch, args=(self.job, on_done, done_message), daemon=True).start()
+
+    def _watch(self, job: Job, on_done: Callable[[Any], None], done_message: str) -> None:
+        while not job.wait(0.1):
+            self.progress.value = 100.0 * job.fraction
+            self.text.content = job.message
+        self.progress.value = 100.0 * job.fraction
+        for button in self.buttons:
+            button.disabled = False
+        self.cancel_button.visible = False
+        if job.state == "done":
+            self.text.content = done_message.format(title=job.title, seconds=job.finished - job.started)
+            on_done(job.result)
+        elif job.state == "cancelled":
+            self.text.content = "Cancelled; nothing was changed."
+        else:
+            self.text.content = f"⚠️ {job.message}"
+            self.ctx.notify(f"{job.title} failed", job.message, error=True)
