@@ -72,7 +72,7 @@ def _check_size(session: Session, sensor: str, name: str, image: np.ndarray) -> 
     if camera.kind != "camera":
         raise InputError(f"sensor {sensor!r} is a {camera.kind}, not a camera", "sensor")
     size = (image.shape[1], image.shape[0])
-    previous = [c.image_size for c in session.captures(sensor)[:1]]
+    previous = [c.image_size for c in session.captures(sensor, limit=1)]
     expected = tuple(previous[0]) if previous else None
     if expected and size != expected:
         raise InputError(f"{name} is {size[0]}x{size[1]} px but earlier captures of {sensor} are "

@@ -179,10 +179,10 @@ class Session:
         np.save(buffer, np.hstack(columns), allow_pickle=False)
         return self._add_capture_file(sensor, ".npy", buffer.getvalue(), {**record, "n_points": len(points)})
 
-    def captures(self, sensor: str) -> list[CaptureRecord]:
-        folder = self._capture_dir(sensor)
+    def captures(self, sensor: str, limit: int | None = None) -> list[CaptureRecord]:
+        """The sensor's capture records, oldest first (only the first ``limit`` are read, if given)."""
         records = []
-        for meta in sorted(folder.glob("*.json")):
+        for meta in sorted(self._capture_dir(sensor).glob("*.json"))[:limit]:
             try:
                 records.append(CaptureRecord.model_validate_json(meta.read_text()))
             except ValidationError as exc:
