@@ -323,7 +323,6 @@ def calibrate_intrinsics(
             raise InputError(f"{view.name} is {view.detection.image_size[0]}x{view.detection.image_size[1]} "
                              f"but the camera is {image_size[0]}x{image_size[1]}; all images must share one size",
                              view.name)
-    _check_views(views, board)
     used = np.ones(len(views), bool)
     progress(0.1, f"solving {settings.model} from {len(views)} views")
     for attempt in range(2):
