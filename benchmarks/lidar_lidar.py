@@ -72,7 +72,7 @@ INIT_AXIS = np.array([0.3, -0.5, 0.8])
 YDLIDAR_SCANS = 200
 YDLIDAR_CHUNK_BYTES = 4096
 VLP16_ROTATIONS = 10
-"""Packets of this many turns (600 rpm, the default room) are sent over and over."""
+"""Packets of this many turns (600 rpm, the shared yard from lidar_top) are sent over and over."""
 UDP_RATE_HZ = 40_000
 UDP_SECONDS = 2.0
 UDP_BURST = 40

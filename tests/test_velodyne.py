@@ -1,4 +1,4 @@
-"""Velodyne VLP-16: the byte-level simulator, the live UDP driver (127.0.0.1 only) and the pcap driver."""
+"""Velodyne VLP-16: the byte-level and UDP simulators, the live UDP driver (127.0.0.1 only) and the pcap driver."""
 
 from __future__ import annotations
 
@@ -13,26 +13,36 @@ import pytest
 import velodyne_decoder as vd
 
 from backend.core.errors import InputError
+from backend.core.transforms import transform_points
 from backend.devices.base import DeviceDisconnected, DeviceError, Sample, create_device
+from backend.sim.demo_rig import demo_rig
+from backend.sim.lidar_scene import LABELS, ROOM_X_M, ROOM_Y_M, LidarScene, label_reflectivity
 from backend.sim.velodyne_packets import (
     DISTANCE_UNIT_M,
     PACKET_SIZE,
     VLP16_ELEVATION_DEG,
     VLP16_VERTICAL_OFFSET_M,
-    Room,
     encode_vlp16_packets,
     simulate_vlp16_scan,
     write_pcap,
 )
+from backend.sim.velodyne_udp import Vlp16UdpSimulator
 
 TOL_M = 0.002 + DISTANCE_UNIT_M / 2
 """Decoded vs true points: 2 mm (azimuth rounding, float32) plus half a range quantum."""
+T_BASE_LIDAR = demo_rig().T_root_frame("lidar_top")
+"""Where the simulators put the VLP-16 by default: the demo rig's lidar_top (m, into base_link)."""
 
 
 @pytest.fixture(scope="module")
 def sim():
-    """Three turns of the default room at 600 rpm (227 packets)."""
+    """Three turns of the shared yard from lidar_top at 600 rpm (227 packets)."""
     return simulate_vlp16_scan(n_rotations=3, timestamp_us=3_599_900_000)  # the stamp wraps at the hour
+
+
+@pytest.fixture(scope="module")
+def scene() -> LidarScene:
+    return LidarScene()
 
 
 def _decode_all(packets: list[bytes]) -> np.ndarray:
@@ -51,20 +61,21 @@ def _assert_matches_truth(sample: Sample, sim, first_packet: int) -> None:
     np.testing.assert_array_equal(sample.intensity, refl)
 
 
-def _assert_room(points: np.ndarray) -> None:
-    """Every point lies on the room's surfaces, and the walls are where they should be."""
-    room = Room()
-    assert room.surface_distance(points).max() < TOL_M
-    level = np.abs(points[:, 2]) < 0.3
-    ahead = level & (np.abs(points[:, 1]) < 0.2) & (points[:, 0] > 0)
-    behind = level & (np.abs(points[:, 1]) < 0.2) & (points[:, 0] < 0)
-    left = level & (np.abs(points[:, 0]) < 0.2) & (points[:, 1] > 0)
-    right = level & (np.abs(points[:, 0]) < 0.2) & (points[:, 1] < 0)
-    assert np.median(points[ahead, 0]) == pytest.approx(5.0, abs=TOL_M)
-    assert np.median(points[behind, 0]) == pytest.approx(-3.0, abs=TOL_M)
-    assert np.median(points[left, 1]) == pytest.approx(3.5, abs=TOL_M)
-    assert np.median(points[right, 1]) == pytest.approx(-2.5, abs=TOL_M)
-    assert np.sum(np.abs(points[:, 2] + 1.0) < TOL_M) > 1000  # floor, 1 m below the sensor
+def _assert_on_scene(points: np.ndarray, scene: LidarScene, T_base_lidar: np.ndarray = T_BASE_LIDAR) -> None:
+    """Every point (sensor frame, m) lies on the yard's surfaces, and the walls are where they should be."""
+    base = transform_points(T_base_lidar, points)
+    off = scene.distance_to_mesh(base)
+    assert np.percentile(off, 99) < TOL_M and off.max() < 2 * TOL_M  # the mesh distance is float32
+    level = np.abs(base[:, 2] - T_base_lidar[2, 3]) < 0.3
+    ahead = level & (np.abs(base[:, 1]) < 0.2) & (base[:, 0] > 0)
+    behind = level & (np.abs(base[:, 1]) < 0.2) & (base[:, 0] < 0)
+    left = level & (np.abs(base[:, 0]) < 0.2) & (base[:, 1] > 0)
+    right = level & (np.abs(base[:, 0]) < 0.2) & (base[:, 1] < 0)
+    assert np.median(base[ahead, 0]) == pytest.approx(ROOM_X_M[1], abs=TOL_M)
+    assert np.median(base[behind, 0]) == pytest.approx(ROOM_X_M[0], abs=TOL_M)
+    assert np.median(base[left, 1]) == pytest.approx(ROOM_Y_M[1], abs=TOL_M)
+    assert np.median(base[right, 1]) == pytest.approx(ROOM_Y_M[0], abs=TOL_M)
+    assert np.sum(np.abs(base[:, 2]) < TOL_M) > 1000  # the floor, at base z = 0
 
 
 # --- packets ------------------------------------------------------------------------------------------------------
@@ -103,7 +114,7 @@ def test_decoded_frame_is_x_forward_y_left_z_up():
 
 
 @pytest.mark.parametrize("rpm, start_deg, noise", [(600, 0.0, 0.0), (1200, 123.45, 0.01), (300, 359.9, 0.0)])
-def test_simulated_packets_round_trip_through_velodyne_decoder(rpm, start_deg, noise):
+def test_simulated_packets_round_trip_through_velodyne_decoder(rpm, start_deg, noise, scene):
     sim = simulate_vlp16_scan(rpm=rpm, start_azimuth_deg=start_deg, range_noise_m=noise, seed=3)
     assert len(sim.packets) == int(np.ceil(sim.packets_per_rotation))
     decoded = _decode_all(sim.packets)
@@ -114,59 +125,88 @@ def test_simulated_packets_round_trip_through_velodyne_decoder(rpm, start_deg, n
     np.testing.assert_array_equal(decoded[:, 3], refl)
     np.testing.assert_array_equal(decoded[:, 6], ring)
     if noise == 0:
-        _assert_room(decoded[:, :3])
-    # floor, walls and pillar are seen; the +15 deg beam meets the walls below the 2 m ceiling
-    assert set(np.unique(sim.surface)) == {1, 3, 4}
+        _assert_on_scene(decoded[:, :3], scene)
+    # every kind of surface in the yard is seen, each with its own reflectivity; some upward beams
+    # pass over the 3 m walls in the far corners (no return)
+    labels = sim.labels[sim.ranges_m > 0]
+    assert {LABELS[name] for name in ("floor", "wall", "box", "pole", "ramp", "board")} <= set(labels.tolist())
+    np.testing.assert_array_equal(decoded[:, 3], np.round(label_reflectivity(labels)))
+    assert decoded[labels == LABELS["board"], 3].min() > decoded[labels != LABELS["board"], 3].max()
+    assert np.all(sim.labels[sim.ranges_m == 0] == 0) and np.count_nonzero(sim.ranges_m == 0) > 100
 
 
 # --- live UDP -----------------------------------------------------------------------------------------------------
 
 
-def _send(packets: list[bytes], port: int, rate_hz: float, garbage_every: int = 0) -> threading.Thread:
-    """Send packets to 127.0.0.1:port at rate_hz from a thread, with garbage datagrams mixed in."""
-
-    def run() -> None:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            start = time.perf_counter()
-            for i, packet in enumerate(packets):
-                if garbage_every and i % garbage_every == 0:
-                    sock.sendto(b"\xff\xee not a packet", ("127.0.0.1", port))
-                    sock.sendto(packet[:600], ("127.0.0.1", port))  # cut short
-                    sock.sendto(b"\x00" * PACKET_SIZE, ("127.0.0.1", port))  # right size, no block flag
-                sock.sendto(packet, ("127.0.0.1", port))
-                lag = start + (i + 1) / rate_hz - time.perf_counter()
-                if lag > 0:
-                    time.sleep(lag)
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    return thread
+def _silence_s(device, match: str) -> float:
+    """After the sender is unplugged: read the scans still on the way, then the DeviceDisconnected
+    (``match``); returns the seconds from the last scan to it."""
+    t0 = time.monotonic()
+    with pytest.raises(DeviceDisconnected, match=match):
+        for _ in range(10):
+            device.read()
+            t0 = time.monotonic()
+    return time.monotonic() - t0
 
 
-def test_live_udp_scans_match_ground_truth(sim):
+def test_live_udp_scans_match_ground_truth(scene):
     device = create_device({"driver": "velodyne", "port": 0, "timeout_s": 0.4})
     with device:
         port = device.bound_port
         assert port and device.describe().endswith(f"127.0.0.1:{port}")
-        sender = _send(sim.packets, port, rate_hz=754, garbage_every=10)  # real rate: ~10 scans/s
-        scans = [device.read(), device.read()]
-        sender.join()
-        first = 0
+        with Vlp16UdpSimulator(port, garbage_every=10) as sender:  # real rate: ~10 scans/s
+            scans = [device.read(), device.read()]
+            sender.unplug()  # the turn in flight never completes, then silence
+            assert 0.35 < _silence_s(device, rf"no Velodyne packets on udp port {port} for 0.4 s — check the "
+                                             r"sensor's IP/port and that nothing else is bound") < 2.0
+        turn = sender.turn
+        assert len(turn.packets) == 75 and sender.rpm == pytest.approx(602.8, abs=0.1)
         for index, scan in enumerate(scans):
             assert scan.meta["scan_index"] == index and scan.meta["port"] == port
-            assert scan.meta["packets"] in (75, 76) and scan.meta["complete"]
+            assert scan.meta["packets"] == 75 and scan.meta["complete"]
             assert scan.meta["sender"].startswith("127.0.0.1:")
-            _assert_matches_truth(scan, sim, first)
-            _assert_room(scan.points)
-            first += scan.meta["packets"]
+            _assert_matches_truth(scan, turn, 0)  # the receiver was first: every scan is the turn from azimuth 0
+            _assert_on_scene(scan.points, scene)
         assert scans[1].timestamp_s > scans[0].timestamp_s > time.time() - 60
+        period_s = 75 * 1327.104e-6
+        assert (scans[1].meta["sensor_time_s"] - scans[0].meta["sensor_time_s"]) % 3600 == pytest.approx(period_s,
+                                                                                                         abs=2e-6)
         assert scans[1].meta["malformed"] >= 3 * 15
-        # the sender is done: the rest of the third turn never completes, then silence
-        t0 = time.monotonic()
-        with pytest.raises(DeviceDisconnected, match=rf"no Velodyne packets on udp port {port} for 0.4 s — check "
-                                                     r"the sensor's IP/port and that nothing else is bound"):
-            device.read()
-        assert 0.35 < time.monotonic() - t0 < 2.0
+
+
+def test_simulated_vlp16_is_selectable_as_host_sim(scene):
+    device = create_device({"driver": "velodyne", "host": "sim", "timeout_s": 0.5})
+    with device:
+        port = device.bound_port
+        assert device.describe() == f"velodyne VLP-16 sim lidar_top udp 127.0.0.1:{port}"
+        scans = [device.read() for _ in range(6)]
+        for scan in scans:
+            assert scan.meta["complete"] and scan.meta["packets"] == 75 and scan.meta["malformed"] == 0
+            azimuth = np.degrees(np.arctan2(scan.points[:, 1], scan.points[:, 0]))
+            assert np.histogram(azimuth, bins=360, range=(-180, 180))[0].min() > 0  # a full turn
+            _assert_on_scene(scan.points, scene)
+        rate_hz = 5 / (scans[-1].timestamp_s - scans[0].timestamp_s)
+        assert rate_hz == pytest.approx(10.05, abs=1.0)
+        device.simulator.unplug()
+        assert 0.45 < _silence_s(device, rf"^velodyne VLP-16 sim lidar_top udp 127.0.0.1:{port}: "
+                                         r"no Velodyne packets") < 1.5
+        device.simulator.replug()
+        again = device.read()
+        assert again.meta["complete"] and again.meta["packets"] == 75
+        simulator = device.simulator
+    assert device.simulator is None and simulator.packets_sent > 0
+    packets_sent = simulator.packets_sent
+    time.sleep(0.05)
+    assert simulator.packets_sent == packets_sent  # close() stopped the sender
+
+    T_base_front = demo_rig().T_root_frame("lidar_front")
+    with create_device({"driver": "velodyne", "host": "sim", "sim_sensor": "lidar_front"}) as front:
+        points = front.read().points
+    off = scene.distance_to_mesh(transform_points(T_base_front, points))
+    assert np.percentile(off, 99) < TOL_M
+    with pytest.raises(DeviceError, match=r"no simulated 3D LiDAR named 'cam_front' in the demo rig; available: "
+                                          r"\[.*'lidar_front'"):
+        create_device({"driver": "velodyne", "host": "sim", "sim_sensor": "cam_front"}).open()
 
 
 def test_live_udp_silence_and_garbage_only():
@@ -207,8 +247,8 @@ def test_unknown_model_and_wrong_product():
         create_device({"driver": "velodyne", "port": 0, "model": "VLP-99"}).open()
     device = create_device({"driver": "velodyne", "port": 0, "model": "VLP-32C", "timeout_s": 1.0})
     with device:
-        _send(simulate_vlp16_scan(n_rotations=0.1).packets, device.bound_port, rate_hz=2000).join()
-        with pytest.raises(DeviceError, match=r"come from a VLP-16 .* set up as VLP-32C"):
+        with Vlp16UdpSimulator(device.bound_port), pytest.raises(DeviceError,
+                                                                 match=r"come from a VLP-16 .* set up as VLP-32C"):
             device.read()
 
 

@@ -1,4 +1,4 @@
-"""YDLiDAR TG30: the packet parser on hand-built bytes, then the real driver over a pty simulator."""
+"""YDLiDAR TG30: the packet parser on hand-built bytes, then the real driver over a pty simulator of the shared yard."""
 
 from __future__ import annotations
 
@@ -10,8 +10,10 @@ import time
 import numpy as np
 import pytest
 
+from backend.core.transforms import from_xyz_ypr, transform_points
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
 from backend.devices.ydlidar import YdlidarParser, YdlidarSerial, scan_to_points
+from backend.sim.lidar_scene import ROOM_X_M, ROOM_Y_M
 from backend.sim.ydlidar_sim import YdlidarSimulator
 
 # ---------------------------------------------------------------- hand-built packets
@@ -153,17 +155,21 @@ def test_parser_throughput_far_above_the_sensor_rate():
 # ---------------------------------------------------------------- the driver over a pty
 
 
-def check_room(scan_points: np.ndarray, sim: YdlidarSimulator, tol_m: float = 0.02) -> None:
-    """Every point lies on a wall or the pillar of the simulated room (room frame, tol in m)."""
-    x0, y0, yaw = sim.pose
-    c, s = math.cos(yaw), math.sin(yaw)
-    px = x0 + c * scan_points[:, 0] - s * scan_points[:, 1]
-    py = y0 + s * scan_points[:, 0] + c * scan_points[:, 1]
-    w, d = sim.room_size_m
-    wall = np.minimum.reduce([np.abs(px), np.abs(px - w), np.abs(py), np.abs(py - d)])
-    pillar = np.abs(np.hypot(px - sim.pillar_center_m[0], py - sim.pillar_center_m[1]) - sim.pillar_radius_m)
-    err = np.minimum(wall, pillar)
-    assert err.max() < tol_m, f"{(err >= tol_m).sum()} points off the room geometry, worst {err.max():.3f} m"
+def check_scene(scan_points: np.ndarray, sim: YdlidarSimulator, tol_m: float = 0.002) -> None:
+    """Every point is at the simulator's true range along its angle (up to the 1 mm range quantum)
+    and lies on the shared yard's surfaces once mapped into base_link (tol in m)."""
+    ranges = np.linalg.norm(scan_points, axis=1)
+    err = np.abs(ranges - sim.true_ranges(np.arctan2(scan_points[:, 1], scan_points[:, 0])))
+    assert err.max() < 0.0005 + 1e-6, f"{(err >= 0.0005 + 1e-6).sum()} ranges off the truth, worst {err.max():.4f} m"
+    off = sim.scene.distance_to_mesh(transform_points(sim.T_base_scanner, scan_points))
+    assert off.max() < tol_m, f"{(off >= tol_m).sum()} points off the yard's surfaces, worst {off.max():.3f} m"
+
+
+def wall_range(sim: YdlidarSimulator, theta: float, axis: int, wall_m: float) -> float:
+    """Range (m) along scan angle ``theta`` (rad) to the plane ``base[axis] = wall_m`` (m)."""
+    T = sim.T_base_scanner
+    direction = T[:3, :3] @ np.array([math.cos(theta), math.sin(theta), 0.0])
+    return float((wall_m - T[axis, 3]) / direction[axis])
 
 
 def range_at(points: np.ndarray, theta: float) -> float:
@@ -178,7 +184,7 @@ def sim():
         yield s
 
 
-def test_three_full_scans_match_the_room(sim):
+def test_three_full_scans_match_the_scene(sim):
     dev = create_device({"driver": "ydlidar", "port": sim.port})
     assert isinstance(dev, YdlidarSerial)
     with dev:
@@ -190,14 +196,13 @@ def test_three_full_scans_match_the_room(sim):
         assert smp.meta["n_samples"] == 2000 and smp.meta["coverage_deg"] == pytest.approx(360.0, abs=0.5)
         assert smp.meta["scan_frequency_hz"] == pytest.approx(10.0)
         pts = smp.points
-        assert pts.shape[1] == 3 and 1800 < len(pts) < 2000  # the doorway gives no returns
+        assert pts.shape[1] == 3 and len(pts) == 2000  # a closed yard: every beam returns
         assert np.all(pts[:, 2] == 0)
-        check_room(pts, sim)
-        # the scanner at (2, 1.5) facing +x in a 6 x 4 m room: walls ahead 4 m, left 2.5 m, behind 2 m, right 1.5 m
-        assert range_at(pts, 0.0) == pytest.approx(4.0, abs=0.02)
-        assert range_at(pts, math.pi / 2) == pytest.approx(2.5, abs=0.02)
-        assert range_at(pts, math.pi) == pytest.approx(2.0, abs=0.02)
-        assert range_at(pts, -math.pi / 2) == pytest.approx(1.5, abs=0.02)
+        check_scene(pts, sim)
+        # the demo rig's scanner_2d near the yard's origin: the left wall (y = 5 m) to the left, the back
+        # wall (x = -4 m) behind
+        assert range_at(pts, math.pi / 2) == pytest.approx(wall_range(sim, math.pi / 2, 1, ROOM_Y_M[1]), abs=0.002)
+        assert range_at(pts, math.pi) == pytest.approx(wall_range(sim, math.pi, 0, ROOM_X_M[0]), abs=0.002)
     assert samples[1].timestamp_s - samples[0].timestamp_s == pytest.approx(0.1, abs=0.05)
     deadline = time.monotonic() + 1.0
     while sim.scanning and time.monotonic() < deadline:
@@ -205,9 +210,11 @@ def test_three_full_scans_match_the_room(sim):
     assert sim.commands[-1] == 0x65 and not sim.scanning  # close() stopped the scan
 
 
-def test_rotated_scanner_still_matches_the_room():
-    with YdlidarSimulator(pose=(3.2, 2.2, 0.7)) as sim, create_device({"driver": "ydlidar", "port": sim.port}) as dev:
-        check_room(dev.read().points, sim)
+def test_moved_and_turned_scanner_still_matches_the_scene():
+    T_base_scanner = from_xyz_ypr(np.array([1.5, -0.8, 0.4]), np.radians([40.0, 3.0, -2.0]))
+    with (YdlidarSimulator(T_base_scanner=T_base_scanner) as sim,
+          create_device({"driver": "ydlidar", "port": sim.port}) as dev):
+        check_scene(dev.read().points, sim)
 
 
 def test_garbage_and_corrupt_packets_are_skipped_and_counted():
@@ -215,7 +222,7 @@ def test_garbage_and_corrupt_packets_are_skipped_and_counted():
         with create_device({"driver": "ydlidar", "port": sim.port}) as dev:
             samples = [dev.read() for _ in range(3)]
     for smp in samples:
-        check_room(smp.points, sim)
+        check_scene(smp.points, sim)
         assert smp.meta["coverage_deg"] > 340.0  # at most a few 7-degree packets lost
     last = samples[-1].meta
     assert last["bad_checksums"] >= 3 and last["skipped_bytes"] > 31 * 10
@@ -250,7 +257,7 @@ def test_unplug_mid_capture_raises_after_returning_earlier_scans_intact(sim):
     assert len(got) >= 2
     for smp in got:
         assert smp.meta["n_samples"] == 2000 and smp.meta["coverage_deg"] == pytest.approx(360.0, abs=0.5)
-        check_room(smp.points, sim)
+        check_scene(smp.points, sim)
 
 
 def test_no_reconnect_fails_at_once(sim):
@@ -278,7 +285,7 @@ def test_reconnects_when_the_device_comes_back(sim):
     assert after[-1].meta["status"] == "streaming"
     for smp in after[-2:]:
         assert smp.meta["n_samples"] == 2000
-        check_room(smp.points, sim)
+        check_scene(smp.points, sim)
 
 
 def test_missing_port_is_a_clear_error():
@@ -291,4 +298,4 @@ def test_built_in_simulator_is_selectable_as_port_sim():
     with create_device({"driver": "ydlidar", "port": "sim"}) as dev:
         smp = dev.read()
         assert dev.describe() == "ydlidar sim @512000"
-    assert smp.meta["port"] == "sim" and len(smp.points) > 1800
+    assert smp.meta["port"] == "sim" and len(smp.points) == 2000

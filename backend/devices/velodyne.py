@@ -40,12 +40,15 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+
+if TYPE_CHECKING:
+    from backend.sim.velodyne_udp import Vlp16UdpSimulator
 
 PACKET_SIZE = 1206
 """UDP payload size of a Velodyne data packet (bytes)."""
@@ -213,52 +216,92 @@ class VelodyneUdp(_VelodyneBase):
 
     ``timestamp_s`` of a sample is the host's clock (seconds since the epoch) when the scan's
     last packet arrived; ``meta["sender"]`` is the sensor's ``ip:port``.
+
+    ``host="sim"`` binds 127.0.0.1 on a free port (``port`` is not used) and starts a
+    :class:`backend.sim.velodyne_udp.Vlp16UdpSimulator` sending to it: a VLP-16 at the demo
+    rig's ground-truth pose of ``sim_sensor`` scanning the shared simulated yard at the real
+    packet rate (~10 scans/s), so the simulated sensor can be picked like any other device.
+    :attr:`simulator` is that sender (``simulator.unplug()`` pulls its cable); :meth:`close`
+    stops it.
     """
 
     driver = "velodyne"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 2368, model: str = "VLP-16", timeout_s: float = 2.0):
+    def __init__(self, host: str = "127.0.0.1", port: int = 2368, model: str = "VLP-16", timeout_s: float = 2.0,
+                 sim_sensor: str = "lidar_top"):
         """Settings as stored in the rig.
 
         Args:
             host: local address to bind; ``"0.0.0.0"`` listens on every interface (the sensor
-                sends to 255.255.255.255 or to the host IP set in its web page).
+                sends to 255.255.255.255 or to the host IP set in its web page); ``"sim"`` for
+                the built-in simulator.
             port: UDP port of the data packets (2368 by factory default); 0 picks a free port
                 (see :attr:`bound_port`), which simulators and tests use.
             model: sensor model, e.g. ``"VLP-16"``, ``"VLP-32C"``, ``"HDL-32E"``.
             timeout_s: how long without a data packet before :meth:`read` raises
                 :class:`DeviceDisconnected` (s).
+            sim_sensor: with ``host="sim"``, the ``lidar3d`` sensor of the demo rig whose
+                ground-truth mounting poses the simulated VLP-16 (e.g. ``"lidar_top"``, ``"lidar_front"``).
         """
         self.host = host
         self.port = int(port)
         self.model = model
         self.timeout_s = float(timeout_s)
+        self.sim_sensor = sim_sensor
         self.bound_port: int | None = None
-        """The UDP port actually bound (differs from ``port`` when that is 0)."""
+        """The UDP port actually bound (differs from ``port`` when that is 0 or the host is ``"sim"``)."""
+        self.simulator: Vlp16UdpSimulator | None = None
+        """With ``host="sim"``, the simulated sensor sending to :attr:`bound_port` while open."""
         self._sock: socket.socket | None = None
         self._buf = bytearray(65536)
 
     def describe(self) -> str:
+        if self.host == "sim":
+            return f"velodyne {self.model} sim {self.sim_sensor} udp 127.0.0.1:{self.bound_port or 0}"
         return f"velodyne {self.model} udp {self.host}:{self.bound_port or self.port}"
 
     def open(self) -> None:
-        """Bind the UDP socket; :class:`DeviceError` if the address is taken or not local."""
+        """Bind the UDP socket (and start the simulator for ``host="sim"``); :class:`DeviceError` if
+        the address is taken or not local, or ``sim_sensor`` is not a 3D LiDAR of the demo rig."""
         if self.timeout_s <= 0:
             raise DeviceError(f"timeout_s must be positive, not {self.timeout_s}", self.describe())
         self.close()
+        simulated = self.host == "sim"
+        T_base_lidar = self._sim_pose() if simulated else None
+        host, port = ("127.0.0.1", 0) if simulated else (self.host, self.port)
         self._setup_decoder()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RECV_BUFFER_BYTES)
-            sock.bind((self.host, self.port))
+            sock.bind((host, port))
         except OSError as exc:
             sock.close()
             hint = (" — another program (a ROS velodyne driver, VeloView, a second studio) holds it"
                     if exc.errno == errno.EADDRINUSE else " — is this address one of this machine's interfaces?")
-            raise DeviceError(f"cannot bind udp {self.host}:{self.port}: {exc.strerror or exc}{hint}",
+            raise DeviceError(f"cannot bind udp {host}:{port}: {exc.strerror or exc}{hint}",
                               self.describe()) from None
         self._sock = sock
         self.bound_port = sock.getsockname()[1]
+        if simulated:
+            from backend.sim.velodyne_udp import Vlp16UdpSimulator
+
+            try:
+                self.simulator = Vlp16UdpSimulator(self.bound_port, T_base_lidar=T_base_lidar).start()
+            except BaseException:
+                self.close()
+                raise
+
+    def _sim_pose(self) -> np.ndarray:
+        """Ground-truth ``T_base_lidar`` (4x4, m) of :attr:`sim_sensor` in the demo rig."""
+        from backend.sim.demo_rig import demo_rig
+
+        rig = demo_rig()
+        frame = rig.frames.get(self.sim_sensor)
+        if frame is None or frame.kind != "lidar3d":
+            lidars = [f.name for f in rig.sensors() if f.kind == "lidar3d"]
+            raise DeviceError(f"no simulated 3D LiDAR named {self.sim_sensor!r} in the demo rig; available: {lidars}",
+                              self.describe())
+        return rig.T_root_frame(self.sim_sensor)
 
     def read(self) -> Sample:
         """Block until a full scan has arrived; :class:`DeviceDisconnected` after ``timeout_s`` of silence."""
@@ -295,6 +338,10 @@ class VelodyneUdp(_VelodyneBase):
                                     {"port": self.bound_port, "sender": f"{sender[0]}:{sender[1]}"})
 
     def close(self) -> None:
+        """Stop the simulator (``host="sim"``) and release the socket. Safe twice."""
+        if self.simulator is not None:
+            self.simulator.stop()
+            self.simulator = None
         if self._sock is not None:
             self._sock.close()
             self._sock = None

@@ -38,6 +38,14 @@ LABELS: dict[str, int] = {"floor": 1, "wall": 2, "box": 3, "pole": 4, "ramp": 5,
 REFLECTIVITY: dict[int, float] = {1: 25.0, 2: 50.0, 3: 80.0, 4: 110.0, 5: 40.0, 6: 230.0, 7: 35.0}
 """Intensity of a return at normal incidence, per label (0..255, like a VLP-16). For the
 board this is the white paper; its black squares return :data:`BOARD_INK_INTENSITY`."""
+_REFLECTIVITY_BY_LABEL = np.array([0.0, *(REFLECTIVITY[i] for i in range(1, len(REFLECTIVITY) + 1))])
+
+
+def label_reflectivity(labels: np.ndarray) -> np.ndarray:
+    """Intensity at normal incidence (0..255, :data:`REFLECTIVITY`) of returns with ``labels``; 0 for label 0."""
+    return _REFLECTIVITY_BY_LABEL[np.asarray(labels)]
+
+
 BOARD_INK_INTENSITY = 70.0
 """Intensity of a return from a black square of the board at normal incidence (still brighter than anything else)."""
 
@@ -265,7 +273,7 @@ class LidarScene:
 
     def cast(self, origin_base: np.ndarray, directions_base: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cast rays from one origin (m) along unit directions (N, 3), all in base_link.
+        """Cast rays from one origin (3,) or one per ray (N, 3) (m) along unit directions (N, 3), all in base_link.
 
         Returns the hit distance (m, ``inf`` for no hit), the label (0 for no hit) and
         the unit surface normal of each ray.
@@ -298,7 +306,7 @@ class LidarScene:
         points_true = dirs * t[:, None]
         points = dirs * (t + noise)[:, None]
         cos_incidence = np.abs(np.einsum("ij,ij->i", normals, dirs_base[keep]))
-        reflect = np.array([0.0, *(REFLECTIVITY[i] for i in range(1, len(REFLECTIVITY) + 1))])[labels]
+        reflect = label_reflectivity(labels)
         on_board = labels == LABELS["board"]
         if on_board.any():
             hits_board = transform_points(np.linalg.solve(self.T_base_board, T), points_true[on_board])

@@ -1,4 +1,4 @@
-"""Byte-level Velodyne VLP-16 simulator: genuine data packets, a room to scan, pcap files.
+"""Byte-level Velodyne VLP-16 simulator: genuine data packets of the shared simulated yard, pcap files.
 
 A VLP-16 data packet is the 1206-byte payload of a UDP datagram sent to port 2368:
 
@@ -28,16 +28,24 @@ Geometry, as velodyne-decoder (and VeloView, ROS) decodes it: the sensor frame i
 ``a`` and elevation ``w`` points along ``(cos w cos a, -cos w sin a, sin w)``. Laser ``k``
 starts at ``(0, 0, VLP16_VERTICAL_OFFSET_M[k])`` (the VLP-16 manual's vertical corrections),
 and the distance is measured from there.
+
+The scene is the shared yard of :class:`backend.sim.lidar_scene.LidarScene` (the one the
+``simulated_lidar`` driver and the YDLiDAR simulator scan), seen from a ``T_base_lidar``
+(default: the demo rig's ground-truth ``lidar_top`` mounting); each surface returns its
+:data:`~backend.sim.lidar_scene.REFLECTIVITY` as calibrated reflectivity.
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from backend.sim.demo_rig import demo_rig
+from backend.sim.lidar_scene import LidarScene, label_reflectivity
 
 PACKET_SIZE = 1206
 """Bytes of UDP payload of one VLP-16 data packet."""
@@ -77,6 +85,8 @@ _PACKET_DTYPE = np.dtype(
     [("blocks", _BLOCK_DTYPE, BLOCKS_PER_PACKET), ("timestamp", "<u4"), ("return_mode", "u1"), ("product", "u1")]
 )
 assert _PACKET_DTYPE.itemsize == PACKET_SIZE
+TIMESTAMP_OFFSET: int = _PACKET_DTYPE.fields["timestamp"][1]
+"""Byte offset of a packet's timestamp (uint32 LE, microseconds past the hour): 1200."""
 _HOUR_US = 3_600_000_000
 
 
@@ -184,83 +194,25 @@ def encode_vlp16_packets(
     return [raw[i * PACKET_SIZE:(i + 1) * PACKET_SIZE] for i in range(n_packets)]
 
 
-# --- the room -------------------------------------------------------------------------------------------------------
+# --- the scene ------------------------------------------------------------------------------------------------------
+
+RangesFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""``fn(origins (M, 3), unit directions (M, 3)) -> (ranges (M,), labels (M,))``, rays in the sensor
+frame (m); ranges in metres (0, NaN or inf = no return), labels of
+:data:`~backend.sim.lidar_scene.LABELS` (0 = nothing hit) that pick each return's reflectivity."""
 
 
-@dataclass(frozen=True)
-class Room:
-    """A closed box room with a round pillar, in the sensor frame (x forward, y left, z up, m).
+def scene_ranges_fn(scene: LidarScene | None = None, T_base_lidar: np.ndarray | None = None) -> RangesFn:
+    """A :data:`RangesFn` ray-casting ``scene`` (default a fresh :class:`LidarScene`) from a sensor at
+    ``T_base_lidar`` (4x4, m, sensor frame into base_link; default the demo rig's ``lidar_top``)."""
+    scene = LidarScene() if scene is None else scene
+    T = demo_rig().T_root_frame("lidar_top") if T_base_lidar is None else np.asarray(T_base_lidar, dtype=float)
 
-    The default is 8 x 6 x 3 m with the sensor 1 m above the floor, off-centre so that no
-    two walls are at the same distance.
-    """
+    def cast(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ranges, labels, _ = scene.cast(origins @ T[:3, :3].T + T[:3, 3], directions @ T[:3, :3].T)
+        return ranges, labels
 
-    x_m: tuple[float, float] = (-3.0, 5.0)
-    """x of the back and front walls (m)."""
-    y_m: tuple[float, float] = (-2.5, 3.5)
-    """y of the right and left walls (m)."""
-    z_m: tuple[float, float] = (-1.0, 2.0)
-    """z of the floor and the ceiling (m)."""
-    pillar_xy_m: tuple[float, float] | None = (2.0, -1.2)
-    """Axis of a vertical floor-to-ceiling pillar (m), or None for no pillar."""
-    pillar_radius_m: float = 0.25
-    """Radius of the pillar (m)."""
-    reflectivity: dict[str, int] = field(
-        default_factory=lambda: {"floor": 20, "ceiling": 60, "wall": 45, "pillar": 110}
-    )
-    """Calibrated reflectivity (0..255) of each surface."""
-
-    SURFACES = ("none", "floor", "ceiling", "wall", "pillar")
-
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Range (m) along unit ``directions`` from ``origins`` (both (M, 3)) to the first surface.
-
-        Returns ``(ranges, surface)``: ranges (M,) with 0 where nothing is hit, and surface
-        (M,) indices into :attr:`SURFACES`.
-        """
-        o = np.asarray(origins, dtype=float)
-        d = np.asarray(directions, dtype=float)
-        o, d = np.broadcast_arrays(o, d)
-        t_axes = []
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for axis, (lo, hi) in enumerate((self.x_m, self.y_m, self.z_m)):
-                da = d[..., axis]
-                t = np.where(da > 0, (hi - o[..., axis]) / da, np.where(da < 0, (lo - o[..., axis]) / da, np.inf))
-                t_axes.append(t)
-        t_axes = np.stack(t_axes, axis=-1)
-        axis_hit = np.argmin(t_axes, axis=-1)
-        t_box = np.min(t_axes, axis=-1)
-        surface = np.where(axis_hit == 2, np.where(d[..., 2] < 0, 1, 2), 3)
-        if self.pillar_xy_m is not None:
-            px, py = self.pillar_xy_m
-            ox, oy = o[..., 0] - px, o[..., 1] - py
-            dx, dy = d[..., 0], d[..., 1]
-            a = dx * dx + dy * dy
-            b = 2 * (ox * dx + oy * dy)
-            c = ox * ox + oy * oy - self.pillar_radius_m**2
-            disc = b * b - 4 * a * c
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t_cyl = np.where((disc >= 0) & (a > 1e-12), (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a), np.inf)
-            t_cyl = np.where(t_cyl > 0, t_cyl, np.inf)
-            closer = t_cyl < t_box
-            t_box = np.where(closer, t_cyl, t_box)
-            surface = np.where(closer, 4, surface)
-        hit = np.isfinite(t_box) & (t_box > 0)
-        return np.where(hit, t_box, 0.0), np.where(hit, surface, 0)
-
-    def surface_distance(self, points: np.ndarray) -> np.ndarray:
-        """Distance (m) of each (N, 3) point inside the room to the nearest surface."""
-        p = np.asarray(points, dtype=float)
-        bounds = (self.x_m, self.y_m, self.z_m)
-        dists = [np.abs(p[:, axis] - bound) for axis, pair in enumerate(bounds) for bound in pair]
-        if self.pillar_xy_m is not None:
-            r = np.hypot(p[:, 0] - self.pillar_xy_m[0], p[:, 1] - self.pillar_xy_m[1])
-            dists.append(np.abs(r - self.pillar_radius_m))
-        return np.min(np.stack(dists, axis=1), axis=1)
-
-
-RangesFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""``fn(origins (M, 3), unit directions (M, 3)) -> ranges (M,)`` in metres; 0/NaN/inf = no return."""
+    return cast
 
 
 @dataclass
@@ -277,8 +229,8 @@ class Vlp16Sim:
     """(n_columns, 16, 3) true hit point of each shot (m), NaN where there is no return."""
     reflectivity: np.ndarray
     """(n_columns, 16) uint8 reflectivity of each shot."""
-    surface: np.ndarray
-    """(n_columns, 16) index into :attr:`Room.SURFACES` of what each shot hit (0 with a custom ranges_fn)."""
+    labels: np.ndarray
+    """(n_columns, 16) label (:data:`~backend.sim.lidar_scene.LABELS`) of what each shot hit, 0 for no return."""
     rpm: float
     timestamp_us: int
     """Microseconds past the hour of the first packet."""
@@ -301,9 +253,8 @@ class Vlp16Sim:
 
 
 def simulate_vlp16_scan(
-    room: Room | None = None,
-    *,
     ranges_fn: RangesFn | None = None,
+    *,
     rpm: float = 600.0,
     n_rotations: float = 1.0,
     start_azimuth_deg: float = 0.0,
@@ -311,11 +262,12 @@ def simulate_vlp16_scan(
     range_noise_m: float = 0.0,
     seed: int = 0,
 ) -> Vlp16Sim:
-    """A deterministic spinning VLP-16 scanning a room, as data packets with ground truth.
+    """A deterministic spinning VLP-16 scanning a scene, as data packets with ground truth.
 
     Args:
-        room: the scene (default :class:`Room`: 8 x 6 x 3 m, sensor 1 m above the floor, pillar).
-        ranges_fn: instead of a room, any ray caster ``fn(origins, directions) -> ranges``.
+        ranges_fn: the ray caster (default :func:`scene_ranges_fn`: the shared yard from the demo
+            rig's ``lidar_top``); each return's reflectivity is its label's
+            :func:`~backend.sim.lidar_scene.label_reflectivity`.
         rpm: rotation speed (300..1200 on a real VLP-16).
         n_rotations: how many turns to simulate; rounded up to whole packets.
         start_azimuth_deg: azimuth of the first shot (deg).
@@ -326,7 +278,7 @@ def simulate_vlp16_scan(
     """
     if rpm <= 0:
         raise ValueError(f"rpm must be positive, not {rpm}")
-    room = room or Room()
+    ranges_fn = scene_ranges_fn() if ranges_fn is None else ranges_fn
     deg_per_us = rpm * 360.0 / 60e6
     n_packets = int(np.ceil(n_rotations * 60e6 / rpm / PACKET_PERIOD_US - 1e-9))
     block_time_us = np.arange(n_packets * BLOCKS_PER_PACKET) * 2 * FIRING_PERIOD_US
@@ -334,23 +286,19 @@ def simulate_vlp16_scan(
     azimuths = interpolated_azimuths_deg(block_az_cdeg.reshape(n_packets, BLOCKS_PER_PACKET))  # (C, 16)
     dirs = shot_directions(azimuths)  # (C, 16, 3)
     origins = np.broadcast_to(shot_origins(), dirs.shape)
-    if ranges_fn is not None:
-        ranges = np.asarray(ranges_fn(origins.reshape(-1, 3), dirs.reshape(-1, 3)), dtype=float).reshape(azimuths.shape)
-        ranges = np.where(np.isfinite(ranges) & (ranges > 0) & (ranges < MAX_ENCODED_RANGE_M), ranges, 0.0)
-        surface = np.zeros(azimuths.shape, dtype=int)
-        refl = np.where(ranges > 0, 100, 0).astype(np.uint8)
-    else:
-        ranges, surface = room.cast(origins.reshape(-1, 3), dirs.reshape(-1, 3))
-        ranges, surface = ranges.reshape(azimuths.shape), surface.reshape(azimuths.shape)
-        table = np.array([0] + [room.reflectivity[name] for name in Room.SURFACES[1:]])
-        refl = table[surface].astype(np.uint8)
+    ranges, labels = ranges_fn(origins.reshape(-1, 3), dirs.reshape(-1, 3))
+    ranges = np.asarray(ranges, dtype=float).reshape(azimuths.shape)
+    hit = np.isfinite(ranges) & (ranges > 0) & (ranges < MAX_ENCODED_RANGE_M)
+    ranges = np.where(hit, ranges, 0.0)
+    labels = np.where(hit, np.asarray(labels).reshape(azimuths.shape), 0).astype(np.int8)
+    refl = np.round(label_reflectivity(labels)).astype(np.uint8)
     if range_noise_m > 0:
         noise = np.random.default_rng(seed).normal(0.0, range_noise_m, ranges.shape)
-        ranges = np.where(ranges > 0, np.maximum(ranges + noise, DISTANCE_UNIT_M), 0.0)
-    points = np.where((ranges > 0)[..., None], origins + ranges[..., None] * dirs, np.nan)
+        ranges = np.where(hit, np.maximum(ranges + noise, DISTANCE_UNIT_M), 0.0)
+    points = np.where(hit[..., None], origins + ranges[..., None] * dirs, np.nan)
     packets = encode_vlp16_packets(ranges, azimuths[:, 0], refl, timestamp_us)
     return Vlp16Sim(packets=packets, ranges_m=ranges, azimuths_deg=azimuths, points=points, reflectivity=refl,
-                    surface=surface, rpm=float(rpm), timestamp_us=int(timestamp_us))
+                    labels=labels, rpm=float(rpm), timestamp_us=int(timestamp_us))
 
 
 # --- pcap -----------------------------------------------------------------------------------------------------------

@@ -9,10 +9,11 @@ set, frequency code ``(10 Hz - 3) * 10``) then packets of 40 two-byte samples (d
 2000 samples a turn (20 kHz, the TG30's rate). The encoder here is written independently of
 the driver's parser so that each checks the other.
 
-The world is a 6 x 4 m rectangular room (corners (0, 0) and (6, 4) m in the room frame) with a
-round pillar and an open doorway in the y = 0 wall (no return there: distance 0). The scanner
-sits at ``pose = (x, y, yaw)`` (m, m, rad) in the room frame; ranges are exact ray casts at the
-very angles the packets encode, quantised to 1 mm. Everything is deterministic.
+The world is the shared simulated yard (:class:`backend.sim.lidar_scene.LidarScene`, the one
+the ``simulated_lidar`` driver scans), seen from the scanner's pose ``T_base_scanner`` (default:
+the demo rig's ground-truth ``scanner_2d`` mounting). Ranges are exact ray casts in the scan
+plane at the very angles the packets encode (:meth:`YdlidarSimulator.true_ranges`), quantised
+to 1 mm; a beam that hits nothing returns distance 0. Everything is deterministic.
 
 Faults, switchable while it runs: ``garbage_every``/``garbage_len`` insert random bytes after
 every n-th packet, ``corrupt_every`` spoils the check code of every n-th packet, ``wrong_baud``
@@ -33,6 +34,8 @@ import time
 
 import numpy as np
 
+from backend.sim.demo_rig import demo_rig
+from backend.sim.lidar_scene import LidarScene
 from backend.sim.pty_device import PtyDevice
 
 SCAN_RESPONSE = bytes([0xA5, 0x5A, 0x05, 0x00, 0x00, 0x40, 0x81])
@@ -66,11 +69,8 @@ class YdlidarSimulator(PtyDevice):
     def __init__(
         self,
         *,
-        pose: tuple[float, float, float] = (2.0, 1.5, 0.0),
-        room_size_m: tuple[float, float] = (6.0, 4.0),
-        pillar_center_m: tuple[float, float] = (4.0, 2.8),
-        pillar_radius_m: float = 0.15,
-        doorway_x_m: tuple[float, float] = (3.0, 3.8),
+        T_base_scanner: np.ndarray | None = None,
+        scene: LidarScene | None = None,
         scan_hz: float = 10.0,
         samples_per_scan: int = 2000,
         samples_per_packet: int = 40,
@@ -83,10 +83,10 @@ class YdlidarSimulator(PtyDevice):
         seed: int = 0,
     ):
         """Args:
-        pose: scanner x, y (m) and yaw (rad) in the room frame.
-        room_size_m: the room's extent along x and y (m).
-        pillar_center_m, pillar_radius_m: a round pillar (m).
-        doorway_x_m: an opening in the y = 0 wall between these x (m): no return.
+        T_base_scanner: pose of the scanner frame (x forward, y left, z up; the scan plane is
+            its x-y plane) in the scene's ``base_link`` (4x4, m); default the demo rig's
+            ground-truth ``scanner_2d`` mounting.
+        scene: the scene to scan; default a fresh :class:`LidarScene` (the yard with the board).
         scan_hz: revolutions per second.
         samples_per_scan, samples_per_packet: 2000 and 40 as a TG30 at 20 kHz, 10 Hz.
         garbage_every, garbage_len: random bytes after every n-th packet (0 = never).
@@ -96,11 +96,9 @@ class YdlidarSimulator(PtyDevice):
             flags (TG: theta = pi - device angle).
         seed: seeds the garbage bytes.
         """
-        self.pose = pose
-        self.room_size_m = room_size_m
-        self.pillar_center_m = pillar_center_m
-        self.pillar_radius_m = pillar_radius_m
-        self.doorway_x_m = doorway_x_m
+        self.T_base_scanner = (demo_rig().T_root_frame("scanner_2d") if T_base_scanner is None
+                               else np.asarray(T_base_scanner, dtype=np.float64).copy())
+        self.scene = LidarScene() if scene is None else scene
         self.scan_hz = scan_hz
         self.samples_per_scan = samples_per_scan
         self.samples_per_packet = samples_per_packet
@@ -132,27 +130,12 @@ class YdlidarSimulator(PtyDevice):
         return (theta + math.pi) % (2 * math.pi) - math.pi
 
     def true_ranges(self, theta_rad: np.ndarray) -> np.ndarray:
-        """Exact range (m) along scanner-frame angles ``theta_rad``; 0 through the doorway."""
-        x0, y0, yaw = self.pose
-        width, depth = self.room_size_m
-        phi = np.asarray(theta_rad, dtype=np.float64) + yaw
-        dx, dy = np.cos(phi), np.sin(phi)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tx = np.where(dx > 1e-12, (width - x0) / dx, np.where(dx < -1e-12, -x0 / dx, np.inf))
-            ty = np.where(dy > 1e-12, (depth - y0) / dy, np.where(dy < -1e-12, -y0 / dy, np.inf))
-        t = np.minimum(tx, ty)
-        hit_x = x0 + t * dx
-        door = (ty < tx) & (dy < 0) & (hit_x > self.doorway_x_m[0]) & (hit_x < self.doorway_x_m[1])
-        cx, cy = self.pillar_center_m
-        ox, oy = x0 - cx, y0 - cy
-        b = ox * dx + oy * dy
-        c = ox * ox + oy * oy - self.pillar_radius_m**2
-        disc = b * b - c
-        with np.errstate(invalid="ignore"):
-            tp = -b - np.sqrt(disc)
-        pillar = (disc >= 0) & (tp > 0) & (tp < t)
-        t = np.where(pillar, tp, t)
-        return np.where(door & ~pillar, 0.0, t)
+        """Exact range (m) to the scene along scan-plane angles ``theta_rad`` (rad, scanner frame); 0 for no hit."""
+        theta = np.asarray(theta_rad, dtype=np.float64).reshape(-1)
+        dirs = np.column_stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)])
+        T = self.T_base_scanner
+        t, _, _ = self.scene.cast(T[:3, 3], dirs @ T[:3, :3].T)
+        return np.where(np.isfinite(t), t, 0.0)
 
     def _scan_packets(self) -> list[tuple[int, int, int, np.ndarray]]:
         """(ct, fsa_q6, lsa_q6, distances_mm) for one revolution; identical every turn."""
