@@ -50,6 +50,7 @@ def test_demo_rig_ground_truth() -> None:
         "lidar_top": "lidar3d",
         "lidar_front": "lidar3d",
         "scanner_2d": "lidar2d",
+        "sweep_3d": "lidar3d",
     }
     T_front_wide = rig.T_a_b("cam_front", "cam_wide")
     assert 0.1 <= np.linalg.norm(T_front_wide[:3, 3]) <= 0.2

@@ -82,3 +82,10 @@ class LidarLidarSolveRequest(BaseModel):
 
 class LidarLidarAccept(BaseModel):
     result_id: str
+
+
+class SweepCalibrateRequest(BaseModel):
+    capture_id: str | None = Field(None, description="the sweep to calibrate from; default the latest swept capture")
+    up_mount: tuple[float, float, float] | None = Field(
+        None, description="the floor's up direction in the sensor (mount) frame; default the rig root's +z")
+    estimate_tilt: bool = Field(True, description="also estimate the scanner's tilt on the servo horn")

@@ -107,6 +107,13 @@ class SweepGeometry:
         p = np.asarray(points_scanner, dtype=float) @ self.T_servo_scanner[:3, :3].T + self.T_servo_scanner[:3, 3]
         return rotate_about_axis(self.axis, np.asarray(servo_angles_rad, dtype=float) + self.zero_offset_rad, p)
 
+    def to_scanner(self, points_mount: np.ndarray, servo_angles_rad: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`transform`: mount-frame points (N, 3) (m), each taken at its own servo
+        reading (N,) (rad), back into the scanner frame (m)."""
+        p = rotate_about_axis(self.axis, -(np.asarray(servo_angles_rad, dtype=float) + self.zero_offset_rad),
+                              np.asarray(points_mount, dtype=float).reshape(-1, 3))
+        return (p - self.T_servo_scanner[:3, 3]) @ self.T_servo_scanner[:3, :3]
+
     def assemble(self, scans: Sequence[ScanAtAngle]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One 3D cloud from a sweep, vectorised over all points.
 
@@ -164,6 +171,42 @@ def stack_scans(scans: Sequence[ScanAtAngle]) -> tuple[np.ndarray, np.ndarray, n
     if not pts:
         return np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.float32)
     return np.vstack(pts), np.concatenate(ang), np.concatenate(inten)
+
+
+SWEEP_META_KEYS = ("servo_angles_rad", "step_counts", "geometry")
+"""The keys of a swept scanner's sample meta (:class:`~backend.devices.dynamixel_servo.SweptScanner`) a
+stored capture needs to give its raw scans back."""
+
+
+def scans_from_capture(points_mount: np.ndarray, intensity: np.ndarray | None,
+                       meta: dict[str, Any]) -> list[ScanAtAngle]:
+    """The raw sweep of a stored swept capture: per servo step ``(servo angle read (rad), points (N, 3) in
+    the scanner frame (m), intensity (N,) or None)``, as :meth:`SweepGeometry.assemble` and the sweep
+    calibration take it.
+
+    Args:
+        points_mount: (M, 3) the capture's points in the mount frame (m), in scan order, assembled with
+            ``meta["geometry"]``. Stored as float32 they come back to about a micrometre at 30 m.
+        intensity: (M,) or None.
+        meta: the capture's meta with :data:`SWEEP_META_KEYS`: ``servo_angles_rad`` (per step, rad),
+            ``step_counts`` (points per step) and ``geometry`` (the :class:`SweepGeometry` dict used).
+
+    Raises ``ValueError`` naming the missing or inconsistent key.
+    """
+    missing = [k for k in SWEEP_META_KEYS if k not in meta]
+    if missing:
+        raise ValueError(f"not a swept scanner capture: its meta lacks {', '.join(missing)}")
+    angles = np.asarray(meta["servo_angles_rad"], dtype=float).reshape(-1)
+    counts = np.asarray(meta["step_counts"], dtype=np.int64).reshape(-1)
+    points = np.asarray(points_mount, dtype=float).reshape(-1, 3)
+    if len(counts) != len(angles) or (counts < 0).any() or counts.sum() != len(points):
+        raise ValueError(f"step_counts ({len(counts)} steps, {int(counts.sum())} points) do not match "
+                         f"servo_angles_rad ({len(angles)} steps) and the cloud ({len(points)} points)")
+    geometry = SweepGeometry.from_dict(meta["geometry"])
+    points_scanner = geometry.to_scanner(points, np.repeat(angles, counts))
+    bounds = np.cumsum(counts)[:-1]
+    inten = [None] * len(angles) if intensity is None else np.split(np.asarray(intensity, np.float32), bounds)
+    return [(float(a), p, i) for a, p, i in zip(angles, np.split(points_scanner, bounds), inten, strict=True)]
 
 
 @dataclass

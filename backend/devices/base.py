@@ -46,8 +46,20 @@ class Sample:
     """Driver facts worth keeping (source file, frame index, ground truth in simulation)."""
 
     def storable_meta(self) -> dict[str, Any]:
-        """The JSON-friendly part of :attr:`meta` (numbers, text, flags, lists), for a capture record."""
-        return {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str, bool, list))}
+        """The JSON-friendly part of :attr:`meta` (numbers, text, flags, and lists and dicts of those), for a
+        capture record; arrays are left out."""
+        return {k: v for k, v in self.meta.items() if _json_friendly(v)}
+
+
+def _json_friendly(value: Any) -> bool:
+    """True for numbers, text and flags, and (nested) lists and string-keyed dicts of them (or None)."""
+    if isinstance(value, (int, float, str, bool)):
+        return True
+    if isinstance(value, list):
+        return all(v is None or _json_friendly(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and (v is None or _json_friendly(v)) for k, v in value.items())
+    return False
 
 
 class CaptureDevice(abc.ABC):

@@ -288,7 +288,9 @@ class SweptScanner(CaptureDevice):
     - ``steps``, ``servo_angles_rad`` (per step, as read back after the scan), ``commanded_angles_rad``;
     - ``points_scanner`` (M, 3) and ``point_step`` (M,) int32: the raw scans, for re-assembly and
       calibration (:meth:`scans_of`); ``scan_angles_rad`` (M,) angle of each point within its scan;
-    - ``geometry`` (the dict used), ``frame`` ``"mount"``, ``sweep_seconds``, ``servo_retries``;
+    - ``step_counts`` (per step, points of its scan) and ``geometry`` (the dict used): with
+      ``servo_angles_rad`` what a stored capture needs to recover the raw scans
+      (:func:`~backend.core.sweep.scans_from_capture`); ``frame`` ``"mount"``, ``sweep_seconds``, ``servo_retries``;
     - in simulation: ``simulated`` True, ``true_geometry``, ``T_base_mount`` (ground truth).
     """
 
@@ -412,6 +414,7 @@ class SweptScanner(CaptureDevice):
             "commanded_angles_rad": self.commanded_angles_rad.tolist(),
             "points_scanner": points_scanner,
             "point_step": np.repeat(np.arange(self.steps, dtype=np.int32), counts),
+            "step_counts": counts.tolist(),
             "scan_angles_rad": np.arctan2(points_scanner[:, 1], points_scanner[:, 0]),
             "geometry": self.geometry.to_dict(),
             "frame": "mount",

@@ -8,11 +8,13 @@ demo and the tests compare calibration results against.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
-from backend.core.transforms import from_xyz_ypr
+from backend.core.transforms import from_xyz_ypr, make_T
 
 DEMO_BOARD = "checkerboard:9x6:0.04"
 """The board spec the demo and the simulated cameras use by default."""
@@ -53,15 +55,29 @@ pixels would have no ray at all.
 """
 
 
+SWEEP_NOMINAL_GEOMETRY: dict = {
+    "axis": [1.0, 0.0, 0.0],
+    "T_servo_scanner": make_T(np.eye(3), np.array([0.03, 0.0, 0.05])).tolist(),
+    "zero_offset_rad": 0.0,
+}
+"""The swept scanner's geometry as drawn (:class:`~backend.core.sweep.SweepGeometry` dict): servo axis
+along mount x, optical centre 3 cm along it and 5 cm above, no tilt, servo zero as read. The truth
+(:data:`~backend.devices.dynamixel_servo.DEFAULT_SIM_GEOMETRY`) is off by about a centimetre and 1.5 deg."""
+
+
 def demo_rig() -> Rig:
     """A fresh copy of the ground-truth demo rig.
 
     Sensors: ``cam_front`` and ``cam_wide`` (cameras, 15 cm apart, a few degrees of
     relative rotation, driven by the ``simulated`` capture driver), ``lidar_top``
     (3D spinning LiDAR on the roof), ``lidar_front`` (a second 3D LiDAR on the front,
-    pitched down) and ``scanner_2d`` (2D scanner low at the front).
-    The LiDARs are driven by the ``simulated_lidar`` driver (scans of :mod:`backend.sim.lidar_scene`).
+    pitched down), ``scanner_2d`` (2D scanner low at the front), all driven by the ``simulated_lidar``
+    driver (scans of :mod:`backend.sim.lidar_scene`), and ``sweep_3d``: a 2D scanner swept into 3D by
+    a simulated Dynamixel (``swept_scanner`` driver; its frame is the servo's mount, at the simulator's
+    truth), carrying the nominal :data:`SWEEP_NOMINAL_GEOMETRY` to calibrate.
     """
+    from backend.devices.dynamixel_servo import DEFAULT_SIM_MOUNT  # here: the devices package imports this module
+
     rig = Rig("base_link")
     cameras = {
         "cam_front": (CAM_FRONT, (0.32, 0.06, 0.48), (1.5, 2.0, -0.8)),
@@ -87,4 +103,7 @@ def demo_rig() -> Rig:
     T_base_scanner = _mount((0.38, 0.01, 0.18), (-1.0, 0.8, -0.3), optical=False)
     rig.add(Frame("scanner_2d", "base_link", T_base_scanner, kind="lidar2d",
                   device={"driver": "simulated_lidar", "sensor": "scanner_2d", "seed": 0}))
+    rig.add(Frame("sweep_3d", "base_link", np.array(DEFAULT_SIM_MOUNT), kind="lidar3d",
+                  device={"driver": "swept_scanner", "servo_port": "sim", "scanner": {"driver": "sim"},
+                          "geometry": copy.deepcopy(SWEEP_NOMINAL_GEOMETRY)}))
     return rig

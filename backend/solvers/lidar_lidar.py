@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.transforms import make_T, transform_points
-from backend.solvers.result import ProgressCallback, SolveResult, no_progress
+from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress
 
 MIN_POINTS = 50
 """Fewest finite points a cloud needs before registration makes sense."""
@@ -179,11 +179,6 @@ class LidarLidarResult(SolveResult):
         }
 
     def to_record(self) -> dict[str, Any]:
-        def finite_or_none(values) -> list[float | None] | None:
-            if values is None:
-                return None
-            return [float(v) if np.isfinite(v) else None for v in np.asarray(values).ravel()]
-
         record = self.summary()
         record.update(
             kind=self.kind,

@@ -13,6 +13,8 @@ import abc
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+import numpy as np
+
 ProgressCallback = Callable[[float, str], None]
 """Called with (fraction done in [0, 1], what is happening) during long work."""
 
@@ -31,3 +33,11 @@ class SolveResult(abc.ABC):
 
 def no_progress(fraction: float, message: str) -> None:
     """A :data:`ProgressCallback` that ignores progress."""
+
+
+def finite_or_none(values: Any) -> list[float | None] | None:
+    """Values (any shape, flattened) as plain floats for a JSON record, None where not finite (an
+    undetermined parameter: strict JSON has no inf or NaN); None stays None."""
+    if values is None:
+        return None
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel()]

@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.sweep import ScanAtAngle, SweepGeometry, stack_scans
-from backend.solvers.result import ProgressCallback, SolveResult, no_progress
+from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress
 
 MIN_STEPS = 10
 """A sweep needs at least this many servo steps."""
@@ -148,20 +148,21 @@ class SweepCalibrationResult(SolveResult):
         s = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
         return {name: float(x) for name, x in zip(self.estimated, s, strict=True)}
 
-    def _offset_std_m(self) -> list[float]:
-        """1-sigma of the optical centre along mount x, y, z (m); 0 along the axis (not estimated)."""
+    def _offset_std_m(self) -> list[float | None]:
+        """1-sigma of the optical centre along mount x, y, z (m); 0 along the axis (not estimated), None
+        where undetermined."""
         idx = [self.estimated.index(n) for n in ("offset_u_m", "offset_v_m")]
         B = np.column_stack([self.u, self.v])
         cov = B @ self.covariance[np.ix_(idx, idx)] @ B.T
-        return np.sqrt(np.clip(np.diag(cov), 0, None)).tolist()
+        return finite_or_none(np.sqrt(np.clip(np.diag(cov), 0, None)))
 
-    def _tilt_std_deg(self) -> list[float] | None:
+    def _tilt_std_deg(self) -> list[float | None] | None:
         if "tilt_u_rad" not in self.estimated:
             return None
         idx = [self.estimated.index(n) for n in ("tilt_u_rad", "tilt_v_rad")]
         B = np.column_stack([self.u, self.v])
         cov = B @ self.covariance[np.ix_(idx, idx)] @ B.T
-        return np.degrees(np.sqrt(np.clip(np.diag(cov), 0, None))).tolist()
+        return finite_or_none(np.degrees(np.sqrt(np.clip(np.diag(cov), 0, None))))
 
     def summary(self) -> dict[str, Any]:
         std = self.std
@@ -169,7 +170,8 @@ class SweepCalibrationResult(SolveResult):
             "geometry": self.geometry.to_dict(),
             "std": {
                 "offset_m": self._offset_std_m(),
-                "zero_offset_deg": math.degrees(std["zero_offset_rad"]) if "zero_offset_rad" in std else None,
+                "zero_offset_deg": (finite_or_none([math.degrees(std["zero_offset_rad"])])[0]
+                                    if "zero_offset_rad" in std else None),
                 "tilt_deg": self._tilt_std_deg(),
             },
             "rms_before_m": self.rms_before_m,
@@ -186,9 +188,9 @@ class SweepCalibrationResult(SolveResult):
             initial=self.initial.to_dict(),
             estimated=list(self.estimated),
             values=self.values.tolist(),
-            covariance=self.covariance.tolist(),
-            std_jacobian=self.std_jacobian.tolist(),
-            std_spread=None if self.std_spread is None else self.std_spread.tolist(),
+            covariance=[finite_or_none(row) for row in self.covariance],
+            std_jacobian=finite_or_none(self.std_jacobian),
+            std_spread=finite_or_none(self.std_spread),
             u=self.u.tolist(),
             v=self.v.tolist(),
             floor_found=self.floor_found,

@@ -1,0 +1,198 @@
+"""Swept-scanner workflow shared by the API and the studio.
+
+capture a sweep through the ordinary cloud path (:func:`backend.services.lidar_lidar.store_cloud`:
+points in the mount frame, the sweep meta beside them) -> calibrate the sweep geometry from a
+stored capture -> store the result -> accept it into the rig as the sensor's ``device["geometry"]``
+(the next sweeps are assembled with it). A result that did not converge, leaves parameters
+undetermined or made the planes less flat is stored (so the user can see why) but cannot be
+accepted. Frames: the sensor's frame is the sweep's ``mount`` frame (:mod:`backend.core.sweep`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any, Literal
+
+import numpy as np
+
+from backend.core.errors import InputError, NotFoundError
+from backend.core.rig import Rig
+from backend.core.sweep import (
+    SWEEP_META_KEYS,
+    ScanAtAngle,
+    SweepGeometry,
+    intensity_image,
+    scans_from_capture,
+    stack_scans,
+)
+from backend.solvers.result import ProgressCallback, no_progress
+from backend.solvers.sweep_calibration import SweepCalibrationResult, SweepCalibrationSettings, calibrate_sweep
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+DRIVER = "swept_scanner"
+KIND = SweepCalibrationResult.kind
+MAX_IMAGE_COLUMNS = 4096
+ImageMode = Literal["intensity", "range"]
+
+
+def slot(sensor: str) -> str:
+    """The acceptance slot of a swept scanner's geometry."""
+    return f"{sensor}/{KIND}"
+
+
+def is_swept(session: Session, sensor: str) -> bool:
+    """True if the sensor is driven by the ``swept_scanner`` driver (a 2D scanner on a servo)."""
+    return session.rig.get(sensor).device.get("driver") == DRIVER
+
+
+def _check_swept(session: Session, sensor: str) -> None:
+    if not is_swept(session, sensor):
+        driver = session.rig.get(sensor).device.get("driver")
+        raise InputError(f"sensor {sensor!r} is not a swept scanner (its driver is {driver!r}, not {DRIVER!r})",
+                         "sensor")
+
+
+def swept_capture(session: Session, sensor: str, capture_id: str | None = None) -> CaptureRecord:
+    """The record of a stored sweep of ``sensor``: ``capture_id``, or the latest capture holding the sweep meta.
+
+    Raises :class:`InputError` (404 for an unknown sensor or capture) naming the sensor or capture.
+    """
+    _check_swept(session, sensor)
+    records = session.captures(sensor)
+    if capture_id is None:
+        swept = [r for r in records if r.n_points and all(k in r.meta for k in SWEEP_META_KEYS)]
+        if not swept:
+            raise InputError(f"no sweep captured for {sensor} yet; capture a sweep first", sensor)
+        return swept[-1]
+    record = next((r for r in records if r.id == capture_id and r.n_points), None)
+    if record is None:
+        raise NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture")
+    missing = [k for k in SWEEP_META_KEYS if k not in record.meta]
+    if missing:
+        raise InputError(f"capture {capture_id} of {sensor} holds no sweep (its meta lacks {', '.join(missing)}); "
+                         f"capture a sweep with the swept scanner", "capture")
+    return record
+
+
+def capture_scans(session: Session, sensor: str, capture: CaptureRecord) -> list[ScanAtAngle]:
+    """The raw sweep (per step: servo angle (rad), scanner-frame points (m), intensity) of a stored capture."""
+    points, intensity = session.capture_cloud(sensor, capture.id)
+    try:
+        return scans_from_capture(points, intensity, capture.meta)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"capture {capture.id} of {sensor}: {exc}", "capture") from None
+
+
+def up_in_sensor(rig: Rig, sensor: str) -> tuple[float, float, float]:
+    """The root frame's +z (up, with base_link level) expressed in the sensor's (mount) frame."""
+    up = rig.T_root_frame(sensor)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    return float(up[0]), float(up[1]), float(up[2])
+
+
+def rig_geometry(rig: Rig, sensor: str) -> SweepGeometry:
+    """The geometry the sensor's sweeps are assembled with now (its ``device["geometry"]``)."""
+    try:
+        return SweepGeometry.from_dict(rig.get(sensor).device.get("geometry"))
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"sensor {sensor!r}: bad device geometry: {exc}", "device.geometry") from None
+
+
+def calibrate(session: Session, sensor: str, capture_id: str | None = None, *,
+              settings: SweepCalibrationSettings | None = None, progress: ProgressCallback = no_progress) -> str:
+    """Calibrate the sweep geometry from one stored sweep and store the result (not yet accepted).
+
+    Args:
+        capture_id: the sweep to use; default the latest swept capture of ``sensor``.
+        settings: solver settings; ``up_mount`` (the floor's up direction in the mount frame) defaults to
+            :func:`up_in_sensor`. The solve starts from the rig's current geometry (:func:`rig_geometry`).
+        progress: cancelling the job raises at the next report, leaving the session as it was.
+
+    Returns the id of the stored ``sweep_geometry`` result; its ``inputs`` and ``capture`` name the capture.
+    """
+    progress(0.0, f"loading the sweep of {sensor}")
+    capture = swept_capture(session, sensor, capture_id)
+    scans = capture_scans(session, sensor, capture)
+    initial = rig_geometry(session.rig, sensor)
+    settings = settings or SweepCalibrationSettings()
+    if settings.up_mount is None:
+        settings = replace(settings, up_mount=up_in_sensor(session.rig, sensor))
+    result = calibrate_sweep(scans, initial, settings, progress)
+    return session.add_result(sensor, result.to_record() | {"capture": capture.id}, inputs=[capture.id])
+
+
+def _refusal(record: dict[str, Any]) -> list[str]:
+    """Why a stored sweep result must not be accepted (empty if it may)."""
+    problems = []
+    if not record.get("converged", False):
+        problems.append("did not converge")
+    covariance = record.get("covariance") or [[None]]  # none stored: nothing is determined
+    if any(v is None for row in covariance for v in row):
+        problems.append("leaves parameters undetermined")
+    if record.get("rms_after_m", math.inf) > record.get("rms_before_m", -math.inf):
+        problems.append("made the planes less flat")
+    return problems
+
+
+def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
+    """Write a stored sweep geometry into the sensor's ``device["geometry"]`` (the mounting stays as it is)."""
+    if record.get("kind") != KIND:
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    problems = _refusal(record)
+    if problems:
+        warnings = "; ".join(record.get("warnings", []))
+        raise InputError(f"result {record['id']} {' and '.join(problems)} and cannot be accepted"
+                         + (f": {warnings}" if warnings else ""), "result")
+    frame = rig.get(record["sensor"])
+    frame.device = {**frame.device, "geometry": record["geometry"]}
+
+
+def accept(session: Session, sensor: str, result_id: str) -> None:
+    """Make a stored sweep geometry the sensor's (also how a user reverts to an older one)."""
+    _check_swept(session, sensor)
+    record = session.result(result_id)
+    if record["sensor"] != sensor:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
+    session.accept(slot(sensor), result_id, apply_sweep_geometry)
+
+
+def _beam_columns(scan_angles: np.ndarray, steps: np.ndarray) -> int:
+    """Columns giving each beam of a scan its own: the angular span over the median beam spacing."""
+    if len(scan_angles) < 2:
+        return 1
+    order = np.lexsort((scan_angles, steps))
+    gaps = np.diff(scan_angles[order])[np.diff(steps[order]) == 0]
+    gaps = gaps[gaps > 1e-5]
+    if not len(gaps):
+        return 1
+    span = float(scan_angles.max() - scan_angles.min())
+    return int(min(round(span / float(np.median(gaps))) + 1, MAX_IMAGE_COLUMNS))
+
+
+def sweep_image(session: Session, sensor: str, capture_id: str, *, result_id: str | None = None,
+                mode: ImageMode = "intensity") -> np.ndarray:
+    """The LiDAR image (uint8, H x W) of a stored sweep: one row per servo step (first step on top), one
+    column per beam (scan angle rising to the right).
+
+    ``mode`` ``"intensity"`` (mean return intensity, stretched) or ``"range"`` (near = bright, range from the
+    mount origin); 0 = no return. The sweep is re-assembled with ``result_id``'s geometry when given, else
+    with the geometry it was captured with.
+    """
+    if mode not in ("intensity", "range"):
+        raise InputError(f"image mode must be 'intensity' or 'range', not {mode!r}", "mode")
+    capture = swept_capture(session, sensor, capture_id)
+    scans = capture_scans(session, sensor, capture)
+    if result_id is None:
+        geometry = SweepGeometry.from_dict(capture.meta["geometry"])
+    else:
+        record = session.result(result_id)
+        if record["sensor"] != sensor or record.get("kind") != KIND:
+            raise InputError(f"result {result_id} is not a {KIND} result of {sensor}", "result")
+        geometry = SweepGeometry.from_dict(record["geometry"])
+    points_scanner, servo, intensity = stack_scans(scans)
+    steps = np.repeat(np.arange(len(scans)), [len(s[1]) for s in scans])
+    scan_angles = np.arctan2(points_scanner[:, 1], points_scanner[:, 0])
+    image = intensity_image(geometry.transform(points_scanner, servo), intensity, servo, scan_angles,
+                            (len(scans), _beam_columns(scan_angles, steps)))
+    return image.intensity if mode == "intensity" else image.range
