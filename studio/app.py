@@ -12,6 +12,7 @@ from studio.wizard.intrinsics_step import IntrinsicsStep
 from studio.wizard.lidar_step import LidarStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
+from studio.wizard.sweep_step import SweepStep
 
 
 class StudioApp:
@@ -26,6 +27,7 @@ class StudioApp:
         self.sensors_step = SensorsStep(self.ctx)
         self.intrinsics_step = IntrinsicsStep(self.ctx)
         self.lidar_step = LidarStep(self.ctx)
+        self.sweep_step = SweepStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

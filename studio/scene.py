@@ -39,6 +39,14 @@ def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
     return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
 
 
+def _fov_aspect(frame: Frame) -> tuple[float, float]:
+    """Vertical field of view (rad) and aspect ratio of a camera's frustum (a nominal one before calibration)."""
+    camera = frame.intrinsics
+    if camera is None:
+        return float(DEFAULT_FOV_RAD), 16 / 9
+    return float(camera.fov_y_rad), camera.width / camera.height
+
+
 def _thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     small = cv2.resize(image, (width, int(round(image.shape[0] * scale))), interpolation=cv2.INTER_AREA)
@@ -50,6 +58,7 @@ class RigScene:
 
     def __init__(self, server: viser.ViserServer):
         self.server = server
+        self._frames: dict[str, viser.FrameHandle] = {}
         self._frusta: dict[str, viser.CameraFrustumHandle] = {}
         self._boards: dict[str, list[viser.ImageHandle]] = {"live": [], "captured": []}
         server.scene.set_up_direction("+z")
@@ -58,30 +67,42 @@ class RigScene:
         server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
 
     def show_rig(self, rig: Rig) -> None:
-        """Redraw every frame of ``rig``: axes for all, a frustum for each camera."""
+        """Draw ``rig`` afresh (a session was opened): axes for every frame, a frustum for each camera."""
         self.server.scene.reset()
         self.server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
+        self._frames.clear()
         self._frusta.clear()
         self._boards = {"live": [], "captured": []}
-        for frame in rig.frames.values():
-            T_root_frame = rig.T_root_frame(frame.name)
-            node = f"/rig/{frame.name}"
-            self.server.scene.add_frame(node, axes_length=0.08, axes_radius=0.004, **_pose(T_root_frame))
-            self.server.scene.add_label(f"{node}/label", frame.name, position=(0.0, 0.0, 0.03),
-                                        font_screen_scale=0.8)
-            if frame.kind == "camera":
-                self._frusta[frame.name] = self._add_frustum(node, frame)
-            elif frame.kind in SENSOR_COLOURS:
-                self.server.scene.add_box(f"{node}/body", color=SENSOR_COLOURS[frame.kind],
-                                          dimensions=(0.06, 0.06, 0.05))
+        self.update_rig(rig)
 
-    def _add_frustum(self, node: str, frame: Frame) -> viser.CameraFrustumHandle:
-        camera = frame.intrinsics
-        fov = camera.fov_y_rad if camera else DEFAULT_FOV_RAD
-        aspect = camera.width / camera.height if camera else 16 / 9
-        return self.server.scene.add_camera_frustum(
-            f"{node}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M, color=SENSOR_COLOURS["camera"],
-            format="jpeg")
+    def update_rig(self, rig: Rig) -> None:
+        """Bring the drawing up to date with ``rig`` after an accept or a new sensor, keeping everything else.
+
+        Each frame node is re-posed (what hangs under ``/rig/<frame>``, clouds included, moves with it) and
+        each frustum takes its camera's current field of view; frames new to the rig are drawn.
+        """
+        for frame in rig.frames.values():
+            pose = _pose(rig.T_root_frame(frame.name))
+            handle = self._frames.get(frame.name)
+            if handle is not None:
+                handle.wxyz, handle.position = pose["wxyz"], pose["position"]
+            else:
+                self._frames[frame.name] = self._add_frame(frame, pose)
+            if frame.name in self._frusta:
+                self._frusta[frame.name].fov, self._frusta[frame.name].aspect = _fov_aspect(frame)
+
+    def _add_frame(self, frame: Frame, pose: dict[str, np.ndarray]) -> viser.FrameHandle:
+        node = f"/rig/{frame.name}"
+        handle = self.server.scene.add_frame(node, axes_length=0.08, axes_radius=0.004, **pose)
+        self.server.scene.add_label(f"{node}/label", frame.name, position=(0.0, 0.0, 0.03), font_screen_scale=0.8)
+        if frame.kind == "camera":
+            fov, aspect = _fov_aspect(frame)
+            self._frusta[frame.name] = self.server.scene.add_camera_frustum(
+                f"{node}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M, color=SENSOR_COLOURS["camera"],
+                format="jpeg")
+        elif frame.kind in SENSOR_COLOURS:
+            self.server.scene.add_box(f"{node}/body", color=SENSOR_COLOURS[frame.kind], dimensions=(0.06, 0.06, 0.05))
+        return handle
 
     def show_camera_image(self, camera: str, image: np.ndarray) -> None:
         """Paint the latest live or captured image into a camera's frustum."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import queue
+import re
 import socket
 import subprocess
 import sys
@@ -160,3 +161,31 @@ def studio_page(browser: Browser, url: str, viewport: dict[str, int]) -> Iterato
         yield page
     finally:
         context.close()
+
+
+def button(page: Page, name: str):
+    """The page's button labelled exactly ``name``."""
+    return page.get_by_role("button", name=name, exact=True)
+
+
+def text_input(page: Page, label: str):
+    """The text box of the GUI row labelled ``label`` (viser 1.1's text inputs are not tied to their label)."""
+    row = page.locator(".mantine-Flex-root", has=page.locator("label", has_text=re.compile(f"^{re.escape(label)}$")))
+    return row.locator("input").last
+
+
+def choose(page: Page, label: str, option: str) -> None:
+    """Pick ``option`` in the dropdown labelled ``label``."""
+    box = page.get_by_label(label, exact=True)
+    box.click()
+    page.get_by_role("option", name=option, exact=True).click()
+    expect(box).to_have_value(option)
+
+
+def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
+    """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while (match := pattern.search(page.inner_text("body"))) is None:
+        assert time.monotonic() < deadline, f"{pattern.pattern!r} never appeared:\n{page.inner_text('body')[-2000:]}"
+        time.sleep(0.5)
+    return match

@@ -126,7 +126,9 @@ def test_colouring_100k_points_fits_a_10hz_budget():
     T[2, 3] = 0.8
     for mode in cc.COLOUR_MODES:
         colours = cc.colour_points(mode, points, intensity, T, 1)
-        assert colours.shape == (100_000, 3) and colours.dtype == np.uint8
+        assert colours.shape == ((3,) if mode == "sensor" else (100_000, 3)) and colours.dtype == np.uint8
+    assert tuple(cc.colour_points("sensor", points, intensity, T, 1)) == cc.sensor_colour(1)
+    assert tuple(cc.colour_points("intensity", points, None, T, 2)) == cc.sensor_colour(2)  # no intensity
     assert len(np.unique(cc.colour_points("height", points, intensity, T, 0), axis=0)) > 50
     started = time.perf_counter()
     for _ in range(10):

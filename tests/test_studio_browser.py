@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, studio_page
+from conftest import ARTIFACTS, Studio, button, studio_page
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
@@ -55,10 +55,6 @@ def _wait_views(page: Page, at_least: int, timeout_s: float) -> int:
         assert time.monotonic() < deadline, f"only {views} views after {timeout_s:.0f} s:\n{_body(page)[-1500:]}"
         time.sleep(0.5)
     return views
-
-
-def _button(page: Page, name: str):
-    return page.get_by_role("button", name=name, exact=True)
 
 
 def _scroll_to_result(page: Page) -> None:
@@ -104,26 +100,26 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     assert "views ·" not in _body(page), "cam_wide starts with no captures"
 
     # Live capture from the simulated camera; auto-capture keeps frames that add coverage.
-    _button(page, "Start live capture").click()
-    expect(_button(page, "Stop")).to_be_visible()
+    button(page, "Start live capture").click()
+    expect(button(page, "Stop")).to_be_visible()
     _wait_views(page, MIN_VIEWS, timeout_s=120)
 
     # Manual capture: with auto-capture off, one click keeps exactly one more frame.
     page.get_by_label("Auto-capture when it adds coverage").uncheck()
     time.sleep(1.5)  # let an auto-capture already in flight land first
     before = _views(page)
-    _button(page, "Capture this frame").click()
+    button(page, "Capture this frame").click()
     after = _wait_views(page, before + 1, timeout_s=20)
     time.sleep(1.5)
     assert _views(page) == after == before + 1, "a manual capture must keep exactly one frame"
 
-    _button(page, "Stop").click()
-    expect(_button(page, "Start live capture")).to_be_visible()
+    button(page, "Stop").click()
+    expect(button(page, "Start live capture")).to_be_visible()
     captures = studio.get("/api/sessions/demo/sensors/cam_wide/captures")
     assert len(captures) == after, captures
 
     # Solve with the default settings (pinhole-radtan) and inspect the result.
-    _button(page, "Solve").click()
+    button(page, "Solve").click()
     expect(page.get_by_text(re.compile(r"^Solved in \d"))).to_be_visible(timeout=90_000)
     match = RESULT_RE.search(_body(page))
     assert match and match.group(2) == "not accepted", _body(page)
@@ -137,7 +133,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     _scroll_to_result(page)
     page.screenshot(path=ARTIFACTS / "studio_intrinsics.png")
 
-    _button(page, "Accept selected result").click()
+    button(page, "Accept selected result").click()
     expect(page.get_by_text(f"{result_id} (✅ accepted)", exact=False)).to_be_visible()
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("cam_wide/intrinsics") == result_id, session
@@ -164,7 +160,7 @@ def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_c
     before = httpx.get(captures_url).json()
     data = (stereo_chessboard / "left01.jpg").read_bytes()
     with page.expect_file_chooser() as chooser:
-        _button(page, "Import an image file").click()
+        button(page, "Import an image file").click()
     chooser.value.set_files({"name": "broken_shot.jpg", "mimeType": "image/jpeg", "buffer": data[: len(data) // 2]})
     notice = page.locator(".mantine-Notification-root", has_text="Image not added")
     expect(notice).to_be_visible(timeout=15_000)

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, studio_page
+from conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
 from playwright.sync_api import Browser, Page, expect
 
 from backend.core.transforms import invert
@@ -34,25 +34,6 @@ FRAME_RATE_JS = """() => new Promise(resolve => {
 """Frames the page paints per second: a frozen page paints none."""
 
 
-def _button(page: Page, name: str):
-    return page.get_by_role("button", name=name, exact=True)
-
-
-def _choose(page: Page, label: str, option: str) -> None:
-    box = page.get_by_label(label, exact=True)
-    box.click()
-    page.get_by_role("option", name=option, exact=True).click()
-    expect(box).to_have_value(option)
-
-
-def _wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
-    deadline = time.monotonic() + timeout_s
-    while (match := pattern.search(page.inner_text("body"))) is None:
-        assert time.monotonic() < deadline, f"{pattern.pattern!r} never appeared:\n{page.inner_text('body')[-2000:]}"
-        time.sleep(0.5)
-    return match
-
-
 def test_lidar_to_lidar_in_the_studio(browser: Browser, studio: Studio) -> None:
     with studio_page(browser, studio.url, VIEWPORT) as page:
         _run_lidar_step(page, studio)
@@ -60,19 +41,20 @@ def test_lidar_to_lidar_in_the_studio(browser: Browser, studio: Studio) -> None:
 
 def _run_lidar_step(page: Page, studio: Studio) -> None:
     page.get_by_text("4 · LiDARs", exact=True).click()
-    _button(page, "Start live").scroll_into_view_if_needed()
+    button(page, "Start live").scroll_into_view_if_needed()
     for name in ("lidar_top", "lidar_front"):
         page.get_by_label(name, exact=True).check()
-    page.get_by_label("scanner_2d", exact=True).uncheck()
+    for name in ("scanner_2d", "sweep_3d"):  # the swept scanner's sweeps take seconds: not in this live test
+        page.get_by_label(name, exact=True).uncheck()
 
     # Live clouds: both LiDARs stream while the page keeps painting (SwiftShader paints slowly even when idle).
     idle_fps = page.evaluate(FRAME_RATE_JS)
-    _button(page, "Start live").click()
-    expect(_button(page, "Stop live")).to_be_visible()
-    _wait_body(page, LIVE_RE, timeout_s=30)
+    button(page, "Start live").click()
+    expect(button(page, "Stop live")).to_be_visible()
+    wait_body(page, LIVE_RE, timeout_s=30)
     time.sleep(3)  # let the rate settle
     page_fps = page.evaluate(FRAME_RATE_JS)
-    match = _wait_body(page, LIVE_RE, timeout_s=5)
+    match = wait_body(page, LIVE_RE, timeout_s=5)
     rates = float(match.group(1)), float(match.group(3))
     print(f"live: server draw rate {rates[0]:.1f} / {rates[1]:.1f} Hz "
           f"({match.group(2)} / {match.group(4)} pts), page paints {page_fps:.1f} fps (idle {idle_fps:.1f} fps)")
@@ -82,18 +64,18 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     assert page_fps > 0.3, f"the page froze while clouds streamed ({page_fps:.1f} fps, idle {idle_fps:.1f})"
 
     clicked = time.monotonic()
-    _button(page, "Capture clouds").click()
-    _wait_body(page, re.compile(r"lidar_top: 1 · lidar_front: 1"), timeout_s=15)
+    button(page, "Capture clouds").click()
+    wait_body(page, re.compile(r"lidar_top: 1 · lidar_front: 1"), timeout_s=15)
     print(f"capture answered in {time.monotonic() - clicked:.2f} s while streaming")
-    _button(page, "Stop live").click()
-    expect(_button(page, "Start live")).to_be_visible()
+    button(page, "Stop live").click()
+    expect(button(page, "Start live")).to_be_visible()
 
     # LiDAR to LiDAR: refine from the sliders, then inspect.
-    _choose(page, "Target LiDAR", "lidar_top")
-    _choose(page, "Source LiDAR", "lidar_front")
+    choose(page, "Target LiDAR", "lidar_top")
+    choose(page, "Source LiDAR", "lidar_front")
     expect(page.get_by_text("--frame-id lidar_top --child-frame-id lidar_front", exact=False)).to_be_visible()
-    _button(page, "Refine (GICP)").click()
-    match = _wait_body(page, RESULT_RE, timeout_s=90)
+    button(page, "Refine (GICP)").click()
+    match = wait_body(page, RESULT_RE, timeout_s=90)
     result_id = match.group(1)
     body = page.inner_text("body")
     for text in ("fitness", "RMSE", "c2c mean / median / p95", "1σ translation (mm)", "1σ rotation (°)"):
@@ -111,7 +93,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     print(f"{result_id}: fitness {record['fitness']:.3f}, error {1000 * np.linalg.norm(error[:3, 3]):.2f} mm")
     assert np.linalg.norm(error[:3, 3]) < 0.01
 
-    _button(page, "Accept").click()
-    _wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
+    button(page, "Accept").click()
+    wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("lidar_front/T_lidar_top_lidar_front") == result_id, session["accepted"]

@@ -57,10 +57,22 @@ def nominal_sweep() -> tuple[Sample, float]:
 def calibrated(nominal_sweep, tmp_path_factory) -> tuple[Session, str, str, float]:
     """A session holding the nominal sweep and its calibration: (session, capture id, result id, seconds)."""
     session = SessionStore(tmp_path_factory.mktemp("calibrated")).create("sweep", rig=demo_rig())
-    capture = lidar_service.store_cloud(session, SENSOR, nominal_sweep[0], device="simulated swept scanner")
+    capture = service.capture_sweep(session, SENSOR)  # the studio's path: the rig's device, one sweep, stored
     started = time.monotonic()
     result_id = service.calibrate(session, SENSOR)
     return session, capture.id, result_id, time.monotonic() - started
+
+
+@pytest.mark.slow
+def test_capture_sweep_stores_one_sweep_of_the_rigs_device(calibrated, nominal_sweep):
+    session, capture_id, _, _ = calibrated
+    [record] = session.captures(SENSOR)
+    assert record.id == capture_id and record.device.startswith("swept_scanner servo sim")
+    assert record.meta["geometry"] == SWEEP_NOMINAL_GEOMETRY and len(record.meta["step_counts"]) == 173
+    points, _ = session.capture_cloud(SENSOR, capture_id)
+    assert len(points) == sum(record.meta["step_counts"]) == len(nominal_sweep[0].points)
+    with pytest.raises(InputError, match="lidar_top.*not a swept scanner"):
+        service.capture_sweep(session, "lidar_top")
 
 
 # ---------------------------------------------------------------- storage

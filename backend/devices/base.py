@@ -96,9 +96,16 @@ _DRIVERS: dict[str, Callable[..., CaptureDevice]] = {}
 
 
 def register_driver(cls: type[CaptureDevice]) -> type[CaptureDevice]:
-    """Class decorator: make a driver available to :func:`open_device` by its name."""
+    """Class decorator: make a driver available to :func:`create_device` by its name."""
     _DRIVERS[cls.driver] = cls
     return cls
+
+
+def driver_names() -> list[str]:
+    """The names of every built-in driver (what a sensor's ``device["driver"]`` may be)."""
+    from backend import devices  # noqa: F401  (importing registers the built-in drivers)
+
+    return sorted(_DRIVERS)
 
 
 def create_device(settings: dict[str, Any]) -> CaptureDevice:

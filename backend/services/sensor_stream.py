@@ -38,8 +38,8 @@ class SensorStream(abc.ABC):
         self.device_name = sensor
         """The open device's description (the sensor name until opened)."""
         self.frames_seen = 0
-        self.rate_hz = 0.0
-        """Samples handled per second (smoothed)."""
+        self._period_s = 0.0
+        """Smoothed time between handled samples (s)."""
 
     @abc.abstractmethod
     def handle(self, sample: Sample) -> None:
@@ -53,6 +53,11 @@ class SensorStream(abc.ABC):
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout)
+
+    @property
+    def rate_hz(self) -> float:
+        """Samples handled per second (smoothed); 0 before the first."""
+        return 1.0 / self._period_s if self._period_s > 0 else 0.0
 
     @property
     def running(self) -> bool:
@@ -87,9 +92,8 @@ class SensorStream(abc.ABC):
                 self.frames_seen += 1
                 self.handle(sample)
                 now = time.perf_counter()
-                period = now - last
-                self.rate_hz = 1.0 / max(period, 1e-6) if self.frames_seen == 1 else (
-                    0.8 * self.rate_hz + 0.2 / max(period, 1e-6))
+                # Smooth the period, not its inverse: a mean of 1/period overstates the rate of a jittery stream.
+                self._period_s = now - last if self.frames_seen == 1 else 0.8 * self._period_s + 0.2 * (now - last)
                 last = now
                 time.sleep(max(0.0, self._min_period_s - (time.perf_counter() - started)))
         except DeviceDisconnected as exc:

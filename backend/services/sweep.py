@@ -26,6 +26,8 @@ from backend.core.sweep import (
     scans_from_capture,
     stack_scans,
 )
+from backend.devices.base import create_device
+from backend.services.lidar_lidar import store_cloud
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.solvers.sweep_calibration import SweepCalibrationResult, SweepCalibrationSettings, calibrate_sweep
 from backend.store.schema import CaptureRecord
@@ -54,19 +56,23 @@ def _check_swept(session: Session, sensor: str) -> None:
                          "sensor")
 
 
+def swept_captures(session: Session, sensor: str) -> list[CaptureRecord]:
+    """The captures of ``sensor`` that hold a whole sweep (its cloud and the sweep meta), oldest first."""
+    return [r for r in session.captures(sensor) if r.n_points and all(k in r.meta for k in SWEEP_META_KEYS)]
+
+
 def swept_capture(session: Session, sensor: str, capture_id: str | None = None) -> CaptureRecord:
     """The record of a stored sweep of ``sensor``: ``capture_id``, or the latest capture holding the sweep meta.
 
     Raises :class:`InputError` (404 for an unknown sensor or capture) naming the sensor or capture.
     """
     _check_swept(session, sensor)
-    records = session.captures(sensor)
     if capture_id is None:
-        swept = [r for r in records if r.n_points and all(k in r.meta for k in SWEEP_META_KEYS)]
+        swept = swept_captures(session, sensor)
         if not swept:
             raise InputError(f"no sweep captured for {sensor} yet; capture a sweep first", sensor)
         return swept[-1]
-    record = next((r for r in records if r.id == capture_id and r.n_points), None)
+    record = next((r for r in session.captures(sensor) if r.id == capture_id and r.n_points), None)
     if record is None:
         raise NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture")
     missing = [k for k in SWEEP_META_KEYS if k not in record.meta]
@@ -170,6 +176,36 @@ def _beam_columns(scan_angles: np.ndarray, steps: np.ndarray) -> int:
     return int(min(round(span / float(np.median(gaps))) + 1, MAX_IMAGE_COLUMNS))
 
 
+def capture_sweep(session: Session, sensor: str, progress: ProgressCallback = no_progress) -> CaptureRecord:
+    """Run one full sweep of the sensor's device (open, sweep, close) and store it as a capture.
+
+    The device is the rig's (``device`` settings, assembled with the geometry accepted so far). A device
+    that cannot be opened or is lost mid-sweep raises :class:`DeviceError`; nothing is stored then.
+    """
+    _check_swept(session, sensor)
+    settings = session.rig.get(sensor).device
+    progress(0.05, f"opening {settings.get('servo_port')} and the scanner")
+    with create_device(settings) as device:
+        progress(0.2, f"sweeping {sensor} ({device.describe()})")
+        sample = device.read()
+    progress(0.95, "storing the sweep")
+    return store_cloud(session, sensor, sample, device=device.describe())
+
+
+def assembled_sweep(session: Session, sensor: str, capture_id: str | None = None, *, result_id: str | None = None
+                    ) -> tuple[CaptureRecord, list[ScanAtAngle], SweepGeometry]:
+    """A stored sweep (latest by default), its raw scans and the geometry to assemble them with: ``result_id``'s
+    when given, else the one it was captured with."""
+    capture = swept_capture(session, sensor, capture_id)
+    scans = capture_scans(session, sensor, capture)
+    if result_id is None:
+        return capture, scans, SweepGeometry.from_dict(capture.meta["geometry"])
+    record = session.result(result_id)
+    if record["sensor"] != sensor or record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is not a {KIND} result of {sensor}", "result")
+    return capture, scans, SweepGeometry.from_dict(record["geometry"])
+
+
 def sweep_image(session: Session, sensor: str, capture_id: str, *, result_id: str | None = None,
                 mode: ImageMode = "intensity") -> np.ndarray:
     """The LiDAR image (uint8, H x W) of a stored sweep: one row per servo step (first step on top), one
@@ -181,15 +217,7 @@ def sweep_image(session: Session, sensor: str, capture_id: str, *, result_id: st
     """
     if mode not in ("intensity", "range"):
         raise InputError(f"image mode must be 'intensity' or 'range', not {mode!r}", "mode")
-    capture = swept_capture(session, sensor, capture_id)
-    scans = capture_scans(session, sensor, capture)
-    if result_id is None:
-        geometry = SweepGeometry.from_dict(capture.meta["geometry"])
-    else:
-        record = session.result(result_id)
-        if record["sensor"] != sensor or record.get("kind") != KIND:
-            raise InputError(f"result {result_id} is not a {KIND} result of {sensor}", "result")
-        geometry = SweepGeometry.from_dict(record["geometry"])
+    _, scans, geometry = assembled_sweep(session, sensor, capture_id, result_id=result_id)
     points_scanner, servo, intensity = stack_scans(scans)
     steps = np.repeat(np.arange(len(scans)), [len(s[1]) for s in scans])
     scan_angles = np.arctan2(points_scanner[:, 1], points_scanner[:, 0])

@@ -247,7 +247,7 @@ class IntrinsicsStep:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
         self.ctx.notify("Accepted", f"{self.history.value} is now the intrinsics of {self.sensor}.")
-        self.ctx.scene.show_rig(self.ctx.session.rig)
+        self.ctx.scene.update_rig(self.ctx.session.rig)
         self._show_result(self.history.value)
 
     def _download(self, event, fmt: str) -> None:

@@ -2,8 +2,9 @@
 
 Live: one :class:`~backend.services.live_clouds.LiveClouds` thread per ticked LiDAR
 draws its cloud under ``/rig/<sensor>/live`` (so the rig places it), range-windowed,
-coloured by sensor, intensity, height or range, at most :data:`MAX_DISPLAY_POINTS`
-points per sensor (an even stride; the full scan is what gets captured).
+coloured by sensor, intensity, height or range, at most *Points drawn per LiDAR*
+(default :data:`MAX_DISPLAY_POINTS`; an even stride; the full scan is what gets captured).
+Each live cloud is one scene node whose buffers are replaced in place, float16 on the wire.
 
 LiDAR to LiDAR: the six sliders *are* ``T_target_source`` (m, ROS yaw/pitch/roll in
 degrees). The target's latest captured cloud is drawn under ``/rig/<target>/l2l`` and
@@ -28,6 +29,7 @@ from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, to_xyz_ypr, transform_points
 from backend.exports.rig_transforms import static_transform_publisher
 from backend.services import lidar_lidar as lidar_service
+from backend.services import sweep as sweep_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
@@ -35,8 +37,12 @@ from studio.context import StudioContext
 from studio.job_panel import JobPanel
 
 NONE = "(no LiDAR)"
+NO_RESULT = "(none)"
 MAX_DISPLAY_POINTS = 100_000
-"""Per sensor. 100k float32 points + RGB are 1.5 MB a frame; see README / the report for measured rates."""
+"""Per sensor, by default. 100k float16 points are 0.6 MB a frame (+0.3 MB when coloured per point)."""
+LIVE_PRECISION = "float16"
+"""Live clouds travel as float16 (half the bytes; steps of 1 mm within 2 m, 1.6 cm at 16-32 m, 3 cm at 32-64 m),
+finer than a live point's size; captured clouds and the LiDAR-to-LiDAR view are drawn in float32."""
 LIVE_HZ = 12.0
 """Upper bound of each live thread's draw rate (Hz)."""
 POINT_SIZE_M = 0.02
@@ -52,12 +58,18 @@ def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
     return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
 
 
+def _live_by_default(session, sensor: str) -> bool:
+    """3D LiDARs start ticked; a swept scanner does not (each of its frames is a sweep of several seconds)."""
+    return session.rig.get(sensor).kind == "lidar3d" and not sweep_service.is_swept(session, sensor)
+
+
 class LidarStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
         self.live: dict[str, LiveClouds] = {}
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
         self.result_id: str | None = None
+        self._showing_history = False
         self._status: dict[str, str] = {}
         self._last_text = 0.0
         self._source_node: viser.PointCloudHandle | None = None
@@ -81,6 +93,9 @@ class LidarStep:
                                                initial_value=(0.0, 100.0))
             self.point_size = gui.add_slider("Point size (m)", min=0.005, max=0.1, step=0.005,
                                              initial_value=POINT_SIZE_M)
+            self.max_points = gui.add_slider("Points drawn per LiDAR", min=10_000, max=200_000, step=10_000,
+                                             initial_value=MAX_DISPLAY_POINTS,
+                                             hint="fewer keep a slow page fluid; a capture keeps the whole scan")
             self.live_text = gui.add_markdown("Not live.")
             self.capture_button = gui.add_button("Capture clouds")
             self.captures_text = gui.add_markdown("")
@@ -101,6 +116,8 @@ class LidarStep:
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
+                self.history = gui.add_dropdown("Result", options=[NO_RESULT],
+                                                hint="every solve of this pair; pick one to inspect or accept")
                 self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
@@ -117,6 +134,7 @@ class LidarStep:
         self.reset_button.on_click(lambda _: self._set_sliders(self._rig_T()))
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
+        self.history.on_update(lambda _: self._pick_result())
         self.accept_button.on_click(lambda _: self._accept())
         ctx.on_session_changed(self._on_session)
 
@@ -133,8 +151,8 @@ class LidarStep:
             box.remove()
         lidars = self._lidars()
         with self.sensor_folder:
-            self.show = {name: self.ctx.server.gui.add_checkbox(
-                name, initial_value=session.rig.get(name).kind == "lidar3d") for name in lidars}
+            self.show = {name: self.ctx.server.gui.add_checkbox(name, initial_value=_live_by_default(session, name))
+                         for name in lidars}
         options = lidars or [NONE]
         self.source.options, self.target.options = options, options
         if self.target.value not in options:
@@ -183,18 +201,35 @@ class LidarStep:
             return
         lo, hi = self.window.value
         points, intensity = cc.range_window(points, intensity, lo, hi)
-        points, intensity = cc.display_subset(points, intensity, MAX_DISPLAY_POINTS)
+        points, intensity = cc.display_subset(points, intensity, int(self.max_points.value))
         lidars = self._lidars()
         colours = cc.colour_points(self.colour_by.value, points, intensity, session.rig.T_root_frame(sensor),
                                    lidars.index(sensor) if sensor in lidars else 0)
-        self._live_nodes[sensor] = self.ctx.server.scene.add_point_cloud(
-            f"/rig/{sensor}/live", points.astype(np.float32), colours, point_size=float(self.point_size.value),
-            precision="float32")
+        self._draw_live(sensor, points, colours)
         self._status[sensor] = f"{len(points):,} pts drawn"
         now = time.monotonic()
         if now - self._last_text > 0.5:
             self._last_text = now
             self.live_text.content = "Live · " + self._rates(self.live)
+
+    def _draw_live(self, sensor: str, points: np.ndarray, colours: np.ndarray) -> None:
+        """Update the sensor's live cloud in place (one message of new buffers), or create it.
+
+        Updating the handle's props, rather than adding a new node per frame, lets viser's
+        message buffer drop a frame the page has not fetched yet when the next one comes
+        (same redundancy key), so a slow page skips frames instead of falling behind.
+        """
+        node = self._live_nodes.get(sensor)
+        size = float(self.point_size.value)
+        if node is not None:
+            try:
+                with self.ctx.server.atomic():
+                    node.points, node.colors, node.point_size = points, colours, size
+                return
+            except RuntimeError:  # removed with a redrawn rig: make a new one
+                pass
+        self._live_nodes[sensor] = self.ctx.server.scene.add_point_cloud(
+            f"/rig/{sensor}/live", points, colours, point_size=size, precision=LIVE_PRECISION)
 
     def _rates(self, live: dict[str, LiveClouds]) -> str:
         return " · ".join(f"**{name}** {thread.rate_hz:.1f} Hz, {self._status.get(name, 'no frame yet')}"
@@ -272,17 +307,34 @@ class LidarStep:
             self._schedule_recolour()
 
     def _select_pair(self) -> None:
-        self.result_id = None
         self._set_sliders(self._rig_T())
         self._on_slider()
         self._load_pair_clouds()
         pair = self.pair
+        accepted = None if pair is None else self.ctx.session.accepted(lidar_service.slot(*pair))
+        self._show_history(accepted)
+
+    def _pair_results(self) -> list[str]:
+        """Ids of the pair's results, newest first."""
+        pair = self.pair
         if pair is None:
-            self._show_result(None)
-            return
-        results = [r for r in self.ctx.session.results(pair[0], "lidar_lidar") if r.get("target") == pair[1]]
-        accepted = self.ctx.session.accepted(lidar_service.slot(*pair))
-        self._show_result(accepted or (results[-1]["id"] if results else None), move_sliders=False)
+            return []
+        results = self.ctx.session.results(pair[0], "lidar_lidar")
+        return [r["id"] for r in reversed(results) if r.get("target") == pair[1]]
+
+    def _show_history(self, result_id: str | None, move_sliders: bool = False) -> None:
+        """Fill the result dropdown and show ``result_id`` (or the newest)."""
+        ids = self._pair_results()
+        self._showing_history = True  # setting the dropdown fires _pick_result
+        self.history.options = ids or [NO_RESULT]
+        self.history.value = result_id if result_id in ids else self.history.options[0]
+        self._showing_history = False
+        self._show_result(None if self.history.value == NO_RESULT else self.history.value, move_sliders)
+
+    def _pick_result(self) -> None:
+        """The user picked a result from the history: show it and put its transform on the sliders."""
+        if not self._showing_history and self.history.value != NO_RESULT:
+            self._show_result(self.history.value)
 
     def _load_pair_clouds(self) -> None:
         """Draw the latest captured cloud of the target, and of the source posed by the sliders."""
@@ -374,7 +426,7 @@ class LidarStep:
         def work(progress):
             return lidar_service.solve_session(session, pair[0], pair[1], T_init=T_init, progress=progress)[0]
 
-        self._submit("Refine (GICP)", work, self._show_result)
+        self._submit("Refine (GICP)", work, lambda result_id: self._show_history(result_id, move_sliders=True))
 
     # -- result ----------------------------------------------------------------------------------------
     def _show_result(self, result_id: str | None, move_sliders: bool = True) -> None:
@@ -401,9 +453,7 @@ class LidarStep:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
         self.ctx.notify("Accepted", f"{self.result_id} is now the mounting of {pair[0]}.")
-        self._l2l_nodes = []  # show_rig clears the whole scene
-        self.ctx.scene.show_rig(session.rig)
-        self._load_pair_clouds()
+        self.ctx.scene.update_rig(session.rig)  # the target's frame may have moved; its clouds move with it
         self._show_result(self.result_id, move_sliders=False)
 
 

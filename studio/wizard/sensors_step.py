@@ -1,6 +1,15 @@
-"""Step 2: add sensors to the rig, with their mounting guess and capture device."""
+"""Step 2: add sensors to the rig, with their mounting guess and capture device.
+
+Every capture driver of :mod:`backend.devices` can be picked here, real or simulated:
+the form's *Device* lists the drivers that fit the chosen *Kind*, and its *Source*
+field takes what that driver needs (a port, a path, a simulated sensor's name, or
+``sim`` for the byte-level simulators of the serial and network sensors).
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -9,21 +18,96 @@ from backend.core.rig import Frame
 from backend.core.transforms import from_xyz_ypr
 from studio.context import StudioContext
 
-DRIVERS = {
-    "uvc": "USB camera (index or /dev/videoN)",
-    "folder": "folder of images (path)",
-    "simulated": "simulated camera (cam_front or cam_wide)",
+CAMERA_KINDS = ("camera",)
+RANGE_KINDS = ("lidar3d", "lidar2d", "depth")
+KINDS = ("camera", "lidar3d", "lidar2d", "depth", "imu", "frame")
+
+
+@dataclass(frozen=True)
+class DriverChoice:
+    """One capture driver as the form offers it."""
+
+    hint: str
+    """What goes into *Source*."""
+    kinds: tuple[str, ...]
+    """Sensor kinds it can capture for."""
+    default_source: str
+
+
+DRIVERS: dict[str, DriverChoice] = {
+    "uvc": DriverChoice("USB camera: index or /dev/videoN", CAMERA_KINDS, "0"),
+    "folder": DriverChoice("folder of images: its path", CAMERA_KINDS, ""),
+    "simulated": DriverChoice("simulated camera: cam_front or cam_wide", CAMERA_KINDS, "cam_front"),
+    "simulated_lidar": DriverChoice("simulated LiDAR: lidar_top, lidar_front or scanner_2d", RANGE_KINDS, "lidar_top"),
+    "velodyne": DriverChoice("Velodyne VLP-16 over UDP: PORT or HOST:PORT to listen on (2368), or sim",
+                             RANGE_KINDS, "sim"),
+    "velodyne_pcap": DriverChoice("Velodyne pcap recording: its path", RANGE_KINDS, ""),
+    "ydlidar": DriverChoice("YDLiDAR TG30 at 512000 baud: serial port (/dev/ttyUSB0), or sim", RANGE_KINDS, "sim"),
+    "swept_scanner": DriverChoice("2D scanner on a Dynamixel servo: the servo's serial port, or sim",
+                                  RANGE_KINDS, "sim"),
+    "cloud_files": DriverChoice("point-cloud files (.pcd .ply .las .laz .npy): a folder or one file",
+                                RANGE_KINDS, ""),
+    "rosbag": DriverChoice("ROS 2 bag (folder, .mcap or .db3): its path; the topic below",
+                           CAMERA_KINDS + RANGE_KINDS, ""),
 }
+PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "rosbag")
+VELODYNE_LISTEN_HOST = "0.0.0.0"
+"""Where a Velodyne given only a port is listened for: the sensor sends to the broadcast or the host's address."""
 
 
-def device_settings(driver: str, source: str, width: int, height: int) -> dict:
-    """Capture settings for the rig from the form fields."""
+def drivers_for(kind: str) -> list[str]:
+    """The drivers that can capture for a sensor ``kind`` (none for IMUs and plain frames)."""
+    return [name for name, choice in DRIVERS.items() if kind in choice.kinds]
+
+
+def _existing_path(source: str, driver: str) -> str:
+    path = source.strip()
+    if not path:
+        raise InputError(f"{driver} needs a path in Source", "source")
+    if not Path(path).expanduser().exists():
+        raise InputError(f"{path} does not exist", "source")
+    return str(Path(path).expanduser())
+
+
+def _velodyne(source: str) -> dict:
+    text = source.strip() or "2368"
+    if text == "sim":
+        return {"driver": "velodyne", "host": "sim"}
+    host, _, port = text.rpartition(":")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise InputError(f"Velodyne source {text!r} must be a UDP port, HOST:PORT or sim", "source")
+    return {"driver": "velodyne", "host": host or VELODYNE_LISTEN_HOST, "port": int(port)}
+
+
+def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0, topic: str = "",
+                    scanner_port: str = "sim") -> dict:
+    """Capture settings for the rig from the form fields; :class:`InputError` names the field that is wrong."""
+    text = source.strip()
     if driver == "uvc":
-        device: int | str = int(source) if source.strip().isdigit() else source.strip()
+        device: int | str = int(text) if text.isdigit() else text
         return {"driver": "uvc", "device": device, "width": width or None, "height": height or None}
-    if driver == "folder":
-        return {"driver": "folder", "path": source.strip()}
-    return {"driver": "simulated", "camera": source.strip() or "cam_front", "seed": 0}
+    if driver == "simulated":
+        return {"driver": "simulated", "camera": text or "cam_front", "seed": 0}
+    if driver == "simulated_lidar":
+        return {"driver": "simulated_lidar", "sensor": text or "lidar_top", "seed": 0}
+    if driver == "velodyne":
+        return _velodyne(text)
+    if driver == "ydlidar":
+        return {"driver": "ydlidar", "port": text or "sim"}
+    if driver == "swept_scanner":
+        servo_port = text or "sim"
+        scanner = {"driver": "sim"} if servo_port == "sim" else {"driver": "ydlidar", "port": scanner_port.strip()}
+        if scanner.get("port") in ("", "sim"):
+            raise InputError("a real servo needs the real 2D scanner's serial port in Scanner port", "scanner_port")
+        return {"driver": "swept_scanner", "servo_port": servo_port, "scanner": scanner}
+    if driver in PATH_DRIVERS:
+        settings = {"driver": driver, "path": _existing_path(text, driver)}
+        if driver == "rosbag":
+            if not topic.strip():
+                raise InputError("a ROS bag source needs its topic (e.g. /velodyne_points)", "topic")
+            settings["topic"] = topic.strip()
+        return settings
+    raise InputError(f"unknown device {driver!r}; known: {', '.join(DRIVERS)}", "device")
 
 
 class SensorsStep:
@@ -33,16 +117,41 @@ class SensorsStep:
         with gui.add_folder("2 · Sensors", expand_by_default=False):
             self.listing = gui.add_markdown("Open a session first.")
             self.name = gui.add_text("Name", initial_value="cam_new")
-            self.kind = gui.add_dropdown("Kind", options=["camera", "lidar3d", "lidar2d", "depth", "imu", "frame"])
+            self.kind = gui.add_dropdown("Kind", options=list(KINDS))
             self.parent = gui.add_dropdown("Parent", options=["base_link"])
             self.xyz = gui.add_vector3("xyz (m)", initial_value=(0.0, 0.0, 0.0), step=0.001)
             self.ypr = gui.add_vector3("yaw pitch roll (°)", initial_value=(0.0, 0.0, 0.0), step=0.1)
-            self.driver = gui.add_dropdown("Device", options=list(DRIVERS), initial_value="uvc")
-            self.source = gui.add_text("Source", initial_value="0", hint=" | ".join(DRIVERS.values()))
+            self.driver = gui.add_dropdown("Device", options=drivers_for("camera"), initial_value="uvc")
+            self.source = gui.add_text("Source", initial_value="0", hint=DRIVERS["uvc"].hint)
+            self.source_help = gui.add_markdown(DRIVERS["uvc"].hint)
+            self.topic = gui.add_text("Topic", initial_value="", visible=False, hint="the bag topic to replay")
+            self.scanner_port = gui.add_text("Scanner port", initial_value="", visible=False,
+                                             hint="serial port of the 2D scanner the servo turns")
             self.size = gui.add_vector2("Resolution (px)", initial_value=(1280, 720), step=1)
             self.add_button = gui.add_button("Add sensor")
+        self.kind.on_update(lambda _: self._on_kind())
+        self.driver.on_update(lambda _: self._on_driver())
         self.add_button.on_click(lambda _: self._add())
         ctx.on_session_changed(self._show)
+
+    def _on_kind(self) -> None:
+        options = drivers_for(self.kind.value)
+        self.driver.visible = self.source.visible = self.source_help.visible = bool(options)
+        if options:
+            self.driver.options = options
+            if self.driver.value not in options:
+                self.driver.value = options[0]  # fires _on_driver
+            self._on_driver()
+        else:
+            self.topic.visible = self.scanner_port.visible = self.size.visible = False
+
+    def _on_driver(self) -> None:
+        choice = DRIVERS[self.driver.value]
+        self.source.value = choice.default_source
+        self.source_help.content = choice.hint
+        self.topic.visible = self.driver.value == "rosbag"
+        self.scanner_port.visible = self.driver.value == "swept_scanner"
+        self.size.visible = self.driver.value == "uvc"
 
     def _add(self) -> None:
         session = self.ctx.session
@@ -50,14 +159,19 @@ class SensorsStep:
             self.ctx.notify("No session", "Open or create a session first.", error=True)
             return
         T = from_xyz_ypr(np.array(self.xyz.value), np.radians(self.ypr.value))
-        device = device_settings(self.driver.value, self.source.value, int(self.size.value[0]),
-                                 int(self.size.value[1])) if self.kind.value == "camera" else {}
         try:
+            device = {}
+            if drivers_for(self.kind.value):
+                device = device_settings(self.driver.value, self.source.value, width=int(self.size.value[0]),
+                                         height=int(self.size.value[1]), topic=self.topic.value,
+                                         scanner_port=self.scanner_port.value)
             session.add_sensor(Frame(self.name.value.strip(), self.parent.value, T, kind=self.kind.value,
                                      device=device))
         except InputError as exc:
-            self.ctx.notify("Cannot add sensor", exc.message, error=True)
+            self.ctx.notify("Cannot add sensor", exc.one_line().removeprefix("error: "), error=True)
             return
+        self.ctx.notify("Sensor added", f"{self.name.value.strip()} ({self.kind.value}"
+                        f"{', ' + device['driver'] if device else ''})")
         self.ctx.open_session(session)
 
     def _show(self, session) -> None:

@@ -1,0 +1,187 @@
+"""Step 5: the swept scanner - capture a sweep, calibrate its geometry, inspect, accept.
+
+A 2D scanner on a servo gives one 3D cloud per sweep (:mod:`backend.core.sweep`). Its
+geometry (the optical centre's offset from the servo axis, the scanner's tilt on the
+horn, the servo's zero) decides how flat walls and floor come out. The step captures a
+sweep as a background job, draws it under ``/rig/<sensor>/sweep`` coloured by height,
+calibrates the geometry (a job, cancellable), and redraws the same sweep and its LiDAR
+image with whichever result is picked, so the user sees the planes sharpen before
+accepting. Accepting writes the geometry into the rig; an older result reverts.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from backend.core.errors import InputError
+from backend.core.sweep import SweepGeometry, stack_scans
+from backend.core.transforms import to_xyz_ypr
+from backend.services import sweep as sweep_service
+from backend.solvers.sweep_calibration import SweepCalibrationSettings
+from studio import cloud_colours as cc
+from studio.context import StudioContext
+from studio.job_panel import JobPanel
+
+NONE = "(no swept scanner)"
+NO_RESULT = "(none)"
+POINT_SIZE_M = 0.02
+HELP = ("Keep the rig still where the scanner sees the **floor** and two or three **walls** or other large flat "
+        "surfaces at different angles. **Capture sweep** turns the servo once through its range (a few seconds), "
+        "then **Calibrate** makes those surfaces flat. The floor, level with `base_link`, fixes the servo's zero.")
+BLANK_IMAGE = np.full((90, 480, 3), 235, np.uint8)
+
+
+class SweepStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self._cloud = None
+        self._showing_history = False
+        gui = ctx.server.gui
+        with gui.add_folder("5 · Swept scanner", expand_by_default=False):
+            gui.add_markdown(HELP)
+            self.sensor = gui.add_dropdown("Swept scanner", options=[NONE])
+            self.capture_button = gui.add_button("Capture sweep", color="green")
+            self.captures_text = gui.add_markdown("")
+            self.estimate_tilt = gui.add_checkbox("Estimate the scanner's tilt", initial_value=True)
+            self.calibrate_button = gui.add_button("Calibrate", color="blue")
+            self.jobs = JobPanel(ctx, [self.capture_button, self.calibrate_button])
+            self.history = gui.add_dropdown("Result", options=[NO_RESULT],
+                                            hint="every calibration of this scanner; the sweep is redrawn with it")
+            self.result_text = gui.add_markdown("No sweep calibration yet.")
+            self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
+            self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
+            self.accept_button = gui.add_button("Accept", color="green")
+        self.sensor.on_update(lambda _: self._select())
+        self.capture_button.on_click(lambda _: self._capture())
+        self.calibrate_button.on_click(lambda _: self._calibrate())
+        self.history.on_update(lambda _: None if self._showing_history else self._show())
+        self.image_mode.on_update(lambda _: self._show())
+        self.accept_button.on_click(lambda _: self._accept())
+        ctx.on_session_changed(self._on_session)
+
+    # -- session and sensor --------------------------------------------------------------------
+    @property
+    def current(self) -> str | None:
+        return None if self.ctx.session is None or self.sensor.value == NONE else self.sensor.value
+
+    @property
+    def result_id(self) -> str | None:
+        return None if self.history.value == NO_RESULT else self.history.value
+
+    def _on_session(self, session) -> None:
+        self._cloud = None  # the scene was redrawn
+        swept = [f.name for f in session.rig.sensors() if sweep_service.is_swept(session, f.name)]
+        self.sensor.options = swept or [NONE]
+        self.sensor.value = self.sensor.options[0]
+        self._select()
+
+    def _select(self) -> None:
+        session, sensor = self.ctx.session, self.current
+        if sensor is None:
+            self.captures_text.content = ("No swept scanner in this rig: add one in **2 · Sensors** "
+                                          "(device swept_scanner).")
+            self._show_history(None)
+            return
+        captures = sweep_service.swept_captures(session, sensor)
+        self.captures_text.content = (f"{len(captures)} sweep(s) captured; the latest, {captures[-1].id}, is used."
+                                      if captures else "No sweep captured yet.")
+        self._show_history(session.accepted(sweep_service.slot(sensor)))
+
+    def _show_history(self, result_id: str | None) -> None:
+        """Fill the result dropdown (newest first) and show ``result_id`` (or the newest)."""
+        sensor = self.current
+        results = [] if sensor is None else self.ctx.session.results(sensor, sweep_service.KIND)
+        ids = [r["id"] for r in reversed(results)]
+        self._showing_history = True  # setting the dropdown fires its callback
+        self.history.options = ids or [NO_RESULT]
+        self.history.value = result_id if result_id in ids else self.history.options[0]
+        self._showing_history = False
+        self._show()
+
+    # -- jobs --------------------------------------------------------------------------------------
+    def _capture(self) -> None:
+        session, sensor = self.ctx.session, self.current
+        if sensor is None:
+            self.ctx.notify("No swept scanner", "Add a sensor with the swept_scanner device first.", error=True)
+            return
+        self.jobs.run(f"Sweep of {sensor}", lambda progress: sweep_service.capture_sweep(session, sensor, progress),
+                      lambda record: self._select(), done_message="{title}: captured in {seconds:.1f} s.")
+
+    def _calibrate(self) -> None:
+        session, sensor = self.ctx.session, self.current
+        if sensor is None:
+            return
+        settings = SweepCalibrationSettings(estimate_tilt=bool(self.estimate_tilt.value))
+        self.jobs.run(f"Sweep geometry of {sensor}", lambda progress: sweep_service.calibrate(
+            session, sensor, settings=settings, progress=progress), self._show_history)
+
+    def _accept(self) -> None:
+        sensor, result_id = self.current, self.result_id
+        if sensor is None or result_id is None:
+            self.ctx.notify("Nothing to accept", "Calibrate first.", error=True)
+            return
+        try:
+            sweep_service.accept(self.ctx.session, sensor, result_id)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.notify("Accepted", f"{result_id} is now the sweep geometry of {sensor}; new sweeps use it.")
+        self._show()
+
+    # -- showing a sweep and a result --------------------------------------------------------------
+    def _show(self) -> None:
+        """Redraw the latest sweep (cloud and image) with the picked result's geometry, and its numbers."""
+        session, sensor, result_id = self.ctx.session, self.current, self.result_id
+        self.result_text.content = "No sweep calibration yet." if result_id is None else result_markdown(
+            session.result(result_id), session.accepted(sweep_service.slot(sensor)))
+        if self._cloud is not None:
+            self._cloud.remove()
+            self._cloud = None
+        if sensor is None or not sweep_service.swept_captures(session, sensor):
+            self.image.image = BLANK_IMAGE
+            return
+        try:
+            capture, scans, geometry = sweep_service.assembled_sweep(session, sensor, result_id=result_id)
+            image = sweep_service.sweep_image(session, sensor, capture.id, result_id=result_id,
+                                              mode=self.image_mode.value)
+        except InputError as exc:
+            self.ctx.notify("Cannot show the sweep", exc.message, error=True)
+            return
+        self.image.image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+        points_scanner, servo_angles, _ = stack_scans(scans)
+        points = geometry.transform(points_scanner, servo_angles)
+        colours = cc.colour_points("height", points, None, session.rig.T_root_frame(sensor), 0)
+        self._cloud = self.ctx.server.scene.add_point_cloud(
+            f"/rig/{sensor}/sweep", points.astype(np.float32), colours, point_size=POINT_SIZE_M, precision="float32")
+
+
+def _pm(value: float, sigma: float | None, digits: int) -> str:
+    """``value ± sigma``; a sigma of None (undetermined) or 0 (not estimated, e.g. along the axis) is named."""
+    if sigma is None:
+        return f"{value:.{digits}f} (undetermined)"
+    return f"{value:.{digits}f} " + ("(kept)" if sigma == 0 else f"± {sigma:.{digits}f}")
+
+
+def result_markdown(record: dict, accepted: str | None) -> str:
+    """The calibrated geometry with its 1-sigma, the flatness before and after, and the verdict."""
+    geometry = SweepGeometry.from_dict(record["geometry"])
+    offset_mm, ypr = to_xyz_ypr(geometry.T_servo_scanner)
+    std = record["std"]
+    offset_std = [None if s is None else 1000 * s for s in std["offset_m"]]
+    tilt_std = std.get("tilt_deg") or [None, None, None]
+    status = "✅ accepted" if record["id"] == accepted else "not accepted"
+    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    offsets = " · ".join(f"{axis} {_pm(1000 * v, s, 1)}" for axis, v, s in zip("xyz", offset_mm, offset_std,
+                                                                                 strict=True))
+    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
+    return (
+        f"**{record['id']}** ({status}) · {verdict} · {record['planes']} planes"
+        f"{'' if record.get('floor_found') else ' (no floor found)'} · {record['seconds']:.1f} s\n\n"
+        f"Optical centre from the servo axis (mm): {offsets}\n\n"
+        f"Tilt yaw / pitch / roll (°): {', '.join(f'{np.degrees(a):.3f}' for a in ypr)}"
+        f" (1σ about mount x, y, z: {', '.join('n/a' if s is None else f'{s:.3f}' for s in tilt_std)})\n\n"
+        f"Servo zero offset (°): {_pm(np.degrees(geometry.zero_offset_rad), std.get('zero_offset_deg'), 3)}\n\n"
+        f"Plane RMS: {1000 * record['rms_before_m']:.1f} mm before → **{1000 * record['rms_after_m']:.1f} mm** "
+        f"after{warnings}"
+    )
