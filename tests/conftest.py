@@ -78,6 +78,19 @@ def stop_process(process: subprocess.Popen) -> None:
         process.wait(timeout=10)
 
 
+def wait_job(client, job_id: str, timeout_s: float = 30.0) -> dict:
+    """Poll ``/api/jobs/{job_id}`` through an HTTP client until the job has finished; its last status."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        response = client.get(f"/api/jobs/{job_id}")
+        assert response.status_code == 200, response.text
+        status = response.json()
+        if status["state"] != "running":
+            return status
+        assert time.monotonic() < deadline, f"job still running after {timeout_s:.0f} s: {status}"
+        time.sleep(0.05)
+
+
 @dataclass
 class Studio:
     url: str

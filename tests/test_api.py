@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import itertools
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import yaml
+from conftest import wait_job
 from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
@@ -27,18 +27,6 @@ def captures(client: TestClient, session: str, sensor: str) -> list[dict]:
     response = client.get(f"/api/sessions/{session}/sensors/{sensor}/captures")
     assert response.status_code == 200, response.text
     return response.json()
-
-
-def wait_job(client: TestClient, job_id: str, timeout_s: float = 30.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        response = client.get(f"/api/jobs/{job_id}")
-        assert response.status_code == 200, response.text
-        status = response.json()
-        if status["state"] != "running":
-            return status
-        time.sleep(0.05)
-    pytest.fail(f"job {job_id} still running after {timeout_s} s")
 
 
 def assert_error(response, status: int, *, names: str) -> dict:

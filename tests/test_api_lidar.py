@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
+from conftest import wait_job
 from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
@@ -26,14 +25,6 @@ def client(tmp_path):
         yield client
 
 
-def wait(client, job_id: str, timeout_s: float = 120) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while (status := client.get(f"/api/jobs/{job_id}").json())["state"] == "running":
-        assert time.monotonic() < deadline, status
-        time.sleep(0.2)
-    return status
-
-
 @pytest.mark.slow
 def test_real_pair_through_the_api(client, stereo_chessboard):
     data = stereo_chessboard.parent / PAIR
@@ -48,7 +39,7 @@ def test_real_pair_through_the_api(client, stereo_chessboard):
     job = client.post("/api/sessions/car/lidar-lidar/solve", json={
         "source": "p64", "target": "qt", "init_xyz_m": list(xyz), "init_ypr_deg": list(np.degrees(ypr))})
     assert job.status_code == 202
-    status = wait(client, job.json()["id"])
+    status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()
     assert record["kind"] == "lidar_lidar" and record["target"] == "qt" and record["converged"]

@@ -145,3 +145,35 @@ def test_colouring_100k_points_fits_a_10hz_budget():
     assert tuple(colours[3]) == tuple(colours[4]) == (230, 40, 40) and tuple(colours[0]) != tuple(colours[2])
     histogram = cc.distance_histogram(rng.uniform(0, 0.2, 1000), 0.2)
     assert histogram.shape == (170, 480, 3) and histogram.std() > 10
+
+
+def test_serial_lidar_unplugged_live_shows_reconnecting_and_resumes(tmp_path):
+    """A YDLiDAR (its pty simulator) pulled out mid-stream: the stream says it is reconnecting while no scans
+    come, scans resume when it is back, and the cloud captured before stays stored."""
+    rig = demo_rig()
+    rig.get("scanner_2d").device = {"driver": "ydlidar", "port": "sim", "reconnect_timeout_s": 10.0}
+    session = SessionStore(tmp_path).create("serial", rig=rig, board=DEMO_BOARD)
+    recorder = Recorder()
+    live = LiveClouds(session, "scanner_2d", recorder.callbacks(), max_hz=50)
+    live.start()
+    try:
+        recorder.wait_frames(3)
+        kept = lidar_service.store_cloud(session, "scanner_2d", live.latest, device=live.device_name)
+        assert live.device_status == "streaming" and live.device_name == "ydlidar sim @512000"
+        simulator = live.device.simulator
+        simulator.unplug()
+        deadline = time.monotonic() + 5
+        while "reconnecting" not in (live.device_status or ""):
+            assert time.monotonic() < deadline, f"status stayed {live.device_status!r}"
+            time.sleep(0.05)
+        frames_while_out = len(recorder.sizes)
+        time.sleep(0.5)
+        assert len(recorder.sizes) <= frames_while_out + 1  # at most the scan that was already parsed
+        simulator.replug()
+        recorder.wait_frames(frames_while_out + 3, timeout_s=15)
+        assert live.device_status == "streaming" and live.running and not recorder.failed.is_set()
+        assert live.latest.meta["reconnects"] == 1
+    finally:
+        live.stop()
+    points, _ = session.capture_cloud("scanner_2d", kept.id)
+    assert len(points) == kept.n_points > 1000

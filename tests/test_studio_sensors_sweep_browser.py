@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from conftest import ARTIFACTS, Studio, button, choose, studio_page, text_input, wait_body
 from playwright.sync_api import Browser, Page, expect
+from rosbags.rosbag2 import StoragePlugin
+from test_rosbag_source import write_bag
 
 from backend.core.sweep import SweepGeometry
 from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY
@@ -66,6 +68,38 @@ def _stream_and_capture(page: Page, studio: Studio) -> None:
     [capture] = studio.get("/api/sessions/demo/sensors/velo_sim/captures")
     print(f"velo_sim live: {match.group(0)}; captured {capture['n_points']:,} points")
     assert capture["n_points"] > 20_000 and capture["device"].startswith("velodyne VLP-16 sim")
+
+
+def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
+    bag = write_bag(tmp_path / "drive", StoragePlugin.MCAP)
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        page.get_by_text("2 · Sensors", exact=True).click()
+        name = text_input(page, "Name")
+        name.fill("bag_lidar")
+        name.press("Enter")
+        choose(page, "Kind", "lidar3d")
+        choose(page, "Device", "rosbag")
+        source = text_input(page, "Source")
+        source.fill(str(bag))
+        source.press("Enter")
+        button(page, "List the bag's topics").click()
+        wait_body(page, re.compile(r"/lidar/points\s+PointCloud2\s+3"), timeout_s=15)
+        expect(text_input(page, "Topic")).to_have_value("/lidar/padded")  # the first topic a LiDAR can replay
+        topic = text_input(page, "Topic")
+        topic.fill("/lidar/points")
+        topic.press("Enter")
+        button(page, "Add sensor").click()
+        wait_body(page, re.compile(r"bag_lidar \(lidar3d\) under base_link · rosbag"), timeout_s=15)
+
+        page.get_by_text("4 · LiDARs", exact=True).click()
+        page.get_by_text("Import", exact=True).click()
+        choose(page, "Into LiDAR", "bag_lidar")
+        wait_body(page, re.compile(r"Recording: rosbag · path .*drive, topic /lidar/points"), timeout_s=10)
+        button(page, "Import its recording").click()
+        wait_body(page, re.compile(r"3 scans into bag_lidar; end of bag after 3 messages"), timeout_s=30)
+        page.screenshot(path=ARTIFACTS / "studio_bag_import.png")
+    captures = studio.get("/api/sessions/demo/sensors/bag_lidar/captures")
+    assert [c["source"] for c in captures] == ["/lidar/points #0", "/lidar/points #1", "/lidar/points #2"]
 
 
 def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:

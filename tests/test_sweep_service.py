@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import wait_job
 from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
@@ -257,14 +258,6 @@ def client(tmp_path):
         yield client, store.get("demo")
 
 
-def wait(client: TestClient, job_id: str, timeout_s: float = 120) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while (status := client.get(f"/api/jobs/{job_id}").json())["state"] == "running":
-        assert time.monotonic() < deadline, status
-        time.sleep(0.2)
-    return status
-
-
 def test_api_errors(client):
     client, _ = client
     base = "/api/sessions/demo/sensors"
@@ -293,7 +286,7 @@ def test_api_calibrate_image_accept(client, nominal_sweep):
     base = "/api/sessions/demo/sensors/sweep_3d/sweep"
     job = client.post(f"{base}/calibrate", json={})
     assert job.status_code == 202 and job.json()["state"] == "running"
-    status = wait(client, job.json()["id"])
+    status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/demo/results/{status['result_id']}").json()
     assert record["kind"] == "sweep_geometry" and record["capture"] == capture.id and record["converged"]

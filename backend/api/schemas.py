@@ -62,6 +62,8 @@ class JobStatus(BaseModel):
     started: float
     finished: float | None = None
     result_id: str | None = None
+    summary: dict[str, Any] | None = Field(None, description="what a job that makes no single result did "
+                                                             "(an import: added capture ids, skipped, ended)")
 
 
 class ImportResponse(BaseModel):
@@ -82,6 +84,14 @@ class LidarLidarSolveRequest(BaseModel):
 
 class LidarLidarAccept(BaseModel):
     result_id: str
+
+
+class RecordingImportRequest(BaseModel):
+    device: dict[str, Any] | None = Field(
+        None, description="device settings of the recording; default the sensor's own device",
+        examples=[{"driver": "rosbag", "path": "/data/run.mcap", "topic": "/points", "start_s": 5.0, "end_s": 20.0}])
+    every: int = Field(1, ge=1, description="keep every n-th scan")
+    limit: int = Field(200, ge=1, le=10_000, description="stop after this many scans")
 
 
 class SweepCalibrateRequest(BaseModel):

@@ -383,6 +383,12 @@ class YdlidarSerial(CaptureDevice):
         self._closed = True
 
     # ------------------------------------------------------------------ interface
+    @property
+    def simulator(self) -> Any:
+        """The built-in :class:`~backend.sim.ydlidar_sim.YdlidarSimulator` while open with ``port="sim"``
+        (tests unplug and replug it), else None."""
+        return self._sim
+
     def describe(self) -> str:
         return f"ydlidar {self.port} @{self.baudrate}"
 

@@ -26,7 +26,8 @@ from backend.store.session import Session
 LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
 
 
-def _check_lidar(session: Session, sensor: str) -> None:
+def check_lidar(session: Session, sensor: str) -> None:
+    """Refuse (naming the sensor) anything but a LiDAR or depth sensor of the rig."""
     kind = session.rig.get(sensor).kind
     if kind not in LIDAR_KINDS:
         raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
@@ -40,7 +41,7 @@ def slot(source: str, target: str) -> str:
 def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
                 ) -> CaptureRecord:
     """Keep one cloud (live or imported) in the sensor's frame."""
-    _check_lidar(session, sensor)
+    check_lidar(session, sensor)
     if sample.points is None or len(sample.points) == 0:
         raise InputError(f"{source or device}: the cloud holds no points", source or device)
     return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
@@ -50,7 +51,7 @@ def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, s
 def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
                   progress: ProgressCallback = no_progress) -> list[CaptureRecord]:
     """Add uploaded cloud files as captures; any unreadable file rejects the whole batch, naming it."""
-    _check_lidar(session, sensor)
+    check_lidar(session, sensor)
     clouds = []
     with tempfile.TemporaryDirectory() as folder:
         for i, (name, data) in enumerate(files):
@@ -70,8 +71,8 @@ def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
 def capture_pairs(session: Session, source: str, target: str,
                   pairs: list[tuple[str, str]] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Clouds to register: the given (source id, target id) pairs, or the i-th capture of each sensor."""
-    _check_lidar(session, source)
-    _check_lidar(session, target)
+    check_lidar(session, source)
+    check_lidar(session, target)
     if pairs is None:
         source_ids = [c.id for c in session.captures(source) if c.n_points]
         target_ids = [c.id for c in session.captures(target) if c.n_points]

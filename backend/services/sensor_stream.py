@@ -38,6 +38,7 @@ class SensorStream(abc.ABC):
         self.device_name = sensor
         """The open device's description (the sensor name until opened)."""
         self.frames_seen = 0
+        self._device: CaptureDevice | None = None
         self._period_s = 0.0
         """Smoothed time between handled samples (s)."""
 
@@ -60,6 +61,17 @@ class SensorStream(abc.ABC):
         return 1.0 / self._period_s if self._period_s > 0 else 0.0
 
     @property
+    def device(self) -> CaptureDevice | None:
+        """The open device while the stream runs, else None."""
+        return self._device
+
+    @property
+    def device_status(self) -> str | None:
+        """The open device's own status line, for drivers that keep one (e.g. the YDLiDAR's "reconnecting to
+        /dev/ttyUSB0 ..." while it recovers from an unplug inside a read); None otherwise."""
+        return getattr(self._device, "status", None)
+
+    @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
@@ -78,6 +90,7 @@ class SensorStream(abc.ABC):
         except DeviceError as exc:
             self.status(f"{self.sensor}: {exc}", True)
             return
+        self._device = device
         self.device_name = device.describe()
         self.status(f"{self.sensor}: live from {self.device_name}", False)
         last = time.perf_counter()
@@ -102,4 +115,5 @@ class SensorStream(abc.ABC):
         except Exception as exc:  # noqa: BLE001 - a live thread must end with a message, never silently
             self.status(f"{self.sensor}: live stopped: {exc!r}", True)
         finally:
+            self._device = None
             device.close()

@@ -35,6 +35,7 @@ from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
 NO_RESULT = "(none)"
@@ -43,6 +44,8 @@ MAX_DISPLAY_POINTS = 100_000
 LIVE_PRECISION = "float16"
 """Live clouds travel as float16 (half the bytes; steps of 1 mm within 2 m, 1.6 cm at 16-32 m, 3 cm at 32-64 m),
 finer than a live point's size; captured clouds and the LiDAR-to-LiDAR view are drawn in float32."""
+RATES_PERIOD_S = 0.5
+"""How often the live line (rates, points, device status) is refreshed (s)."""
 LIVE_HZ = 12.0
 """Upper bound of each live thread's draw rate (Hz)."""
 POINT_SIZE_M = 0.02
@@ -70,8 +73,8 @@ class LidarStep:
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
         self.result_id: str | None = None
         self._showing_history = False
-        self._status: dict[str, str] = {}
-        self._last_text = 0.0
+        self._drawn: dict[str, int] = {}
+        """Points drawn in each sensor's latest live frame."""
         self._source_node: viser.PointCloudHandle | None = None
         self._source_points: np.ndarray | None = None
         self._target_tree: cKDTree | None = None
@@ -99,6 +102,7 @@ class LidarStep:
             self.live_text = gui.add_markdown("Not live.")
             self.capture_button = gui.add_button("Capture clouds")
             self.captures_text = gui.add_markdown("")
+            self.imports = CloudImportPanel(ctx, on_imported=self._on_captures)
             with gui.add_folder("LiDAR to LiDAR"):
                 self.source = gui.add_dropdown("Source LiDAR", options=[NONE])
                 self.target = gui.add_dropdown("Target LiDAR", options=[NONE])
@@ -153,6 +157,7 @@ class LidarStep:
         with self.sensor_folder:
             self.show = {name: self.ctx.server.gui.add_checkbox(name, initial_value=_live_by_default(session, name))
                          for name in lidars}
+        self.imports.set_lidars(lidars)
         options = lidars or [NONE]
         self.source.options, self.target.options = options, options
         if self.target.value not in options:
@@ -170,12 +175,20 @@ class LidarStep:
             self.ctx.notify("No LiDAR", "Tick at least one LiDAR to show live.", error=True)
             return
         self.stop_live()
-        self._status = {}
-        for name in chosen:
-            self.live[name] = LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
-                                         accumulate=int(self.accumulate.value), max_hz=LIVE_HZ)
-            self.live[name].start()
+        self._drawn = {}
+        live = {name: LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
+                                 accumulate=int(self.accumulate.value), max_hz=LIVE_HZ) for name in chosen}
+        self.live = live
+        for thread in live.values():
+            thread.start()
+        threading.Thread(target=self._show_rates, args=(live,), name="live-rates", daemon=True).start()
         self.start_button.visible, self.stop_button.visible = False, True
+
+    def _show_rates(self, live: dict[str, LiveClouds]) -> None:
+        """Refresh the live line while these streams are the live ones, also while a device reconnects (no frames)."""
+        while self.live is live and any(thread.running for thread in live.values()):
+            self.live_text.content = "Live · " + self._rates(live)
+            time.sleep(RATES_PERIOD_S)
 
     def stop_live(self) -> None:
         live, self.live = self.live, {}
@@ -206,18 +219,14 @@ class LidarStep:
         colours = cc.colour_points(self.colour_by.value, points, intensity, session.rig.T_root_frame(sensor),
                                    lidars.index(sensor) if sensor in lidars else 0)
         self._draw_live(sensor, points, colours)
-        self._status[sensor] = f"{len(points):,} pts drawn"
-        now = time.monotonic()
-        if now - self._last_text > 0.5:
-            self._last_text = now
-            self.live_text.content = "Live · " + self._rates(self.live)
+        self._drawn[sensor] = len(points)
 
     def _draw_live(self, sensor: str, points: np.ndarray, colours: np.ndarray) -> None:
         """Update the sensor's live cloud in place (one message of new buffers), or create it.
 
-        Updating the handle's props, rather than adding a new node per frame, lets viser's
-        message buffer drop a frame the page has not fetched yet when the next one comes
-        (same redundancy key), so a slow page skips frames instead of falling behind.
+        Updating the handle's props, rather than adding a new node per frame, spares the page a
+        node's creation and removal each frame, and lets viser's message buffer replace a frame
+        still waiting to be sent by the next one (same redundancy key).
         """
         node = self._live_nodes.get(sensor)
         size = float(self.point_size.value)
@@ -232,8 +241,17 @@ class LidarStep:
             f"/rig/{sensor}/live", points, colours, point_size=size, precision=LIVE_PRECISION)
 
     def _rates(self, live: dict[str, LiveClouds]) -> str:
-        return " · ".join(f"**{name}** {thread.rate_hz:.1f} Hz, {self._status.get(name, 'no frame yet')}"
-                          for name, thread in live.items())
+        """Per sensor: draw rate, points drawn, and the device's own status when it is not plainly streaming."""
+        parts = []
+        for name, thread in live.items():
+            drawn = self._drawn.get(name)
+            frames = "no frame yet" if drawn is None else f"{drawn:,} pts drawn"
+            text = f"**{name}** {thread.rate_hz:.1f} Hz, {frames}"
+            status = thread.device_status
+            if status not in (None, "streaming", "closed"):
+                text += f" ({status})"
+            parts.append(text + ("" if thread.running else " · stopped"))
+        return " · ".join(parts)
 
     def _on_status(self, message: str, error: bool) -> None:
         if error:
@@ -260,6 +278,10 @@ class LidarStep:
             self.ctx.notify("Nothing captured", "Start live on the LiDARs first and wait for a scan.", error=True)
             return
         self.ctx.notify("Clouds captured", ", ".join(kept))
+        self._on_captures()
+
+    def _on_captures(self) -> None:
+        """Clouds were captured or imported: recount them and redraw the pair's latest."""
         self._show_captures()
         self._load_pair_clouds()
 

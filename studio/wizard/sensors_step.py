@@ -16,6 +16,7 @@ import numpy as np
 from backend.core.errors import InputError
 from backend.core.rig import Frame
 from backend.core.transforms import from_xyz_ypr
+from backend.services import recordings
 from studio.context import StudioContext
 
 CAMERA_KINDS = ("camera",)
@@ -80,8 +81,11 @@ def _velodyne(source: str) -> dict:
 
 
 def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0, topic: str = "",
-                    scanner_port: str = "sim") -> dict:
-    """Capture settings for the rig from the form fields; :class:`InputError` names the field that is wrong."""
+                    time_window_s: tuple[float, float] = (0.0, 0.0), scanner_port: str = "sim") -> dict:
+    """Capture settings for the rig from the form fields; :class:`InputError` names the field that is wrong.
+
+    ``time_window_s`` is a bag's replay window (s after its start); ``(0, 0)`` replays it all.
+    """
     text = source.strip()
     if driver == "uvc":
         device: int | str = int(text) if text.isdigit() else text
@@ -106,6 +110,12 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
             if not topic.strip():
                 raise InputError("a ROS bag source needs its topic (e.g. /velodyne_points)", "topic")
             settings["topic"] = topic.strip()
+            start_s, end_s = (float(t) for t in time_window_s)
+            if (start_s, end_s) != (0.0, 0.0):
+                if start_s < 0 or end_s <= start_s:
+                    raise InputError(f"time window {start_s:g}..{end_s:g} s: want 0 <= start < end (s after the "
+                                     "bag start), or 0, 0 for the whole bag", "time_window")
+                settings.update(start_s=start_s, end_s=end_s)
         return settings
     raise InputError(f"unknown device {driver!r}; known: {', '.join(DRIVERS)}", "device")
 
@@ -125,12 +135,16 @@ class SensorsStep:
             self.source = gui.add_text("Source", initial_value="0", hint=DRIVERS["uvc"].hint)
             self.source_help = gui.add_markdown(DRIVERS["uvc"].hint)
             self.topic = gui.add_text("Topic", initial_value="", visible=False, hint="the bag topic to replay")
+            self.time_window = gui.add_vector2("Time window (s)", initial_value=(0.0, 0.0), step=0.1, visible=False,
+                                               hint="seconds after the bag start; 0, 0 replays the whole bag")
+            self.topics_button = gui.add_button("List the bag's topics", visible=False)
             self.scanner_port = gui.add_text("Scanner port", initial_value="", visible=False,
                                              hint="serial port of the 2D scanner the servo turns")
             self.size = gui.add_vector2("Resolution (px)", initial_value=(1280, 720), step=1)
             self.add_button = gui.add_button("Add sensor")
         self.kind.on_update(lambda _: self._on_kind())
         self.driver.on_update(lambda _: self._on_driver())
+        self.topics_button.on_click(lambda _: self._list_topics())
         self.add_button.on_click(lambda _: self._add())
         ctx.on_session_changed(self._show)
 
@@ -143,15 +157,31 @@ class SensorsStep:
                 self.driver.value = options[0]  # fires _on_driver
             self._on_driver()
         else:
-            self.topic.visible = self.scanner_port.visible = self.size.visible = False
+            for handle in (self.topic, self.time_window, self.topics_button, self.scanner_port, self.size):
+                handle.visible = False
 
     def _on_driver(self) -> None:
         choice = DRIVERS[self.driver.value]
         self.source.value = choice.default_source
         self.source_help.content = choice.hint
-        self.topic.visible = self.driver.value == "rosbag"
+        self.topic.visible = self.time_window.visible = self.topics_button.visible = self.driver.value == "rosbag"
         self.scanner_port.visible = self.driver.value == "swept_scanner"
         self.size.visible = self.driver.value == "uvc"
+
+    def _list_topics(self) -> None:
+        """Show the bag's topics (type, messages, time span) and pick the first one the sensor kind can replay."""
+        try:
+            topics = recordings.bag_topics(_existing_path(self.source.value, "rosbag"))
+        except InputError as exc:
+            self.ctx.notify("Cannot read the bag", exc.one_line().removeprefix("error: "), error=True)
+            return
+        rows = [f"| `{t.name}` | {t.msgtype.rsplit('/', 1)[-1]} | {t.count} | "
+                f"{'' if t.start_s is None else f'{t.start_s:.1f}-{t.end_s:.1f}'} |" for t in topics]
+        self.source_help.content = "\n".join(["| topic | type | messages | s after start |", "|---|---|---|---|",
+                                               *rows]) if rows else "The bag holds no topics."
+        fitting = recordings.topics_for_kind(topics, self.kind.value)
+        if fitting and not self.topic.value.strip():
+            self.topic.value = fitting[0]
 
     def _add(self) -> None:
         session = self.ctx.session
@@ -164,6 +194,7 @@ class SensorsStep:
             if drivers_for(self.kind.value):
                 device = device_settings(self.driver.value, self.source.value, width=int(self.size.value[0]),
                                          height=int(self.size.value[1]), topic=self.topic.value,
+                                         time_window_s=tuple(self.time_window.value),
                                          scanner_port=self.scanner_port.value)
             session.add_sensor(Frame(self.name.value.strip(), self.parent.value, T, kind=self.kind.value,
                                      device=device))

@@ -79,7 +79,7 @@ class SweepStep:
     def _select(self) -> None:
         session, sensor = self.ctx.session, self.current
         if sensor is None:
-            self.captures_text.content = ("No swept scanner in this rig: add one in **2 · Sensors** "
+            self.captures_text.content = ("No swept scanner in this rig: add one in step 2, *Sensors* "
                                           "(device swept_scanner).")
             self._show_history(None)
             return

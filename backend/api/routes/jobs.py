@@ -14,7 +14,9 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
 def job_status(job: Job) -> dict[str, Any]:
-    return job.status() | {"result_id": job.result if isinstance(job.result, str) else None}
+    """A job's state with its outcome: a stored result's id, or the summary of a job that makes no one result."""
+    return job.status() | {"result_id": job.result if isinstance(job.result, str) else None,
+                           "summary": job.result if isinstance(job.result, dict) else None}
 
 
 @router.get("/{job_id}", response_model=JobStatus)

@@ -1,0 +1,30 @@
+"""Recordings (ROS 2 bags, Velodyne pcaps, cloud folders): list a bag's topics, import a recording as captures."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Query
+
+from backend.api.routes import deps
+from backend.api.schemas import JobStatus, RecordingImportRequest
+from backend.services import recordings as service
+
+router = APIRouter(tags=["recordings"])
+
+
+@router.get("/recordings/topics")
+def bag_topics(path: str = Query(..., description="a ROS 2 bag folder, .mcap or .db3 on the server's disk")
+               ) -> list[dict[str, Any]]:
+    """The bag's topics with message type, count, time span and whether they can be replayed."""
+    return [topic.to_dict() for topic in service.bag_topics(path)]
+
+
+@router.post("/sessions/{name}/sensors/{sensor}/import", status_code=202, response_model=JobStatus)
+def import_recording(sensor: str, body: RecordingImportRequest, session: deps.SessionDep,
+                     jobs: deps.JobsDep) -> dict[str, Any]:
+    """Import every ``every``-th scan of a recording in the background; the job's ``summary`` lists the captures."""
+    settings = service.recording_settings(session, sensor, body.device)  # fail fast, before queueing
+    job = jobs.submit(f"import into {sensor}", lambda progress: service.import_recording(
+        session, sensor, settings, every=body.every, limit=body.limit, progress=progress).to_dict())
+    return job.status() | {"result_id": None, "summary": None}
