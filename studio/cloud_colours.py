@@ -45,6 +45,21 @@ def display_subset(points: np.ndarray, intensity: np.ndarray | None, max_points:
     return points[index], (intensity[index] if intensity is not None else None)
 
 
+def padded_to_bucket(points: np.ndarray, intensity: np.ndarray | None, bucket: int
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The cloud with its length rounded up to a multiple of ``bucket`` by repeating its first points.
+
+    The viewer reuses a point cloud's GPU buffers in place only while its length stays the same; a
+    live scan's length changes by a few points every frame, which would reallocate them every frame.
+    The repeated points are drawn where they already are, so nothing changes on screen.
+    """
+    n = len(points)
+    if n == 0 or n % bucket == 0:
+        return points, intensity
+    index = np.arange(-(-n // bucket) * bucket) % n
+    return points[index], (intensity[index] if intensity is not None else None)
+
+
 def sensor_colour(index: int) -> tuple[int, int, int]:
     return SENSOR_PALETTE[index % len(SENSOR_PALETTE)]
 

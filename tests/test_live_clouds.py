@@ -177,3 +177,15 @@ def test_serial_lidar_unplugged_live_shows_reconnecting_and_resumes(tmp_path):
         live.stop()
     points, _ = session.capture_cloud("scanner_2d", kept.id)
     assert len(points) == kept.n_points > 1000
+
+
+def test_live_clouds_are_padded_to_a_stable_length_with_the_same_points():
+    rng = np.random.default_rng(2)
+    for n in (1, 4095, 4096, 28_429):
+        points, intensity = rng.normal(size=(n, 3)), rng.uniform(0, 1, n).astype(np.float32)
+        padded, padded_intensity = cc.padded_to_bucket(points, intensity, 4096)
+        assert len(padded) % 4096 == 0 and len(padded) - n < 4096 and len(padded_intensity) == len(padded)
+        np.testing.assert_array_equal(padded[:n], points)  # the scan itself, then repeats of it
+        assert np.unique(padded, axis=0).shape == np.unique(points, axis=0).shape
+    empty = np.zeros((0, 3))
+    assert cc.padded_to_bucket(empty, None, 4096)[0] is empty

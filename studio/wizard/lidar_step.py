@@ -44,6 +44,8 @@ MAX_DISPLAY_POINTS = 100_000
 LIVE_PRECISION = "float16"
 """Live clouds travel as float16 (half the bytes; steps of 1 mm within 2 m, 1.6 cm at 16-32 m, 3 cm at 32-64 m),
 finer than a live point's size; captured clouds and the LiDAR-to-LiDAR view are drawn in float32."""
+LIVE_BUCKET_POINTS = 4096
+"""Live clouds are padded to a multiple of this many points, so the page reuses their GPU buffers."""
 RATES_PERIOD_S = 0.5
 """How often the live line (rates, points, device status) is refreshed (s)."""
 LIVE_HZ = 12.0
@@ -215,25 +217,35 @@ class LidarStep:
         lo, hi = self.window.value
         points, intensity = cc.range_window(points, intensity, lo, hi)
         points, intensity = cc.display_subset(points, intensity, int(self.max_points.value))
+        self._drawn[sensor] = len(points)
+        points, intensity = cc.padded_to_bucket(points, intensity, LIVE_BUCKET_POINTS)
         lidars = self._lidars()
         colours = cc.colour_points(self.colour_by.value, points, intensity, session.rig.T_root_frame(sensor),
                                    lidars.index(sensor) if sensor in lidars else 0)
         self._draw_live(sensor, points, colours)
-        self._drawn[sensor] = len(points)
 
     def _draw_live(self, sensor: str, points: np.ndarray, colours: np.ndarray) -> None:
         """Update the sensor's live cloud in place (one message of new buffers), or create it.
 
         Updating the handle's props, rather than adding a new node per frame, spares the page a
         node's creation and removal each frame, and lets viser's message buffer replace a frame
-        still waiting to be sent by the next one (same redundancy key).
+        still waiting to be sent by the next one (same redundancy key). Only what changed is sent:
+        viser's client rebuilds a cloud's material whenever its colours arrive, and reuses its GPU
+        buffers in place while the length stays the same (hence :func:`cc.padded_to_bucket`).
         """
         node = self._live_nodes.get(sensor)
         size = float(self.point_size.value)
         if node is not None:
             try:
                 with self.ctx.server.atomic():
-                    node.points, node.colors, node.point_size = points, colours, size
+                    if node.visible != (len(points) > 0):  # a range window that keeps nothing hides it
+                        node.visible = len(points) > 0
+                    if len(points):
+                        node.points = points
+                    if not np.array_equal(node.colors, colours):  # a new colour array rebuilds the material
+                        node.colors = colours
+                    if node.point_size != size:
+                        node.point_size = size
                 return
             except RuntimeError:  # removed with a redrawn rig: make a new one
                 pass
