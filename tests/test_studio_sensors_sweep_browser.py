@@ -30,14 +30,19 @@ SWEEP_RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · ✅ converged · (\d
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
 
 
+def _sensor_form(page: Page, name: str, kind: str, device: str) -> None:
+    """Open the sensors step and fill in a new sensor's name, kind and device."""
+    page.get_by_text("2 · Sensors", exact=True).click()
+    box = text_input(page, "Name")
+    box.fill(name)
+    box.press("Enter")
+    choose(page, "Kind", kind)
+    choose(page, "Device", device)
+
+
 def test_add_a_simulated_velodyne_and_stream_it(browser: Browser, studio: Studio) -> None:
     with studio_page(browser, studio.url, VIEWPORT) as page:
-        page.get_by_text("2 · Sensors", exact=True).click()
-        name = text_input(page, "Name")
-        name.fill("velo_sim")
-        name.press("Enter")
-        choose(page, "Kind", "lidar3d")
-        choose(page, "Device", "velodyne")
+        _sensor_form(page, "velo_sim", "lidar3d", "velodyne")
         expect(text_input(page, "Source")).to_have_value("sim")
         expect(page.get_by_text("Velodyne VLP-16 over UDP", exact=False)).to_be_visible()
         button(page, "Add sensor").click()
@@ -73,12 +78,7 @@ def _stream_and_capture(page: Page, studio: Studio) -> None:
 def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
     bag = write_bag(tmp_path / "drive", StoragePlugin.MCAP)
     with studio_page(browser, studio.url, VIEWPORT) as page:
-        page.get_by_text("2 · Sensors", exact=True).click()
-        name = text_input(page, "Name")
-        name.fill("bag_lidar")
-        name.press("Enter")
-        choose(page, "Kind", "lidar3d")
-        choose(page, "Device", "rosbag")
+        _sensor_form(page, "bag_lidar", "lidar3d", "rosbag")
         source = text_input(page, "Source")
         source.fill(str(bag))
         source.press("Enter")

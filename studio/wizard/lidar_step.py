@@ -77,6 +77,8 @@ class LidarStep:
         self._showing_history = False
         self._drawn: dict[str, int] = {}
         """Points drawn in each sensor's latest live frame."""
+        self._errors: dict[str, str] = {}
+        """The latest error each live sensor reported (a corrupt file, a lost device)."""
         self._source_node: viser.PointCloudHandle | None = None
         self._source_points: np.ndarray | None = None
         self._target_tree: cKDTree | None = None
@@ -177,7 +179,7 @@ class LidarStep:
             self.ctx.notify("No LiDAR", "Tick at least one LiDAR to show live.", error=True)
             return
         self.stop_live()
-        self._drawn = {}
+        self._drawn, self._errors = {}, {}
         live = {name: LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
                                  accumulate=int(self.accumulate.value), max_hz=LIVE_HZ) for name in chosen}
         self.live = live
@@ -262,14 +264,18 @@ class LidarStep:
             status = thread.device_status
             if status not in (None, "streaming", "closed"):
                 text += f" ({status})"
-            parts.append(text + ("" if thread.running else " · stopped"))
+            if name in self._errors:
+                text += f" · ⚠️ {self._errors[name]}"
+            parts.append(text)
         return " · ".join(parts)
 
     def _on_status(self, message: str, error: bool) -> None:
         if error:
+            sensor, _, reason = message.partition(": ")
+            self._errors[sensor] = reason  # stays on the live line; a notification also says it
             self.ctx.notify("LiDAR", message, error=True)
             self.live_text.content = f"⚠️ {message}"
-            others = [t for t in self.live.values() if t.running and t.sensor != message.split(":")[0]]
+            others = [t for t in self.live.values() if t.running and t.sensor != sensor]
             if not others:
                 self.start_button.visible, self.stop_button.visible = True, False
 
