@@ -3,16 +3,20 @@ and the studio's cloud colouring is fast enough for 100k points at 10 Hz."""
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 
 import numpy as np
 
+from backend.devices.base import create_device
 from backend.services import lidar_lidar as lidar_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds, voxel_downsample
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.ydlidar_sim import YdlidarSimulator
 from backend.store.session import SessionStore
 from studio import cloud_colours as cc
+from studio.wizard.lidar_step import wire_faults
 
 
 class Recorder:
@@ -189,3 +193,17 @@ def test_live_clouds_are_padded_to_a_stable_length_with_the_same_points():
         assert np.unique(padded, axis=0).shape == np.unique(points, axis=0).shape
     empty = np.zeros((0, 3))
     assert cc.padded_to_bucket(empty, None, 4096)[0] is empty
+
+
+def test_the_live_line_names_what_the_wire_spoiled():
+    """The drivers' fault counters (YDLiDAR checksums and stray bytes, Velodyne malformed datagrams) reach the
+    studio's live line under the names the studio reads."""
+    with YdlidarSimulator(garbage_every=5, garbage_len=31, corrupt_every=17, seed=1) as sim:
+        with create_device({"driver": "ydlidar", "port": sim.port}) as device:
+            meta = [device.read() for _ in range(3)][-1].meta
+    assert re.fullmatch(r" \(\d+ bad packets and [\d,]+ stray bytes skipped\)", wire_faults(meta))
+    with create_device({"driver": "velodyne", "host": "sim"}) as device:
+        device.simulator.garbage_every = 10
+        meta = [device.read() for _ in range(3)][-1].meta
+    assert re.fullmatch(r" \([\d,]+ bad packets skipped\)", wire_faults(meta)), meta["malformed"]
+    assert wire_faults({"bad_checksums": 0, "skipped_bytes": 0}) == ""

@@ -63,6 +63,14 @@ def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
     return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
 
 
+def wire_faults(meta: dict) -> str:
+    """What a driver skipped on the wire so far (YDLiDAR checksums and stray bytes, Velodyne malformed datagrams)."""
+    bad = int(meta.get("bad_checksums", 0)) + int(meta.get("malformed", 0))
+    stray = int(meta.get("skipped_bytes", 0))
+    faults = [f"{bad:,} bad packets" if bad else "", f"{stray:,} stray bytes" if stray else ""]
+    return f" ({' and '.join(f for f in faults if f)} skipped)" if bad or stray else ""
+
+
 def _live_by_default(session, sensor: str) -> bool:
     """3D LiDARs start ticked; a swept scanner does not (each of its frames is a sweep of several seconds)."""
     return session.rig.get(sensor).kind == "lidar3d" and not sweep_service.is_swept(session, sensor)
@@ -264,6 +272,7 @@ class LidarStep:
             status = thread.device_status
             if status not in (None, "streaming", "closed"):
                 text += f" ({status})"
+            text += wire_faults(thread.latest.meta if thread.latest is not None else {})
             if name in self._errors:
                 text += f" · ⚠️ {self._errors[name]}"
             parts.append(text)
