@@ -11,6 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from backend.core.colour_maps import colormap, height_colours, intensity_colours
+
 COLOUR_MODES = ("sensor", "intensity", "height", "range")
 SENSOR_PALETTE = ((230, 120, 30), (40, 120, 230), (200, 50, 160), (40, 170, 90), (220, 190, 30), (120, 80, 200))
 """RGB of the 1st, 2nd, ... LiDAR of the rig (by its order in the rig)."""
@@ -18,14 +20,6 @@ HEIGHT_RANGE_M = (-0.5, 3.0)
 """Height (z in the rig's root frame, m) mapped onto the colour map's ends."""
 RANGE_RANGE_M = (0.0, 20.0)
 """Range from the sensor (m) mapped onto the colour map's ends."""
-
-
-def colormap(values: np.ndarray, lo: float, hi: float, cmap: int = cv2.COLORMAP_TURBO) -> np.ndarray:
-    """(N,) values -> (N, 3) uint8 RGB through an OpenCV colour map, ``lo`` and ``hi`` at its ends."""
-    values = np.asarray(values, np.float32).ravel()
-    scaled = np.clip((values - lo) / max(hi - lo, 1e-9), 0.0, 1.0) * 255.0
-    bgr = cv2.applyColorMap(scaled.astype(np.uint8)[:, None], cmap)  # (N, 1, 3)
-    return np.ascontiguousarray(bgr[:, 0, ::-1])
 
 
 def range_window(points: np.ndarray, intensity: np.ndarray | None, min_m: float, max_m: float
@@ -74,15 +68,12 @@ def colour_points(mode: str, points: np.ndarray, intensity: np.ndarray | None, T
     sensor's one colour as a (3,) array, which viser draws for every point (a fifth of the
     bytes of a live frame need not travel).
     """
-    n = len(points)
     if mode == "height":
-        z = points @ T_root_sensor[2, :3] + T_root_sensor[2, 3]
-        return colormap(z, *HEIGHT_RANGE_M)
+        return height_colours(points, T_root_sensor, *HEIGHT_RANGE_M)
     if mode == "range":
         return colormap(np.sqrt(np.einsum("ij,ij->i", points, points)), *RANGE_RANGE_M)
-    if mode == "intensity" and intensity is not None and n:
-        lo, hi = np.percentile(intensity, [1, 99])
-        return colormap(intensity, float(lo), float(hi))
+    if mode == "intensity" and intensity is not None and len(points):
+        return intensity_colours(intensity)
     return np.array(sensor_colour(sensor_index), np.uint8)
 
 

@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
+from backend.core.camera_inverse import undistort_exact, visible_radius
 from backend.core.transforms import make_T, transform_points
 from backend.sim.board_renderer import plate_corners_m
-from backend.sim.camera_rays import undistort_exact, visible_radius
 
 _CELL_EDGES = np.array([0.0, 0.08, 0.92, 1.0])
 """Along each axis (as fractions of the image size), the target for the board centre is

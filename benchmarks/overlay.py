@@ -1,0 +1,135 @@
+#!/usr/bin/env python
+"""LiDAR-on-image overlay benchmark: projection, occlusion, colouring and drawing of 1M points.
+
+What it measures, in one run on the same data:
+
+- ``overlays_per_s``: one whole overlay per call: ``project_cloud`` (``occlusion_px`` =
+  ``OCCLUSION_PX``) of ``POINTS`` points, ``depth_colours`` of the kept points and
+  ``draw_points`` (``radius_px`` = 1) onto the 1280x720 simulated image of the demo rig's
+  ``cam_front`` (target: at least 30 per second);
+- ``redraw_100k_ms``: the same for an even stride of 100k of those points: what the server
+  spends to redraw after a slider moves;
+- ``stages_ms``: the 1M overlay's steps timed alone (projection without and with the
+  occlusion filter, colouring, drawing), to see what dominates;
+- ``baseline_projectpoints_per_s``: the in-run baseline, ``cv2.projectPoints`` of the same 1M
+  points alone (no culling, colouring or drawing); ``ratio`` = overlays_per_s / baseline.
+  From Python it always computes the 2N x 15 Jacobian too, which is most of its time;
+- ``kept_points``: how many points the overlay draws (in view and not hidden);
+- ``peak_rss_mb``: peak resident memory of the process at the end (ru_maxrss).
+
+Cloud: the simulated yard (``LidarScene``, with the board) ray-cast from the demo rig's
+``lidar_front`` with a dense solid-state-like pattern (azimuth -45..45 deg, elevation
+-35..15 deg in its frame, no noise) that covers ``cam_front``'s view; the first ``POINTS``
+hits are kept. Points are float64 in the LiDAR frame (as ``read_cloud`` gives them), the
+transform is the rig's ground truth ``T_cam_front_lidar_front``. Times are medians of
+``REPEATS_FAST`` calls (time.perf_counter).
+
+Prints exactly one JSON object on stdout; progress goes to stderr.
+
+Usage:
+    .venv/bin/python benchmarks/overlay.py
+"""
+
+import json
+import os
+import time
+
+import cv2
+import numpy as np
+from bench_util import log, median_time, peak_rss_mb
+
+from backend.core.boards import BoardSpec
+from backend.core.colour_maps import depth_colours
+from backend.core.projection import draw_points, project_cloud
+from backend.core.transforms import invert, to_rvec_tvec
+from backend.sim.board_renderer import render_board_image
+from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.lidar_scene import LidarScene
+
+POINTS = 1_000_000
+REDRAW_POINTS = 100_000
+GRID = (1500, 900)
+"""Rays across azimuth and elevation; about 1.2M of the 1.35M rays hit something."""
+AZIMUTH_DEG = (-45.0, 45.0)
+ELEVATION_DEG = (-35.0, 15.0)
+OCCLUSION_PX = 8
+DEPTH_RANGE_M = (0.5, 10.0)
+REPEATS_FAST = 9
+
+
+def dense_cloud(scene: LidarScene, T_base_lidar: np.ndarray) -> np.ndarray:
+    """The first :data:`POINTS` hits (m, LiDAR frame) of a dense ray grid cast from ``T_base_lidar``."""
+    az, el = np.meshgrid(np.radians(np.linspace(*AZIMUTH_DEG, GRID[0])),
+                         np.radians(np.linspace(*ELEVATION_DEG, GRID[1])))
+    dirs = np.column_stack([(np.cos(el) * np.cos(az)).ravel(), (np.cos(el) * np.sin(az)).ravel(), np.sin(el).ravel()])
+    t, _, _ = scene.cast(T_base_lidar[:3, 3], dirs @ T_base_lidar[:3, :3].T)
+    hit = np.isfinite(t)
+    return (dirs[hit] * t[hit, None])[:POINTS]
+
+
+def main():
+    started = time.perf_counter()
+    log(f"load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (other processes skew timings)")
+    rig = demo_rig()
+    camera = rig.get("cam_front").intrinsics
+    T_camera_lidar = rig.T_a_b("cam_front", "lidar_front")
+    log("ray-casting the simulated yard from lidar_front and rendering cam_front's image ...")
+    scene = LidarScene()
+    points = dense_cloud(scene, rig.T_root_frame("lidar_front"))
+    T_camera_board = invert(rig.T_root_frame("cam_front")) @ scene.T_base_board
+    image = cv2.cvtColor(render_board_image(camera, BoardSpec.parse(DEMO_BOARD), T_camera_board,
+                                            np.random.default_rng(0)), cv2.COLOR_GRAY2BGR)
+    del scene
+    subset = points[np.linspace(0, len(points) - 1, REDRAW_POINTS).astype(np.int64)]
+    log(f"  {len(points)} points")
+
+    def overlay(cloud):
+        projection = project_cloud(cloud, T_camera_lidar, camera, occlusion_px=OCCLUSION_PX)
+        return draw_points(image, projection.uv, depth_colours(projection.depth_m, *DEPTH_RANGE_M), radius_px=1)
+
+    log(f"timing the 1M overlay and the 100k redraw x{REPEATS_FAST} ...")
+    overlay_s = median_time(lambda: overlay(points), REPEATS_FAST)
+    redraw_s = median_time(lambda: overlay(subset), REPEATS_FAST)
+
+    log("timing the stages ...")
+    plain = project_cloud(points, T_camera_lidar, camera)
+    occluded = project_cloud(points, T_camera_lidar, camera, occlusion_px=OCCLUSION_PX)
+    colours = depth_colours(occluded.depth_m, *DEPTH_RANGE_M)
+    project_s = median_time(lambda: project_cloud(points, T_camera_lidar, camera), REPEATS_FAST)
+    occluded_s = median_time(lambda: project_cloud(points, T_camera_lidar, camera, occlusion_px=OCCLUSION_PX),
+                             REPEATS_FAST)
+    colour_s = median_time(lambda: depth_colours(occluded.depth_m, *DEPTH_RANGE_M), REPEATS_FAST)
+    draw_s = median_time(lambda: draw_points(image, occluded.uv, colours, radius_px=1), REPEATS_FAST)
+
+    log("timing the baseline cv2.projectPoints ...")
+    rvec, tvec = to_rvec_tvec(T_camera_lidar)
+    baseline_s = median_time(lambda: cv2.projectPoints(points[:, None, :], rvec, tvec, camera.K, camera.dist))
+    log(f"  in view {len(plain)}, drawn after occlusion {len(occluded)}")
+
+    peak_memory_mb = peak_rss_mb()
+    log(f"done in {time.perf_counter() - started:.1f} s; load average at end: {os.getloadavg()[0]:.2f}")
+    result = {
+        "benchmark": "overlay",
+        "points": len(points),
+        "image": [camera.width, camera.height],
+        "in_view_points": len(plain),
+        "kept_points": len(occluded),
+        "overlays_per_s": round(1.0 / overlay_s, 2),
+        "overlay_ms": round(overlay_s * 1000, 1),
+        "redraw_100k_ms": round(redraw_s * 1000, 1),
+        "stages_ms": {
+            "project": round(project_s * 1000, 1),
+            "project_with_occlusion": round(occluded_s * 1000, 1),
+            "colour": round(colour_s * 1000, 1),
+            "draw": round(draw_s * 1000, 1),
+        },
+        "baseline_projectpoints_per_s": round(1.0 / baseline_s, 2),
+        "ratio": round(baseline_s / overlay_s, 2),
+        "peak_rss_mb": round(peak_memory_mb, 1),
+        "cpu_count": os.cpu_count(),
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""LiDAR points onto a camera image (backend.core.projection): OpenCV agreement, culling, occlusion,
+the simulated rig's board, the real OpenCalib frame, drawing and colourising."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.camera_inverse import visible_radius
+from backend.core.colour_maps import depth_colours, height_colours, intensity_colours
+from backend.core.projection import colourise_cloud, draw_points, project_cloud
+from backend.core.transforms import from_xyz_ypr, invert, make_T, to_rvec_tvec, transform_points
+from backend.devices.cloud_files import read_cloud
+from backend.sim.board_renderer import plate_corners_m, render_board_image
+from backend.sim.demo_rig import CAM_WIDE, DEMO_BOARD, demo_rig
+from backend.sim.lidar_scene import LABELS, LidarScene
+
+OPENCALIB = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2camera"
+FISHEYE = CameraIntrinsics("fisheye-equidistant", 1280, 720,
+                           np.array([[600.0, 0, 641.2], [0, 599.1, 358.7], [0, 0, 1]]),
+                           np.array([0.08, -0.02, 0.004, -0.001]))
+T_CAMERA_SENSOR = from_xyz_ypr(np.array([0.1, -0.05, 0.2]), np.radians([3.0, -2.0, 1.5]))
+
+
+def opencv_pixels(camera: CameraIntrinsics, points_sensor: np.ndarray, T_camera_sensor: np.ndarray) -> np.ndarray:
+    rvec, tvec = to_rvec_tvec(T_camera_sensor)
+    pts = points_sensor.reshape(-1, 1, 3)
+    if camera.is_fisheye:
+        uv, _ = cv2.fisheye.projectPoints(pts, rvec, tvec, camera.K, camera.dist)
+    else:
+        uv, _ = cv2.projectPoints(pts, rvec, tvec, camera.K, camera.dist)
+    return uv.reshape(-1, 2)
+
+
+@pytest.mark.parametrize("camera", [CAM_WIDE, FISHEYE], ids=["pinhole-radtan", "fisheye-equidistant"])
+def test_matches_opencv_and_drops_what_the_camera_cannot_see(camera: CameraIntrinsics) -> None:
+    rng = np.random.default_rng(3)
+    # Directions all round the camera (so behind it and far outside its view too), 0.5-20 m out.
+    directions = rng.normal(size=(200_000, 3))
+    points_cam = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(0.5, 20, (200_000, 1))
+    points = transform_points(invert(T_CAMERA_SENSOR), points_cam)
+    projection = project_cloud(points, T_CAMERA_SENSOR, camera)
+
+    reference = opencv_pixels(camera, points, T_CAMERA_SENSOR)
+    assert len(projection) > 10_000
+    np.testing.assert_allclose(projection.uv, reference[projection.index], atol=1e-6, rtol=0)
+    np.testing.assert_allclose(projection.depth_m, points_cam[projection.index, 2], atol=1e-9)
+
+    in_image = np.all((reference >= -0.5) & (reference < np.array(camera.image_size) - 0.5), axis=1)
+    radius = np.linalg.norm(points_cam[:, :2], axis=1) / np.abs(points_cam[:, 2])
+    in_view = in_image & (points_cam[:, 2] > 0) & (radius <= visible_radius(camera))
+    np.testing.assert_array_equal(np.sort(projection.index), np.flatnonzero(in_view))
+    behind_but_inside = in_image & (points_cam[:, 2] <= 0)
+    assert behind_but_inside.any()  # OpenCV maps some points behind the camera into the image
+    folded = in_image & (points_cam[:, 2] > 0) & (radius > visible_radius(camera))
+    if not camera.is_fisheye:  # CAM_WIDE's polynomial folds points from far outside its view back in
+        assert folded.sum() > 100
+    assert not np.isin(projection.index, np.flatnonzero(behind_but_inside | folded)).any()
+
+
+def test_drops_non_finite_points_and_applies_the_range_window() -> None:
+    camera = demo_rig().get("cam_front").intrinsics
+    points_cam = np.array([[0.0, 0.0, 2.0], [0.1, 0.0, 6.0], [np.nan, 0, 3], [0, np.inf, 3], [0.0, 0.0, np.inf],
+                           [0.2, 0.1, 0.0]])
+    points = transform_points(invert(T_CAMERA_SENSOR), points_cam)
+    assert list(project_cloud(points, T_CAMERA_SENSOR, camera).index) == [0, 1]
+    ranges = np.linalg.norm(points[:2], axis=1)  # from the sensor's origin, not the camera's
+    window = (ranges[0] + 0.01, ranges[1] + 0.01)
+    assert list(project_cloud(points, T_CAMERA_SENSOR, camera, range_m=window).index) == [1]
+    assert len(project_cloud(np.zeros((0, 3)), T_CAMERA_SENSOR, camera, occlusion_px=4)) == 0
+
+
+def test_a_2d_scanners_points_project_like_any_other() -> None:
+    camera = demo_rig().get("cam_front").intrinsics
+    angles = np.radians(np.linspace(-40, 40, 81))
+    scan = np.column_stack([3 * np.cos(angles), 3 * np.sin(angles), np.zeros_like(angles)])  # z = 0: its plane
+    T_camera_scanner = invert(demo_rig().T_root_frame("cam_front")) @ demo_rig().T_root_frame("scanner_2d")
+    projection = project_cloud(scan, T_camera_scanner, camera)
+    assert len(projection) > 40
+    np.testing.assert_allclose(projection.uv, opencv_pixels(camera, scan, T_camera_scanner)[projection.index],
+                               atol=1e-6)
+
+
+def test_occlusion_hides_far_points_behind_a_near_plane_only() -> None:
+    camera = demo_rig().get("cam_front").intrinsics
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 201), np.linspace(-0.6, 0.6, 121)), axis=-1).reshape(-1, 2)
+    far = np.column_stack([grid * 5.0, np.full(len(grid), 5.0)])  # a wall 5 m ahead
+    panel = grid[np.all(np.abs(grid) < 0.25, axis=1)]
+    near = np.column_stack([panel * 2.0, np.full(len(panel), 2.0)])  # a 1x1 m panel 2 m ahead
+    points = np.vstack([near, far])
+    is_far = np.arange(len(points)) >= len(near)
+    # Far points whose ray passes through the panel (|x/z|, |y/z| < 0.25) are behind it.
+    behind = is_far & np.all(np.abs(points[:, :2] / points[:, 2:]) < 0.25, axis=1)
+    beside = is_far & np.all(np.abs(points[:, :2] / points[:, 2:]) > 0.3, axis=1)
+
+    shown = np.zeros(len(points), bool)
+    shown[project_cloud(points, np.eye(4), camera, occlusion_px=8).index] = True
+    plain = np.zeros(len(points), bool)
+    plain[project_cloud(points, np.eye(4), camera).index] = True
+    assert plain[behind].all()  # without the filter they show through
+    assert not shown[behind].any()
+    assert shown[~is_far].all()
+    assert shown[beside & plain].all() and (beside & plain).sum() > 1000
+
+
+@pytest.fixture(scope="module")
+def simulated_board() -> dict:
+    """The demo rig's lidar_front scan of the static board, and cam_front's image of it."""
+    rig = demo_rig()
+    scene = LidarScene()
+    scan = scene.scan_3d(rig.T_root_frame("lidar_front"), rng=0)
+    camera = rig.get("cam_front").intrinsics
+    board = BoardSpec.parse(DEMO_BOARD)
+    T_camera_board = invert(rig.T_root_frame("cam_front")) @ scene.T_base_board
+    image = render_board_image(camera, board, T_camera_board, np.random.default_rng(0))
+    return {"scan": scan, "camera": camera, "board": board, "T_camera_board": T_camera_board, "image": image,
+            "T_camera_lidar": rig.T_a_b("cam_front", "lidar_front")}
+
+
+def plate_mask(sim: dict) -> np.ndarray:
+    """uint8 mask of the plate's outline as cam_front sees it (edges sampled densely: distortion bends them)."""
+    corners = plate_corners_m(sim["board"])
+    t = np.linspace(0, 1, 50, endpoint=False)[:, None]
+    outline = np.vstack([a + t * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)])
+    uv = sim["camera"].project(transform_points(sim["T_camera_board"], outline))
+    mask = np.zeros(sim["image"].shape, np.uint8)
+    cv2.fillPoly(mask, [np.rint(uv).astype(np.int32)], 1)
+    return mask
+
+
+def test_simulated_board_points_land_on_the_board_only_with_the_true_transform(simulated_board: dict) -> None:
+    sim = simulated_board
+    on_board = sim["scan"].labels == LABELS["board"]
+    board_points = sim["scan"].points_true[on_board]
+    mask = plate_mask(sim)
+
+    def inside_fraction(T_camera_lidar: np.ndarray) -> float:
+        projection = project_cloud(board_points, T_camera_lidar, sim["camera"])
+        assert len(projection) == len(board_points)
+        cols, rows = np.rint(projection.uv).astype(int).T
+        return float(mask[rows, cols].mean())
+
+    assert len(board_points) > 50
+    assert inside_fraction(sim["T_camera_lidar"]) == 1.0
+    for offset_m in ([0.05, 0, 0], [-0.05, 0, 0], [0, 0.05, 0]):  # 5 cm across the line of sight
+        assert inside_fraction(make_T(np.eye(3), offset_m) @ sim["T_camera_lidar"]) < 0.95
+
+
+def test_colourise_takes_the_boards_pattern_and_flags_unseen_points(simulated_board: dict) -> None:
+    sim = simulated_board
+    scan = sim["scan"]
+    colours, seen = colourise_cloud(scan.points, sim["T_camera_lidar"], sim["camera"], sim["image"])
+    on_board = scan.labels == LABELS["board"]
+    assert seen[on_board].all()
+    grey = colours[on_board, 0].astype(float)
+    assert np.all(colours[on_board, 0] == colours[on_board, 2])  # a grey image gives grey colours
+    assert (grey < 60).sum() > 10 and (grey > 120).sum() > 10  # black and white squares
+    # The board's black squares return less light to the LiDAR too: the two agree.
+    assert np.corrcoef(grey, scan.intensity[on_board])[0, 1] > 0.8
+    behind = scan.points[:, 0] < 0  # behind the LiDAR, so behind the camera
+    assert behind.sum() > 1000 and not seen[behind].any() and not colours[~seen].any()
+
+
+def test_draw_points_paints_squares_on_a_copy() -> None:
+    grey = np.full((20, 30), 50, np.uint8)
+    uv = np.array([[5.0, 5.0], [6.2, 5.9], [29.4, 19.4], [-3.0, 4.0], [np.nan, 1.0]])
+    colours = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [9, 9, 9], [9, 9, 9]], np.uint8)
+    out = draw_points(grey, uv, colours, radius_px=1)
+    assert out.shape == (20, 30, 3) and out.dtype == np.uint8 and grey.max() == 50
+    assert tuple(out[4, 4]) == (0, 0, 255)  # first point's square, red as BGR
+    assert tuple(out[5, 6]) == (0, 255, 0) and tuple(out[6, 7]) == (0, 255, 0)  # the later point is on top
+    assert tuple(out[19, 29]) == (255, 0, 0) and tuple(out[18, 28]) == (255, 0, 0)  # clipped at the corner
+    assert int((out != 50).any(axis=2).sum()) == 9 + 9 - 4 + 4  # nothing else changed
+    single = draw_points(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR), uv[:1], colours[:1], radius_px=0)
+    assert int((single != 50).any(axis=2).sum()) == 1
+
+
+def test_colour_modes_use_turbo() -> None:
+    assert depth_colours(np.array([0.5, 10.0]), 0.5, 10.0).tolist() != [[0, 0, 0]] * 2
+    blue_end, red_end = depth_colours(np.array([0.0, 20.0]), 0.0, 20.0)
+    assert blue_end[2] > blue_end[0] and red_end[0] > red_end[2]  # TURBO: near blue, far red
+    assert intensity_colours(np.arange(100.0)).shape == (100, 3)
+    T_root_sensor = make_T(np.eye(3), [0, 0, 1.0])
+    low, high = height_colours(np.array([[0, 0, -1.0], [0, 0, 2.0]]), T_root_sensor, 0.0, 3.0)
+    assert low[2] > low[0] and high[0] > high[2]
+
+
+def opencalib() -> tuple[np.ndarray, np.ndarray, CameraIntrinsics, np.ndarray]:
+    if not OPENCALIB.is_dir():
+        pytest.fail(f"real data missing: {OPENCALIB}")
+    intrinsic = json.loads((OPENCALIB / "center_camera-intrinsic.json").read_text())["center_camera-intrinsic"]["param"]
+    camera = CameraIntrinsics("pinhole-radtan", intrinsic["img_dist_w"], intrinsic["img_dist_h"],
+                              np.array(intrinsic["cam_K"]["data"]), np.array(intrinsic["cam_dist"]["data"][0]))
+    extrinsic = json.loads((OPENCALIB / "top_center_lidar-to-center_camera-extrinsic.json").read_text())
+    T = np.array(extrinsic["top_center_lidar-to-center_camera-extrinsic"]["param"]["sensor_calib"]["data"])
+    return read_cloud(OPENCALIB / "calib.pcd").points, cv2.imread(str(OPENCALIB / "calib.png")), camera, T
+
+
+def depth_edge_distance(points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics, edge_distance: np.ndarray
+                        ) -> float:
+    """Mean distance (px) to the nearest image edge of projected points on the near side of a depth jump."""
+    projection = project_cloud(points, T, camera, occlusion_px=3)
+    cols, rows = np.rint(projection.uv).astype(int).T
+    depth = np.zeros((camera.height, camera.width), np.float32)
+    depth[rows, cols] = projection.depth_m
+    farthest_nearby = cv2.dilate(depth, np.ones((9, 9), np.uint8))[rows, cols]
+    edge = farthest_nearby > projection.depth_m * 1.5
+    return float(edge_distance[rows[edge], cols[edge]].mean())
+
+
+def test_real_frame_projects_its_points_and_depth_edges_meet_image_edges() -> None:
+    points, image, camera, T_camera_lidar = opencalib()
+    count = len(project_cloud(points, T_camera_lidar, camera))
+    assert 9_000 <= count <= 11_500, count  # 10,520 here; the data's README says about 10,300
+
+    edges = cv2.Canny(cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), (5, 5), 1.5), 50, 150)
+    edge_distance = cv2.distanceTransform(np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+    reference = depth_edge_distance(points, T_camera_lidar, camera, edge_distance)
+    for rotvec in np.vstack([np.eye(3), -np.eye(3)]):  # 3 deg either way about each of the camera's axes
+        turned = make_T(Rotation.from_rotvec(np.radians(3.0) * rotvec).as_matrix(), np.zeros(3)) @ T_camera_lidar
+        # 5.2 px for the reference; 5.6 to 19.7 px turned.
+        assert reference < depth_edge_distance(points, turned, camera, edge_distance)
