@@ -9,6 +9,7 @@ from backend.store.session import Session, SessionStore
 from studio.context import StudioContext
 from studio.scene import RigScene
 from studio.wizard.intrinsics_step import IntrinsicsStep
+from studio.wizard.lidar_camera_step import LidarCameraStep
 from studio.wizard.lidar_step import LidarStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
@@ -28,6 +29,7 @@ class StudioApp:
         self.intrinsics_step = IntrinsicsStep(self.ctx)
         self.lidar_step = LidarStep(self.ctx)
         self.sweep_step = SweepStep(self.ctx)
+        self.lidar_camera_step = LidarCameraStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

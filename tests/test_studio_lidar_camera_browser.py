@@ -1,0 +1,71 @@
+"""The LiDAR-to-camera step of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium:
+a captured lidar_front cloud drawn onto cam_front's image, then a slider moved and the overlay redrawn."""
+
+from __future__ import annotations
+
+import re
+import time
+
+import cv2
+import numpy as np
+import pytest
+from conftest import ARTIFACTS, Studio, button, choose, studio_page, text_input, wait_body
+from playwright.sync_api import Browser, Page, expect
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+VIEWPORT = {"width": 1600, "height": 2000}
+DRAWN_RE = re.compile(r"([\d,]+) of ([\d,]+) points drawn")
+
+
+def _overlay(page: Page):
+    """The overlay: the last image of the panel (step 6 is the last step)."""
+    return page.locator("img").last
+
+
+def _coloured_pixels(png: bytes) -> int:
+    """Pixels of strong colour (the TURBO-coloured points; the simulated camera's image is grey)."""
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    return int(((hsv[..., 1] > 120) & (hsv[..., 2] > 80)).sum())
+
+
+def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        page.get_by_text("4 · LiDARs", exact=True).click()
+        for name in ("lidar_top", "scanner_2d", "sweep_3d"):
+            page.get_by_label(name, exact=True).uncheck()
+        page.get_by_label("lidar_front", exact=True).check()
+        button(page, "Start live").click()
+        wait_body(page, re.compile(r"lidar_front\s+[\d.]+ Hz, [\d,]+ pts drawn"), timeout_s=30)
+        button(page, "Capture clouds").click()
+        wait_body(page, re.compile(r"lidar_front: 1"), timeout_s=15)
+        button(page, "Stop live").click()
+        page.get_by_text("4 · LiDARs", exact=True).click()  # fold it away
+
+        page.get_by_text("6 · LiDAR to camera", exact=True).click()
+        expect(page.get_by_label("Onto camera", exact=True)).to_have_value("cam_front")  # the first camera
+        choose(page, "From LiDAR", "lidar_front")
+        first = wait_body(page, DRAWN_RE, timeout_s=30)
+        time.sleep(1)
+        overlay = _overlay(page)
+        overlay.scroll_into_view_if_needed()
+        source_before = overlay.get_attribute("src")
+        coloured = _coloured_pixels(overlay.screenshot())
+        assert coloured > 500, f"the overlay shows {coloured} coloured pixels: no LiDAR points drawn"
+
+        yaw = text_input(page, "yaw (°)")
+        yaw.fill(str(float(yaw.input_value()) + 8.0))
+        yaw.press("Enter")
+        deadline = time.monotonic() + 20
+        while overlay.get_attribute("src") == source_before:
+            assert time.monotonic() < deadline, "the overlay did not change after the yaw slider moved"
+            time.sleep(0.2)
+        page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
+        time.sleep(1)
+        ARTIFACTS.mkdir(exist_ok=True)
+        page.screenshot(path=ARTIFACTS / "studio_lidar_camera.png")
+        second = wait_body(page, DRAWN_RE, timeout_s=5)
+        print(f"overlay: {first.group(0)} -> {second.group(0)}; {coloured} coloured px before the nudge")
+        expect_line = "--frame-id cam_front --child-frame-id lidar_front"
+        assert expect_line in page.inner_text("body")
