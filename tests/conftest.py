@@ -190,8 +190,11 @@ def text_input(page: Page, label: str):
 def choose(page: Page, label: str, option: str) -> None:
     """Pick ``option`` in the dropdown labelled ``label``."""
     box = page.get_by_label(label, exact=True)
+    box.scroll_into_view_if_needed()
     box.click()
-    page.get_by_role("option", name=option, exact=True).click()
+    choice = page.get_by_role("option", name=option, exact=True)
+    choice.scroll_into_view_if_needed()  # the list can open partly off screen near the panel's bottom
+    choice.click()
     expect(box).to_have_value(option)
 
 

@@ -92,3 +92,23 @@ class Rig:
     def T_a_b(self, a: str, b: str) -> np.ndarray:
         """Transform mapping points in frame ``b`` into frame ``a``."""
         return np.linalg.solve(self.T_root_frame(a), self.T_root_frame(b))
+
+    def set_relative(self, child: str, reference: str, T_reference_child: np.ndarray,
+                     covariance: np.ndarray | None = None) -> None:
+        """Mount ``child`` so that ``T_a_b(reference, child)`` becomes ``T_reference_child`` (a calibration's answer).
+
+        Only the child's ``T_parent_child`` changes (``reference`` must not hang below ``child``).
+        ``covariance`` (6x6 over translation in ``reference`` axes, m, and rotation about the
+        child's axes, rad) is carried into the parent's axes to first order: the translation
+        block is rotated by ``R_parent_reference``; rotations stay about the child's axes, as the
+        rig's convention wants. A covariance that is missing or not finite leaves none.
+        """
+        frame = self.get(child)
+        T_parent_reference = self.T_a_b(frame.parent, reference)
+        frame.T_parent_child = T_parent_reference @ np.asarray(T_reference_child, dtype=float)
+        if covariance is None or not np.all(np.isfinite(covariance)):
+            frame.covariance = None
+            return
+        rotate = np.eye(6)
+        rotate[:3, :3] = T_parent_reference[:3, :3]
+        frame.covariance = rotate @ np.asarray(covariance, dtype=float) @ rotate.T

@@ -102,28 +102,15 @@ def solve_session(session: Session, source: str, target: str, *, T_init: np.ndar
 
 
 def apply_lidar_lidar(rig: Rig, record: dict[str, Any]) -> None:
-    """Write a stored ``T_target_source`` into the rig as the source frame's ``T_parent_child``.
-
-    The covariance (translation in target axes, rotation about source axes) is
-    carried into the parent frame to first order: the translation block is
-    rotated by ``R_parent_target``; rotations stay about the source axes, as
-    the rig's convention wants.
-    """
+    """Write a stored ``T_target_source`` into the rig as the source frame's mounting, with its covariance
+    (translation in target axes, rotation about source axes; see :meth:`Rig.set_relative`)."""
     if record.get("kind") != "lidar_lidar":
         raise InputError(f"result {record['id']} is a {record.get('kind')} result, not lidar_lidar", "result")
     if not record.get("converged", False):
         raise InputError(f"result {record['id']} did not converge to a good fit and cannot be accepted: "
                          + "; ".join(record.get("warnings", [])), "result")
-    source, target = rig.get(record["sensor"]), rig.get(record["target"])
-    T_parent_target = rig.T_a_b(source.parent, target.name)
-    source.T_parent_child = T_parent_target @ np.array(record["T_target_source"])
     covariance = np.array([[np.nan if v is None else v for v in row] for row in record["covariance"]], float)
-    if np.all(np.isfinite(covariance)):
-        rotate = np.eye(6)
-        rotate[:3, :3] = T_parent_target[:3, :3]
-        source.covariance = rotate @ covariance @ rotate.T
-    else:
-        source.covariance = None
+    rig.set_relative(record["sensor"], record["target"], np.array(record["T_target_source"]), covariance)
 
 
 def accept(session: Session, source: str, result_id: str) -> None:

@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.transforms import make_T, transform_points
-from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress
+from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress, widen_covariance
 
 MIN_POINTS = 50
 """Fewest finite points a cloud needs before registration makes sense."""
@@ -408,19 +408,6 @@ def _sector_jackknife(source_points: np.ndarray, target, target_tree, T: np.ndar
     return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
 
 
-def _combine(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> np.ndarray:
-    """Covariance with the larger sigma per axis and the Hessian's correlation structure."""
-    std_h = np.sqrt(np.clip(np.diag(cov_hessian), 0, None))
-    std = std_h if std_spread is None else np.fmax(std_h, std_spread)
-    if not np.isfinite(cov_hessian).all():
-        return np.diag(std**2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_hessian / np.outer(std_h, std_h)
-    corr = np.where(np.isfinite(corr), np.clip(corr, -1, 1), 0.0)
-    np.fill_diagonal(corr, 1.0)
-    return np.outer(std, std) * corr
-
-
 def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings: LidarLidarSettings,
             progress: ProgressCallback):
     """Coarse-to-fine GICP; returns (fine small_gicp result, T, converged, a note or None, fine target, its tree)."""
@@ -535,7 +522,7 @@ def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: 
         fitness=quality["fitness"],
         rmse_m=quality["rmse_m"],
         c2c_m=quality["c2c_m"],
-        covariance=_combine(cov_h, std_spread),
+        covariance=widen_covariance(cov_h, std_spread),
         settings=settings,
         converged=ok,
         seconds=time.perf_counter() - started,
@@ -626,7 +613,7 @@ def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarra
         fitness=fitness,
         rmse_m=float(np.sqrt(np.mean(d**2))) if d.size else 0.0,
         c2c_m=c2c,
-        covariance=_combine(cov_h, std_spread),
+        covariance=widen_covariance(cov_h, std_spread),
         settings=settings,
         converged=converged,
         seconds=time.perf_counter() - started,

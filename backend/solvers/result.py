@@ -41,3 +41,21 @@ def finite_or_none(values: Any) -> list[float | None] | None:
     if values is None:
         return None
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel()]
+
+
+def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> np.ndarray:
+    """``cov_hessian`` with each sigma raised to ``std_spread`` where that is larger, keeping its correlations.
+
+    How the solvers combine their two uncertainty estimates: the Jacobian's (or Hessian's)
+    covariance, which sees the model's noise, and a leave-one-out spread, which sees what
+    moves whole views or poses together.
+    """
+    std_h = np.sqrt(np.clip(np.diag(cov_hessian), 0, None))
+    std = std_h if std_spread is None else np.fmax(std_h, std_spread)
+    if not np.isfinite(cov_hessian).all():
+        return np.diag(std**2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_hessian / np.outer(std_h, std_h)
+    corr = np.where(np.isfinite(corr), np.clip(corr, -1, 1), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return np.outer(std, std) * corr

@@ -1,7 +1,8 @@
 """Step 6: LiDAR to camera - the LiDAR's points drawn onto the camera's image, nudged by hand.
 
 The six sliders *are* ``T_camera_lidar`` (m, ROS yaw/pitch/roll in degrees; it maps LiDAR
-points into the camera's optical frame). Every change redraws the overlay: the latest
+points into the camera's optical frame), with nudges, undo and redo
+(:class:`~studio.transform_sliders.TransformSliders`). Every change redraws the overlay: the latest
 captured cloud of the LiDAR projected with the camera's intrinsics onto its latest captured
 image (:mod:`backend.core.projection`: points behind the camera, outside the image or
 outside the range window dropped, hidden points filtered), coloured by depth, intensity or
@@ -19,13 +20,11 @@ import numpy as np
 
 from backend.core.colour_maps import depth_colours, height_colours, intensity_colours
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
-from backend.core.transforms import from_xyz_ypr, to_xyz_ypr
-from backend.exports.rig_transforms import static_transform_publisher
 from backend.services import lidar_lidar as lidar_service
 from studio.context import StudioContext
+from studio.transform_sliders import TransformSliders
 
 NONE = "(none)"
-AXES = ("x", "y", "z", "yaw", "pitch", "roll")
 COLOUR_MODES = ("depth", "intensity", "height")
 HEIGHT_RANGE_M = (-0.5, 3.0)
 OVERLAY_WIDTH_PX = 960
@@ -52,14 +51,7 @@ class LidarCameraStep:
             self.camera = gui.add_dropdown("Onto camera", options=[NONE])
             self.lidar = gui.add_dropdown("From LiDAR", options=[NONE])
             self.data_text = gui.add_markdown("")
-            self.sliders = {
-                axis: gui.add_slider(f"{axis} (m)", min=-3.0, max=3.0, step=0.001, initial_value=0.0)
-                for axis in AXES[:3]
-            } | {
-                axis: gui.add_slider(f"{axis} (°)", min=-180.0, max=180.0, step=0.05, initial_value=0.0)
-                for axis in AXES[3:]
-            }
-            self.tf_text = gui.add_markdown("")
+            self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=3.0)
             self.reset_button = gui.add_button("Reset to rig")
             self.colour_by = gui.add_dropdown("Colour by", options=list(COLOUR_MODES))
             self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
@@ -71,10 +63,9 @@ class LidarCameraStep:
             self.status = gui.add_markdown("")
         self.camera.on_update(lambda _: self._select())
         self.lidar.on_update(lambda _: self._select())
-        for handle in (*self.sliders.values(), self.colour_by, self.window, self.occlusion, self.radius,
-                       self.paint_cloud):
-            handle.on_update(lambda _: self._changed())
-        self.reset_button.on_click(lambda _: self._set_sliders(self._rig_T()))
+        for handle in (self.colour_by, self.window, self.occlusion, self.radius, self.paint_cloud):
+            handle.on_update(lambda _: self._wake.set())
+        self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_changed(self._on_session)
 
@@ -114,26 +105,8 @@ class LidarCameraStep:
                 f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
                 f"cloud: {clouds[-1].id + f' ({clouds[-1].n_points:,} pts)' if clouds else '**none yet** (step 4)'}"
                 + ("" if intrinsics else " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"))
-        self._set_sliders(self._rig_T())
-        self._changed()
-
-    # -- sliders ------------------------------------------------------------------------------------
-    def slider_T(self) -> np.ndarray:
-        """``T_camera_lidar`` from the six sliders (m, degrees)."""
-        xyz = [self.sliders[a].value for a in AXES[:3]]
-        ypr = [self.sliders[a].value for a in AXES[3:]]
-        return from_xyz_ypr(np.array(xyz, float), np.radians(ypr))
-
-    def _set_sliders(self, T: np.ndarray) -> None:
-        xyz, ypr = to_xyz_ypr(T)
-        for axis, value in zip(AXES, [*xyz, *np.degrees(ypr)], strict=True):
-            self.sliders[axis].value = float(value)  # each fires _changed, which only wakes the worker
-
-    def _changed(self) -> None:
-        pair = self.pair
-        if pair is not None:
-            self.tf_text.content = f"```\n{static_transform_publisher(pair[0], pair[1], self.slider_T())}\n```"
-        self._wake.set()
+        self.editor.frames = pair
+        self.editor.set(self._rig_T(), undoable=False)
 
     # -- drawing (worker thread) ------------------------------------------------------------------
     def _redraw_loop(self) -> None:
@@ -157,7 +130,7 @@ class LidarCameraStep:
             self.status.content = (f"⚠️ the image is {image.shape[1]}×{image.shape[0]} px but {camera}'s intrinsics "
                                    f"are for {intrinsics.width}×{intrinsics.height}")
             return
-        T_camera_lidar = self.slider_T()
+        T_camera_lidar = self.editor.T
         projection = project_cloud(points, T_camera_lidar, intrinsics, range_m=tuple(self.window.value),
                                    occlusion_px=OCCLUSION_PX if self.occlusion.value else 0)
         colours = self._colours(projection, points, intensity, lidar)

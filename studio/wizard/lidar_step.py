@@ -26,8 +26,7 @@ import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
-from backend.core.transforms import from_xyz_ypr, to_xyz_ypr, transform_points
-from backend.exports.rig_transforms import static_transform_publisher
+from backend.core.transforms import transform_points
 from backend.services import lidar_lidar as lidar_service
 from backend.services import sweep as sweep_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
@@ -35,6 +34,7 @@ from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.transform_sliders import TransformSliders
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
@@ -53,7 +53,6 @@ LIVE_HZ = 12.0
 POINT_SIZE_M = 0.02
 TARGET_COLOUR = (150, 150, 150)
 RECOLOUR_DELAY_S = 0.5
-AXES = ("x", "y", "z", "yaw", "pitch", "roll")
 LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
              "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
 
@@ -120,14 +119,7 @@ class LidarStep:
                 self.target = gui.add_dropdown("Target LiDAR", options=[NONE])
                 gui.add_markdown("T_target_source: where the source sits in the target's frame (ROS yaw, pitch, "
                                  "roll). Nudge, then refine from here.")
-                self.sliders = {
-                    axis: gui.add_slider(f"{axis} (m)", min=-5.0, max=5.0, step=0.001, initial_value=0.0)
-                    for axis in AXES[:3]
-                } | {
-                    axis: gui.add_slider(f"{axis} (°)", min=-180.0, max=180.0, step=0.05, initial_value=0.0)
-                    for axis in AXES[3:]
-                }
-                self.tf_text = gui.add_markdown("")
+                self.editor = TransformSliders(gui, self._on_slider)
                 self.reset_button = gui.add_button("Reset to rig")
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
@@ -145,9 +137,7 @@ class LidarStep:
         self.capture_button.on_click(lambda _: self._capture())
         self.source.on_update(lambda _: self._select_pair())
         self.target.on_update(lambda _: self._select_pair())
-        for slider in self.sliders.values():
-            slider.on_update(lambda _: self._on_slider())
-        self.reset_button.on_click(lambda _: self._set_sliders(self._rig_T()))
+        self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
         self.history.on_update(lambda _: self._pick_result())
@@ -332,23 +322,10 @@ class LidarStep:
         return np.eye(4) if pair is None else self.ctx.session.rig.T_a_b(pair[1], pair[0])
 
     def slider_T(self) -> np.ndarray:
-        """``T_target_source`` from the six sliders (m, degrees)."""
-        xyz = [self.sliders[a].value for a in AXES[:3]]
-        ypr = [self.sliders[a].value for a in AXES[3:]]
-        return from_xyz_ypr(np.array(xyz, float), np.radians(ypr))
+        """``T_target_source`` on the sliders (m, degrees)."""
+        return self.editor.T
 
-    def _set_sliders(self, T: np.ndarray) -> None:
-        xyz, ypr = to_xyz_ypr(T)
-        for axis, value in zip(AXES, [*xyz, *np.degrees(ypr)], strict=True):
-            self.sliders[axis].value = float(value)  # each fires _on_slider, which reads all six
-
-    def _on_slider(self) -> None:
-        T = self.slider_T()
-        pair = self.pair
-        if pair is None:
-            self.tf_text.content = "Pick two different LiDARs."
-            return
-        self.tf_text.content = f"```\n{static_transform_publisher(pair[1], pair[0], T)}\n```"
+    def _on_slider(self, T: np.ndarray) -> None:
         node = self._source_node
         if node is not None:  # the live nudge: only the pose travels
             pose = _pose(T)
@@ -356,10 +333,11 @@ class LidarStep:
             self._schedule_recolour()
 
     def _select_pair(self) -> None:
-        self._set_sliders(self._rig_T())
-        self._on_slider()
-        self._load_pair_clouds()
         pair = self.pair
+        self.editor.frames = None if pair is None else (pair[1], pair[0])
+        self.editor.text.content = "Pick two different LiDARs." if pair is None else ""
+        self.editor.set(self._rig_T(), undoable=False)
+        self._load_pair_clouds()
         accepted = None if pair is None else self.ctx.session.accepted(lidar_service.slot(*pair))
         self._show_history(accepted)
 
@@ -464,7 +442,7 @@ class LidarStep:
 
         def done(result) -> None:
             T, fitness = result
-            self._set_sliders(T)
+            self.editor.set(T)
             self.ctx.notify("Global guess", f"RANSAC fitness {fitness:.2f}; the sliders hold the guess - press Refine.")
 
         self._submit("Global guess", work, done)
@@ -487,7 +465,7 @@ class LidarStep:
         record = session.result(result_id)
         self.max_correspondence_m = record["settings"]["max_correspondence_m"]
         if move_sliders:
-            self._set_sliders(np.array(record["T_target_source"]))  # also recolours the source cloud
+            self.editor.set(np.array(record["T_target_source"]))  # also recolours the source cloud
         self.stats_text.content = result_markdown(
             record, accepted=session.accepted(lidar_service.slot(record["sensor"], record["target"])))
 
