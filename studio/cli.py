@@ -73,6 +73,22 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fine correspondence and inlier distance (m, default 0.2)")
     ll.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
+    lc = sub.add_parser("lidar-camera", help="LiDAR-to-camera extrinsics: T_camera_lidar with its uncertainty")
+    lc.add_argument("--camera", type=Path, required=True, metavar="camera.yaml",
+                    help="the camera's ROS camera_info YAML (as `intrinsics --out` writes it)")
+    lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
+                    help="an image and the cloud taken with it (repeat for every board pose)")
+    lc.add_argument("--method", choices=["target", "edges"], default="target",
+                    help="target: a board seen by both sensors (edges, targetless, is not available yet)")
+    lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
+    lc.add_argument("--plate-margin", type=float, metavar="M",
+                    help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
+    init = lc.add_mutually_exclusive_group()
+    init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
+    init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
+                      help="initial T_camera_lidar: metres and degrees (ROS order)")
+    lc.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
     export = sub.add_parser("export", help="export an accepted calibration from a session")
     export.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
     export.add_argument("--format", required=True, choices=["camera_info", "opencv", "rig"])
@@ -110,7 +126,7 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _read_init(args: argparse.Namespace):
-    """The initial ``T_target_source`` from ``--init`` or ``--init-xyzypr``, or None."""
+    """The initial transform (``T_target_source``, ``T_camera_lidar``) from ``--init`` or ``--init-xyzypr``, or None."""
     import numpy as np
 
     from backend.core.transforms import from_xyz_ypr
@@ -191,6 +207,55 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
     return summary
 
 
+def _pairs(values: list[str]) -> list[tuple[Path, Path]]:
+    """``IMAGE:CLOUD`` arguments as path pairs (split at the last colon: paths may hold one)."""
+    pairs = []
+    for value in values:
+        image, sep, cloud = value.rpartition(":")
+        if not sep or not image or not cloud:
+            raise InputError(f"expected IMAGE:CLOUD, got {value!r}", "--pair")
+        pairs.append((Path(image), Path(cloud)))
+    return pairs
+
+
+def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.core.boards import BoardSpec
+    from backend.exports.ros_camera_info import load_camera_info
+    from backend.services.lidar_camera import solve_files
+    from backend.solvers.lidar_lidar import check_transform
+
+    pairs = _pairs(args.pair)
+    camera, _ = load_camera_info(args.camera)
+    if args.method == "target" and not args.board:
+        raise InputError("--method target needs the board's spec, e.g. --board checkerboard:9x6:0.04", "--board")
+    T_init = _read_init(args)
+    if T_init is None:
+        raise InputError("give the initial T_camera_lidar (the mounting as measured, within ~10 cm and 5 deg) with "
+                         "--init or --init-xyzypr", "--init")
+    check_transform(T_init, str(args.init) if args.init is not None else "--init-xyzypr")
+    board = BoardSpec.parse(args.board) if args.board else None
+    result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,
+                         progress=_progress_to_stderr(False))
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    summary = result.summary()
+    if not result.converged:
+        print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
+        raise InputError(f"no usable calibration: {(result.warnings or ['the solve failed'])[0]}", "--pair")
+    if not args.json:
+        import numpy as np
+
+        from backend.core.transforms import to_xyz_ypr
+
+        xyz, ypr = to_xyz_ypr(result.T_camera_lidar)
+        print(f"T_camera_lidar (x y z m, yaw pitch roll deg): {' '.join(f'{v:.4f}' for v in xyz)}  "
+              f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}\n"
+              f"{np.array2string(result.T_camera_lidar, precision=6, suppress_small=True)}\n"
+              f"1-sigma trans (m) {summary['std']['trans_m']}  rot (deg, LiDAR axes) {summary['std']['rot_deg']}\n"
+              f"residuals {summary['residuals']}")
+    return summary
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
@@ -216,8 +281,8 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_intrinsics(args)
             if want_json:
                 print(json.dumps(summary))
-        elif args.command == "lidar-lidar":
-            summary = run_lidar_lidar(args)
+        elif args.command in ("lidar-lidar", "lidar-camera"):
+            summary = (run_lidar_lidar if args.command == "lidar-lidar" else run_lidar_camera)(args)
             if want_json:
                 print(json.dumps(summary))
         elif args.command == "export":

@@ -1,0 +1,79 @@
+"""LiDAR-to-camera workflow shared by the CLI (and, next, the API and the studio's solve button).
+
+image + cloud pairs of a board seen by both sensors -> the camera's board pose per image
+(detection and PnP with the known intrinsics) and the LiDAR's cloud -> the target-based
+solve of ``T_camera_lidar`` (:mod:`backend.solvers.lidar_camera_target`). Every input that
+cannot be used is refused naming the file: an image or cloud that cannot be read, an image
+whose size disagrees with the intrinsics, a board that is not found.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.devices.cloud_files import read_cloud
+from backend.devices.image_io import read_image
+from backend.solvers.lidar_camera_target import (
+    LidarCameraResult,
+    LidarCameraTargetSettings,
+    TargetObservation,
+    camera_board_pose,
+    solve_target,
+)
+from backend.solvers.result import ProgressCallback, no_progress
+
+METHODS = ("target", "edges")
+DEFAULT_PLATE_MARGIN_SQUARES = 1.0
+"""The board's plate reaches this many squares beyond the pattern's outer corners unless told otherwise
+(a white border of one square, as printed boards usually have; the LiDAR sees the plate's edges)."""
+
+
+def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:
+    """Refuse an image whose size is not the one the intrinsics were calibrated at."""
+    height, width = image.shape[:2]
+    if (width, height) != (camera.width, camera.height):
+        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
+                         f"{camera.width}x{camera.height}", name)
+
+
+def observations_from_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]],
+                            progress: ProgressCallback = no_progress) -> list[TargetObservation]:
+    """One observation per (image, cloud) pair: the camera's board pose and the LiDAR's points (m)."""
+    observations = []
+    for i, (image_path, cloud_path) in enumerate(pairs):
+        progress(0.3 * i / max(len(pairs), 1), f"finding the board in {image_path.name}")
+        image = read_image(image_path)
+        check_image_size(image, camera, str(image_path))
+        T_camera_board = camera_board_pose(image, camera, board, name=str(image_path))
+        observations.append(TargetObservation(T_camera_board, read_cloud(cloud_path).points,
+                                              name=f"{image_path.name}:{cloud_path.name}"))
+    return observations
+
+
+def solve_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]], T_init: np.ndarray,
+                *, method: str = "target", plate_margin_m: float | None = None,
+                progress: ProgressCallback = no_progress) -> LidarCameraResult:
+    """``T_camera_lidar`` from image and cloud files of the same moments, starting from ``T_init``.
+
+    ``plate_margin_m``: how far the board's plate reaches beyond the pattern's outer corners (m);
+    default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    """
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "--method")
+    if method == "edges":
+        raise InputError("the targetless (edges) method is not available yet; use --method target with a board "
+                         "seen by both sensors", "--method")
+    margin = DEFAULT_PLATE_MARGIN_SQUARES * board.square_m if plate_margin_m is None else plate_margin_m
+    if not margin >= 0:
+        raise InputError(f"expected a plate margin of 0 m or more, got {margin}", "--plate-margin")
+    observations = observations_from_files(camera, board, pairs, progress)
+    settings = replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
+    return solve_target(board, observations, T_init, settings,
+                        lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
