@@ -12,6 +12,8 @@ import pytest
 from conftest import ARTIFACTS, Studio, button, choose, studio_page, text_input, wait_body
 from playwright.sync_api import Browser, Page, expect
 
+from backend.sim.demo_rig import demo_rig
+
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 VIEWPORT = {"width": 1600, "height": 2000}
@@ -69,3 +71,12 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         print(f"overlay: {first.group(0)} -> {second.group(0)}; {coloured} coloured px before the nudge")
         expect_line = "--frame-id cam_front --child-frame-id lidar_front"
         assert expect_line in page.inner_text("body")
+
+        button(page, "Accept as the mounting").click()
+        wait_body(page, re.compile(r"lidar_front is now mounted so that T_cam_front_lidar_front"), timeout_s=15)
+    result_id = studio.get("/api/sessions/demo")["accepted"]["lidar_front/T_cam_front_lidar_front"]
+    record = studio.get(f"/api/sessions/demo/results/{result_id}")
+    nudged = np.array(record["T_camera_lidar"])
+    truth = demo_rig().T_a_b("cam_front", "lidar_front")
+    angle_deg = np.degrees(np.arccos(np.clip((np.trace(truth[:3, :3].T @ nudged[:3, :3]) - 1) / 2, -1, 1)))
+    assert record["method"] == "manual" and angle_deg == pytest.approx(8.0, abs=0.1)

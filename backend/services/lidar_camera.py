@@ -1,10 +1,15 @@
-"""LiDAR-to-camera workflow shared by the CLI (and, next, the API and the studio's solve button).
+"""LiDAR-to-camera workflow shared by the CLI and the studio.
 
-image + cloud pairs of a board seen by both sensors -> the camera's board pose per image
-(detection and PnP with the known intrinsics) and the LiDAR's cloud -> the target-based
+Solving: image + cloud pairs of a board seen by both sensors -> the camera's board pose per
+image (detection and PnP with the known intrinsics) and the LiDAR's cloud -> the target-based
 solve of ``T_camera_lidar`` (:mod:`backend.solvers.lidar_camera_target`). Every input that
 cannot be used is refused naming the file: an image or cloud that cannot be read, an image
 whose size disagrees with the intrinsics, a board that is not found.
+
+By hand: a transform set with the studio's sliders is stored as a ``lidar_camera`` result of
+method ``manual`` (no uncertainty: nothing measured it) naming the image and cloud it was
+judged on, and accepted like any result: the LiDAR is re-mounted so that the rig's
+``T_camera_lidar`` is the result's, earlier results stay in the history, an older one reverts.
 """
 
 from __future__ import annotations
@@ -12,14 +17,17 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.rig import Rig
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import read_image
+from backend.services.lidar_lidar import check_lidar
 from backend.solvers.lidar_camera_target import (
     LidarCameraResult,
     LidarCameraTargetSettings,
@@ -27,12 +35,55 @@ from backend.solvers.lidar_camera_target import (
     camera_board_pose,
     solve_target,
 )
+from backend.solvers.lidar_lidar import check_transform
 from backend.solvers.result import ProgressCallback, no_progress
+from backend.store.session import Session
 
 METHODS = ("target", "edges")
 DEFAULT_PLATE_MARGIN_SQUARES = 1.0
 """The board's plate reaches this many squares beyond the pattern's outer corners unless told otherwise
 (a white border of one square, as printed boards usually have; the LiDAR sees the plate's edges)."""
+
+
+KIND = "lidar_camera"
+
+
+def slot(lidar: str, camera: str) -> str:
+    """The acceptance slot of a LiDAR's transform to a camera."""
+    return f"{lidar}/T_{camera}_{lidar}"
+
+
+def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.ndarray, *,
+                 inputs: list[str]) -> str:
+    """Keep a hand-set ``T_camera_lidar`` as a result of ``lidar`` (``inputs``: the captures it was judged on)."""
+    check_lidar(session, lidar)
+    if session.rig.get(camera).kind != "camera":
+        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+    T_camera_lidar, _ = check_transform(T_camera_lidar, "T_camera_lidar")
+    record = {"kind": KIND, "method": "manual", "camera": camera, "T_camera_lidar": T_camera_lidar.tolist(),
+              "covariance": None, "std": {"trans_m": [None] * 3, "rot_deg": [None] * 3}, "residuals": {},
+              "converged": True, "seconds": 0.0, "warnings": ["set by hand: no uncertainty"]}
+    return session.add_result(lidar, record, inputs=inputs)
+
+
+def apply_lidar_camera(rig: Rig, record: dict[str, Any]) -> None:
+    """Re-mount the result's LiDAR so that ``rig.T_a_b(camera, lidar)`` is the result's ``T_camera_lidar``."""
+    if record.get("kind") != KIND:
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    if not record.get("converged", False):
+        raise InputError(f"result {record['id']} did not converge and cannot be accepted: "
+                         + "; ".join(record.get("warnings", [])), "result")
+    covariance = record.get("covariance")
+    rig.set_relative(record["sensor"], record["camera"], np.array(record["T_camera_lidar"]),
+                     None if covariance is None else np.array(covariance, dtype=float))
+
+
+def accept(session: Session, lidar: str, result_id: str) -> None:
+    """Make a stored LiDAR-to-camera result the LiDAR's mounting (also how a user reverts)."""
+    record = session.result(result_id)
+    if record["sensor"] != lidar:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
+    session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera)
 
 
 def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:

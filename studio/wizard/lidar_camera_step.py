@@ -19,7 +19,9 @@ import cv2
 import numpy as np
 
 from backend.core.colour_maps import depth_colours, height_colours, intensity_colours
+from backend.core.errors import InputError
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
+from backend.services import lidar_camera as lidar_camera_service
 from backend.services import lidar_lidar as lidar_service
 from studio.context import StudioContext
 from studio.transform_sliders import TransformSliders
@@ -39,6 +41,8 @@ HELP = ("Pick a camera with intrinsics and a LiDAR with a captured cloud: the cl
 class LidarCameraStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
+        self._inputs: list[str] = []
+        """The captures on screen, as ``sensor:capture`` (what an accepted transform was judged on)."""
         self._image: np.ndarray | None = None
         self._cloud: tuple[np.ndarray, np.ndarray | None] | None = None
         self._wake = threading.Event()
@@ -53,6 +57,8 @@ class LidarCameraStep:
             self.data_text = gui.add_markdown("")
             self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=3.0)
             self.reset_button = gui.add_button("Reset to rig")
+            self.accept_button = gui.add_button("Accept as the mounting", color="green",
+                                                hint="keep this transform as a result and make it the LiDAR's mounting")
             self.colour_by = gui.add_dropdown("Colour by", options=list(COLOUR_MODES))
             self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
                                                initial_value=(0.5, 40.0))
@@ -66,6 +72,7 @@ class LidarCameraStep:
         for handle in (self.colour_by, self.window, self.occlusion, self.radius, self.paint_cloud):
             handle.on_update(lambda _: self._wake.set())
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
+        self.accept_button.on_click(lambda _: self._accept())
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_changed(self._on_session)
 
@@ -92,14 +99,17 @@ class LidarCameraStep:
         """Load the pair's latest image and cloud, put the rig's transform on the sliders, redraw."""
         session, pair = self.ctx.session, self.pair
         self._image = self._cloud = None
+        self._inputs = []
         if pair is not None:
             camera, lidar = pair
             images = [c for c in session.captures(camera) if not c.n_points]
             clouds = [c for c in session.captures(lidar) if c.n_points]
             if images:
                 self._image = session.capture_image(camera, images[-1].id)
+                self._inputs.append(f"{camera}:{images[-1].id}")
             if clouds:
                 self._cloud = session.capture_cloud(lidar, clouds[-1].id)
+                self._inputs.append(f"{lidar}:{clouds[-1].id}")
             intrinsics = session.rig.get(camera).intrinsics
             self.data_text.content = (
                 f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
@@ -107,6 +117,22 @@ class LidarCameraStep:
                 + ("" if intrinsics else " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"))
         self.editor.frames = pair
         self.editor.set(self._rig_T(), undoable=False)
+
+    def _accept(self) -> None:
+        session, pair = self.ctx.session, self.pair
+        if pair is None:
+            self.ctx.notify("Nothing to accept", "Pick a camera and a LiDAR first.", error=True)
+            return
+        camera, lidar = pair
+        try:
+            result_id = lidar_camera_service.store_manual(session, camera, lidar, self.editor.T, inputs=self._inputs)
+            lidar_camera_service.accept(session, lidar, result_id)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.scene.update_rig(session.rig)
+        self.ctx.notify("Accepted", f"{result_id}: {lidar} is now mounted so that T_{camera}_{lidar} is the sliders' "
+                        "transform (set by hand, no uncertainty).")
 
     # -- drawing (worker thread) ------------------------------------------------------------------
     def _redraw_loop(self) -> None:
