@@ -45,13 +45,19 @@ from backend.core.transforms import invert, transform_points
 from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
 from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
-from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress, widen_covariance
+from backend.solvers.result import (
+    ProgressCallback,
+    SolveResult,
+    finite_or_none,
+    no_progress,
+    transform_record_fields,
+    widen_covariance,
+)
 
 MIN_POSES = 3
 """Fewest board poses for a solve: one plane fixes only 3 of the 6 parameters."""
 RANSAC_SCORED_POINTS = 2000
 """Plane hypotheses are scored on at most this many of the region's points (a random subset)."""
-COVARIANCE_ORDER = ["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"]
 
 
 @dataclass
@@ -189,11 +195,7 @@ class LidarCameraResult(SolveResult):
         record = self.summary()
         record.update(
             kind=self.kind,
-            settings=asdict(self.settings),
-            converged=self.converged,
-            warnings=list(self.warnings),
-            covariance=[finite_or_none(row) for row in self.covariance],
-            covariance_order=COVARIANCE_ORDER,
+            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
             std_jacobian=finite_or_none(self.std_jacobian),
             std_spread=finite_or_none(self.std_spread),
             T_init=self.T_init.tolist(),

@@ -33,7 +33,7 @@ source), as the intrinsics solver does with views.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -42,7 +42,14 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.transforms import make_T, transform_points
-from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress, widen_covariance
+from backend.solvers.result import (
+    ProgressCallback,
+    SolveResult,
+    finite_or_none,
+    no_progress,
+    transform_record_fields,
+    widen_covariance,
+)
 
 MIN_POINTS = 50
 """Fewest finite points a cloud needs before registration makes sense."""
@@ -182,11 +189,7 @@ class LidarLidarResult(SolveResult):
         record = self.summary()
         record.update(
             kind=self.kind,
-            settings=asdict(self.settings),
-            converged=self.converged,
-            warnings=list(self.warnings),
-            covariance=[finite_or_none(row) for row in self.covariance],
-            covariance_order=["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"],
+            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
             std_hessian=finite_or_none(self.std_hessian),
             std_spread=finite_or_none(self.std_spread),
             spread_source=self.spread_source,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import Any, ClassVar
 
 import numpy as np
@@ -41,6 +42,17 @@ def finite_or_none(values: Any) -> list[float | None] | None:
     if values is None:
         return None
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel()]
+
+
+TRANSFORM_PARAMETERS = ["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"]
+"""Order of a transform result's covariance: translation (m, parent axes), rotation about the child's axes (rad)."""
+
+
+def transform_record_fields(covariance: np.ndarray, settings: Any, converged: bool, warnings: list[str]
+                            ) -> dict[str, Any]:
+    """What every transform solver's history record holds beside its own numbers (``settings``: a dataclass)."""
+    return {"settings": asdict(settings), "converged": converged, "warnings": list(warnings),
+            "covariance": [finite_or_none(row) for row in covariance], "covariance_order": TRANSFORM_PARAMETERS}
 
 
 def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> np.ndarray:
