@@ -11,7 +11,7 @@ accepted. Frames: the sensor's frame is the sweep's ``mount`` frame (:mod:`backe
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -192,8 +192,8 @@ def capture_sweep(session: Session, sensor: str, progress: ProgressCallback = no
     return store_cloud(session, sensor, sample, device=device.describe())
 
 
-def assembled_sweep(session: Session, sensor: str, capture_id: str | None = None, *, result_id: str | None = None
-                    ) -> tuple[CaptureRecord, list[ScanAtAngle], SweepGeometry]:
+def _assembled_sweep(session: Session, sensor: str, capture_id: str | None = None, *, result_id: str | None = None
+                     ) -> tuple[CaptureRecord, list[ScanAtAngle], SweepGeometry]:
     """A stored sweep (latest by default), its raw scans and the geometry to assemble them with: ``result_id``'s
     when given, else the one it was captured with."""
     capture = swept_capture(session, sensor, capture_id)
@@ -206,21 +206,39 @@ def assembled_sweep(session: Session, sensor: str, capture_id: str | None = None
     return capture, scans, SweepGeometry.from_dict(record["geometry"])
 
 
-def sweep_image(session: Session, sensor: str, capture_id: str, *, result_id: str | None = None,
-                mode: ImageMode = "intensity") -> np.ndarray:
-    """The LiDAR image (uint8, H x W) of a stored sweep: one row per servo step (first step on top), one
-    column per beam (scan angle rising to the right).
+@dataclass
+class SweepView:
+    """A stored sweep as the studio shows it, assembled with one geometry."""
 
-    ``mode`` ``"intensity"`` (mean return intensity, stretched) or ``"range"`` (near = bright, range from the
-    mount origin); 0 = no return. The sweep is re-assembled with ``result_id``'s geometry when given, else
-    with the geometry it was captured with.
+    capture: CaptureRecord
+    points_mount: np.ndarray
+    """(M, 3) the sweep's points in the mount frame (m)."""
+    image: np.ndarray
+    """uint8 H x W LiDAR image (see :func:`sweep_view`)."""
+
+
+def sweep_view(session: Session, sensor: str, capture_id: str | None = None, *, result_id: str | None = None,
+               mode: ImageMode = "intensity") -> SweepView:
+    """A stored sweep (latest by default) re-assembled with ``result_id``'s geometry when given, else with the
+    geometry it was captured with: its cloud and its LiDAR image.
+
+    The image has one row per servo step (first step on top) and one column per beam (scan angle rising to
+    the right); ``mode`` ``"intensity"`` (mean return intensity, stretched) or ``"range"`` (near = bright,
+    range from the mount origin); 0 = no return.
     """
     if mode not in ("intensity", "range"):
         raise InputError(f"image mode must be 'intensity' or 'range', not {mode!r}", "mode")
-    _, scans, geometry = assembled_sweep(session, sensor, capture_id, result_id=result_id)
+    capture, scans, geometry = _assembled_sweep(session, sensor, capture_id, result_id=result_id)
     points_scanner, servo, intensity = stack_scans(scans)
     steps = np.repeat(np.arange(len(scans)), [len(s[1]) for s in scans])
     scan_angles = np.arctan2(points_scanner[:, 1], points_scanner[:, 0])
-    image = intensity_image(geometry.transform(points_scanner, servo), intensity, servo, scan_angles,
-                            (len(scans), _beam_columns(scan_angles, steps)))
-    return image.intensity if mode == "intensity" else image.range
+    points_mount = geometry.transform(points_scanner, servo)
+    shape = (len(scans), _beam_columns(scan_angles, steps))
+    image = intensity_image(points_mount, intensity, servo, scan_angles, shape)
+    return SweepView(capture, points_mount, image.intensity if mode == "intensity" else image.range)
+
+
+def sweep_image(session: Session, sensor: str, capture_id: str, *, result_id: str | None = None,
+                mode: ImageMode = "intensity") -> np.ndarray:
+    """The LiDAR image of :func:`sweep_view` (for the API's PNG)."""
+    return sweep_view(session, sensor, capture_id, result_id=result_id, mode=mode).image

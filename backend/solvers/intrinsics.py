@@ -27,7 +27,7 @@ from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
 from backend.solvers.board_detection import Detection
 from backend.solvers.board_pose import board_pose
 from backend.solvers.coverage import view_parameters
-from backend.solvers.result import ProgressCallback, SolveResult, no_progress
+from backend.solvers.result import ProgressCallback, SolveResult, jackknife_std, no_progress
 
 MIN_VIEWS = 3
 MIN_VIEW_SPREAD = 0.1
@@ -265,16 +265,14 @@ def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics
 
     Views, not corners, are the independent units: lighting, blur and board
     flatness shift all corners of a view together, which the i.i.d. corner-noise
-    covariance cannot see. ``var = (n - 1) / n * sum((theta_i - mean)^2)``.
+    covariance cannot see (:func:`~backend.solvers.result.jackknife_std`).
     """
     estimates = []
     for i in range(len(views)):
         progress(0.6 + 0.3 * i / len(views), f"jackknife: re-solving without view {i + 1} of {len(views)}")
         K, dist, _, _ = _opencv_calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
         estimates.append(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()])
-    estimates = np.array(estimates)
-    n = len(estimates)
-    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+    return jackknife_std(np.array(estimates))
 
 
 def _projection_uncertainty(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from backend.solvers.result import (
     ProgressCallback,
     SolveResult,
     finite_or_none,
+    jackknife_std,
     no_progress,
     transform_record_fields,
     widen_covariance,
@@ -496,14 +497,13 @@ def _jacobian_covariance(result, n_params: int = 6) -> np.ndarray:
 
 def _jackknife(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
                settings: LidarCameraTargetSettings, progress: ProgressCallback) -> np.ndarray:
-    """Leave-one-pose-out jackknife std (6,): ``var = (n-1)/n * sum((p_i - mean)^2)`` of the re-solves."""
+    """Leave-one-pose-out jackknife std (6,) of the re-solves (:func:`~backend.solvers.result.jackknife_std`)."""
     n = int(stacked.plane_pose.max()) + 1
     estimates = []
     for k in range(n):
         progress(0.8 + 0.15 * k / n, f"spread: solving without pose {k + 1} of {n}")
         estimates.append(_solve(T, stacked.without_pose(k), centre, half, edge_weight, settings).x)
-    estimates = np.array(estimates)
-    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+    return jackknife_std(np.array(estimates))
 
 
 def _pose_names(observations: Sequence[TargetObservation]) -> list[str]:

@@ -46,6 +46,7 @@ from backend.solvers.result import (
     ProgressCallback,
     SolveResult,
     finite_or_none,
+    jackknife_std,
     no_progress,
     transform_record_fields,
     widen_covariance,
@@ -406,9 +407,7 @@ def _sector_jackknife(source_points: np.ndarray, target, target_tree, T: np.ndar
         estimates.append(params_between(T, np.asarray(result.T_target_source)))
     if len(estimates) < 3:
         return None
-    estimates = np.array(estimates)
-    n = len(estimates)
-    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+    return jackknife_std(np.array(estimates))
 
 
 def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings: LidarLidarSettings,
@@ -593,8 +592,7 @@ def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarra
         std_spread = None
         if settings.spread and len(good) >= 2:
             n = len(good)
-            loo = np.array([weighted_mean([j for j in range(n) if j != k])[0] for k in range(n)])
-            std_spread = np.sqrt((n - 1) / n * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+            std_spread = jackknife_std(np.array([weighted_mean([j for j in range(n) if j != k])[0] for k in range(n)]))
         converged = True
 
     progress(0.95, "evaluating the joint alignment")

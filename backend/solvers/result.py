@@ -44,6 +44,14 @@ def finite_or_none(values: Any) -> list[float | None] | None:
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel()]
 
 
+def jackknife_std(estimates: np.ndarray) -> np.ndarray:
+    """Leave-one-out jackknife standard deviation per parameter of ``n`` re-solves, each without one unit
+    (a view, a pose, a pair, a sector): ``var = (n - 1) / n * sum((theta_i - mean)^2)``; ``estimates`` is (n, p)."""
+    estimates = np.asarray(estimates, dtype=float)
+    n = len(estimates)
+    return np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+
+
 TRANSFORM_PARAMETERS = ["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"]
 """Order of a transform result's covariance: translation (m, parent axes), rotation about the child's axes (rad)."""
 

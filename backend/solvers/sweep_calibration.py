@@ -49,7 +49,14 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.sweep import ScanAtAngle, SweepGeometry, stack_scans
-from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress
+from backend.solvers.result import (
+    ProgressCallback,
+    SolveResult,
+    finite_or_none,
+    jackknife_std,
+    no_progress,
+    widen_covariance,
+)
 
 MIN_STEPS = 10
 """A sweep needs at least this many servo steps."""
@@ -526,15 +533,8 @@ def calibrate_sweep(scans: Sequence[ScanAtAngle], initial: SweepGeometry | None 
             jk = least_squares(residuals, x, args=(planes, keep), x_scale="jac", method="trf")
             estimates.append(jk.x)
         if len(estimates) >= 3:
-            est = np.array(estimates)
-            n = len(est)
-            std_spread = np.sqrt((n - 1) / n * np.sum((est - est.mean(axis=0)) ** 2, axis=0))
-    std = std_j if std_spread is None else np.fmax(std_j, std_spread)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_j / np.outer(std_j, std_j)
-    if not np.isfinite(corr).all():
-        corr = np.eye(len(x))
-    covariance = corr * np.outer(std, std)
+            std_spread = jackknife_std(np.array(estimates))
+    covariance = widen_covariance(cov_j, std_spread)
 
     r0 = residuals(np.zeros(len(x)), planes)
     progress(1.0, "done")

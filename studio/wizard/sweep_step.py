@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.core.sweep import SweepGeometry, stack_scans
+from backend.core.sweep import SweepGeometry
 from backend.core.transforms import to_xyz_ypr
 from backend.services import sweep as sweep_service
 from backend.solvers.sweep_calibration import SweepCalibrationSettings
@@ -142,15 +142,12 @@ class SweepStep:
             self.image.image = BLANK_IMAGE
             return
         try:
-            capture, scans, geometry = sweep_service.assembled_sweep(session, sensor, result_id=result_id)
-            image = sweep_service.sweep_image(session, sensor, capture.id, result_id=result_id,
-                                              mode=self.image_mode.value)
+            view = sweep_service.sweep_view(session, sensor, result_id=result_id, mode=self.image_mode.value)
         except InputError as exc:
             self.ctx.notify("Cannot show the sweep", exc.message, error=True)
             return
-        self.image.image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
-        points_scanner, servo_angles, _ = stack_scans(scans)
-        points = geometry.transform(points_scanner, servo_angles)
+        self.image.image = cv2.cvtColor(view.image, cv2.COLOR_GRAY2RGB)
+        points = view.points_mount
         colours = cc.colour_points("height", points, None, session.rig.T_root_frame(sensor), 0)
         self._cloud = self.ctx.server.scene.add_point_cloud(
             f"/rig/{sensor}/sweep", points.astype(np.float32), colours, point_size=POINT_SIZE_M, precision="float32")
