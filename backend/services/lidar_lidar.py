@@ -26,6 +26,11 @@ from backend.store.session import Session
 LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
 
 
+def lidar_names(rig: Rig) -> list[str]:
+    """The rig's LiDAR and depth sensors, in rig order."""
+    return [f.name for f in rig.frames.values() if f.kind in LIDAR_KINDS]
+
+
 def check_lidar(session: Session, sensor: str) -> None:
     """Refuse (naming the sensor) anything but a LiDAR or depth sensor of the rig."""
     kind = session.rig.get(sensor).kind

@@ -80,7 +80,7 @@ class LidarCameraStep:
     def _on_session(self, session) -> None:
         self._colourised = None  # the scene was redrawn
         cameras = [f.name for f in session.rig.sensors("camera")]
-        lidars = [f.name for f in session.rig.frames.values() if f.kind in lidar_service.LIDAR_KINDS]
+        lidars = lidar_service.lidar_names(session.rig)
         self.camera.options, self.lidar.options = cameras or [NONE], lidars or [NONE]
         self.camera.value, self.lidar.value = self.camera.options[0], self.lidar.options[0]
         self._select()

@@ -34,11 +34,11 @@ from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
-NO_RESULT = "(none)"
 MAX_DISPLAY_POINTS = 100_000
 """Per sensor, by default. 100k float16 points are 0.6 MB a frame (+0.3 MB when coloured per point)."""
 LIVE_PRECISION = "float16"
@@ -81,7 +81,6 @@ class LidarStep:
         self.live: dict[str, LiveClouds] = {}
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
         self.result_id: str | None = None
-        self._showing_history = False
         self._drawn: dict[str, int] = {}
         """Points drawn in each sensor's latest live frame."""
         self._errors: dict[str, str] = {}
@@ -124,8 +123,8 @@ class LidarStep:
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
-                self.history = gui.add_dropdown("Result", options=[NO_RESULT],
-                                                hint="every solve of this pair; pick one to inspect or accept")
+                self.history = ResultHistory(gui, self._show_result,
+                                             hint="every solve of this pair; pick one to inspect or accept")
                 self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
@@ -140,7 +139,6 @@ class LidarStep:
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
-        self.history.on_update(lambda _: self._pick_result())
         self.accept_button.on_click(lambda _: self._accept())
         ctx.on_session_changed(self._on_session)
 
@@ -149,7 +147,7 @@ class LidarStep:
         session = self.ctx.session
         if session is None:
             return []
-        return [f.name for f in session.rig.frames.values() if f.kind in lidar_service.LIDAR_KINDS]
+        return lidar_service.lidar_names(session.rig)
 
     def _on_session(self, session) -> None:
         self.stop_live()
@@ -351,17 +349,7 @@ class LidarStep:
 
     def _show_history(self, result_id: str | None, move_sliders: bool = False) -> None:
         """Fill the result dropdown and show ``result_id`` (or the newest)."""
-        ids = self._pair_results()
-        self._showing_history = True  # setting the dropdown fires _pick_result
-        self.history.options = ids or [NO_RESULT]
-        self.history.value = result_id if result_id in ids else self.history.options[0]
-        self._showing_history = False
-        self._show_result(None if self.history.value == NO_RESULT else self.history.value, move_sliders)
-
-    def _pick_result(self) -> None:
-        """The user picked a result from the history: show it and put its transform on the sliders."""
-        if not self._showing_history and self.history.value != NO_RESULT:
-            self._show_result(self.history.value)
+        self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders)
 
     def _load_pair_clouds(self) -> None:
         """Draw the latest captured cloud of the target, and of the source posed by the sliders."""

@@ -22,9 +22,9 @@ from backend.solvers.sweep_calibration import SweepCalibrationSettings
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.result_history import ResultHistory
 
 NONE = "(no swept scanner)"
-NO_RESULT = "(none)"
 POINT_SIZE_M = 0.02
 HELP = ("Keep the rig still where the scanner sees the **floor** and two or three **walls** or other large flat "
         "surfaces at different angles. **Capture sweep** turns the servo once through its range (a few seconds), "
@@ -36,7 +36,6 @@ class SweepStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
         self._cloud = None
-        self._showing_history = False
         gui = ctx.server.gui
         with gui.add_folder("5 · Swept scanner", expand_by_default=False):
             gui.add_markdown(HELP)
@@ -46,8 +45,8 @@ class SweepStep:
             self.estimate_tilt = gui.add_checkbox("Estimate the scanner's tilt", initial_value=True)
             self.calibrate_button = gui.add_button("Calibrate", color="blue")
             self.jobs = JobPanel(ctx, [self.capture_button, self.calibrate_button])
-            self.history = gui.add_dropdown("Result", options=[NO_RESULT],
-                                            hint="every calibration of this scanner; the sweep is redrawn with it")
+            self.history = ResultHistory(gui, lambda _: self._show(),
+                                         hint="every calibration of this scanner; the sweep is redrawn with it")
             self.result_text = gui.add_markdown("No sweep calibration yet.")
             self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
             self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
@@ -55,7 +54,6 @@ class SweepStep:
         self.sensor.on_update(lambda _: self._select())
         self.capture_button.on_click(lambda _: self._capture())
         self.calibrate_button.on_click(lambda _: self._calibrate())
-        self.history.on_update(lambda _: None if self._showing_history else self._show())
         self.image_mode.on_update(lambda _: self._show())
         self.accept_button.on_click(lambda _: self._accept())
         ctx.on_session_changed(self._on_session)
@@ -67,7 +65,7 @@ class SweepStep:
 
     @property
     def result_id(self) -> str | None:
-        return None if self.history.value == NO_RESULT else self.history.value
+        return self.history.selected
 
     def _on_session(self, session) -> None:
         self._cloud = None  # the scene was redrawn
@@ -92,11 +90,7 @@ class SweepStep:
         """Fill the result dropdown (newest first) and show ``result_id`` (or the newest)."""
         sensor = self.current
         results = [] if sensor is None else self.ctx.session.results(sensor, sweep_service.KIND)
-        ids = [r["id"] for r in reversed(results)]
-        self._showing_history = True  # setting the dropdown fires its callback
-        self.history.options = ids or [NO_RESULT]
-        self.history.value = result_id if result_id in ids else self.history.options[0]
-        self._showing_history = False
+        self.history.fill([r["id"] for r in reversed(results)], result_id)
         self._show()
 
     # -- jobs --------------------------------------------------------------------------------------
