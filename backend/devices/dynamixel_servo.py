@@ -148,8 +148,18 @@ class DynamixelServo:
                 last = self._packet.getTxRxResult(result)
             if attempt < self.retries:
                 self.retried += 1
+                self._resync()
         raise DeviceDisconnected(f"{what}: no valid answer from servo {self.dxl_id} after {self.retries + 1} "
                                  f"attempts ({last}); check power, ID, baud rate and cable", self.describe())
+
+    def _resync(self) -> None:
+        """Drop what is left in the receive buffer before a retry: a status packet that came late, or the rest
+        of a spoiled one, would otherwise be read as the answer to the next instruction, and every retry after
+        it would read a stale packet."""
+        try:
+            self._port_handler.clearPort()
+        except Exception:  # noqa: BLE001 - an unplugged adapter: the retry itself will say so
+            pass
 
     def set_torque(self, on: bool) -> None:
         """Torque enable (address 64)."""
