@@ -2,8 +2,9 @@
 
 x, y, z (m) and ROS yaw, pitch, roll (degrees), like ``static_transform_publisher``, whose
 line follows them. Values can be dragged or typed; the nudge buttons step one axis by a
-coarse or fine amount in the parent's or the child's axes; undo and redo walk back through
-the transforms the editor held. ``on_change(T)`` runs after every change, whatever made it
+coarse or fine amount in the parent's or the child's axes (also from the keyboard, once
+:meth:`TransformSliders.bind_keys` gave it the keys); undo and redo walk back through the
+transforms the editor held. ``on_change(T)`` runs after every change, whatever made it
 (a slider, a nudge, undo, or :meth:`set` from a solve).
 """
 
@@ -25,6 +26,10 @@ ROTATION_AXIS = {"roll": 0, "pitch": 1, "yaw": 2}
 UNDO_MERGE_S = 0.6
 """Changes closer together than this (a slider being dragged) make one undo step."""
 UNDO_DEPTH = 200
+NUDGE_KEYS = {"x": ("S", "W"), "y": ("D", "A"), "z": ("F", "R"), "yaw": ("L", "J"), "pitch": ("K", "I"),
+              "roll": ("O", "U")}
+"""(minus, plus) keys of each axis: W/S forward and back along x, A/D along y, R/F up and down along z; I/K, J/L
+and U/O turn about pitch, yaw and roll, like a game's movement keys and the vi-like cluster beside them."""
 
 
 def nudged(T: np.ndarray, axis: str, amount: float, in_child_axes: bool) -> np.ndarray:
@@ -99,11 +104,24 @@ class TransformSliders:
         finally:
             self._quiet = False
 
-    def nudge(self, axis: str, direction: int) -> None:
-        """One step (of the chosen size, in the chosen axes) along or about ``axis``; ``direction`` is +1 or -1."""
-        metres, degrees = STEPS[self.step.value]
+    def nudge(self, axis: str, direction: int, step: str | None = None) -> None:
+        """One step (of the chosen size, or ``step``, a :data:`STEPS` key; in the chosen axes) along or about
+        ``axis``; ``direction`` is +1 or -1."""
+        metres, degrees = STEPS[step or self.step.value]
         amount = (degrees if axis in ROTATION_AXIS else metres) * direction
         self.set(nudged(self.T, axis, amount, self.axes.value == "child"))
+
+    def bind_keys(self, gui: viser.GuiApi, name: str) -> None:
+        """Nudge from the keyboard (:data:`NUDGE_KEYS`, Shift for the fine step) and undo/redo with Z/Y, as
+        commands of the page's command palette named after the editor (``name``)."""
+        for axis, keys in NUDGE_KEYS.items():
+            for direction, key in zip((-1, 1), keys, strict=True):
+                for modifier, step in ((None, 0), ("shift", 1)):
+                    command = gui.add_command(f"{name}: {axis} {'−+'[direction > 0]} ({list(STEPS)[step]})",
+                                              hotkey=key, modifier=modifier)
+                    command.on_trigger(lambda _, a=axis, d=direction, s=step: self.nudge(a, d, list(STEPS)[s]))
+        gui.add_command(f"{name}: undo", hotkey="Z").on_trigger(lambda _: self.undo())
+        gui.add_command(f"{name}: redo", hotkey="Y").on_trigger(lambda _: self.redo())
 
     def undo(self) -> None:
         self._walk(self._undo, self._redo)

@@ -99,3 +99,30 @@ class SweepCalibrateRequest(BaseModel):
     up_mount: tuple[float, float, float] | None = Field(
         None, description="the floor's up direction in the sensor (mount) frame; default the rig root's +z")
     estimate_tilt: bool = Field(True, description="also estimate the scanner's tilt on the servo horn")
+
+
+class LidarCameraPairCapture(BaseModel):
+    camera: str = Field(examples=["cam_front"])
+    lidar: str = Field(examples=["lidar_top"])
+    require_board: bool = Field(True, description="refuse a pair whose image shows no board (off for the "
+                                                  "targetless method), and wait for the board to hold still")
+
+
+class LidarCameraSolveRequest(BaseModel):
+    camera: str = Field(examples=["cam_front"])
+    lidar: str = Field(examples=["lidar_top"])
+    method: Literal["target", "edges"] = "target"
+    image_ids: list[str] | None = Field(None, description="solve from the pairs of these image captures; default all")
+    init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_camera_lidar translation (m); "
+                                                                            "default the rig's current transform")
+    init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
+    plate_margin_m: float | None = Field(None, ge=0, description="the board plate's margin beyond the pattern (m); "
+                                                                  "default one square")
+
+
+class LidarCameraManual(BaseModel):
+    camera: str = Field(examples=["cam_front"])
+    lidar: str = Field(examples=["lidar_top"])
+    xyz_m: tuple[float, float, float] = Field(description="T_camera_lidar translation (m)")
+    ypr_deg: tuple[float, float, float] = Field(description="T_camera_lidar as ROS yaw, pitch, roll (deg)")
+    inputs: list[str] = Field(default_factory=list, description="the captures it was judged on, as sensor:capture")

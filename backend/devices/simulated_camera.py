@@ -1,9 +1,11 @@
-"""A camera of the simulated demo rig filming a calibration board waved in front of it.
+"""A camera of the simulated demo rig filming a calibration board.
 
 Frames are rendered from ground truth (:mod:`backend.sim`): the camera's true
-intrinsics from :func:`backend.sim.demo_rig.demo_rig` and board poses from
-:func:`backend.sim.board_motion.board_poses`, so every sample carries the true
-``T_camera_board`` in its metadata.
+intrinsics and mounting from :func:`backend.sim.demo_rig.demo_rig`, and the board
+either waved in front of the camera for an intrinsic calibration
+(:func:`backend.sim.board_motion.board_poses`) or carried about the simulated yard,
+where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_board_poses`).
+Every sample carries the true ``T_camera_board`` in its metadata.
 """
 
 from __future__ import annotations
@@ -16,21 +18,26 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
-from backend.devices.simulated_timing import SimulatedTiming
+from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.lidar_scene import moving_board_poses
+
+BOARD_MOTIONS = ("wave", "scene")
 
 
 @register_driver
 class SimulatedCamera(CaptureDevice):
     """Renders uint8 grayscale (H, W) images of a board seen by a demo-rig camera.
 
-    Sample ``i`` shows pose ``i % n_poses`` of a deterministic sequence and its noise
-    and lighting come from ``(seed, i)``, so a sample is the same whatever was read
-    before it. ``meta`` holds ``frame_index``, the ground-truth ``T_camera_board``
-    (4x4 nested list, metres, board frame of :class:`BoardSpec` into the camera's
-    optical frame) and ``simulated: True``.
+    Sample ``i`` shows pose ``i % n_poses`` of a deterministic sequence (with
+    ``board_hold_s``, the pose held at the moment of the read) and its noise and
+    lighting come from ``(seed, i)``, so a sample is the same whatever was read before
+    it. ``meta`` holds ``frame_index``, ``board_pose_index``, the ground-truth
+    ``T_camera_board`` (4x4 nested list, metres, board frame of :class:`BoardSpec` into
+    the camera's optical frame) and ``simulated: True``; in the ``scene`` motion also
+    ``T_base_board``.
     """
 
     driver = "simulated"
@@ -43,6 +50,8 @@ class SimulatedCamera(CaptureDevice):
         n_poses: int = 60,
         fps: float = 0,
         disconnect_after: int | None = None,
+        board_motion: str = "wave",
+        board_hold_s: float = 0,
     ):
         """Settings as stored in the rig.
 
@@ -54,15 +63,25 @@ class SimulatedCamera(CaptureDevice):
             fps: frame rate to emulate (Hz); 0 renders as fast as possible.
             disconnect_after: if set, reads after this many samples raise
                 :class:`DeviceDisconnected`, to exercise capture robustness.
+            board_motion: ``"wave"``: the board is waved close in front of the camera, all
+                over the image, as for an intrinsic calibration; ``"scene"``: the board is
+                carried about the simulated yard 2-3 m ahead of the robot, through the poses
+                a ``simulated_lidar`` with ``board_poses=n_poses`` and the same ``seed`` sees
+                (pose 0 is the yard's static board), for LiDAR-to-camera calibration.
+            board_hold_s: if above 0, each pose is held for this many seconds of wall-clock
+                time, the clock all simulated devices share; else the pose advances every frame.
         """
         self.camera = camera
         self.seed = seed
         self.board = board
         self.n_poses = n_poses
+        self.board_motion = board_motion
+        self.board_hold_s = board_hold_s
         self._timing = SimulatedTiming(fps, disconnect_after, "frames")
         self._intrinsics: CameraIntrinsics | None = None
         self._board_spec: BoardSpec | None = None
         self._poses: list[np.ndarray] = []
+        self._T_base_boards: list[np.ndarray] | None = None
 
     def open(self) -> None:
         """Look the camera up in the demo rig and plan the board motion."""
@@ -76,8 +95,17 @@ class SimulatedCamera(CaptureDevice):
             raise DeviceError(exc.message, self.describe()) from None
         if self.n_poses < 1:
             raise DeviceError(f"n_poses must be at least 1, not {self.n_poses}", self.describe())
+        if self.board_motion not in BOARD_MOTIONS:
+            raise DeviceError(f"board_motion must be one of {', '.join(BOARD_MOTIONS)}, not {self.board_motion!r}",
+                              self.describe())
         self._intrinsics, self._board_spec = frame.intrinsics, board
-        self._poses = board_poses(frame.intrinsics, board, self.n_poses, self.seed)
+        if self.board_motion == "wave":
+            self._poses = board_poses(frame.intrinsics, board, self.n_poses, self.seed)
+            self._T_base_boards = None
+        else:
+            T_camera_base = np.linalg.inv(demo_rig().T_root_frame(self.camera))
+            self._T_base_boards = moving_board_poses(self.n_poses, self.seed, board=self.board)
+            self._poses = [T_camera_base @ T_base_board for T_base_board in self._T_base_boards]
         self._timing.restart()
 
     def read(self) -> Sample:
@@ -85,10 +113,14 @@ class SimulatedCamera(CaptureDevice):
         if self._intrinsics is None or self._board_spec is None:
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
-        T_camera_board = self._poses[index % len(self._poses)]
+        pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
+        T_camera_board = self._poses[pose_index]
         rng = np.random.default_rng([self.seed, index])
         image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
-        meta = {"frame_index": index, "T_camera_board": T_camera_board.tolist(), "simulated": True}
+        meta = {"frame_index": index, "board_pose_index": pose_index, "T_camera_board": T_camera_board.tolist(),
+                "simulated": True}
+        if self._T_base_boards is not None:
+            meta["T_base_board"] = self._T_base_boards[pose_index].tolist()
         return Sample(time.time(), image=image, meta=meta)
 
     def close(self) -> None:
@@ -96,6 +128,7 @@ class SimulatedCamera(CaptureDevice):
         self._intrinsics = None
         self._board_spec = None
         self._poses = []
+        self._T_base_boards = None
 
     def describe(self) -> str:
         if self._intrinsics is None:

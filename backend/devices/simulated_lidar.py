@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
-from backend.devices.simulated_timing import SimulatedTiming
+from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses
 
@@ -23,11 +23,11 @@ from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, m
 class SimulatedLidar(CaptureDevice):
     """Simulated scans of a demo-rig LiDAR; ``points`` in the sensor frame (m), ``intensity`` float32 (0..255).
 
-    Sample ``i`` sees board pose ``i % board_poses`` (or the static board) and its
-    noise and spin phase come from ``(seed, i)``, so a sample is the same whatever was
-    read before it. ``meta`` holds ``frame_index``, ``sensor``, ``kind``,
-    ``simulated: True``, the ground-truth ``T_base_sensor`` and ``T_base_board``
-    (4x4 nested lists, metres, into ``base_link``).
+    Sample ``i`` sees board pose ``i % board_poses`` (or the static board; with ``board_hold_s``
+    the pose held at the moment of the read) and its noise and spin phase come from
+    ``(seed, i)``, so a sample is the same whatever was read before it. ``meta`` holds
+    ``frame_index``, ``board_pose_index``, ``sensor``, ``kind``, ``simulated: True``, the
+    ground-truth ``T_base_sensor`` and ``T_base_board`` (4x4 nested lists, metres, into ``base_link``).
     """
 
     driver = "simulated_lidar"
@@ -38,6 +38,7 @@ class SimulatedLidar(CaptureDevice):
         seed: int = 0,
         rate_hz: float = 0,
         board_poses: int = 0,
+        board_hold_s: float = 0,
         disconnect_after: int | None = None,
     ):
         """Settings as stored in the rig.
@@ -48,12 +49,17 @@ class SimulatedLidar(CaptureDevice):
             rate_hz: scan rate to emulate (Hz); 0 scans as fast as possible.
             board_poses: if above 0, the board moves through a cycle of this many poses
                 (:func:`~backend.sim.lidar_scene.moving_board_poses`); else it stands still.
+            board_hold_s: if above 0, each pose is held for this many seconds of wall-clock time,
+                the clock every simulated device shares (a simulated camera with
+                ``board_motion="scene"`` and the same ``seed`` then sees the same board);
+                else the pose advances with every scan.
             disconnect_after: if set, reads after this many samples raise
                 :class:`DeviceDisconnected`, to exercise capture robustness.
         """
         self.sensor = sensor
         self.seed = seed
         self.board_poses = board_poses
+        self.board_hold_s = board_hold_s
         self._timing = SimulatedTiming(rate_hz, disconnect_after, "scans")
         self._kind: str | None = None
         self._T_base_sensor: np.ndarray | None = None
@@ -79,11 +85,12 @@ class SimulatedLidar(CaptureDevice):
         self._scenes = {}
         self._timing.restart()
 
-    def scan(self, index: int) -> LidarScan:
-        """The full simulated scan of sample ``index`` (rings, labels and noise-free points included)."""
+    def scan(self, index: int, pose_index: int | None = None) -> LidarScan:
+        """The full simulated scan of sample ``index`` (rings, labels and noise-free points included), seeing
+        board pose ``pose_index`` (default ``index`` modulo the poses)."""
         if self._T_base_sensor is None:
             raise DeviceError("scan() before open()", self.describe())
-        pose_index = index % len(self._poses)
+        pose_index = index % len(self._poses) if pose_index is None else pose_index
         scene = self._scenes.get(pose_index)
         if scene is None:
             scene = self._scenes[pose_index] = LidarScene(self._poses[pose_index])
@@ -97,14 +104,16 @@ class SimulatedLidar(CaptureDevice):
         if self._T_base_sensor is None:
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
-        scan = self.scan(index)
+        pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
+        scan = self.scan(index, pose_index)
         meta = {
             "frame_index": index,
+            "board_pose_index": pose_index,
             "sensor": self.sensor,
             "kind": self._kind,
             "simulated": True,
             "T_base_sensor": self._T_base_sensor.tolist(),
-            "T_base_board": self._poses[index % len(self._poses)].tolist(),
+            "T_base_board": self._poses[pose_index].tolist(),
         }
         return Sample(time.time(), points=scan.points, intensity=scan.intensity, meta=meta)
 

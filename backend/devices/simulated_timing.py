@@ -7,6 +7,18 @@ import time
 from backend.devices.base import DeviceDisconnected
 
 
+def held_pose_index(frame_index: int, n_poses: int, hold_s: float) -> int:
+    """Which of ``n_poses`` board poses a simulated device sees: pose ``frame_index % n_poses``, or with
+    ``hold_s > 0`` the pose a person holds still for ``hold_s`` seconds at a time on the wall clock.
+
+    The wall clock is shared by every simulated device, so a camera and a LiDAR read within the same
+    hold see the same pose (as real sensors do when the board is held still between captures).
+    """
+    if hold_s > 0:
+        return int(time.time() // hold_s) % n_poses
+    return frame_index % n_poses
+
+
 class SimulatedTiming:
     """Hands out frame indices at up to ``rate_hz`` (0: as fast as asked) and unplugs after ``disconnect_after``."""
 

@@ -4,6 +4,11 @@ The session's rig is the simulator's ground-truth mounting with the camera
 intrinsics removed (the simulator keeps the truth), and ``cam_front`` already
 carries captures and an accepted intrinsics solve so every screen has something
 to show. ``cam_wide`` is left for the user to calibrate live.
+
+For LiDAR-to-camera calibration, ``cam_front`` and ``lidar_top`` then watch the board
+carried about the yard (:data:`PAIR_BOARD_POSES` poses, each held still for
+:data:`PAIR_HOLD_S` seconds, the same for both), and the session holds
+:data:`DEMO_PAIRS` image + cloud pairs of them to solve from.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from backend.devices.base import create_device
 from backend.services import intrinsics as intrinsics_service
+from backend.services.lidar_camera_pairs import store_pair
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.solvers.board_detection import detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings
@@ -22,6 +28,10 @@ from backend.store.session import Session, SessionStore
 DEMO_NAME = "demo"
 DEMO_CAMERA = "cam_front"
 DEMO_VIEWS = 15
+DEMO_LIDAR = "lidar_top"
+DEMO_PAIRS = 10
+PAIR_BOARD_POSES = 12
+PAIR_HOLD_S = 3.0
 
 
 def _retire(store: SessionStore, name: str) -> None:
@@ -59,4 +69,22 @@ def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int 
                                              timestamp_s=sample.timestamp_s, meta={"frame_index": i})
     result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(), progress=progress)
     intrinsics_service.accept(session, DEMO_CAMERA, result_id)
+    _add_board_pairs(session, progress)
     return session
+
+
+def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:
+    """Point ``cam_front`` and ``lidar_top`` at the board carried about the yard, and store :data:`DEMO_PAIRS`
+    pairs of theirs: frame ``i`` of each sees board pose ``i`` (read in step, so no waiting for the board)."""
+    camera_settings = {**session.rig.get(DEMO_CAMERA).device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES}
+    lidar_settings = {**session.rig.get(DEMO_LIDAR).device, "board_poses": PAIR_BOARD_POSES}
+    board = intrinsics_service.session_board(session)
+    with create_device(camera_settings) as camera, create_device(lidar_settings) as lidar:
+        device = f"{camera.describe()} + {lidar.describe()}"
+        for i in range(DEMO_PAIRS):
+            progress(i / DEMO_PAIRS, f"storing simulated pairs of {DEMO_CAMERA} and {DEMO_LIDAR}")
+            image = camera.read()
+            store_pair(session, DEMO_CAMERA, DEMO_LIDAR, image, lidar.read(), device=device,
+                       detection=detect_board(image.image, board))
+    session.set_device(DEMO_CAMERA, camera_settings | {"board_hold_s": PAIR_HOLD_S})
+    session.set_device(DEMO_LIDAR, lidar_settings | {"board_hold_s": PAIR_HOLD_S})

@@ -15,7 +15,7 @@ judged on, and accepted like any result: the LiDAR is re-mounted so that the rig
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,9 +24,12 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.overlay import mosaic, render_overlay
 from backend.core.rig import Rig
 from backend.devices.cloud_files import read_cloud
-from backend.devices.image_io import read_image
+from backend.devices.image_io import encode_jpeg, read_image
+from backend.services import intrinsics as intrinsics_service
+from backend.services.lidar_camera_pairs import CapturePair, check_camera, check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
 from backend.solvers.lidar_camera_target import (
     LidarCameraResult,
@@ -57,8 +60,7 @@ def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.n
                  inputs: list[str]) -> str:
     """Keep a hand-set ``T_camera_lidar`` as a result of ``lidar`` (``inputs``: the captures it was judged on)."""
     check_lidar(session, lidar)
-    if session.rig.get(camera).kind != "camera":
-        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+    check_camera(session, camera)
     T_camera_lidar, _ = check_transform(T_camera_lidar, "T_camera_lidar")
     record = {"kind": KIND, "method": "manual", "camera": camera, "T_camera_lidar": T_camera_lidar.tolist(),
               "covariance": None, "std": {"trans_m": [None] * 3, "rot_deg": [None] * 3}, "residuals": {},
@@ -86,12 +88,13 @@ def accept(session: Session, lidar: str, result_id: str) -> None:
     session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera)
 
 
-def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:
-    """Refuse an image whose size is not the one the intrinsics were calibrated at."""
-    height, width = image.shape[:2]
-    if (width, height) != (camera.width, camera.height):
-        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
-                         f"{camera.width}x{camera.height}", name)
+def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> LidarCameraTargetSettings:
+    """The target solve's settings for ``board``, whose plate reaches ``plate_margin_m`` (m; default
+    :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares) beyond the pattern's outer corners."""
+    margin = DEFAULT_PLATE_MARGIN_SQUARES * board.square_m if plate_margin_m is None else plate_margin_m
+    if not margin >= 0:
+        raise InputError(f"expected a plate margin of 0 m or more, got {margin}", "--plate-margin")
+    return replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
 
 
 def observations_from_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]],
@@ -121,10 +124,97 @@ def solve_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tupl
     if method == "edges":
         raise InputError("the targetless (edges) method is not available yet; use --method target with a board "
                          "seen by both sensors", "--method")
-    margin = DEFAULT_PLATE_MARGIN_SQUARES * board.square_m if plate_margin_m is None else plate_margin_m
-    if not margin >= 0:
-        raise InputError(f"expected a plate margin of 0 m or more, got {margin}", "--plate-margin")
+    settings = target_settings(board, plate_margin_m)
     observations = observations_from_files(camera, board, pairs, progress)
-    settings = replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
     return solve_target(board, observations, T_init, settings,
                         lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+
+
+OVERLAY_PAIRS = 4
+"""Before/after overlays are stored with a result for at most this many of its pairs."""
+OVERLAY_WIDTH_PX = 1280
+"""Width of a stored before/after overlay mosaic (px)."""
+
+
+@dataclass
+class LoadedPair:
+    """A stored pair read back: the image (uint8) and the cloud in the LiDAR frame (m)."""
+
+    pair: CapturePair
+    image: np.ndarray
+    points: np.ndarray
+    intensity: np.ndarray | None
+
+
+def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[LoadedPair]:
+    """The stored pairs (all, or those whose image is in ``image_ids``) with their data."""
+    found = stored_pairs(session, camera, lidar, image_ids)
+    if not found:
+        raise InputError(f"no image+cloud pairs of {camera} and {lidar} yet: capture or upload pairs of the same "
+                         "moments first", "pairs")
+    return [LoadedPair(p, session.capture_image(camera, p.image.id), *session.capture_cloud(lidar, p.cloud.id))
+            for p in found]
+
+
+def overlay_files(loaded: Sequence[LoadedPair], camera: CameraIntrinsics, T_before: np.ndarray,
+                  T_after: np.ndarray) -> dict[str, bytes]:
+    """``overlay_before.jpg`` and ``overlay_after.jpg``: mosaics of the first :data:`OVERLAY_PAIRS` pairs drawn with
+    the initial and the solved ``T_camera_lidar``."""
+    files = {}
+    for name, T in (("overlay_before.jpg", T_before), ("overlay_after.jpg", T_after)):
+        drawn = [render_overlay(p.image, p.points, p.intensity, T, camera)[0] for p in loaded[:OVERLAY_PAIRS]]
+        files[name] = encode_jpeg(mosaic(drawn, OVERLAY_WIDTH_PX))
+    return files
+
+
+def camera_intrinsics(session: Session, camera: str) -> CameraIntrinsics:
+    """The camera's accepted intrinsics; :class:`InputError` when it is not a camera or has none yet."""
+    check_camera(session, camera)
+    intrinsics = session.rig.get(camera).intrinsics
+    if intrinsics is None:
+        raise InputError(f"{camera} has no intrinsics yet: calibrate and accept them first", camera)
+    return intrinsics
+
+
+def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray:
+    """The ``T_camera_lidar`` (4x4, m) of a stored LiDAR-to-camera result of ``lidar``."""
+    record = session.result(result_id)
+    if record["sensor"] != lidar or record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is not a {KIND} result of {lidar}", "result")
+    return np.array(record["T_camera_lidar"], dtype=float)
+
+
+def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
+                  T_init: np.ndarray | None = None, image_ids: list[str] | None = None,
+                  plate_margin_m: float | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, LidarCameraResult]:
+    """Solve ``T_camera_lidar`` from the session's stored pairs and keep the result (not yet accepted).
+
+    ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record
+    names the camera and the method, and before/after overlays are stored with it.
+    """
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "method")
+    check_lidar(session, lidar)
+    intrinsics = camera_intrinsics(session, camera)
+    T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
+    loaded = load_pairs(session, camera, lidar, image_ids)
+    for p in loaded:
+        check_image_size(p.image, intrinsics, p.pair.name)
+    if method == "target":
+        board = intrinsics_service.session_board(session)
+        settings = target_settings(board, plate_margin_m)
+        observations = []
+        for i, p in enumerate(loaded):
+            progress(0.2 * i / len(loaded), f"finding the board in {p.pair.name}")
+            T_camera_board = camera_board_pose(p.image, intrinsics, board, name=p.pair.name)
+            observations.append(TargetObservation(T_camera_board, p.points, name=p.pair.name))
+        result = solve_target(board, observations, T_init, settings,
+                              lambda fraction, message: progress(0.2 + 0.7 * fraction, message))
+    else:
+        raise InputError("the targetless (edges) method is not available yet", "method")
+    progress(0.95, "drawing the before/after overlays")
+    files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_camera_lidar)
+    record = result.to_record() | {"camera": camera, "method": method}
+    result_id = session.add_result(lidar, record, inputs=[p.pair.name for p in loaded], files=files)
+    return result_id, result

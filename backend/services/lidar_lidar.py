@@ -58,19 +58,24 @@ def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
     """Add uploaded cloud files as captures; any unreadable file rejects the whole batch, naming it."""
     check_lidar(session, sensor)
     clouds = []
+    for i, (name, data) in enumerate(files):
+        progress(i / max(len(files), 1), f"reading {name}")
+        clouds.append(read_uploaded_cloud(name, data))
+    return [store_cloud(session, sensor, sample, device="upload", source=sample.meta["source"]) for sample in clouds]
+
+
+def read_uploaded_cloud(name: str, data: bytes) -> Sample:
+    """An uploaded cloud file's points as a sample (``meta``: the base ``source`` name kept and the points
+    dropped as non-finite); raises :class:`InputError` naming the file when it cannot be read."""
+    safe_name = Path(name).name
+    if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
+        raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})", safe_name)
     with tempfile.TemporaryDirectory() as folder:
-        for i, (name, data) in enumerate(files):
-            progress(i / max(len(files), 1), f"reading {name}")
-            safe_name = Path(name).name
-            if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
-                raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})",
-                                 safe_name)
-            path = Path(folder) / safe_name
-            path.write_bytes(data)
-            clouds.append((safe_name, read_cloud(path)))
-    return [store_cloud(session, sensor, Sample(0.0, points=c.points, intensity=c.intensity,
-                                                meta={"dropped_non_finite": c.dropped_non_finite}),
-                        device="upload", source=name) for name, c in clouds]
+        path = Path(folder) / safe_name
+        path.write_bytes(data)
+        cloud = read_cloud(path)
+    return Sample(0.0, points=cloud.points, intensity=cloud.intensity,
+                  meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
 
 
 def capture_pairs(session: Session, source: str, target: str,

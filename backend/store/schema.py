@@ -13,6 +13,8 @@ from pydantic import BaseModel, Field, field_validator
 
 SCHEMA_VERSION = 1
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$"
+FILE_NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\.[a-z0-9]{1,5}"
+"""A file kept in a session folder: a plain name and one extension, never a path."""
 
 
 class CameraModel(BaseModel):

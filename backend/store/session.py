@@ -33,7 +33,7 @@ from backend.core.rig import Frame, Rig
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import write_bytes_atomic, write_json_atomic
 from backend.store.rig_io import rig_from_model, rig_to_model
-from backend.store.schema import NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
+from backend.store.schema import FILE_NAME_PATTERN, NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
 
 SESSION_FILE = "session.json"
 
@@ -42,6 +42,14 @@ def _validation_message(path: Path, error: ValidationError) -> str:
     first = error.errors()[0]
     field = ".".join(str(p) for p in first["loc"]) or "(top level)"
     return f"{path}: field '{field}': {first['msg']}"
+
+
+def check_file_name(name: str) -> str:
+    """A file name kept inside a session folder: letters, digits, ``_``, ``-`` and one extension, no path."""
+    if not re.fullmatch(FILE_NAME_PATTERN, name):
+        raise InputError(f"invalid file name {name!r}: expected letters, digits, '_' or '-' and an extension such as "
+                         "'.jpg'", "file")
+    return name
 
 
 def check_name(name: str, what: str) -> str:
@@ -142,6 +150,11 @@ class Session:
             self.rig.add(frame)
         return frame
 
+    def set_device(self, sensor: str, device: dict[str, Any]) -> None:
+        """Replace a sensor's capture-device settings (a driver name and its options)."""
+        with self._change():
+            self.rig.get(sensor).device = copy.deepcopy(device)
+
     # -- captures ---------------------------------------------------------------------
     def _capture_dir(self, sensor: str) -> Path:
         self.rig.get(sensor)
@@ -207,20 +220,39 @@ class Session:
         return read_image(path)
 
     # -- results ----------------------------------------------------------------------
-    def add_result(self, sensor: str, record: dict[str, Any], inputs: list[str]) -> str:
-        """Store a solve result as a new versioned record and return its id."""
+    def add_result(self, sensor: str, record: dict[str, Any], inputs: list[str],
+                   files: dict[str, bytes] | None = None) -> str:
+        """Store a solve result as a new versioned record and return its id.
+
+        ``files`` (name -> bytes, e.g. before/after overlay images) are kept beside it in
+        ``results/<id>/`` and listed in the record's ``files``; they are written before the
+        record, so a record never names a file that is not there.
+        """
+        files = files or {}
+        for file_name in files:
+            check_file_name(file_name)
         with self.lock:
             folder = self.path / "results"
             folder.mkdir(exist_ok=True)
             number = len(list(folder.glob("*.json"))) + 1
-            while True:
-                result_id = f"r{number:04d}"
-                full = {"id": result_id, "sensor": sensor, "created": time.time(), "inputs": inputs, **record}
-                try:
-                    write_json_atomic(folder / f"{result_id}.json", full, exclusive=True)
-                    return result_id
-                except FileExistsError:
-                    number += 1
+            while (folder / f"r{number:04d}.json").exists() or (folder / f"r{number:04d}").exists():
+                number += 1
+            result_id = f"r{number:04d}"
+            for file_name, data in files.items():
+                (folder / result_id).mkdir(exist_ok=True)
+                write_bytes_atomic(folder / result_id / file_name, data)
+            full = {"id": result_id, "sensor": sensor, "created": time.time(), "inputs": inputs, **record}
+            if files:
+                full["files"] = sorted(files)
+            write_json_atomic(folder / f"{result_id}.json", full, exclusive=True)
+            return result_id
+
+    def result_file(self, result_id: str, file_name: str) -> Path:
+        """Path of a file stored with a result (:meth:`add_result`'s ``files``)."""
+        check_file_name(file_name)
+        if file_name not in self.result(result_id).get("files", []):
+            raise NotFoundError(f"result {result_id!r} has no file {file_name!r}", "file")
+        return self.path / "results" / result_id / file_name
 
     def results(self, sensor: str | None = None, kind: str | None = None) -> list[dict[str, Any]]:
         """All stored results, oldest first, optionally for one sensor and kind."""

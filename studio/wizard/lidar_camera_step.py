@@ -1,52 +1,73 @@
-"""Step 6: LiDAR to camera - the LiDAR's points drawn onto the camera's image, nudged by hand.
+"""Step 6: LiDAR to camera - the LiDAR's points drawn onto the camera's images, solved and nudged.
 
 The six sliders *are* ``T_camera_lidar`` (m, ROS yaw/pitch/roll in degrees; it maps LiDAR
-points into the camera's optical frame), with nudges, undo and redo
-(:class:`~studio.transform_sliders.TransformSliders`). Every change redraws the overlay: the latest
-captured cloud of the LiDAR projected with the camera's intrinsics onto its latest captured
-image (:mod:`backend.core.projection`: points behind the camera, outside the image or
-outside the range window dropped, hidden points filtered), coloured by depth, intensity or
-height. Redraws run on one worker thread that always draws the newest slider pose, so
-dragging never queues work. The overlay also fills the camera's frustum in 3D, and the
-cloud can be painted with the image's colours (the reverse view).
+points into the camera's optical frame), with nudges, keys, undo and redo
+(:class:`~studio.transform_sliders.TransformSliders`). Every change redraws the overlay
+(:func:`backend.core.overlay.render_overlay`): the chosen scene - one stored image + cloud
+pair, all pairs tiled so that every scene is judged at once, or the latest captures -
+projected with the camera's intrinsics. Redraws run on one worker thread that always draws
+the newest slider pose, so dragging never queues work. The first scene's overlay also fills
+the camera's frustum in 3D, and its cloud can be painted with the image's colours.
+
+Solving runs as a job from the sliders' transform (solve, then nudge; or nudge, then
+solve): target-based on the pairs with a board, or targetless on edges. Each solve is kept
+in the result history with its before/after overlays; accepting a result, or the sliders'
+own transform (as a result set by hand), re-mounts the LiDAR.
 """
 
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from backend.core.colour_maps import depth_colours, height_colours, intensity_colours
 from backend.core.errors import InputError
-from backend.core.projection import colourise_cloud, draw_points, project_cloud
+from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlay
+from backend.core.projection import colourise_cloud
+from backend.devices.image_io import read_image
 from backend.services import lidar_camera as lidar_camera_service
+from backend.services import lidar_camera_pairs as pairs_service
 from backend.services import lidar_lidar as lidar_service
 from studio.context import StudioContext
+from studio.job_panel import JobPanel
+from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
 
 NONE = "(none)"
-COLOUR_MODES = ("depth", "intensity", "height")
-HEIGHT_RANGE_M = (-0.5, 3.0)
+ALL_PAIRS = "all pairs"
+LATEST = "latest captures"
+MAX_TILES = 6
+"""Most pairs tiled in the "all pairs" view."""
 OVERLAY_WIDTH_PX = 960
 """Width of the overlay shown in the panel (the projection itself runs at the image's full size)."""
-OCCLUSION_PX = 6
 COLOURISED_POINT_SIZE_M = 0.02
-HELP = ("Pick a camera with intrinsics and a LiDAR with a captured cloud: the cloud's latest capture is drawn on "
-        "the camera's latest image. Move the sliders until edges, poles and the board line up, within the range "
-        "window that holds your target.")
+METHODS = {"target (board)": "target", "targetless (edges)": "edges"}
+HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
+        "scene with plenty of straight edges). Move the sliders (keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for "
+        "fine, Z/Y undo/redo) until edges, poles and the board line up, then solve from there and nudge what is "
+        "left.")
+
+
+@dataclass
+class Scene:
+    """One image and cloud to draw (LiDAR frame, m)."""
+
+    name: str
+    image: np.ndarray
+    points: np.ndarray
+    intensity: np.ndarray | None
 
 
 class LidarCameraStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
+        self._scenes: list[Scene] = []
         self._inputs: list[str] = []
         """The captures on screen, as ``sensor:capture`` (what an accepted transform was judged on)."""
-        self._image: np.ndarray | None = None
-        self._cloud: tuple[np.ndarray, np.ndarray | None] | None = None
         self._wake = threading.Event()
         self._colourised = None
+        self.result_id: str | None = None
         self.redraws = 0
         """Overlays drawn so far (tests and the status line read it)."""
         gui = ctx.server.gui
@@ -54,11 +75,27 @@ class LidarCameraStep:
             gui.add_markdown(HELP)
             self.camera = gui.add_dropdown("Onto camera", options=[NONE])
             self.lidar = gui.add_dropdown("From LiDAR", options=[NONE])
+            self.scene_choice = gui.add_dropdown("Scene", options=[LATEST],
+                                                 hint="one pair, all pairs tiled, or the latest captures")
             self.data_text = gui.add_markdown("")
+            self.capture_button = gui.add_button("Capture pair", hint="an image and a cloud of the same still moment")
+            self.need_board = gui.add_checkbox("Board in view", initial_value=True,
+                                               hint="refuse a pair without the board, and wait for it to hold still")
             self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=3.0)
+            self.editor.bind_keys(gui, "LiDAR to camera")
             self.reset_button = gui.add_button("Reset to rig")
+            self.method = gui.add_dropdown("Method", options=list(METHODS))
+            self.solve_button = gui.add_button("Solve from the sliders", color="blue")
+            self.jobs = JobPanel(ctx, [self.solve_button, self.capture_button])
+            self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, move_sliders=True),
+                                         hint="every solve and hand-set transform of this pair; pick one to "
+                                              "inspect or accept")
+            self.stats_text = gui.add_markdown("")
             self.accept_button = gui.add_button("Accept as the mounting", color="green",
-                                                hint="keep this transform as a result and make it the LiDAR's mounting")
+                                                hint="the picked result, or the sliders' transform if you moved them")
+            with gui.add_folder("Before / after", expand_by_default=False):
+                self.before_image = gui.add_image(np.full((90, 160, 3), 235, np.uint8), label="Before", format="jpeg")
+                self.after_image = gui.add_image(np.full((90, 160, 3), 235, np.uint8), label="After", format="jpeg")
             self.colour_by = gui.add_dropdown("Colour by", options=list(COLOUR_MODES))
             self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
                                                initial_value=(0.5, 40.0))
@@ -69,9 +106,12 @@ class LidarCameraStep:
             self.status = gui.add_markdown("")
         self.camera.on_update(lambda _: self._select())
         self.lidar.on_update(lambda _: self._select())
+        self.scene_choice.on_update(lambda _: self._load_scenes())
         for handle in (self.colour_by, self.window, self.occlusion, self.radius, self.paint_cloud):
             handle.on_update(lambda _: self._wake.set())
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
+        self.capture_button.on_click(lambda _: self._capture())
+        self.solve_button.on_click(lambda _: self._solve())
         self.accept_button.on_click(lambda _: self._accept())
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_changed(self._on_session)
@@ -96,27 +136,106 @@ class LidarCameraStep:
         return np.eye(4) if pair is None else self.ctx.session.rig.T_a_b(*pair)
 
     def _select(self) -> None:
-        """Load the pair's latest image and cloud, put the rig's transform on the sliders, redraw."""
-        session, pair = self.ctx.session, self.pair
-        self._image = self._cloud = None
-        self._inputs = []
-        if pair is not None:
-            camera, lidar = pair
-            images = [c for c in session.captures(camera) if not c.n_points]
-            clouds = [c for c in session.captures(lidar) if c.n_points]
-            if images:
-                self._image = session.capture_image(camera, images[-1].id)
-                self._inputs.append(f"{camera}:{images[-1].id}")
-            if clouds:
-                self._cloud = session.capture_cloud(lidar, clouds[-1].id)
-                self._inputs.append(f"{lidar}:{clouds[-1].id}")
-            intrinsics = session.rig.get(camera).intrinsics
-            self.data_text.content = (
-                f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
-                f"cloud: {clouds[-1].id + f' ({clouds[-1].n_points:,} pts)' if clouds else '**none yet** (step 4)'}"
-                + ("" if intrinsics else " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"))
+        """List the pair's scenes and results, put the rig's transform on the sliders, redraw."""
+        pair = self.pair
         self.editor.frames = pair
         self.editor.set(self._rig_T(), undoable=False)
+        self._list_scenes()
+        accepted = None if pair is None else self.ctx.session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
+        self._show_result(self.history.fill(self._pair_results(), accepted), move_sliders=False)
+
+    def _stored_pairs(self) -> list[pairs_service.CapturePair]:
+        pair = self.pair
+        return [] if pair is None else pairs_service.stored_pairs(self.ctx.session, *pair)
+
+    def _list_scenes(self, select: str | None = None) -> None:
+        names = [p.name for p in self._stored_pairs()]
+        options = ([ALL_PAIRS] if names else []) + names[::-1] + [LATEST]
+        wanted = select or self.scene_choice.value
+        wanted = wanted if wanted in options else options[0]
+        unchanged = wanted == self.scene_choice.value
+        self.scene_choice.options = options
+        self.scene_choice.value = wanted
+        if unchanged:
+            self._load_scenes()  # setting the same value again fires no update
+
+    def _load_scenes(self) -> None:
+        """Read the chosen scene(s) from the session and redraw."""
+        session, pair, choice = self.ctx.session, self.pair, self.scene_choice.value
+        self._scenes, self._inputs = [], []
+        if pair is not None:
+            camera, lidar = pair
+            if choice == LATEST:
+                self._load_latest(camera, lidar)
+            else:
+                stored = self._stored_pairs()
+                chosen = stored[-MAX_TILES:] if choice == ALL_PAIRS else [p for p in stored if p.name == choice]
+                for p in chosen:
+                    self._scenes.append(Scene(p.name, session.capture_image(camera, p.image.id),
+                                              *session.capture_cloud(lidar, p.cloud.id)))
+                    self._inputs += [f"{camera}:{p.image.id}", f"{lidar}:{p.cloud.id}"]
+                self.data_text.content = f"{len(stored)} pair(s) stored · showing {len(chosen)}"
+            if session.rig.get(camera).intrinsics is None:
+                self.data_text.content += " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"
+        self._wake.set()
+
+    def _load_latest(self, camera: str, lidar: str) -> None:
+        session = self.ctx.session
+        images = [c for c in session.captures(camera) if not c.n_points]
+        clouds = [c for c in session.captures(lidar) if c.n_points]
+        if images and clouds:
+            self._scenes = [Scene(f"{camera}:{images[-1].id}+{lidar}:{clouds[-1].id}",
+                                  session.capture_image(camera, images[-1].id),
+                                  *session.capture_cloud(lidar, clouds[-1].id))]
+            self._inputs = [f"{camera}:{images[-1].id}", f"{lidar}:{clouds[-1].id}"]
+        self.data_text.content = (
+            f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
+            f"cloud: {clouds[-1].id + f' ({clouds[-1].n_points:,} pts)' if clouds else '**none yet** (step 4)'}")
+
+    # -- capture and solve (jobs) ----------------------------------------------------------------
+    def _capture(self) -> None:
+        session, pair, need_board = self.ctx.session, self.pair, bool(self.need_board.value)
+        if pair is None:
+            self.ctx.notify("Pick a camera and a LiDAR", "Both are needed for a pair.", error=True)
+            return
+        self.jobs.run(f"pair {pair[0]}+{pair[1]}", lambda progress: pairs_service.capture_pair_from_devices(
+            session, *pair, require_board=need_board, progress=progress).name,
+            lambda name: self._list_scenes(select=name), done_message="Pair captured in {seconds:.1f} s.")
+
+    def _solve(self) -> None:
+        session, pair, T_init, method = self.ctx.session, self.pair, self.editor.T, METHODS[self.method.value]
+        if pair is None:
+            self.ctx.notify("Pick a camera and a LiDAR", "Both are needed to solve.", error=True)
+            return
+        self.jobs.run(f"{pair[1]} to {pair[0]} ({method})", lambda progress: lidar_camera_service.solve_session(
+            session, *pair, method=method, T_init=T_init, progress=progress)[0], self._on_solved)
+
+    def _on_solved(self, result_id: str) -> None:
+        self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders=True)
+
+    # -- results ----------------------------------------------------------------------------------
+    def _pair_results(self) -> list[str]:
+        """Ids of the pair's LiDAR-to-camera results, newest first."""
+        pair = self.pair
+        if pair is None:
+            return []
+        results = self.ctx.session.results(pair[1], lidar_camera_service.KIND)
+        return [r["id"] for r in reversed(results) if r.get("camera") == pair[0]]
+
+    def _show_result(self, result_id: str | None, move_sliders: bool) -> None:
+        session, pair = self.ctx.session, self.pair
+        self.result_id = result_id
+        if session is None or pair is None or result_id is None:
+            self.stats_text.content = "No LiDAR-to-camera result yet."
+            return
+        record = session.result(result_id)
+        if move_sliders:
+            self.editor.set(np.array(record["T_camera_lidar"]))
+        accepted = session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
+        self.stats_text.content = result_markdown(record, accepted)
+        for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
+            if name in record.get("files", []):
+                handle.image = read_image(session.result_file(result_id, name))[..., ::-1]
 
     def _accept(self) -> None:
         session, pair = self.ctx.session, self.pair
@@ -124,15 +243,22 @@ class LidarCameraStep:
             self.ctx.notify("Nothing to accept", "Pick a camera and a LiDAR first.", error=True)
             return
         camera, lidar = pair
+        T_sliders = self.editor.T
         try:
-            result_id = lidar_camera_service.store_manual(session, camera, lidar, self.editor.T, inputs=self._inputs)
+            result_id = self.result_id
+            if result_id is None or not np.allclose(np.array(session.result(result_id)["T_camera_lidar"]), T_sliders,
+                                                    atol=1e-6):
+                result_id = lidar_camera_service.store_manual(session, camera, lidar, T_sliders, inputs=self._inputs)
             lidar_camera_service.accept(session, lidar, result_id)
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
         self.ctx.scene.update_rig(session.rig)
-        self.ctx.notify("Accepted", f"{result_id}: {lidar} is now mounted so that T_{camera}_{lidar} is the sliders' "
-                        "transform (set by hand, no uncertainty).")
+        self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders=False)
+        record = session.result(result_id)
+        how = "set by hand, no uncertainty" if record.get("method") == "manual" else f"{record.get('method')} solve"
+        self.ctx.notify("Accepted", f"{result_id}: {lidar} is now mounted so that T_{camera}_{lidar} is the "
+                        f"{'sliders' if record.get('method') == 'manual' else 'result'}' transform ({how}).")
 
     # -- drawing (worker thread) ------------------------------------------------------------------
     def _redraw_loop(self) -> None:
@@ -144,49 +270,69 @@ class LidarCameraStep:
             except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
                 self.status.content = f"⚠️ overlay failed: {exc}"
 
+    @property
+    def style(self) -> OverlayStyle:
+        return OverlayStyle(colour_by=self.colour_by.value, range_m=tuple(self.window.value),
+                            occlusion_px=OverlayStyle.occlusion_px if self.occlusion.value else 0,
+                            radius_px=int(self.radius.value))
+
     def _redraw(self) -> None:
-        session, pair, image, cloud = self.ctx.session, self.pair, self._image, self._cloud
+        session, pair, scenes = self.ctx.session, self.pair, self._scenes
         intrinsics = None if pair is None else session.rig.get(pair[0]).intrinsics
-        if pair is None or image is None or cloud is None or intrinsics is None:
+        if pair is None or not scenes or intrinsics is None:
             self.status.content = "Nothing to draw yet."
             return
         camera, lidar = pair
-        points, intensity = cloud
-        if image.shape[1] != intrinsics.width or image.shape[0] != intrinsics.height:
-            self.status.content = (f"⚠️ the image is {image.shape[1]}×{image.shape[0]} px but {camera}'s intrinsics "
-                                   f"are for {intrinsics.width}×{intrinsics.height}")
-            return
-        T_camera_lidar = self.editor.T
-        projection = project_cloud(points, T_camera_lidar, intrinsics, range_m=tuple(self.window.value),
-                                   occlusion_px=OCCLUSION_PX if self.occlusion.value else 0)
-        colours = self._colours(projection, points, intensity, lidar)
-        drawn = draw_points(image, projection.uv, colours, radius_px=int(self.radius.value))
-        scale = OVERLAY_WIDTH_PX / drawn.shape[1]
-        small = cv2.resize(drawn, (OVERLAY_WIDTH_PX, round(drawn.shape[0] * scale)), interpolation=cv2.INTER_AREA)
-        self.overlay.image = cv2.cvtColor(small, cv2.COLOR_BGR2RGB)
-        self.ctx.scene.show_camera_image(camera, drawn)
-        self._paint_cloud(points, T_camera_lidar, intrinsics, image, lidar)
+        for scene in scenes:
+            if scene.image.shape[1] != intrinsics.width or scene.image.shape[0] != intrinsics.height:
+                self.status.content = (f"⚠️ {scene.name}: the image is {scene.image.shape[1]}×{scene.image.shape[0]} "
+                                       f"px but {camera}'s intrinsics are for {intrinsics.width}×{intrinsics.height}")
+                return
+        T_camera_lidar, style, T_root_lidar = self.editor.T, self.style, session.rig.T_root_frame(lidar)
+        drawn, kept = [], 0
+        for scene in scenes:
+            image, projection = render_overlay(scene.image, scene.points, scene.intensity, T_camera_lidar, intrinsics,
+                                               style, T_root_lidar)
+            drawn.append(image)
+            kept += len(projection)
+        self.overlay.image = mosaic(drawn, OVERLAY_WIDTH_PX)[..., ::-1]
+        self.ctx.scene.show_camera_image(camera, drawn[0])
+        self._paint_cloud(scenes[0], T_camera_lidar, intrinsics, lidar)
         self.redraws += 1
-        self.status.content = f"{len(projection.index):,} of {len(points):,} points drawn"
+        total = sum(len(s.points) for s in scenes)
+        self.status.content = (f"{kept:,} of {total:,} points drawn"
+                               + (f" over {len(scenes)} pairs" if len(scenes) > 1 else ""))
+        if kept == 0:
+            self.status.content += (" · ⚠️ no point lands in the image: the cloud and the camera do not overlap "
+                                    "with this transform (check the range window and the sliders)")
 
-    def _colours(self, projection, points: np.ndarray, intensity: np.ndarray | None, lidar: str) -> np.ndarray:
-        mode = self.colour_by.value
-        if mode == "intensity" and intensity is not None and np.isfinite(intensity).any():
-            return intensity_colours(intensity[projection.index])
-        if mode == "height":
-            return height_colours(points[projection.index], self.ctx.session.rig.T_root_frame(lidar),
-                                  *HEIGHT_RANGE_M)
-        return depth_colours(projection.depth_m, *self.window.value)
-
-    def _paint_cloud(self, points: np.ndarray, T_camera_lidar: np.ndarray, intrinsics, image: np.ndarray,
-                     lidar: str) -> None:
+    def _paint_cloud(self, scene: Scene, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
         """The reverse view: the cloud in 3D in the image's colours (points the camera does not see left out)."""
         if self._colourised is not None:
             self._colourised.remove()
             self._colourised = None
         if not self.paint_cloud.value:
             return
-        colours, seen = colourise_cloud(points, T_camera_lidar, intrinsics, image, occlusion_px=OCCLUSION_PX)
+        colours, seen = colourise_cloud(scene.points, T_camera_lidar, intrinsics, scene.image,
+                                        occlusion_px=OverlayStyle.occlusion_px)
         self._colourised = self.ctx.server.scene.add_point_cloud(
-            f"/rig/{lidar}/colourised", points[seen].astype(np.float32), colours[seen],
+            f"/rig/{lidar}/colourised", scene.points[seen].astype(np.float32), colours[seen],
             point_size=COLOURISED_POINT_SIZE_M, precision="float32")
+
+
+def _sigmas(values: list[float | None], scale: float, digits: int) -> str:
+    return ", ".join("n/a" if v is None else f"{scale * v:.{digits}f}" for v in values)
+
+
+def result_markdown(record: dict, accepted: str | None) -> str:
+    """Method, convergence, 1-sigma and residuals of a LiDAR-to-camera result."""
+    status = "✅ accepted" if record["id"] == accepted else "not accepted"
+    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    residuals = " · ".join(f"{key} {value:.4g}" for key, value in record.get("residuals", {}).items()
+                           if isinstance(value, (int, float)))
+    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
+    std = record["std"]
+    return (f"**{record['id']}** ({status}) · {record.get('method', '?')} · {verdict} · "
+            f"{record.get('seconds', 0.0):.2f} s\n\n"
+            f"1σ translation (mm): {_sigmas(std['trans_m'], 1000, 2)} · rotation (°): {_sigmas(std['rot_deg'], 1, 3)}"
+            + (f"\n\n{residuals}" if residuals else "") + warnings)

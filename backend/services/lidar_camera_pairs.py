@@ -1,0 +1,169 @@
+"""Image + cloud pairs for LiDAR-to-camera calibration: captured together, stored linked, listed.
+
+A pair is one moment seen by both sensors: the camera's image and the LiDAR's cloud,
+each stored as an ordinary capture of its sensor, the image carrying the link
+(``meta["paired_cloud"] = "<lidar>:<capture id>"``). The cloud is stored first, so a
+failure in between leaves a plain cloud capture and nothing half-linked.
+
+Capturing from live devices waits for a still board: the camera is read before and
+after the LiDAR scan, and the pair is kept only when the board's corners moved less
+than ``still_px`` between the two frames (a board carried while the LiDAR spins would
+put the two sensors' boards in different places). Images without a board are fine
+for the targetless method; with ``require_board`` they are refused, naming the frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError, NotFoundError
+from backend.devices.base import DeviceError, Sample, create_device
+from backend.devices.image_io import decode_image_bytes
+from backend.services import intrinsics as intrinsics_service
+from backend.services.lidar_lidar import check_lidar, read_uploaded_cloud, store_cloud
+from backend.solvers.board_detection import Detection, detect_board
+from backend.solvers.result import ProgressCallback, no_progress
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+STILL_PX = 1.0
+"""Largest corner motion (px) between the camera frames before and after the scan for the board to count as still."""
+CAPTURE_ATTEMPTS = 10
+"""Reads of a pair before giving up on a board that keeps moving."""
+
+
+@dataclass(frozen=True)
+class CapturePair:
+    """One image and one cloud of the same moment (both stored captures)."""
+
+    camera: str
+    image: CaptureRecord
+    lidar: str
+    cloud: CaptureRecord
+
+    @property
+    def name(self) -> str:
+        """How results and errors name the pair: ``cam_front:00003+lidar_top:00007``."""
+        return f"{self.camera}:{self.image.id}+{self.lidar}:{self.cloud.id}"
+
+
+def check_camera(session: Session, camera: str) -> None:
+    if session.rig.get(camera).kind != "camera":
+        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+
+
+def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:
+    """Refuse an image whose size is not the one the intrinsics were calibrated at."""
+    height, width = image.shape[:2]
+    if (width, height) != (camera.width, camera.height):
+        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
+                         f"{camera.width}x{camera.height}", name)
+
+
+def stored_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[CapturePair]:
+    """The stored pairs of ``camera`` and ``lidar``, oldest first (only those whose image is in ``image_ids``)."""
+    check_camera(session, camera)
+    check_lidar(session, lidar)
+    clouds = {c.id: c for c in session.captures(lidar)}
+    found = []
+    for image in session.captures(camera):
+        sensor, _, cloud_id = image.meta.get("paired_cloud", "").partition(":")
+        if sensor == lidar and cloud_id in clouds and (image_ids is None or image.id in image_ids):
+            found.append(CapturePair(camera, image, lidar, clouds[cloud_id]))
+    if image_ids is not None:
+        missing = sorted(set(image_ids) - {p.image.id for p in found})
+        if missing:
+            raise NotFoundError(f"no {camera}+{lidar} pair with image capture(s) {', '.join(missing)}", "pairs")
+    return found
+
+
+def store_pair(session: Session, camera: str, lidar: str, image: Sample, cloud: Sample, *, device: str,
+               detection: Detection | None, source: tuple[str, str] | None = None) -> CapturePair:
+    """Keep one image sample and one cloud sample as a linked pair (``source``: their original file names)."""
+    check_camera(session, camera)
+    intrinsics = session.rig.get(camera).intrinsics
+    if intrinsics is not None:
+        check_image_size(image.image, intrinsics, source[0] if source else camera)
+    cloud_record = store_cloud(session, lidar, cloud, device=device, source=source[1] if source else None)
+    image_record = intrinsics_service.store_capture(
+        session, camera, image.image, detection, device=device, timestamp_s=image.timestamp_s,
+        source=source[0] if source else None,
+        meta={**image.storable_meta(), "paired_cloud": f"{lidar}:{cloud_record.id}"})
+    return CapturePair(camera, image_record, lidar, cloud_record)
+
+
+def import_pair(session: Session, camera: str, lidar: str, image_file: tuple[str, bytes],
+                cloud_file: tuple[str, bytes]) -> CapturePair:
+    """Add an uploaded image and cloud as a pair; an unreadable file or a wrong image size stores nothing."""
+    check_camera(session, camera)
+    check_lidar(session, lidar)
+    image_name, cloud_name = Path(image_file[0]).name, Path(cloud_file[0]).name
+    image = decode_image_bytes(image_file[1], image_name)
+    cloud = read_uploaded_cloud(cloud_name, cloud_file[1])
+    detection = detect_board(image, intrinsics_service.session_board(session)) if session.board else None
+    return store_pair(session, camera, lidar, Sample(time.time(), image=image), cloud, device="upload",
+                      detection=detection, source=(image_name, cloud_name))
+
+
+def _corner_motion_px(before: Detection, after: Detection) -> float:
+    """Largest motion (px) of a corner detected in both frames; inf when they share none."""
+    shared, i, j = np.intersect1d(before.ids, after.ids, return_indices=True)
+    if not len(shared):
+        return float("inf")
+    return float(np.max(np.linalg.norm(before.corners_px[i] - after.corners_px[j], axis=1)))
+
+
+def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable[[], Sample],
+                 read_cloud: Callable[[], Sample], *, device: str, require_board: bool = True,
+                 still_px: float = STILL_PX, attempts: int = CAPTURE_ATTEMPTS,
+                 progress: ProgressCallback = no_progress) -> CapturePair:
+    """Read a still moment from both sensors and store it as a pair.
+
+    Reads a frame, a scan, and a frame again; with a board in view, the pair is kept once
+    the board's corners moved less than ``still_px`` (px) between the two frames, after at
+    most ``attempts`` tries. Raises :class:`InputError` when the board is not found (with
+    ``require_board``) or never holds still; nothing is stored then.
+    """
+    check_camera(session, camera)
+    check_lidar(session, lidar)
+    board = intrinsics_service.session_board(session) if session.board else None
+    if require_board and board is None:
+        raise InputError("the session has no calibration board set; set one in the session step", "board")
+    motion = float("inf")
+    for attempt in range(attempts):
+        progress(attempt / attempts, "reading the camera and the LiDAR" if attempt == 0
+                 else f"the board moved {motion:.1f} px during the scan: hold it still (try {attempt + 1})")
+        before, cloud, after = read_image(), read_cloud(), read_image()
+        detections = [None, None] if board is None else [detect_board(s.image, board) for s in (before, after)]
+        if detections[0] is None or detections[1] is None:
+            if require_board:
+                raise InputError(f"the board {board} was not found in {camera}'s image; bring it into view of "
+                                 f"both {camera} and {lidar}", camera)
+            return store_pair(session, camera, lidar, before, cloud, device=device, detection=detections[0])
+        motion = _corner_motion_px(*detections)
+        if motion <= still_px:
+            return store_pair(session, camera, lidar, before, cloud, device=device, detection=detections[0])
+    raise InputError(f"the board kept moving ({motion:.1f} px between the frames before and after the scan, more "
+                     f"than {still_px} px) in {attempts} tries; hold it still while the pair is captured", camera)
+
+
+def capture_pair_from_devices(session: Session, camera: str, lidar: str, *, require_board: bool = True,
+                              progress: ProgressCallback = no_progress) -> CapturePair:
+    """:func:`capture_pair` from the two sensors' devices as set in the rig (opened for this capture)."""
+    for sensor in (camera, lidar):
+        if not session.rig.get(sensor).device:
+            raise InputError("no capture device configured for this sensor; set one in the sensors step", sensor)
+    try:
+        with create_device(session.rig.get(camera).device) as camera_device, \
+                create_device(session.rig.get(lidar).device) as lidar_device:
+            return capture_pair(session, camera, lidar, camera_device.read, lidar_device.read,
+                                device=f"{camera_device.describe()} + {lidar_device.describe()}",
+                                require_board=require_board, progress=progress)
+    except DeviceError as exc:  # unplugged or unreachable: nothing was stored; say which device and why
+        raise InputError(f"{exc.device}: {exc.message}; no pair was stored", exc.device) from None
