@@ -158,11 +158,11 @@ def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] |
 
 def overlay_files(loaded: Sequence[LoadedPair], camera: CameraIntrinsics, T_before: np.ndarray,
                   T_after: np.ndarray) -> dict[str, bytes]:
-    """``overlay_before.jpg`` and ``overlay_after.jpg``: mosaics of the first :data:`OVERLAY_PAIRS` pairs drawn with
-    the initial and the solved ``T_camera_lidar``."""
+    """``overlay_before.jpg`` and ``overlay_after.jpg``: mosaics of the last :data:`OVERLAY_PAIRS` pairs (the newest,
+    as the studio tiles them) drawn with the initial and the solved ``T_camera_lidar``."""
     files = {}
     for name, T in (("overlay_before.jpg", T_before), ("overlay_after.jpg", T_after)):
-        drawn = [render_overlay(p.image, p.points, p.intensity, T, camera)[0] for p in loaded[:OVERLAY_PAIRS]]
+        drawn = [render_overlay(p.image, p.points, p.intensity, T, camera)[0] for p in loaded[-OVERLAY_PAIRS:]]
         files[name] = encode_jpeg(mosaic(drawn, OVERLAY_WIDTH_PX))
     return files
 

@@ -42,6 +42,7 @@ MAX_TILES = 6
 OVERLAY_WIDTH_PX = 960
 """Width of the overlay shown in the panel (the projection itself runs at the image's full size)."""
 COLOURISED_POINT_SIZE_M = 0.02
+PLACEHOLDER = np.full((90, 160, 3), 235, np.uint8)
 METHODS = {"target (board)": "target", "targetless (edges)": "edges"}
 HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
         "scene with plenty of straight edges). Move the sliders (keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for "
@@ -94,8 +95,8 @@ class LidarCameraStep:
             self.accept_button = gui.add_button("Accept as the mounting", color="green",
                                                 hint="the picked result, or the sliders' transform if you moved them")
             with gui.add_folder("Before / after", expand_by_default=False):
-                self.before_image = gui.add_image(np.full((90, 160, 3), 235, np.uint8), label="Before", format="jpeg")
-                self.after_image = gui.add_image(np.full((90, 160, 3), 235, np.uint8), label="After", format="jpeg")
+                self.before_image = gui.add_image(PLACEHOLDER, label="Before", format="jpeg")
+                self.after_image = gui.add_image(PLACEHOLDER, label="After", format="jpeg")
             self.colour_by = gui.add_dropdown("Colour by", options=list(COLOUR_MODES))
             self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
                                                initial_value=(0.5, 40.0))
@@ -152,7 +153,8 @@ class LidarCameraStep:
         names = [p.name for p in self._stored_pairs()]
         options = ([ALL_PAIRS] if names else []) + names[::-1] + [LATEST]
         wanted = select or self.scene_choice.value
-        wanted = wanted if wanted in options else options[0]
+        if wanted not in options or (wanted == LATEST and ALL_PAIRS not in self.scene_choice.options):
+            wanted = options[0]  # the latest captures were the only choice so far: open on all pairs if any
         unchanged = wanted == self.scene_choice.value
         self.scene_choice.options = options
         self.scene_choice.value = wanted
@@ -234,8 +236,8 @@ class LidarCameraStep:
         accepted = session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
         self.stats_text.content = result_markdown(record, accepted)
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
-            if name in record.get("files", []):
-                handle.image = read_image(session.result_file(result_id, name))[..., ::-1]
+            stored = name in record.get("files", [])  # a transform set by hand has none
+            handle.image = read_image(session.result_file(result_id, name))[..., ::-1] if stored else PLACEHOLDER
 
     def _accept(self) -> None:
         session, pair = self.ctx.session, self.pair
@@ -256,9 +258,11 @@ class LidarCameraStep:
         self.ctx.scene.update_rig(session.rig)
         self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders=False)
         record = session.result(result_id)
-        how = "set by hand, no uncertainty" if record.get("method") == "manual" else f"{record.get('method')} solve"
+        manual = record.get("method") == "manual"
+        how = "set by hand, no uncertainty" if manual else f"{record.get('method')} solve"
+        whose = "sliders'" if manual else "result's"
         self.ctx.notify("Accepted", f"{result_id}: {lidar} is now mounted so that T_{camera}_{lidar} is the "
-                        f"{'sliders' if record.get('method') == 'manual' else 'result'}' transform ({how}).")
+                        f"{whose} transform ({how}).")
 
     # -- drawing (worker thread) ------------------------------------------------------------------
     def _redraw_loop(self) -> None:
