@@ -79,10 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
     lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
                     help="an image and the cloud taken with it (repeat for every board pose)")
     lc.add_argument("--method", choices=["target", "edges"], default="target",
-                    help="target: a board seen by both sensors (edges, targetless, is not available yet)")
+                    help="target: a board seen by both sensors; edges: targetless, aligns the edges of the scene")
     lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
     lc.add_argument("--plate-margin", type=float, metavar="M",
                     help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
+    lc.add_argument("--translation-prior", type=float, metavar="M",
+                    help="edges: hold the initial translation as measured to this 1-sigma (m), for scenes whose edges "
+                         "are all far away (they fix the rotation, hardly the translation)")
     init = lc.add_mutually_exclusive_group()
     init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
     init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
@@ -235,7 +238,7 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     check_transform(T_init, str(args.init) if args.init is not None else "--init-xyzypr")
     board = BoardSpec.parse(args.board) if args.board else None
     result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,
-                         progress=_progress_to_stderr(False))
+                         translation_prior_m=args.translation_prior, progress=_progress_to_stderr(False))
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     summary = result.summary()

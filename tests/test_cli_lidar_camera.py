@@ -1,6 +1,7 @@
-"""``calib-studio lidar-camera --method target`` end to end on files: rendered board images of the simulated
-cam_front and 64-beam scans of the yard by lidar_front, the camera as the ROS YAML `intrinsics --out` writes;
-the JSON contract of ../shared/conventions.md, the truth within the reported sigmas, and bad input."""
+"""``calib-studio lidar-camera`` end to end on files: ``--method target`` on rendered board images of the simulated
+cam_front and 64-beam scans of the yard by lidar_front, ``--method edges`` (no board) on rendered images of the yard
+and dense scans with intensities, the camera as the ROS YAML `intrinsics --out` writes; the JSON contract of
+../shared/conventions.md, the truth within the reported sigmas, and bad input."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from test_lidar_camera_edges import initial_guess, simulated_pairs
 from test_lidar_camera_target import _initial_guess
 
 from backend.core.boards import BoardSpec
@@ -45,6 +47,21 @@ def recording(tmp_path_factory) -> tuple[Path, list[str]]:
     return folder, pairs
 
 
+@pytest.fixture(scope="module")
+def edge_recording(tmp_path_factory) -> tuple[Path, list[str]]:
+    """camera.yaml, init.txt (10 cm and 5 deg off) and IMAGE:CLOUD pairs (x, y, z, intensity .npy) of the yard from
+    four robot positions, without a board."""
+    folder = tmp_path_factory.mktemp("lidar_camera_edges")
+    write_camera_info(folder / "camera.yaml", CAM_FRONT, "cam_front")
+    np.savetxt(folder / "init.txt", initial_guess(2))
+    pairs = []
+    for i, pair in enumerate(simulated_pairs(4)):
+        cv2.imwrite(str(folder / f"scene{i}.png"), pair.image)
+        np.save(folder / f"scene{i}.npy", pair.points_lidar)
+        pairs.append(f"{folder / f'scene{i}.png'}:{folder / f'scene{i}.npy'}")
+    return folder, pairs
+
+
 def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "studio.cli", "lidar-camera", *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=300)
@@ -72,6 +89,24 @@ def test_target_method_recovers_the_truth_with_the_conventions_json(recording):
     assert np.all(np.abs(rot_error_deg) < 3 * np.array(result["std"]["rot_deg"]))
 
 
+@pytest.mark.slow
+def test_edges_method_recovers_the_truth_without_a_board(edge_recording):
+    folder, pairs = edge_recording
+    done = run("--camera", str(folder / "camera.yaml"), *[a for p in pairs for a in ("--pair", p)],
+               "--method", "edges", "--init", str(folder / "init.txt"), "--json")
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(result["std"]) == {"trans_m", "rot_deg"} and len(result["std"]["rot_deg"]) == 3
+    assert result["residuals"]["matched"] > 300 and len(result["residuals"]["per_pair_rms_px"]) == 4
+    trans_error_m, rot_error_deg = transform_error(np.array(result["T_camera_lidar"]), TRUTH)
+    print(f"lidar-camera --method edges CLI: error {1000 * trans_error_m} mm, {rot_error_deg} deg; "
+          f"std {result['std']}; {result['seconds']:.1f} s")
+    assert np.all(np.abs(trans_error_m) < 0.01) and np.all(np.abs(rot_error_deg) < 0.2)
+    assert np.all(np.abs(trans_error_m) < 3 * np.array(result["std"]["trans_m"]))
+    assert np.all(np.abs(rot_error_deg) < 3 * np.array(result["std"]["rot_deg"]))
+
+
 def test_bad_input_exits_non_zero_naming_it(recording, tmp_path):
     folder, pairs = recording
     camera, init = str(folder / "camera.yaml"), str(_init(folder))
@@ -86,7 +121,8 @@ def test_bad_input_exits_non_zero_naming_it(recording, tmp_path):
         ([pairs[0], "--init", init], "--board", "needs the board"),
         ([pairs[0], "--board", DEMO_BOARD], "--init", "initial T_camera_lidar"),
         (["no-colon-here", "--board", DEMO_BOARD, "--init", init], "--pair", "IMAGE:CLOUD"),
-        ([pairs[0], "--board", DEMO_BOARD, "--init", init, "--method", "edges"], "--method", "not available"),
+        ([f"{blank}:{cloud}", "--init", init, "--method", "edges"], f"blank.png:{Path(cloud).name}: image",
+         "too few edges: the image has 0 edge pixels"),
     ]
     for extra, where, message in cases:
         done = run("--camera", camera, "--pair", *extra, "--json")

@@ -4,6 +4,7 @@ the simulated rig's board, the real OpenCalib frame, drawing and colourising."""
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -11,10 +12,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.core import projection as projection_module
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.camera_inverse import visible_radius
-from backend.core.colour_maps import depth_colours, height_colours, intensity_colours
+from backend.core.colour_maps import colormap, depth_colours, height_colours, intensity_colours
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
 from backend.core.transforms import from_xyz_ypr, invert, make_T, to_rvec_tvec, transform_points
 from backend.devices.cloud_files import read_cloud
@@ -39,19 +41,25 @@ def opencv_pixels(camera: CameraIntrinsics, points_sensor: np.ndarray, T_camera_
     return uv.reshape(-1, 2)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("camera", [CAM_WIDE, FISHEYE], ids=["pinhole-radtan", "fisheye-equidistant"])
-def test_matches_opencv_and_drops_what_the_camera_cannot_see(camera: CameraIntrinsics) -> None:
+def test_matches_opencv_and_drops_what_the_camera_cannot_see(camera: CameraIntrinsics, dtype: type) -> None:
     rng = np.random.default_rng(3)
     # Directions all round the camera (so behind it and far outside its view too), 0.5-20 m out.
     directions = rng.normal(size=(200_000, 3))
     points_cam = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(0.5, 20, (200_000, 1))
     points = transform_points(invert(T_CAMERA_SENSOR), points_cam)
-    projection = project_cloud(points, T_CAMERA_SENSOR, camera)
+    projection = project_cloud(points, T_CAMERA_SENSOR, camera, dtype=dtype)
 
     reference = opencv_pixels(camera, points, T_CAMERA_SENSOR)
     assert len(projection) > 10_000
-    np.testing.assert_allclose(projection.uv, reference[projection.index], atol=1e-6, rtol=0)
-    np.testing.assert_allclose(projection.depth_m, points_cam[projection.index, 2], atol=1e-9)
+    assert projection.uv.dtype == dtype and projection.depth_m.dtype == dtype and projection.index.dtype == np.int64
+    if dtype == np.float64:
+        np.testing.assert_allclose(projection.uv, reference[projection.index], atol=1e-6, rtol=0)
+        np.testing.assert_allclose(projection.depth_m, points_cam[projection.index, 2], atol=1e-9)
+    else:  # float32 (the default): well under a hundredth of a pixel
+        np.testing.assert_allclose(projection.uv, reference[projection.index], atol=1e-3, rtol=0)
+        np.testing.assert_allclose(projection.depth_m, points_cam[projection.index, 2], rtol=1e-6)
 
     in_image = np.all((reference >= -0.5) & (reference < np.array(camera.image_size) - 0.5), axis=1)
     radius = np.linalg.norm(points_cam[:, :2], axis=1) / np.abs(points_cam[:, 2])
@@ -82,10 +90,13 @@ def test_a_2d_scanners_points_project_like_any_other() -> None:
     angles = np.radians(np.linspace(-40, 40, 81))
     scan = np.column_stack([3 * np.cos(angles), 3 * np.sin(angles), np.zeros_like(angles)])  # z = 0: its plane
     T_camera_scanner = invert(demo_rig().T_root_frame("cam_front")) @ demo_rig().T_root_frame("scanner_2d")
-    projection = project_cloud(scan, T_camera_scanner, camera)
+    reference = opencv_pixels(camera, scan, T_camera_scanner)
+    projection = project_cloud(scan, T_camera_scanner, camera, dtype=np.float64)
     assert len(projection) > 40
-    np.testing.assert_allclose(projection.uv, opencv_pixels(camera, scan, T_camera_scanner)[projection.index],
-                               atol=1e-6)
+    np.testing.assert_allclose(projection.uv, reference[projection.index], atol=1e-6)
+    default = project_cloud(scan, T_camera_scanner, camera)  # float32
+    np.testing.assert_array_equal(default.index, projection.index)
+    np.testing.assert_allclose(default.uv, reference[default.index], atol=1e-3)
 
 
 def test_occlusion_hides_far_points_behind_a_near_plane_only() -> None:
@@ -227,3 +238,158 @@ def test_real_frame_projects_its_points_and_depth_edges_meet_image_edges() -> No
         turned = make_T(Rotation.from_rotvec(np.radians(3.0) * rotvec).as_matrix(), np.zeros(3)) @ T_camera_lidar
         # 5.2 px for the reference; 5.6 to 19.7 px turned.
         assert reference < depth_edge_distance(points, turned, camera, edge_distance)
+
+
+# -- the fast paths: float32 against float64, chunks, the drawing and colour look-ups --------------------------------
+
+def cloud_around(n: int, seed: int) -> np.ndarray:
+    """(n, 3) points in T_CAMERA_SENSOR's sensor frame, 0.5-40 m out, mostly ahead of the camera, with a few NaN."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(n, 3)) + [0.0, 0.0, 1.5]
+    points_cam = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(0.5, 40, (n, 1))
+    points_cam[rng.choice(n, n // 100, replace=False), rng.integers(0, 3)] = np.nan
+    return transform_points(invert(T_CAMERA_SENSOR), points_cam)
+
+
+CAMERAS = [demo_rig().get("cam_front").intrinsics, CAM_WIDE, FISHEYE]
+CAMERA_IDS = ["cam_front", "cam_wide", "fisheye"]
+
+
+@pytest.mark.parametrize("camera", CAMERAS, ids=CAMERA_IDS)
+def test_float32_keeps_the_float64_points_within_a_thousandth_of_a_pixel(camera: CameraIntrinsics) -> None:
+    points = cloud_around(300_000, seed=5)
+    for range_m in (None, (1.0, 30.0)):
+        fast = project_cloud(points, T_CAMERA_SENSOR, camera, range_m=range_m)
+        exact = project_cloud(points, T_CAMERA_SENSOR, camera, range_m=range_m, dtype=np.float64)
+        assert fast.uv.dtype == np.float32 and len(exact) > 50_000
+        np.testing.assert_array_equal(fast.index, exact.index)
+        np.testing.assert_allclose(fast.uv, exact.uv, atol=1e-3, rtol=0)
+        np.testing.assert_allclose(fast.depth_m, exact.depth_m, rtol=1e-6)
+    # With the occlusion filter a point within ~1e-4 px of a block edge may fall into the next block.
+    fast = project_cloud(points, T_CAMERA_SENSOR, camera, occlusion_px=6)
+    exact = project_cloud(points, T_CAMERA_SENSOR, camera, occlusion_px=6, dtype=np.float64)
+    assert len(np.setxor1d(fast.index, exact.index)) <= 1e-4 * len(exact)
+
+
+def test_float32_loses_nothing_on_a_cloud_far_from_its_frames_origin() -> None:
+    camera = CAMERAS[0]
+    offset_m = np.array([5000.0, -3000.0, 120.0])  # e.g. a map frame 6 km away: the float64 transform takes it out
+    T_camera_map = T_CAMERA_SENSOR @ make_T(np.eye(3), -offset_m)
+    points = cloud_around(50_000, seed=6) + offset_m
+    fast = project_cloud(points, T_camera_map, camera)
+    exact = project_cloud(points, T_camera_map, camera, dtype=np.float64)
+    np.testing.assert_array_equal(fast.index, exact.index)
+    np.testing.assert_allclose(fast.uv, exact.uv, atol=1e-3, rtol=0)
+
+
+def test_chunks_give_the_one_pass_result(monkeypatch: pytest.MonkeyPatch) -> None:
+    camera = CAM_WIDE
+    points = cloud_around(20_000, seed=7)
+    results = []
+    for chunk in (10**9, 997):
+        monkeypatch.setattr(projection_module, "CHUNK_POINTS", chunk)
+        results.append(project_cloud(points, T_CAMERA_SENSOR, camera, range_m=(1.0, 30.0), occlusion_px=5))
+    one_pass, chunked = results
+    assert len(one_pass) > 5_000
+    for name in ("uv", "depth_m", "index"):
+        np.testing.assert_array_equal(getattr(chunked, name), getattr(one_pass, name))
+
+
+def test_occlusion_keeps_what_a_block_z_buffer_keeps_in_order() -> None:
+    camera = CAMERAS[0]
+    points = cloud_around(100_000, seed=8)
+    seen = project_cloud(points, T_CAMERA_SENSOR, camera, dtype=np.float64)
+    block_px, margin = 7, 0.1
+    cols, rows = (np.floor((seen.uv + 0.5) / block_px).astype(int)).T
+    block = rows * (-(-camera.width // block_px)) + cols
+    nearest = np.full(block.max() + 1, np.inf)
+    np.minimum.at(nearest, block, seen.depth_m)
+    expected = seen.index[seen.depth_m <= nearest[block] * (1 + margin)]
+    shown = project_cloud(points, T_CAMERA_SENSOR, camera, occlusion_px=block_px, occlusion_margin=margin,
+                          dtype=np.float64)
+    assert 1_000 < len(shown) < len(seen)
+    np.testing.assert_array_equal(shown.index, expected)  # the same points, in the cloud's order
+
+
+def test_project_cloud_takes_float32_or_float64_only() -> None:
+    with pytest.raises(ValueError, match="float32 or float64"):
+        project_cloud(np.zeros((3, 3)), np.eye(4), CAMERAS[0], dtype=np.float16)
+
+
+def painted_in_order(image: np.ndarray, uv: np.ndarray, colours: np.ndarray, radius_px: int) -> np.ndarray:
+    """What draw_points promises, the slow way: each point's square painted one after another (BGR)."""
+    canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+    height, width = canvas.shape[:2]
+    for (u, v), rgb in zip(uv, colours, strict=True):
+        if -0.5 <= u < width - 0.5 and -0.5 <= v < height - 0.5:
+            col, row = int(np.rint(u)), int(np.rint(v))
+            canvas[max(row - radius_px, 0):row + radius_px + 1, max(col - radius_px, 0):col + radius_px + 1] = rgb[::-1]
+    return canvas
+
+
+@pytest.mark.parametrize("radius_px", [0, 1, 2])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_draw_points_paints_like_one_point_after_another(radius_px: int, dtype: type,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(projection_module, "CHUNK_POINTS", 500)  # several chunks
+    rng = np.random.default_rng(radius_px)
+    image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    uv = rng.uniform([-3, -3], [67, 51], (3_000, 2)).astype(dtype)  # dense: most pixels covered several times
+    uv[::97] = np.nan
+    uv[5] = [-0.5, 47.4999]  # edges: inside
+    uv[6] = [63.5, 10.0]  # outside
+    colours = rng.integers(0, 256, (len(uv), 3), dtype=np.uint8)
+    np.testing.assert_array_equal(draw_points(image, uv, colours, radius_px), painted_in_order(image, uv, colours,
+                                                                                                 radius_px))
+
+
+def test_draw_points_from_several_threads_at_once() -> None:
+    rng = np.random.default_rng(9)
+    image = np.full((240, 320), 80, np.uint8)
+    jobs = [(rng.uniform(0, 320, (20_000, 2)), rng.integers(0, 256, (20_000, 3), dtype=np.uint8)) for _ in range(4)]
+    expected = [draw_points(image, uv, colours) for uv, colours in jobs]
+    with ThreadPoolExecutor(4) as pool:
+        drawn = list(pool.map(lambda job: draw_points(image, *job), jobs * 5))
+    for i, result in enumerate(drawn):
+        np.testing.assert_array_equal(result, expected[i % 4])
+    assert draw_points(image, np.zeros((0, 2)), np.zeros((0, 3), np.uint8)).shape == (240, 320, 3)
+    with pytest.raises(ValueError, match="colours"):
+        draw_points(image, np.zeros((5, 2)), np.zeros((4, 3), np.uint8))
+
+
+@pytest.mark.parametrize("cmap", [cv2.COLORMAP_TURBO, cv2.COLORMAP_VIRIDIS])
+def test_colormap_is_opencvs_map_of_the_values_scaled_in_float32(cmap: int) -> None:
+    values = np.concatenate([np.random.default_rng(10).uniform(-2, 12, 20_000), [0.5, 10.0, np.inf, -np.inf]])
+    lo, hi = 0.5, 10.0
+    scaled = (np.clip((values.astype(np.float32) - lo) / (hi - lo), 0.0, 1.0) * 255.0).astype(np.uint8)
+    expected = cv2.applyColorMap(scaled[:, None], cmap)[:, 0, ::-1]
+    np.testing.assert_array_equal(colormap(values, lo, hi, cmap), expected)
+    assert colormap(np.zeros(0), lo, hi).shape == (0, 3)
+
+
+@pytest.mark.parametrize("camera", CAMERAS, ids=CAMERA_IDS)
+def test_normalised_to_pixels_computes_in_the_dtype_it_is_given(camera: CameraIntrinsics) -> None:
+    rng = np.random.default_rng(11)
+    angle, radius = rng.uniform(0, 2 * np.pi, 10_000), rng.uniform(0, visible_radius(camera), 10_000)
+    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    exact = camera.normalised_to_pixels(x, y)
+    fast = camera.normalised_to_pixels(x.astype(np.float32), y.astype(np.float32))
+    assert exact[0].dtype == np.float64 and fast[0].dtype == np.float32
+    np.testing.assert_allclose(np.column_stack(fast), np.column_stack(exact), atol=1e-3, rtol=0)
+    rvec = tvec = np.zeros(3)
+    points = np.column_stack([x, y, np.ones_like(x)])[:, None, :]
+    project = cv2.fisheye.projectPoints if camera.is_fisheye else cv2.projectPoints
+    reference = project(points, rvec, tvec, camera.K, camera.dist)[0].reshape(-1, 2)
+    np.testing.assert_allclose(np.column_stack(exact), reference, atol=1e-6, rtol=0)
+
+
+def test_colourise_gives_each_seen_point_its_nearest_pixels_colour() -> None:
+    camera = CAMERAS[0]
+    points = cloud_around(50_000, seed=12)
+    image = np.random.default_rng(12).integers(0, 256, (camera.height, camera.width, 3), dtype=np.uint8)
+    colours, seen = colourise_cloud(points, T_CAMERA_SENSOR, camera, image, occlusion_px=4)
+    projection = project_cloud(points, T_CAMERA_SENSOR, camera, occlusion_px=4)
+    np.testing.assert_array_equal(np.flatnonzero(seen), np.sort(projection.index))
+    cols, rows = np.rint(projection.uv).astype(int).T
+    np.testing.assert_array_equal(colours[projection.index], image[rows, cols, ::-1])  # BGR image, RGB colours
+    assert not colours[~seen].any()

@@ -118,6 +118,8 @@ class LidarCameraSolveRequest(BaseModel):
     init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
     plate_margin_m: float | None = Field(None, ge=0, description="the board plate's margin beyond the pattern (m); "
                                                                   "default one square")
+    translation_prior_m: float | None = Field(None, gt=0, description="edges: hold the initial translation as "
+                                                                       "measured to this 1-sigma (m)")
 
 
 class LidarCameraManual(BaseModel):

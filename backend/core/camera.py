@@ -70,13 +70,17 @@ class CameraIntrinsics:
         numpy (they agree to 1e-9 px): from Python those functions always compute the
         2N x 15 Jacobian as well, which makes them about 15x slower than this. Like them,
         this ignores the skew ``K[0, 1]``. Only the five ``pinhole-radtan`` coefficients
-        of the conventions are supported.
+        of the conventions are supported. Computed in the dtype of ``x`` and ``y``
+        (float32 in, float32 out: about 1e-4 px at 1280x720); ``x`` and ``y`` are not modified.
         """
-        if not self.is_fisheye and np.any(self.dist[5:]):
+        if not self.is_fisheye and self.dist[5:].any():
             raise ValueError("pinhole-radtan takes dist = [k1, k2, p1, p2, k3]; rational terms are not supported")
-        r2 = x * x + y * y
+        # Python floats, so that float32 arrays stay float32.
+        fx, fy, cx, cy = float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])
+        r2 = x * x
+        r2 += y * y
         if self.is_fisheye:
-            k1, k2, k3, k4 = self.dist[:4]
+            k1, k2, k3, k4 = self.dist[:4].tolist()
             r = np.sqrt(r2)
             theta = np.arctan(r)
             t2 = theta * theta
@@ -84,12 +88,24 @@ class CameraIntrinsics:
             scale = np.divide(theta_d, r, out=np.ones_like(r), where=r > 1e-8)  # OpenCV's guard on the axis
             xd, yd = x * scale, y * scale
         else:
-            k1, k2, p1, p2, k3 = self.dist[:5]
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            xy2 = 2.0 * x * y
-            xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-            yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
-        return self.K[0, 0] * xd + self.K[0, 2], self.K[1, 1] * yd + self.K[1, 2]
+            # x_d = x radial + 2 p1 x y + p2 (r2 + 2 x^2) = x s + p2 r2 and y_d = y s + p1 r2, with
+            # s = radial + 2 (p1 y + p2 x): the same polynomial in 23 array passes instead of 31, fewer
+            # when coefficients are zero (often k3, sometimes p1 and p2), and in place where possible.
+            k1, k2, p1, p2, k3 = self.dist[:5].tolist()
+            s = _horner(r2, (1.0, k1, k2, k3))  # radial = 1 + k1 r2 + k2 r2^2 + k3 r2^3
+            if p1 or p2:
+                s += x * (2.0 * p2)
+                s += y * (2.0 * p1)
+            xd, yd = x * s, y * s
+            if p2:
+                xd += r2 * p2
+            if p1:
+                yd += r2 * p1
+        xd *= fx
+        xd += cx
+        yd *= fy
+        yd += cy
+        return xd, yd
 
     def undistort_points(self, pixels: np.ndarray) -> np.ndarray:
         """Normalised image coordinates (x/z, y/z) of (N, 2) distorted pixels."""
@@ -124,3 +140,18 @@ class CameraIntrinsics:
     @classmethod
     def from_dict(cls, data: dict) -> CameraIntrinsics:
         return cls(data["model"], int(data["width"]), int(data["height"]), np.array(data["K"]), np.array(data["dist"]))
+
+
+def _horner(t: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
+    """``c0 + c1 t + c2 t^2 + ...`` by Horner's rule into one new array; zero coefficients at the top are skipped."""
+    coefficients = list(coefficients)
+    while len(coefficients) > 1 and coefficients[-1] == 0.0:
+        coefficients.pop()
+    if len(coefficients) == 1:
+        return np.full_like(t, coefficients[0])
+    value = t * coefficients[-1]
+    for c in reversed(coefficients[1:-1]):
+        value += c
+        value *= t
+    value += coefficients[0]
+    return value

@@ -2,16 +2,33 @@
 
 from __future__ import annotations
 
+from functools import cache
+
 import cv2
 import numpy as np
 
 
 def colormap(values: np.ndarray, lo: float, hi: float, cmap: int = cv2.COLORMAP_TURBO) -> np.ndarray:
-    """(N,) values -> (N, 3) uint8 RGB through an OpenCV colour map, ``lo`` and ``hi`` at its ends."""
-    values = np.asarray(values, np.float32).ravel()
-    scaled = np.clip((values - lo) / max(hi - lo, 1e-9), 0.0, 1.0) * 255.0
-    bgr = cv2.applyColorMap(scaled.astype(np.uint8)[:, None], cmap)  # (N, 1, 3)
-    return np.ascontiguousarray(bgr[:, 0, ::-1])
+    """(N,) values -> (N, 3) uint8 RGB through an OpenCV colour map, ``lo`` and ``hi`` at its ends.
+
+    Values are scaled to 0..255 in float32 and truncated to the map's 256 entries.
+    """
+    scaled = np.array(values, dtype=np.float32).ravel()  # a copy, scaled in place below
+    scaled -= float(lo)  # Python floats keep the arithmetic in float32
+    scaled /= max(float(hi) - float(lo), 1e-9)
+    np.clip(scaled, 0.0, 1.0, out=scaled)
+    scaled *= 255.0
+    if not scaled.size:
+        return np.zeros((0, 3), np.uint8)
+    # A user colour map in RGB order gives RGB straight away (no channel swap afterwards).
+    return cv2.applyColorMap(scaled.astype(np.uint8)[:, None], _rgb_lut(cmap)).reshape(-1, 3)
+
+
+@cache
+def _rgb_lut(cmap: int) -> np.ndarray:
+    """OpenCV colour map ``cmap`` as a (256, 1, 3) uint8 table in RGB order, for ``cv2.applyColorMap``."""
+    bgr = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cmap)
+    return np.ascontiguousarray(bgr[:, :, ::-1])
 
 
 def depth_colours(depth_m: np.ndarray, lo_m: float, hi_m: float) -> np.ndarray:

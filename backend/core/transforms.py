@@ -6,7 +6,8 @@ name ends in ``_deg``. Euler angles follow ROS ``static_transform_publisher``:
 ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``. Quaternions are ``(x, y, z, w)``.
 
 All rotation maths goes through :mod:`scipy.spatial.transform`; nothing here is
-hand-rolled beyond assembling the 4x4 matrix.
+hand-rolled beyond assembling the 4x4 matrix and :func:`right_jacobian`, which scipy lacks
+(the solvers' analytic Jacobians need it).
 """
 
 from __future__ import annotations
@@ -59,6 +60,17 @@ def to_quaternion_xyzw(T: np.ndarray) -> np.ndarray:
 def from_quaternion_xyzw(q_xyzw: np.ndarray, t_m: np.ndarray) -> np.ndarray:
     """4x4 from a quaternion ``(x, y, z, w)`` and translation (m)."""
     return make_T(Rotation.from_quat(np.asarray(q_xyzw, dtype=float)).as_matrix(), t_m)
+
+
+def right_jacobian(omega: np.ndarray) -> np.ndarray:
+    """SO(3) right Jacobian ``J_r`` of a rotation vector (rad): ``Exp(w + dw) ~ Exp(w) Exp(J_r(w) dw)``."""
+    theta = float(np.linalg.norm(omega))
+    W = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
+    if theta < 1e-6:
+        a, b = 0.5, 1.0 / 6.0
+    else:
+        a, b = (1 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
+    return np.eye(3) - a * W + b * W @ W
 
 
 def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:

@@ -31,6 +31,12 @@ from backend.devices.image_io import encode_jpeg, read_image
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_camera_pairs import CapturePair, check_camera, check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
+from backend.solvers.lidar_camera_edges import (
+    EdgeObservation,
+    LidarCameraEdgesResult,
+    LidarCameraEdgesSettings,
+    solve_edges,
+)
 from backend.solvers.lidar_camera_target import (
     LidarCameraResult,
     LidarCameraTargetSettings,
@@ -97,6 +103,29 @@ def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> Li
     return replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
 
 
+PRIOR_SEARCH_SIGMAS = 2.5
+"""With a translation prior, the coarse edge search stays within this many of its sigmas of the initial translation."""
+
+
+def edges_settings(translation_prior_m: float | None = None) -> LidarCameraEdgesSettings:
+    """The targetless solve's settings; ``translation_prior_m`` (m, 1-sigma per axis) holds the initial guess's
+    translation as a measurement (for scenes whose edges are all far, where edges fix the rotation but hardly the
+    translation), and keeps the coarse search within :data:`PRIOR_SEARCH_SIGMAS` of it."""
+    if translation_prior_m is None:
+        return LidarCameraEdgesSettings()
+    if not translation_prior_m > 0:
+        raise InputError(f"expected a translation prior above 0 m, got {translation_prior_m}", "--translation-prior")
+    defaults = LidarCameraEdgesSettings()
+    return replace(defaults, fine=replace(defaults.fine, translation_prior_m=float(translation_prior_m)),
+                   coarse=replace(defaults.coarse, max_translation_m=PRIOR_SEARCH_SIGMAS * translation_prior_m))
+
+
+def edge_observation(image: np.ndarray, points: np.ndarray, intensity: np.ndarray | None, name: str
+                     ) -> EdgeObservation:
+    """A targetless observation; the cloud's intensities, when it has them, give reflectivity edges."""
+    return EdgeObservation(image, points if intensity is None else np.column_stack([points, intensity]), name=name)
+
+
 def observations_from_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]],
                             progress: ProgressCallback = no_progress) -> list[TargetObservation]:
     """One observation per (image, cloud) pair: the camera's board pose and the LiDAR's points (m)."""
@@ -111,19 +140,34 @@ def observations_from_files(camera: CameraIntrinsics, board: BoardSpec, pairs: S
     return observations
 
 
-def solve_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]], T_init: np.ndarray,
-                *, method: str = "target", plate_margin_m: float | None = None,
-                progress: ProgressCallback = no_progress) -> LidarCameraResult:
+def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
+                T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
+                translation_prior_m: float | None = None,
+                progress: ProgressCallback = no_progress) -> LidarCameraResult | LidarCameraEdgesResult:
     """``T_camera_lidar`` from image and cloud files of the same moments, starting from ``T_init``.
 
-    ``plate_margin_m``: how far the board's plate reaches beyond the pattern's outer corners (m);
-    default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
+    beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    ``method="edges"`` is targetless (:func:`~backend.solvers.lidar_camera_edges.solve_edges`): it aligns the
+    edges of ordinary scenes and takes the clouds' intensities, where the files have them, for reflectivity edges;
+    ``translation_prior_m``: see :func:`edges_settings`.
     """
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "--method")
     if method == "edges":
-        raise InputError("the targetless (edges) method is not available yet; use --method target with a board "
-                         "seen by both sensors", "--method")
+        settings = edges_settings(translation_prior_m)
+        observations = []
+        for i, (image_path, cloud_path) in enumerate(pairs):
+            progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_path.name}")
+            image = read_image(image_path)
+            check_image_size(image, camera, str(image_path))
+            cloud = read_cloud(cloud_path)
+            observations.append(edge_observation(image, cloud.points, cloud.intensity,
+                                                 f"{image_path.name}:{cloud_path.name}"))
+        return solve_edges(camera, observations, T_init, settings,
+                           progress=lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
+    if board is None:
+        raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
     settings = target_settings(board, plate_margin_m)
     observations = observations_from_files(camera, board, pairs, progress)
     return solve_target(board, observations, T_init, settings,
@@ -186,12 +230,13 @@ def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray
 
 def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
                   T_init: np.ndarray | None = None, image_ids: list[str] | None = None,
-                  plate_margin_m: float | None = None,
-                  progress: ProgressCallback = no_progress) -> tuple[str, LidarCameraResult]:
+                  plate_margin_m: float | None = None, translation_prior_m: float | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, LidarCameraResult | LidarCameraEdgesResult]:
     """Solve ``T_camera_lidar`` from the session's stored pairs and keep the result (not yet accepted).
 
     ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record
-    names the camera and the method, and before/after overlays are stored with it.
+    names the camera and the method, and before/after overlays are stored with it. ``plate_margin_m`` is for the
+    target method (:func:`target_settings`), ``translation_prior_m`` for the edges method (:func:`edges_settings`).
     """
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "method")
@@ -212,7 +257,9 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
         result = solve_target(board, observations, T_init, settings,
                               lambda fraction, message: progress(0.2 + 0.7 * fraction, message))
     else:
-        raise InputError("the targetless (edges) method is not available yet", "method")
+        observations = [edge_observation(p.image, p.points, p.intensity, p.pair.name) for p in loaded]
+        result = solve_edges(intrinsics, observations, T_init, edges_settings(translation_prior_m),
+                             lambda fraction, message: progress(0.9 * fraction, message))
     progress(0.95, "drawing the before/after overlays")
     files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_camera_lidar)
     record = result.to_record() | {"camera": camera, "method": method}

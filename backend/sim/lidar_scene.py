@@ -310,13 +310,13 @@ class LidarScene:
         on_board = labels == LABELS["board"]
         if on_board.any():
             hits_board = transform_points(np.linalg.solve(self.T_base_board, T), points_true[on_board])
-            reflect[np.flatnonzero(on_board)[self._on_black_square(hits_board)]] = BOARD_INK_INTENSITY
+            reflect[np.flatnonzero(on_board)[self.on_black_square(hits_board)]] = BOARD_INK_INTENSITY
         intensity = reflect * (0.35 + 0.65 * cos_incidence) + rng.normal(0.0, 1.5, len(t))
         return LidarScan(points=points, intensity=np.clip(intensity, 0, 255).astype(np.float32),
                          ring=ring[keep].astype(np.int16), labels=labels, points_true=points_true,
                          azimuth_rad=azimuth[keep], T_base_sensor=T.copy())
 
-    def _on_black_square(self, points_board: np.ndarray) -> np.ndarray:
+    def on_black_square(self, points_board: np.ndarray) -> np.ndarray:
         """Whether board-frame points (m) on the print fall on a black square (as :meth:`BoardSpec.render`)."""
         sq = self.board.square_m
         ix = np.floor((points_board[:, 0] + sq) / sq).astype(int)

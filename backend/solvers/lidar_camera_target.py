@@ -41,7 +41,7 @@ from scipy.optimize import least_squares
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.transforms import invert, transform_points
+from backend.core.transforms import invert, right_jacobian, transform_points
 from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
 from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
@@ -50,8 +50,10 @@ from backend.solvers.result import (
     SolveResult,
     finite_or_none,
     jackknife_std,
+    jacobian_covariance,
     no_progress,
     transform_record_fields,
+    transform_std,
     widen_covariance,
 )
 
@@ -185,8 +187,7 @@ class LidarCameraResult(SolveResult):
     @property
     def std(self) -> dict[str, list[float | None]]:
         """Reported 1-sigma: ``trans_m`` (m, camera axes), ``rot_deg`` (deg, about the LiDAR's axes)."""
-        std = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        return {"trans_m": finite_or_none(std[:3]), "rot_deg": finite_or_none(np.degrees(std[3:]))}
+        return transform_std(self.covariance)
 
     def summary(self) -> dict[str, Any]:
         return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
@@ -444,17 +445,6 @@ def _edge_weight(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.
     return float(mad_plane / mad_edges) if len(edges) and mad_edges > 0 else 1.0
 
 
-def _right_jacobian(omega: np.ndarray) -> np.ndarray:
-    """SO(3) right Jacobian ``J_r`` of a rotation vector (rad): ``Exp(w + dw) ~ Exp(w) Exp(J_r(w) dw)``."""
-    theta = float(np.linalg.norm(omega))
-    W = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
-    if theta < 1e-6:
-        a, b = 0.5, 1.0 / 6.0
-    else:
-        a, b = (1 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
-    return np.eye(3) - a * W + b * W @ W
-
-
 def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
            settings: LidarCameraTargetSettings):
     """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.solvers.lidar_lidar.params_between`).
@@ -469,7 +459,7 @@ def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.nd
 
     def jacobian(p: np.ndarray) -> np.ndarray:
         T = apply_params(T_ref, p)
-        R, J_r = T[:3, :3], _right_jacobian(p[3:])
+        R, J_r = T[:3, :3], right_jacobian(p[3:])
         _, axis, sign = _nearest_side(np.einsum("nij,nj->ni", stacked.edge_axes,
                                                 transform_points(T, stacked.edge_points)) + stacked.edge_offset,
                                       centre, half)
@@ -480,19 +470,6 @@ def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.nd
 
     return least_squares(residuals, np.zeros(6), jac=jacobian, loss=settings.loss, f_scale=settings.loss_scale_m,
                          max_nfev=settings.max_nfev, tr_solver="lsmr")
-
-
-def _jacobian_covariance(result, n_params: int = 6) -> np.ndarray:
-    """``sigma^2 (J^T J)^-1`` with ``J`` the robust-loss-scaled Jacobian and ``sigma^2 = 2 cost / (m - 6)``
-    (the robust cost: about the residual variance when most residuals are inliers)."""
-    J = result.jac
-    dof = max(len(result.fun) - n_params, 1)
-    sigma2 = 2 * result.cost / dof
-    try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return np.full((n_params, n_params), np.nan)
-    return 0.5 * (cov + cov.T)
 
 
 def _jackknife(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
@@ -587,7 +564,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
 
     assert stacked is not None and result is not None  # region_margins_m is not empty
     # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
-    cov_j = _jacobian_covariance(result)
+    cov_j = jacobian_covariance(result)
     std_spread = None
     residuals, poses = _fit_statistics(T, stacked, centre, half, names)
     if residuals["plane_rms_m"] > settings.max_plane_rms_m:

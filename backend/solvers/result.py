@@ -63,6 +63,27 @@ def transform_record_fields(covariance: np.ndarray, settings: Any, converged: bo
             "covariance": [finite_or_none(row) for row in covariance], "covariance_order": TRANSFORM_PARAMETERS}
 
 
+def transform_std(covariance: np.ndarray) -> dict[str, list[float | None]]:
+    """A transform result's reported 1-sigma from its 6x6 covariance (order :data:`TRANSFORM_PARAMETERS`):
+    ``trans_m`` (m, parent axes) and ``rot_deg`` (deg, about the child's axes); None where undetermined."""
+    std = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    return {"trans_m": finite_or_none(std[:3]), "rot_deg": finite_or_none(np.degrees(std[3:]))}
+
+
+def jacobian_covariance(result: Any, n_params: int = 6) -> np.ndarray:
+    """``sigma^2 (J^T J)^-1`` of a :func:`scipy.optimize.least_squares` result, with ``J`` its robust-loss-scaled
+    Jacobian and ``sigma^2 = 2 cost / (m - n_params)`` (the robust cost: about the residual variance when most
+    residuals are inliers); NaN when ``J^T J`` is singular."""
+    J = result.jac
+    dof = max(len(result.fun) - n_params, 1)
+    sigma2 = 2 * result.cost / dof
+    try:
+        cov = sigma2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return np.full((n_params, n_params), np.nan)
+    return 0.5 * (cov + cov.T)
+
+
 def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> np.ndarray:
     """``cov_hessian`` with each sigma raised to ``std_spread`` where that is larger, keeping its correlations.
 

@@ -65,7 +65,7 @@ def solve(body: LidarCameraSolveRequest, session: deps.SessionDep, jobs: deps.Jo
         T_init = from_xyz_ypr(np.array(body.init_xyz_m or (0, 0, 0)), np.radians(body.init_ypr_deg or (0, 0, 0)))
     job = jobs.submit(f"{body.lidar} to {body.camera} ({body.method})", lambda progress: service.solve_session(
         session, body.camera, body.lidar, method=body.method, T_init=T_init, image_ids=body.image_ids,
-        plate_margin_m=body.plate_margin_m, progress=progress)[0])
+        plate_margin_m=body.plate_margin_m, translation_prior_m=body.translation_prior_m, progress=progress)[0])
     return job.status() | {"result_id": None}
 
 

@@ -1,0 +1,287 @@
+"""Targetless (edge-based) LiDAR-to-camera calibration: the simulated rig (``cam_front`` and a dense 128-beam
+``lidar_front`` scan of the yard from four robot positions), the real OpenCalib road frame, and the refusals."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import CancelledError, InputError
+from backend.core.projection import project_cloud
+from backend.core.transforms import from_xyz_ypr, make_T, transform_points
+from backend.devices.cloud_files import read_cloud
+from backend.devices.image_io import read_image
+from backend.sim.demo_rig import CAM_FRONT, demo_rig
+from backend.sim.lidar_scene import LidarScene
+from backend.sim.scene_camera import render_scene_image
+from backend.solvers.edge_alignment import FineAlignmentSettings
+from backend.solvers.edge_search import CoarseSearchSettings
+from backend.solvers.image_edges import find_image_edges
+from backend.solvers.lidar_camera_edges import (
+    PLANE,
+    EdgeObservation,
+    LidarCameraEdgesSettings,
+    find_lidar_edges,
+    in_view,
+    solve_edges,
+)
+from backend.solvers.lidar_lidar import transform_error
+from backend.solvers.plane_edges import find_plane_edges
+from backend.solvers.result import TRANSFORM_PARAMETERS
+
+RIG = demo_rig()
+T_BASE_CAMERA = RIG.T_root_frame("cam_front")
+T_BASE_LIDAR = RIG.T_root_frame("lidar_front")
+TRUTH = RIG.T_a_b("cam_front", "lidar_front")
+ROBOT_POSES = ((0.0, 0.0, 0.0), (0.6, -0.9, -20.0), (-0.6, 1.0, 25.0), (1.5, 0.3, 10.0))
+"""Where the robot stands in the yard for each pair: x, y (m) and heading (deg)."""
+OPENCALIB = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2camera"
+
+
+def scan_and_image(scene: LidarScene, robot_pose: tuple[float, float, float], rng: np.random.Generator):
+    """A dense 128-beam scan (40 deg, 0.1 deg steps) by ``lidar_front`` and ``cam_front``'s image, robot at a pose."""
+    x, y, yaw = robot_pose
+    T_world_base = from_xyz_ypr(np.array([x, y, 0.0]), np.radians([yaw, 0.0, 0.0]))
+    scan = scene.scan_3d(T_world_base @ T_BASE_LIDAR, beams=128, vertical_fov_deg=(-25, 15), azimuth_step_deg=0.1,
+                         rng=rng)
+    return scan, render_scene_image(scene, CAM_FRONT, T_world_base @ T_BASE_CAMERA, rng)
+
+
+def simulated_pairs(n: int, seed: int = 0) -> list[EdgeObservation]:
+    """``n`` image and cloud (x, y, z, intensity) pairs of the yard, without the board: a targetless scene.
+
+    The board's print is left out because a checkerboard is a periodic pattern: shifted by one square (4 cm,
+    14 px at 2.6 m) its edges fit again, and from a 10 cm start the solve then locks on a shifted copy (seen on
+    two of three initial guesses).
+    """
+    scene, rng = LidarScene(include_board=False), np.random.default_rng(seed)
+    pairs = []
+    for i, pose in enumerate(ROBOT_POSES[:n]):
+        scan, image = scan_and_image(scene, pose, rng)
+        pairs.append(EdgeObservation(image, np.column_stack([scan.points, scan.intensity]), f"pose {i + 1}"))
+    return pairs
+
+
+def initial_guess(seed: int) -> np.ndarray:
+    """The truth off by 10 cm and 5 deg in random directions."""
+    rng = np.random.default_rng(seed)
+    axis, direction = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+    return TRUTH @ make_T(Rotation.from_rotvec(np.radians(5.0) * axis).as_matrix(), 0.1 * direction)
+
+
+def errors_and_sigmas(result, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(6,) error (m, m, m, deg, deg, deg) against ``T_true`` and the reported 1-sigma in the same units."""
+    err_t, err_r = transform_error(result.T_camera_lidar, T_true)
+    return np.r_[err_t, err_r], np.r_[result.std["trans_m"], result.std["rot_deg"]]
+
+
+@pytest.fixture(scope="module")
+def sim_pairs() -> list[EdgeObservation]:
+    return simulated_pairs(4)
+
+
+@pytest.fixture(scope="module")
+def sim_result(sim_pairs):
+    return solve_edges(CAM_FRONT, sim_pairs, initial_guess(1))
+
+
+# ---------------------------------------------------------------- the simulated rig
+
+
+def test_rendered_image_has_edges_where_the_lidar_sees_planes_meet():
+    scene, rng = LidarScene(include_board=False), np.random.default_rng(3)
+    scan, image = scan_and_image(scene, ROBOT_POSES[0], rng)
+    started = time.perf_counter()
+    render_scene_image(scene, CAM_FRONT, T_BASE_CAMERA, rng)
+    seconds = time.perf_counter() - started
+    print(f"render: {seconds:.2f} s")
+    assert image.dtype == np.uint8 and image.shape == (CAM_FRONT.height, CAM_FRONT.width)
+    assert seconds < 4.0  # 1280x720 with 2x2 rays per pixel (3.7 M rays): about 1.3 s here
+    edges = find_plane_edges(scan.points)
+    # Every plane-intersection point lies on the mesh: within 1.5 cm (range noise 1 cm, plane fits of 30+ points).
+    assert np.percentile(scene.distance_to_mesh(transform_points(scan.T_base_sensor, edges.points)), 95) < 0.015
+    distance = find_image_edges(image).distance_px
+
+    def near_edge(T_camera_lidar: np.ndarray) -> float:
+        cols, rows = np.rint(project_cloud(edges.points, T_camera_lidar, CAM_FRONT).uv).astype(int).T
+        return float(np.mean(distance[rows, cols] <= 2.0))
+
+    turned = TRUTH @ make_T(Rotation.from_rotvec(np.radians([0.0, 0.0, 1.0])).as_matrix(), np.zeros(3))
+    print(f"plane edge points within 2 px of an image edge: {near_edge(TRUTH):.2f} (truth), "
+          f"{near_edge(turned):.2f} (turned by 1 deg)")
+    # 0.75 and 0.13 here: the other plane edges are between faces the sun lights nearly alike (the left wall and
+    # the floor), where Canny finds no edge.
+    assert near_edge(TRUTH) > 0.6 > 0.3 > near_edge(turned)
+
+
+@pytest.mark.slow
+def test_simulated_rig_recovers_the_truth_from_10cm_5deg(sim_result):
+    error, sigma = errors_and_sigmas(sim_result, TRUTH)
+    print(f"edges, 4 pairs: error {np.round(1000 * error[:3], 2)} mm, {np.round(error[3:], 4)} deg; sigma "
+          f"{np.round(1000 * sigma[:3], 2)} mm, {np.round(sigma[3:], 4)} deg; {sim_result.seconds:.1f} s; "
+          f"{sim_result.residuals}")
+    assert sim_result.converged, sim_result.warnings
+    # Over five initial guesses 10 cm and 5 deg off: at most 0.7 mm and 0.022 deg per axis, at most 0.6-2.5 of the
+    # reported sigmas (0.3-1.0 mm, 0.004-0.013 deg) per solve; this one 0.4 mm, 0.003 deg, 0.6 sigma.
+    assert np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.2)
+    assert np.all(np.abs(error) < 3 * sigma), (error, sigma)
+    assert sim_result.spread_source == "edge groups and pairs"
+    assert sim_result.residuals["edge_rms_px"] < 1.0 and sim_result.residuals["matched"] > 300
+
+
+def test_summary_is_the_cli_contract_and_the_record_is_strict_json(sim_result):
+    summary = sim_result.summary()
+    assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(summary["std"]) == {"trans_m", "rot_deg"} and len(summary["std"]["trans_m"]) == 3
+    assert {"edge_rms_px", "edge_median_px", "edge_p95_px", "lidar_edge_points", "image_edge_pixels", "matched",
+            "per_pair_rms_px"} <= set(summary["residuals"])
+    assert len(summary["residuals"]["per_pair_rms_px"]) == 4
+    record = json.loads(json.dumps(sim_result.to_record(), allow_nan=False))
+    assert record["kind"] == "lidar_camera" and record["method"] == "edges" and record["converged"]
+    assert record["covariance_order"] == TRANSFORM_PARAMETERS and np.shape(record["covariance"]) == (6, 6)
+    assert np.allclose(record["T_init"], initial_guess(1))
+    assert record["settings"]["planes"]["voxel_m"] == 1.0 and record["settings"]["coarse"]["levels"]
+    assert [p["name"] for p in record["pairs"]] == ["pose 1", "pose 2", "pose 3", "pose 4"]
+
+
+def test_progress_is_reported_and_its_exception_cancels(sim_pairs):
+    messages = []
+
+    def cancel_in_the_coarse_search(fraction: float, message: str) -> None:
+        messages.append((fraction, message))
+        if message.startswith("coarse search"):
+            raise CancelledError("cancelled")
+
+    with pytest.raises(CancelledError):
+        solve_edges(CAM_FRONT, sim_pairs[:1], initial_guess(1), progress=cancel_in_the_coarse_search)
+    assert messages[0][1] == "finding edges in pose 1" and messages[-1][1].startswith("coarse search")
+
+
+# ---------------------------------------------------------------- too few edges
+
+
+def test_a_featureless_image_is_refused_naming_it(sim_pairs):
+    blank = EdgeObservation(np.full((CAM_FRONT.height, CAM_FRONT.width), 128, np.uint8), sim_pairs[0].points_lidar,
+                            "blank.png:scan.npy")
+    with pytest.raises(InputError, match="too few edges: the image has 0 edge pixels") as caught:
+        solve_edges(CAM_FRONT, [blank], initial_guess(1))
+    assert caught.value.input == "blank.png:scan.npy: image"
+
+
+def test_a_cloud_of_one_plane_is_refused_naming_it(sim_pairs):
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(1, 10, 20_000), rng.uniform(-5, 5, 20_000), rng.normal(-0.55, 0.01, 20_000),
+                             np.full(20_000, 25.0)])
+    with pytest.raises(InputError, match="too few edges: 0 LiDAR edge points") as caught:
+        solve_edges(CAM_FRONT, [EdgeObservation(sim_pairs[0].image, floor, "floor")], initial_guess(1))
+    assert caught.value.input == "floor: cloud"
+
+
+def test_edges_that_all_run_one_way_are_refused_as_unobservable():
+    # Without the floor the LiDAR sees only vertical edges (box and wall corners): nothing fixes the camera's
+    # height and pitch along them.
+    scene, rng = LidarScene(include_board=False), np.random.default_rng(0)
+    scan, image = scan_and_image(scene, ROBOT_POSES[0], rng)
+    walls_only = scan.points[scan.points_base()[:, 2] > 0.25]
+    settings = LidarCameraEdgesSettings(min_matched=50)  # about 100 match: test the geometry, not the count
+    with pytest.raises(InputError, match="too few edges: the matched edges leave .*t_y.* unobservable") as caught:
+        solve_edges(CAM_FRONT, [EdgeObservation(image, walls_only, "walls")], initial_guess(1), settings)
+    assert caught.value.input == "walls"
+
+
+def test_an_image_of_the_wrong_size_is_refused(sim_pairs):
+    small = EdgeObservation(sim_pairs[0].image[:100, :200], sim_pairs[0].points_lidar, "small")
+    with pytest.raises(InputError, match="200x100 px") as caught:
+        solve_edges(CAM_FRONT, [small], TRUTH)
+    assert caught.value.input == "small: image"
+
+
+# ---------------------------------------------------------------- the real OpenCalib frame
+
+
+def opencalib() -> tuple[EdgeObservation, CameraIntrinsics, np.ndarray]:
+    """The OpenCalib pair (cloud with intensities), its camera and the authors' reference ``T_camera_lidar``."""
+    if not OPENCALIB.is_dir():
+        pytest.fail(f"real data missing: {OPENCALIB}")
+    intrinsic = json.loads((OPENCALIB / "center_camera-intrinsic.json").read_text())["center_camera-intrinsic"]["param"]
+    camera = CameraIntrinsics("pinhole-radtan", intrinsic["img_dist_w"], intrinsic["img_dist_h"],
+                              np.array(intrinsic["cam_K"]["data"]), np.array(intrinsic["cam_dist"]["data"][0]))
+    extrinsic = json.loads((OPENCALIB / "top_center_lidar-to-center_camera-extrinsic.json").read_text())
+    T = np.array(extrinsic["top_center_lidar-to-center_camera-extrinsic"]["param"]["sensor_calib"]["data"])
+    cloud = read_cloud(OPENCALIB / "calib.pcd")
+    pair = EdgeObservation(read_image(OPENCALIB / "calib.png"), np.column_stack([cloud.points, cloud.intensity]),
+                           "calib.png:calib.pcd")
+    return pair, camera, T
+
+
+def perturbed(T: np.ndarray, rotation_deg: tuple[float, float, float], translation_m: tuple[float, float, float]
+              ) -> np.ndarray:
+    """``T`` turned about the LiDAR's x, y, z axes (deg; roll, pitch, yaw as OpenCalib perturbs) and moved (m)."""
+    turned = T @ make_T(Rotation.from_euler("xyz", np.radians(rotation_deg)).as_matrix(), np.zeros(3))
+    turned[:3, 3] += translation_m
+    return turned
+
+
+REAL_SETTINGS = LidarCameraEdgesSettings(fine=FineAlignmentSettings(translation_prior_m=0.02),
+                                         coarse=CoarseSearchSettings(max_translation_m=0.05))
+"""For the road frame: its edges are 8-40 m away, where 1 cm of translation is about 1 px (f = 2117 px) and the
+fit's translation wanders by 5-20 cm between starts; the translation of ``T_init`` is taken as a measurement of
+2 cm and the coarse search kept within 5 cm of it, so the edges fix the rotation."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rotation_deg, translation_m", [((3, 3, 3), (0.03, -0.03, 0.03)),
+                                                          ((-3, -3, -3), (-0.03, 0.03, -0.03))])
+def test_real_frame_comes_back_near_the_reference(rotation_deg, translation_m):
+    pair, camera, reference = opencalib()
+    T_init = perturbed(reference, rotation_deg, translation_m)
+    result = solve_edges(camera, [pair], T_init, REAL_SETTINGS)
+    error, sigma = errors_and_sigmas(result, reference)
+    print(f"OpenCalib from {rotation_deg} deg, {translation_m} m: error {np.round(1000 * error[:3], 1)} mm, "
+          f"{np.round(error[3:], 3)} deg; sigma {np.round(1000 * sigma[:3], 1)} mm, {np.round(sigma[3:], 3)} deg; "
+          f"{result.seconds:.1f} s; {result.residuals}")
+    assert result.converged, result.warnings
+    # The reference is the authors' calibration, not surveyed truth, and one frame with about 100 matched edge
+    # points (crossing stripes and lane lines; the only plane intersection in view is a block's corner) fixes
+    # the rotation to a few tenths of a degree: from six starts 3 deg off the solves land 0.0-0.37 deg from the
+    # reference per axis, in two clusters about 0.4 deg apart, and the reference's overlay is no better by an
+    # independent measure (depth discontinuities against image edges, as in test_projection: 5.18 px for the
+    # reference, 5.1-5.4 px for the solves). So: within 0.5 deg per axis, and within 10 cm (measured 2-8 cm).
+    assert np.all(np.abs(error[3:]) < 0.5) and np.all(np.abs(error[:3]) < 0.1)
+    start_t, start_r = transform_error(T_init, reference)
+    assert np.linalg.norm(error[3:]) < 0.2 * np.linalg.norm(start_r)
+
+
+def test_a_poor_fit_is_returned_unconverged_with_a_warning():
+    pair, camera, reference = opencalib()
+    strict = LidarCameraEdgesSettings(fine=REAL_SETTINGS.fine, coarse=REAL_SETTINGS.coarse, max_rms_px=0.5)
+    result = solve_edges(camera, [pair], reference, strict)  # its rms is about 1 px
+    assert not result.converged and result.std_spread is None
+    assert any(w.startswith("poor fit: rms edge distance") and w.endswith("not accepted") for w in result.warnings)
+
+
+def test_real_overlay_agrees_with_the_reference_and_not_when_turned():
+    pair, camera, reference = opencalib()
+    settings = LidarCameraEdgesSettings()
+    points = pair.points_lidar
+    seen = in_view(points[:, :3], reference, camera, settings.view_margin_deg, settings.max_range_m)
+    lidar = find_lidar_edges(points[seen, :3], points[seen, 3], settings)
+    distance = find_image_edges(pair.image, settings.image).distance_px
+
+    def near_edge(T_camera_lidar: np.ndarray) -> float:
+        cols, rows = np.rint(project_cloud(lidar.points, T_camera_lidar, camera).uv).astype(int).T
+        return float(np.mean(distance[rows, cols] <= 3.0))
+
+    reference_share = near_edge(reference)
+    turned = {angles: near_edge(perturbed(reference, angles, (0.0, 0.0, 0.0)))
+              for angles in [(3, 0, 0), (0, 3, 0), (0, 0, 3), (3, 3, 3), (-3, -3, -3)]}
+    print(f"OpenCalib: {len(lidar)} LiDAR edge points ({np.count_nonzero(lidar.kind == PLANE)} plane), "
+          f"{reference_share:.2f} within 3 px of an image edge at the reference, turned by 3 deg: {turned}")
+    assert reference_share > 0.55  # 0.64 here; by chance 0.12 (the share of the image within 3 px of an edge)
+    assert all(share < 0.75 * reference_share for share in turned.values())  # 0.08-0.43 here
