@@ -4,8 +4,10 @@ Frames are rendered from ground truth (:mod:`backend.sim`): the camera's true
 intrinsics and mounting from :func:`backend.sim.demo_rig.demo_rig`, and the board
 either waved in front of the camera for an intrinsic calibration
 (:func:`backend.sim.board_motion.board_poses`) or carried about the simulated yard,
-where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_board_poses`).
-Every sample carries the true ``T_camera_board`` in its metadata.
+where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_board_poses`) and
+the camera photographs the whole yard (:func:`backend.sim.scene_camera.render_scene_image`), so
+its edges line up with the LiDARs' points. Every sample carries the true ``T_camera_board``
+in its metadata.
 """
 
 from __future__ import annotations
@@ -22,9 +24,12 @@ from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.sim.lidar_scene import moving_board_poses
+from backend.sim.lidar_scene import LidarScene, moving_board_poses
+from backend.sim.scene_camera import render_scene_image
 
 BOARD_MOTIONS = ("wave", "scene")
+SCENE_NOISE_SIGMA = 1.5
+"""Sensor noise (grey levels, 1-sigma) added to every frame of the yard."""
 
 
 @register_driver
@@ -82,6 +87,9 @@ class SimulatedCamera(CaptureDevice):
         self._board_spec: BoardSpec | None = None
         self._poses: list[np.ndarray] = []
         self._T_base_boards: list[np.ndarray] | None = None
+        self._T_base_camera: np.ndarray | None = None
+        self._yard_images: dict[int, np.ndarray] = {}
+        """Noise-free photographs of the yard per board pose (rendering one takes about a second)."""
 
     def open(self) -> None:
         """Look the camera up in the demo rig and plan the board motion."""
@@ -103,9 +111,10 @@ class SimulatedCamera(CaptureDevice):
             self._poses = board_poses(frame.intrinsics, board, self.n_poses, self.seed)
             self._T_base_boards = None
         else:
-            T_camera_base = np.linalg.inv(demo_rig().T_root_frame(self.camera))
+            self._T_base_camera = demo_rig().T_root_frame(self.camera)
             self._T_base_boards = moving_board_poses(self.n_poses, self.seed, board=self.board)
-            self._poses = [T_camera_base @ T_base_board for T_base_board in self._T_base_boards]
+            self._poses = [np.linalg.inv(self._T_base_camera) @ T_base_board for T_base_board in self._T_base_boards]
+            self._yard_images = {}
         self._timing.restart()
 
     def read(self) -> Sample:
@@ -116,12 +125,25 @@ class SimulatedCamera(CaptureDevice):
         pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
         T_camera_board = self._poses[pose_index]
         rng = np.random.default_rng([self.seed, index])
-        image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
+        if self._T_base_boards is None:
+            image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
+        else:
+            image = self._yard_image(pose_index, rng)
         meta = {"frame_index": index, "board_pose_index": pose_index, "T_camera_board": T_camera_board.tolist(),
                 "simulated": True}
         if self._T_base_boards is not None:
             meta["T_base_board"] = self._T_base_boards[pose_index].tolist()
         return Sample(time.time(), image=image, meta=meta)
+
+    def _yard_image(self, pose_index: int, rng: np.random.Generator) -> np.ndarray:
+        """The yard with the board at pose ``pose_index``, with fresh sensor noise from ``rng``."""
+        clean = self._yard_images.get(pose_index)
+        if clean is None:
+            scene = LidarScene(self._T_base_boards[pose_index], board=self.board)
+            clean = self._yard_images[pose_index] = render_scene_image(
+                scene, self._intrinsics, self._T_base_camera, self.seed, supersample=1, noise_sigma=0.0)
+        noisy = clean + SCENE_NOISE_SIGMA * rng.standard_normal(clean.shape, dtype=np.float32)
+        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
     def close(self) -> None:
         """Forget the planned motion; safe to call twice."""
@@ -129,6 +151,7 @@ class SimulatedCamera(CaptureDevice):
         self._board_spec = None
         self._poses = []
         self._T_base_boards = None
+        self._yard_images = {}
 
     def describe(self) -> str:
         if self._intrinsics is None:

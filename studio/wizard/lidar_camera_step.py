@@ -86,6 +86,10 @@ class LidarCameraStep:
             self.editor.bind_keys(gui, "LiDAR to camera")
             self.reset_button = gui.add_button("Reset to rig")
             self.method = gui.add_dropdown("Method", options=list(METHODS))
+            self.translation_prior = gui.add_number(
+                "Translation prior σ (m)", initial_value=0.0, min=0.0, max=1.0, step=0.005,
+                hint="targetless: hold the sliders' translation as measured to this 1-sigma (0: not held); for scenes "
+                     "whose edges are all far away, which fix the rotation but hardly the translation")
             self.solve_button = gui.add_button("Solve from the sliders", color="blue")
             self.jobs = JobPanel(ctx, [self.solve_button, self.capture_button])
             self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, move_sliders=True),
@@ -206,11 +210,13 @@ class LidarCameraStep:
 
     def _solve(self) -> None:
         session, pair, T_init, method = self.ctx.session, self.pair, self.editor.T, METHODS[self.method.value]
+        prior_m = float(self.translation_prior.value) if method == "edges" and self.translation_prior.value else None
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed to solve.", error=True)
             return
         self.jobs.run(f"{pair[1]} to {pair[0]} ({method})", lambda progress: lidar_camera_service.solve_session(
-            session, *pair, method=method, T_init=T_init, progress=progress)[0], self._on_solved)
+            session, *pair, method=method, T_init=T_init, translation_prior_m=prior_m, progress=progress)[0],
+            self._on_solved)
 
     def _on_solved(self, result_id: str) -> None:
         self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders=True)
