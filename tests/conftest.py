@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -21,6 +22,43 @@ from playwright.sync_api import Browser, Page, expect, sync_playwright
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 STEREO_CHESSBOARD = SHARED_DATA / "opencv_stereo_chessboard"
+OPENCALIB = SHARED_DATA / "opencalib_lidar2camera"
+
+
+@dataclass
+class OpenCalibFrame:
+    """The real OpenCalib LiDAR + camera frame (see its README): BGR image, cloud, camera, reference extrinsic."""
+
+    image: Any
+    points: Any
+    """(N, 3) float64 LiDAR points (m)."""
+    intensity: Any
+    """(N,) return intensity."""
+    camera: Any
+    """The camera's :class:`~backend.core.camera.CameraIntrinsics`."""
+    T_camera_lidar: Any
+    """The authors' reference ``T_camera_lidar`` (4x4, m)."""
+
+
+def opencalib_frame() -> OpenCalibFrame:
+    """Read the OpenCalib frame; fails (not skips) the test when the data set is missing."""
+    import json
+
+    import numpy as np
+
+    from backend.core.camera import CameraIntrinsics
+    from backend.devices.cloud_files import read_cloud
+    from backend.devices.image_io import read_image
+
+    if not OPENCALIB.is_dir():
+        pytest.fail(f"real data missing: {OPENCALIB}")
+    intrinsic = json.loads((OPENCALIB / "center_camera-intrinsic.json").read_text())["center_camera-intrinsic"]["param"]
+    camera = CameraIntrinsics("pinhole-radtan", intrinsic["img_dist_w"], intrinsic["img_dist_h"],
+                              np.array(intrinsic["cam_K"]["data"]), np.array(intrinsic["cam_dist"]["data"][0]))
+    extrinsic = json.loads((OPENCALIB / "top_center_lidar-to-center_camera-extrinsic.json").read_text())
+    T = np.array(extrinsic["top_center_lidar-to-center_camera-extrinsic"]["param"]["sensor_calib"]["data"])
+    cloud = read_cloud(OPENCALIB / "calib.pcd")
+    return OpenCalibFrame(read_image(OPENCALIB / "calib.png"), cloud.points, cloud.intensity, camera, T)
 
 
 @pytest.fixture(scope="session")

@@ -3,13 +3,12 @@ the simulated rig's board, the real OpenCalib frame, drawing and colourising."""
 
 from __future__ import annotations
 
-import json
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from conftest import opencalib_frame
 from scipy.spatial.transform import Rotation
 
 from backend.core import projection as projection_module
@@ -19,12 +18,10 @@ from backend.core.camera_inverse import visible_radius
 from backend.core.colour_maps import colormap, depth_colours, height_colours, intensity_colours
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
 from backend.core.transforms import from_xyz_ypr, invert, make_T, to_rvec_tvec, transform_points
-from backend.devices.cloud_files import read_cloud
 from backend.sim.board_renderer import plate_corners_m, render_board_image
 from backend.sim.demo_rig import CAM_WIDE, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LABELS, LidarScene
 
-OPENCALIB = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2camera"
 FISHEYE = CameraIntrinsics("fisheye-equidistant", 1280, 720,
                            np.array([[600.0, 0, 641.2], [0, 599.1, 358.7], [0, 0, 1]]),
                            np.array([0.08, -0.02, 0.004, -0.001]))
@@ -204,14 +201,8 @@ def test_colour_modes_use_turbo() -> None:
 
 
 def opencalib() -> tuple[np.ndarray, np.ndarray, CameraIntrinsics, np.ndarray]:
-    if not OPENCALIB.is_dir():
-        pytest.fail(f"real data missing: {OPENCALIB}")
-    intrinsic = json.loads((OPENCALIB / "center_camera-intrinsic.json").read_text())["center_camera-intrinsic"]["param"]
-    camera = CameraIntrinsics("pinhole-radtan", intrinsic["img_dist_w"], intrinsic["img_dist_h"],
-                              np.array(intrinsic["cam_K"]["data"]), np.array(intrinsic["cam_dist"]["data"][0]))
-    extrinsic = json.loads((OPENCALIB / "top_center_lidar-to-center_camera-extrinsic.json").read_text())
-    T = np.array(extrinsic["top_center_lidar-to-center_camera-extrinsic"]["param"]["sensor_calib"]["data"])
-    return read_cloud(OPENCALIB / "calib.pcd").points, cv2.imread(str(OPENCALIB / "calib.png")), camera, T
+    frame = opencalib_frame()
+    return frame.points, frame.image, frame.camera, frame.T_camera_lidar
 
 
 def depth_edge_distance(points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics, edge_distance: np.ndarray

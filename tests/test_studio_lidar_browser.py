@@ -17,6 +17,7 @@ from conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
 from playwright.sync_api import Browser, Page, expect
 
 from backend.core.transforms import invert
+from backend.services.demo import DEMO_PAIRS
 from backend.sim.demo_rig import demo_rig
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -65,7 +66,8 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
 
     clicked = time.monotonic()
     button(page, "Capture clouds").click()
-    wait_body(page, re.compile(r"lidar_top: 1 · lidar_front: 1"), timeout_s=15)
+    # The demo session holds DEMO_PAIRS clouds of lidar_top already (its pairs with cam_front).
+    wait_body(page, re.compile(rf"lidar_top: {DEMO_PAIRS + 1} · lidar_front: 1"), timeout_s=15)
     print(f"capture answered in {time.monotonic() - clicked:.2f} s while streaming")
     button(page, "Stop live").click()
     expect(button(page, "Start live")).to_be_visible()

@@ -12,12 +12,18 @@ off against each other and the score has long ridges along such combinations: a 
 one kind of parameter at a time stalls on them. The search is therefore:
 
 1. a 3-D grid of rotations about ``T_init`` (rotation errors move the edges most, and far more
-   than the few-centimetre translation errors of a measured mounting);
+   than the few-centimetre translation errors of a measured mounting), whose best *distinct*
+   rotations (greedy non-maximum suppression, :func:`distinct_peaks`) are the starts of
 2. pattern searches, coarse to fine (:attr:`CoarseSearchSettings.levels`): the 3^6 joint moves of
    one step (or none) in each rotation and translation are scored, the best is taken, and this
    repeats until not moving is best. Translations are *pivoted* (:func:`pivoted_moves`):
    each turns the camera so that the edges' centroid stays put, so that a translation step
    changes only how near and far edges move against each other.
+
+Several starts, because the score can have more than one peak of about the same height: a
+repeating pattern in view (a checkerboard, a fence) fits again when shifted by one period, and a
+pattern search from one start climbs whichever peak is nearest. The caller refines each distinct
+result and compares their fits.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.projection import project_cloud
+from backend.solvers.lidar_lidar import params_between
 
 BATCH_POINTS = 1_000_000
 """Candidate points projected per call (memory: about 100 bytes each)."""
@@ -45,6 +52,12 @@ class CoarseSearchSettings:
     """The first, rotation-only grid: +-range in steps (deg). It must cover the initial guess's rotation error."""
     levels: tuple[tuple[float, float], ...] = ((1.0, 0.05), (0.5, 0.02), (0.2, 0.01))
     """Pattern-search levels, each ``(rotation step (deg), translation step (m))``."""
+    candidates: int = 3
+    """Pattern searches run, from the best rotations of the grid that are distinct (:func:`distinct_peaks`); their
+    distinct results are returned. 1 for the single best."""
+    candidate_separation_deg: float = 2.0
+    """A rotation of the grid within this (deg) of a better start on every axis is no other start: it lies on the
+    same peak (the score's kernel is one grid step wide)."""
     max_moves: int = 10
     """Moves per pattern-search level at most (each by up to one step per parameter)."""
     max_translation_m: float | None = None
@@ -91,7 +104,7 @@ def score_candidates(candidates: np.ndarray, samples: list[np.ndarray], distance
         progress(start / len(candidates))
         chunk = candidates[start:start + batch]
         for points, distance in zip(samples, distances, strict=True):
-            points_camera = np.einsum("kij,nj->kni", chunk[:, :3, :3], points) + chunk[:, None, :3, 3]
+            points_camera = np.matmul(points, chunk[:, :3, :3].transpose(0, 2, 1)) + chunk[:, None, :3, 3]
             projection = project_cloud(points_camera.reshape(-1, 3), np.eye(4), camera)
             cols, rows = np.rint(projection.uv).astype(np.int64).T
             d = distance[np.clip(rows, 0, camera.height - 1), np.clip(cols, 0, camera.width - 1)]
@@ -100,50 +113,97 @@ def score_candidates(candidates: np.ndarray, samples: list[np.ndarray], distance
     return scores
 
 
+def distinct_peaks(offsets: np.ndarray, scores: np.ndarray, count: int, separation: float) -> np.ndarray:
+    """Indices of up to ``count`` of the (K, D) ``offsets``, best ``scores`` first, none within ``separation`` of a
+    better chosen one on every axis (greedy non-maximum suppression)."""
+    chosen: list[int] = []
+    for index in np.argsort(-scores, kind="stable"):
+        if all(np.abs(offsets[index] - offsets[c]).max() >= separation - 1e-9 for c in chosen):
+            chosen.append(int(index))
+            if len(chosen) == count:
+                break
+    return np.array(chosen)
+
+
+@dataclass
+class _Scorer:
+    """Scores candidates on fixed subsets of each pair's LiDAR edge points, keeping to the translation limit."""
+
+    samples: list[np.ndarray]
+    """Each pair's (n_i, 3) scored LiDAR edge points (m, LiDAR frame)."""
+    distances: list[np.ndarray]
+    """Each pair's (H, W) distance transform of its image's edges (px)."""
+    camera: CameraIntrinsics
+    T_init: np.ndarray
+    settings: CoarseSearchSettings
+
+    def radius(self, rotation_step_deg: float) -> float:
+        """The kernel's radius (px) for a search step: how far the step moves an edge at the image centre."""
+        focal_px = float(np.mean(np.diag(self.camera.K)[:2]))
+        return max(self.settings.min_radius_px, focal_px * np.radians(rotation_step_deg))
+
+    def scores(self, candidates: np.ndarray, rotation_step_deg: float, report: Callable[[float], None]
+               ) -> np.ndarray:
+        """(K,) scores of (K, 4, 4) candidates; -inf beyond the translation limit, except the first (where the
+        search is)."""
+        scores = score_candidates(candidates, self.samples, self.distances, self.camera,
+                                  self.radius(rotation_step_deg), report)
+        if self.settings.max_translation_m is not None:
+            far = np.abs(candidates[:, :3, 3] - self.T_init[:3, 3]).max(axis=1) > self.settings.max_translation_m
+            scores[far & (np.arange(len(candidates)) > 0)] = -np.inf
+        return scores
+
+    def pattern_search(self, T: np.ndarray, report: Callable[[float, str], None]) -> tuple[np.ndarray, float]:
+        """The pattern searches of all levels from ``T``: where they end and its score at the finest level."""
+        stencil = cube_grid(1.0, 1.0, dims=6)
+        levels, max_moves = self.settings.levels, self.settings.max_moves
+        score = -np.inf
+        for level, (rotation_step_deg, translation_step_m) in enumerate(levels):
+            steps = stencil * np.repeat([translation_step_m, np.radians(rotation_step_deg)], 3)
+            for move in range(max_moves):
+                centre = np.mean(np.vstack([p @ T[:3, :3].T + T[:3, 3] for p in self.samples]), axis=0)
+                candidates = pivoted_moves(T, steps, centre)
+                scores = self.scores(candidates, rotation_step_deg, lambda f, level=level, move=move: report(
+                    (level + min(move + f, max_moves) / max_moves) / len(levels),
+                    f"level {level + 1} of {len(levels)}, move {move + 1}"))
+                chosen = int(np.argmax(scores))
+                score = float(scores[chosen])
+                if chosen == 0:  # the stencil's first offset is zero: staying is best
+                    break
+                T = candidates[chosen]
+        return T, score
+
+
 def coarse_search(T_init: np.ndarray, edge_points: list[np.ndarray], distances: list[np.ndarray],
                   camera: CameraIntrinsics, settings: CoarseSearchSettings,
                   progress: Callable[[float, str], None]) -> tuple[np.ndarray, list[str]]:
-    """The best ``T_camera_lidar`` found about ``T_init`` and warnings (the best rotation on the grid's border).
+    """(K, 4, 4) distinct ``T_camera_lidar`` found about ``T_init``, best score first (K <= ``settings.candidates``),
+    and warnings (the best rotation on the grid's border).
 
     ``edge_points`` are each pair's (N_i, 3) LiDAR edge points (m, LiDAR frame) and ``distances`` its image's
-    distance transform (px); ``progress`` gets the fraction of the search done and a message.
+    distance transform (px); ``progress`` gets the fraction of the search done and a message. Two results are one
+    when they are within a step of the finest level on every parameter.
     """
     rng = np.random.default_rng(settings.seed)
-    samples = [p[rng.permutation(len(p))[:settings.points_per_pair]] for p in edge_points]
-    focal_px = float(np.mean(np.diag(camera.K)[:2]))
-    stages = 1 + len(settings.levels)
-
-    def radius(rotation_step_deg: float) -> float:
-        return max(settings.min_radius_px, focal_px * np.radians(rotation_step_deg))
-
-    def best(candidates: np.ndarray, radius_px: float, report: Callable[[float], None]) -> int:
-        scores = score_candidates(candidates, samples, distances, camera, radius_px, report)
-        if settings.max_translation_m is not None:
-            far = np.abs(candidates[:, :3, 3] - T_init[:3, 3]).max(axis=1) > settings.max_translation_m
-            scores[far & (np.arange(len(candidates)) > 0)] = -np.inf  # the first candidate is where the search is
-        return int(np.argmax(scores))
-
+    scorer = _Scorer([p[rng.permutation(len(p))[:settings.points_per_pair]] for p in edge_points], distances,
+                     camera, T_init, settings)
     turns = cube_grid(np.radians(settings.rotation_range_deg), np.radians(settings.rotation_step_deg))
-    turns = np.hstack([np.zeros_like(turns), turns])
-    candidates = pivoted_moves(T_init, turns, np.zeros(3))
-    chosen = best(candidates, radius(settings.rotation_step_deg),
-                  lambda f: progress(f / stages, "coarse search: rotation"))
-    T = candidates[chosen]
+    grid = pivoted_moves(T_init, np.hstack([np.zeros_like(turns), turns]), np.zeros(3))
+    stages = 1 + settings.candidates
+    scores = scorer.scores(grid, settings.rotation_step_deg, lambda f: progress(f / stages, "coarse search: rotation"))
+    starts = distinct_peaks(turns, scores, settings.candidates, np.radians(settings.candidate_separation_deg))
     warnings = []
-    if np.max(np.abs(turns[chosen])) >= np.radians(settings.rotation_range_deg) - 1e-9:
+    if np.max(np.abs(turns[starts[0]])) >= np.radians(settings.rotation_range_deg) - 1e-9:
         warnings.append("coarse search: the best rotation is on the border of the search range; the initial guess "
                         "may be further off than it covers")
-    stencil = cube_grid(1.0, 1.0, dims=6)
-    for level, (rotation_step_deg, translation_step_m) in enumerate(settings.levels, start=1):
-        steps = stencil * np.repeat([translation_step_m, np.radians(rotation_step_deg)], 3)
-        for move in range(settings.max_moves):
-            centre = np.mean(np.vstack([p @ T[:3, :3].T + T[:3, 3] for p in samples]), axis=0)
-            candidates = pivoted_moves(T, steps, centre)
-            chosen = best(candidates, radius(rotation_step_deg),
-                          lambda f, level=level, move=move: progress(
-                              (level + min(move + f, settings.max_moves) / settings.max_moves) / stages,
-                              f"coarse search: level {level} of {len(settings.levels)}, move {move + 1}"))
-            if chosen == 0:  # the stencil's first offset is zero: staying is best
-                break
-            T = candidates[chosen]
-    return T, warnings
+    found = [scorer.pattern_search(grid[start], lambda f, message, k=k: progress(
+        (1 + k + f) / stages, f"coarse search: start {k + 1} of {len(starts)}, {message}"))
+             for k, start in enumerate(starts)]
+    found.sort(key=lambda t_score: -t_score[1])
+    finest_rotation_deg, finest_translation_m = settings.levels[-1]
+    step = np.repeat([finest_translation_m, np.radians(finest_rotation_deg)], 3)
+    kept: list[np.ndarray] = []
+    for T, _ in found:
+        if all(np.any(np.abs(params_between(other, T)) > step + 1e-9) for other in kept):
+            kept.append(T)
+    return np.array(kept), warnings

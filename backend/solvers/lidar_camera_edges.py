@@ -11,7 +11,8 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
    paper, and, when the cloud has intensities and scan lines, reflectivity steps along the scan
    lines (:mod:`backend.solvers.reflectivity_edges`; not in the paper), which carry single
    spinning-LiDAR frames of roads where few faces meet; thinned to one point per
-   :attr:`~LidarCameraEdgesSettings.edge_spacing_m`. Depth *discontinuities* are not used: the
+   :attr:`~LidarCameraEdgesSettings.edge_spacing_m`, without the reflectivity edges of printed patterns
+   (:func:`in_texture`: a checkerboard fits again shifted by a square). Depth *discontinuities* are not used: the
    beam footprint swells the foreground, as the paper shows.
 2. Image edges, per pair: Canny pixels, their KD-tree and distance transform
    (:mod:`backend.solvers.image_edges`).
@@ -27,6 +28,14 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
    spread (:func:`~backend.solvers.result.widen_covariance`) over groups of edges (the points of
    an edge share the errors of its plane fits and of its image edge, which per-point noise cannot
    see) and, with three pairs or more, over pairs.
+6. Multi-start: the coarse search keeps its best distinct results
+   (:attr:`~backend.solvers.edge_search.CoarseSearchSettings.candidates`), each is aligned finely,
+   and the one with the most matched edge points at the final radius is the solution. Another
+   that is a distinct alignment yet fits about as well (:func:`_competes`: a repeating pattern in
+   view, or edges too few to tell) widens the sigmas to cover it (the multi-start spread,
+   :func:`_multistart`) with a warning, or, when it is further off than
+   :attr:`LidarCameraEdgesSettings.max_ambiguity`, makes the result ambiguous (``converged=False``).
+   All are kept in :attr:`LidarCameraEdgesResult.candidates`.
 
 A scene with too few edges is refused with an :class:`InputError` naming the pair and what is
 lacking (LiDAR edge points, image edge pixels, matches), as is a set of edges that leaves a
@@ -40,12 +49,15 @@ of a right perturbation ``R @ rotvec(r)``, i.e. about the LiDAR's axes, as ``con
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.optimize import OptimizeResult
+from scipy.spatial import cKDTree
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.camera_inverse import visible_radius
@@ -55,11 +67,12 @@ from backend.core.transforms import transform_points
 from backend.solvers.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.solvers.edge_search import CoarseSearchSettings, coarse_search
 from backend.solvers.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
-from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
+from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform, params_between
 from backend.solvers.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.solvers.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
 from backend.solvers.result import (
     TRANSFORM_PARAMETERS,
+    LidarCameraSummary,
     ProgressCallback,
     SolveResult,
     finite_or_none,
@@ -67,7 +80,6 @@ from backend.solvers.result import (
     jacobian_covariance,
     no_progress,
     transform_record_fields,
-    transform_std,
     widen_covariance,
 )
 
@@ -92,6 +104,14 @@ class LidarCameraEdgesSettings:
     edge_spacing_m: float = 0.05
     """LiDAR edge points are thinned to one per cube of this side (m), so that every stretch of edge weighs by
     its length and a dense patch of edges (a printed pattern, foliage) cannot outweigh the scene's lines."""
+    texture_radius_m: float = 0.4
+    """Radius (m) of the ball in which :func:`in_texture` counts reflectivity edge points."""
+    texture_max_lines: float = 2.0
+    """Reflectivity edge points with more neighbours in that ball than this many straight edges through it would
+    leave (:func:`in_texture`) are dropped as a printed pattern (a checkerboard) or texture: a periodic print fits
+    again when shifted by one period, and its many edge points pull the search to a shifted copy. With the
+    defaults the limit is 32: the 66 points a 0.1 deg, 128-beam scan leaves on the demo checkerboard at 2.6 m have
+    61-66 each, the road markings of the OpenCalib frame at most 8."""
     max_range_m: float = 50.0
     """LiDAR points further than this from the LiDAR are not used (m): their edges are imprecise."""
     view_margin_deg: float = 8.0
@@ -122,6 +142,26 @@ class LidarCameraEdgesSettings:
     a good part of one."""
     spread_groups: int = 10
     """Groups the jackknife deals the squares into."""
+    distinct_sigmas: float = 3.0
+    """Another start's solution is another alignment when it differs from the best by more than this many of the
+    best's sigmas (Jacobian and jackknife) in some parameter; nearer, it is the same one found twice."""
+    tie_z: float = 2.0
+    """Another alignment fits about as well as the best, and competes with it, when its count of matches at the
+    final radius ``M`` is within this many standard deviations of the best's ``M_best``:
+    ``M_best - M <= tie_z sqrt(M_best + M)``, the spread of the difference of two independent (Poisson) counts of
+    those sizes. The matches along one edge come and go together, so the real spread is larger: the test errs
+    toward calling an alignment a competitor, i.e. toward the wider sigmas."""
+    probe_deg: float | None = 0.5
+    """The fine alignment also starts from the best coarse start's solution turned by this (deg) either way about
+    each LiDAR axis, to find alignments nearer than the coarse search's starts are apart (the finer peaks of a
+    repeating pattern, a flat optimum of few edges); None for none."""
+    max_ambiguity: tuple[float, float] = (0.05, 0.5)
+    """Competing alignments further from the best than this on some parameter (m, deg) make the result ambiguous:
+    ``converged=False``. Nearer, the sigmas are widened to cover them (the multi-start spread). These are the
+    coarse search's first translation step and its middle rotation step: alignments that far apart are separate
+    peaks of the score (a pattern's shifted copies), of which the starts find some and not others, so that sigmas
+    widened to the ones found need not reach the truth (with the demo checkerboard's print kept: competitors found
+    up to 76 mm away, the truth 52 mm and 0.4 deg from the solution and 3.3 of those sigmas off in t_z)."""
 
 
 @dataclass
@@ -174,7 +214,34 @@ class PairResiduals:
 
 
 @dataclass
-class LidarCameraEdgesResult(SolveResult):
+class CandidateFit:
+    """The fine alignment from one start of the coarse search, on the measure all are compared by."""
+
+    T_start: np.ndarray
+    """4x4, where the fine alignment started: a result of the coarse search, or a probe about the first one's
+    solution (:attr:`~LidarCameraEdgesSettings.probe_deg`)."""
+    T_camera_lidar: np.ndarray
+    """4x4, where the fine alignment ended."""
+    matched: int
+    """LiDAR edge points matched to an image line within the final match radius at ``T_camera_lidar``: the
+    measure the starts are compared by."""
+    rms_px: float | None
+    """RMS point-to-line distance of those matches (px)."""
+    converged: bool
+    offset: np.ndarray
+    """(6,) ``T_camera_lidar`` about the solution's, in the result's parameters (m, camera axes; rad, LiDAR axes)."""
+    competing: bool
+    """Another alignment that fits about as well as the solution (:func:`_competes`)."""
+
+    def to_record(self) -> dict[str, Any]:
+        return {"T_start": self.T_start.tolist(), "T_camera_lidar": self.T_camera_lidar.tolist(),
+                "matched": self.matched, "rms_px": self.rms_px, "converged": self.converged,
+                "offset_m": finite_or_none(self.offset[:3]), "offset_deg": finite_or_none(np.degrees(self.offset[3:])),
+                "competing": self.competing}
+
+
+@dataclass
+class LidarCameraEdgesResult(LidarCameraSummary, SolveResult):
     kind = "lidar_camera"
     method = "edges"
 
@@ -195,27 +262,24 @@ class LidarCameraEdgesResult(SolveResult):
     seconds: float
     T_init: np.ndarray
     T_coarse: np.ndarray
-    """The grid search's estimate, where the fine stage started."""
+    """Where the solution's fine alignment started (:attr:`CandidateFit.T_start`)."""
     std_jacobian: np.ndarray
     """(6,) 1-sigma from ``sigma^2 (J^T J)^-1`` (m, m, m, rad, rad, rad); NaN where undetermined."""
     std_spread: np.ndarray | None
     """(6,) 1-sigma of the jackknife, or None when not computed."""
     spread_source: str | None
     """What the jackknife left out: "edge groups" or "edge groups and pairs"."""
+    std_multistart: np.ndarray | None
+    """(6,) 1-sigma covering the competing alignments (the multi-start spread): per parameter the largest
+    ``|offset|`` of a competing :class:`CandidateFit`; None when none competes."""
+    candidates: list[CandidateFit]
+    """The fine alignment from each start (the coarse search's distinct results, then the probes), the
+    solution's first."""
     iterations: int
-    """Residual evaluations of :func:`scipy.optimize.least_squares` over all fine rounds."""
+    """Residual evaluations of :func:`scipy.optimize.least_squares` over the solution's fine rounds."""
     rounds: int
     """Fine association + solve rounds run."""
     warnings: list[str] = field(default_factory=list)
-
-    @property
-    def std(self) -> dict[str, list[float | None]]:
-        """Reported 1-sigma: ``trans_m`` (m, camera axes), ``rot_deg`` (deg, about the LiDAR's axes)."""
-        return transform_std(self.covariance)
-
-    def summary(self) -> dict[str, Any]:
-        return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
-                "seconds": self.seconds}
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()
@@ -228,6 +292,8 @@ class LidarCameraEdgesResult(SolveResult):
             spread_source=self.spread_source,
             T_init=self.T_init.tolist(),
             T_coarse=self.T_coarse.tolist(),
+            std_multistart=finite_or_none(self.std_multistart),
+            candidates=[c.to_record() for c in self.candidates],
             iterations=self.iterations,
             rounds=self.rounds,
             pairs=[p.to_record() for p in self.pairs],
@@ -259,7 +325,8 @@ def in_view(points_lidar: np.ndarray, T_camera_lidar: np.ndarray, camera: Camera
 def find_lidar_edges(points_lidar: np.ndarray, intensity: np.ndarray | None, settings: LidarCameraEdgesSettings
                      ) -> LidarEdges:
     """Plane-intersection and (with ``intensity`` and ``settings.reflectivity``) reflectivity edges of an (N, 3)
-    cloud (m, LiDAR frame; ``intensity`` (N,) in any units), thinned to one per ``settings.edge_spacing_m``."""
+    cloud (m, LiDAR frame; ``intensity`` (N,) in any units), thinned to one per ``settings.edge_spacing_m``,
+    without the reflectivity edges of printed patterns (:func:`in_texture`)."""
     planes = find_plane_edges(points_lidar, settings.planes)
     if intensity is None or settings.reflectivity is None:
         reflectivity = np.zeros((0, 3))
@@ -269,8 +336,25 @@ def find_lidar_edges(points_lidar: np.ndarray, intensity: np.ndarray | None, set
     # One point per cell: a dense patch of edges (a printed pattern) would otherwise outweigh the scene's lines.
     _, first = np.unique(np.floor(points / settings.edge_spacing_m).astype(np.int64), axis=0, return_index=True)
     first = np.sort(first)
-    return LidarEdges(points[first], np.vstack([planes.directions, np.full(reflectivity.shape, np.nan)])[first],
-                      np.repeat([PLANE, REFLECTIVITY], [len(planes), len(reflectivity)])[first])
+    edges = LidarEdges(points[first], np.vstack([planes.directions, np.full(reflectivity.shape, np.nan)])[first],
+                       np.repeat([PLANE, REFLECTIVITY], [len(planes), len(reflectivity)])[first])
+    keep = edges.kind == PLANE
+    keep[~keep] = ~in_texture(edges.points[~keep], settings)
+    return LidarEdges(edges.points[keep], edges.directions[keep], edges.kind[keep])
+
+
+def in_texture(points: np.ndarray, settings: LidarCameraEdgesSettings) -> np.ndarray:
+    """(N,) bool: which of the (N, 3) thinned reflectivity edge points (m) lie in a printed pattern or texture.
+
+    Such a point has more of them within :attr:`~LidarCameraEdgesSettings.texture_radius_m` (``r``) than
+    :attr:`~LidarCameraEdgesSettings.texture_max_lines` straight edges through the ball's centre would leave after
+    thinning (``2 r / edge_spacing_m`` each): the edges fill an area instead of running along lines.
+    """
+    if len(points) == 0:
+        return np.zeros(0, bool)
+    radius = settings.texture_radius_m
+    neighbours = cKDTree(points).query_ball_point(points, radius, return_length=True)
+    return neighbours > settings.texture_max_lines * 2 * radius / settings.edge_spacing_m
 
 
 def _prepare(observation: EdgeObservation, name: str, camera: CameraIntrinsics, T_init: np.ndarray,
@@ -350,13 +434,14 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
     """Jackknife std (6,) of re-solves at fixed matches (:func:`~backend.solvers.result.jackknife_std`), and what
     was left out: groups of edges and, with :data:`MIN_SPREAD_PAIRS` pairs or more, pairs; the larger per parameter.
 
-    The edge groups: each pair's image is cut into :attr:`~LidarCameraEdgesSettings.spread_cell_px` squares,
-    dealt at random into :attr:`~LidarCameraEdgesSettings.spread_groups` groups, and a group's matches are left
-    out together, since the points of one edge share the errors of its plane fits and of its image edge. A pair's
-    image and cloud share their timing and lighting.
+    The edge groups: the image is cut into :attr:`~LidarCameraEdgesSettings.spread_cell_px` squares, dealt at
+    random into :attr:`~LidarCameraEdgesSettings.spread_groups` groups, and a group's matches are left out together,
+    in all pairs at once, since the points of one edge share the errors of its plane fits and of its image edge,
+    and pairs taken while the robot stood still (only a board moved, say) see the same edges in the same squares.
+    When it moved, the groups are merely larger. A pair's image and cloud share their timing and lighting.
     """
     uv = camera.project(transform_points(T, matches.points))
-    cells = np.column_stack([matches.pair, np.floor(uv / settings.spread_cell_px)]).astype(np.int64)
+    cells = np.floor(uv / settings.spread_cell_px).astype(np.int64)
     _, cell = np.unique(cells, axis=0, return_inverse=True)
     deal = np.random.default_rng(0).permutation(int(cell.max()) + 1) % settings.spread_groups
     units = {"edge groups": deal[cell.ravel()]}
@@ -376,6 +461,120 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
     if not spreads:
         return None, None
     return np.max(spreads, axis=0), " and ".join(units)
+
+
+@dataclass
+class _Fine:
+    """One fine alignment, from one start."""
+
+    T_start: np.ndarray
+    T: np.ndarray
+    result: OptimizeResult
+    """The last least-squares round's, linearised about (nearly) ``T``."""
+    iterations: int
+    rounds: int
+    converged: bool
+    warnings: list[str]
+    matches: EdgeMatches
+    """At ``T`` within the final match radius."""
+    in_view_counts: list[int]
+    rms_px: float | None
+
+
+def _fine_align(pairs: list[_Pair], T_start: np.ndarray, camera: CameraIntrinsics, settings: LidarCameraEdgesSettings,
+                t_prior: np.ndarray, names: list[str], progress: Callable[[float, str], None]) -> _Fine:
+    """Match and solve in rounds of shrinking radius from ``T_start``; refuses (:class:`InputError`) too few first
+    matches or unobservable edges; not converged when a least squares fails or the rms exceeds ``max_rms_px``."""
+    fine = settings.fine
+    T, result, iterations, converged, warnings = T_start, None, 0, True, []
+    for round_index in range(fine.max_rounds):
+        progress(round_index / fine.max_rounds, f"round {round_index + 1}")
+        radius = fine.match_radius_px[min(round_index, len(fine.match_radius_px) - 1)]
+        matches, _ = _match_all(pairs, T, camera, radius, fine)
+        if round_index == 0:
+            if len(matches) < settings.min_matched:
+                counts = ", ".join(f"{name}: {np.count_nonzero(matches.pair == i)}" for i, name in enumerate(names))
+                raise InputError(
+                    f"too few edges: {len(matches)} LiDAR edge points match an image edge line within {radius:g} px "
+                    f"after the coarse search ({counts}); at least {settings.min_matched} are needed - the two "
+                    "sensors may not see the same edges, or the initial guess is too far off", ", ".join(names))
+            _check_observable(T, matches, camera, settings, names)
+        result = solve_matches(T, matches, camera, fine, max(fine.loss_scale_px, fine.loss_scale_share * radius),
+                               t_prior)
+        iterations += int(result.nfev)
+        T = apply_params(T, result.x)
+        if result.status <= 0:
+            warnings.append(f"fine round {round_index + 1}: least squares stopped without converging "
+                            f"({result.message}); not accepted")
+            converged = False
+            break
+        if round_index + 1 >= len(fine.match_radius_px) and (
+                np.linalg.norm(result.x[:3]) < fine.step_tolerance[0]
+                and np.degrees(np.linalg.norm(result.x[3:])) < fine.step_tolerance[1]):
+            break
+    assert result is not None  # max_rounds >= 1
+    matches, in_view_counts = _match_all(pairs, T, camera, fine.match_radius_px[-1], fine)
+    rms = _rms(matches.residuals(T, camera))
+    if rms is None or rms > settings.max_rms_px:
+        warnings.append(f"poor fit: rms edge distance {'undefined (no matches)' if rms is None else f'{rms:.2f} px'} "
+                        f"> {settings.max_rms_px:g} px; not accepted")
+        converged = False
+    return _Fine(T_start, T, result, iterations, round_index + 1, converged, warnings, matches, in_view_counts, rms)
+
+
+def _fine_from_starts(pairs: list[_Pair], starts: np.ndarray, camera: CameraIntrinsics,
+                      settings: LidarCameraEdgesSettings, t_prior: np.ndarray, names: list[str],
+                      progress: ProgressCallback) -> list[_Fine]:
+    """The fine alignment from each of the (K, 4, 4) starts, best coarse score first, then from the first one's
+    solution turned by :attr:`~LidarCameraEdgesSettings.probe_deg`. The first start's refusals stand; a later
+    start refused (too few matches: too far off) is dropped."""
+    probes = [] if settings.probe_deg is None else np.radians(settings.probe_deg) * np.vstack([np.eye(3), -np.eye(3)])
+    total = len(starts) + len(probes)
+
+    def fit(k: int, T_start: np.ndarray) -> _Fine:
+        return _fine_align(pairs, T_start, camera, settings, t_prior, names, lambda fraction, message: progress(
+            0.5 + 0.35 * (k + fraction) / total, f"fine alignment from start {k + 1} of {total}: {message}"))
+
+    fits = [fit(0, starts[0])]
+    later = list(starts[1:]) + [apply_params(fits[0].T, np.r_[np.zeros(3), turn]) for turn in probes]
+    for k, T_start in enumerate(later, start=1):
+        with contextlib.suppress(InputError):
+            fits.append(fit(k, T_start))
+    return fits
+
+
+def _competes(best: _Fine, other: _Fine, offset: np.ndarray, std: np.ndarray,
+              settings: LidarCameraEdgesSettings) -> bool:
+    """Whether ``other``, ``offset`` (6,) from ``best`` (m, rad), is another alignment that fits about as well:
+    further than :attr:`~LidarCameraEdgesSettings.distinct_sigmas` of the (6,) ``std`` on some parameter, and with
+    as many matches within :attr:`~LidarCameraEdgesSettings.tie_z` (a converged one only)."""
+    m_best, m_other = len(best.matches), len(other.matches)
+    return bool(other.converged and np.any(np.abs(offset) > settings.distinct_sigmas * std)
+                and m_best - m_other <= settings.tie_z * np.sqrt(m_best + m_other))
+
+
+def _multistart(best: _Fine, fits: list[_Fine], std: np.ndarray, settings: LidarCameraEdgesSettings
+                ) -> tuple[list[CandidateFit], np.ndarray | None, str | None]:
+    """Each fit as a :class:`CandidateFit` about ``best``, the multi-start spread (6,) (m, rad; None without
+    competitors) and a warning: "ambiguous" (not accepted) beyond ``max_ambiguity``, else the widening."""
+    candidates = []
+    for fit in [best] + [f for f in fits if f is not best]:
+        offset = params_between(best.T, fit.T)
+        candidates.append(CandidateFit(fit.T_start, fit.T, len(fit.matches), fit.rms_px, fit.converged, offset,
+                                       fit is not best and _competes(best, fit, offset, std, settings)))
+    competing = [c for c in candidates if c.competing]
+    if not competing:
+        return candidates, None, None
+    spread = np.max(np.abs([c.offset for c in competing]), axis=0)
+    counts = ", ".join(str(c.matched) for c in competing)
+    described = (f"{len(competing) + 1} alignments fit about equally well ({len(best.matches)} matched edge points "
+                 f"at the solution, {counts} at the others), up to {1000 * spread[:3].max():.0f} mm and "
+                 f"{np.degrees(spread[3:].max()):.2f} deg apart")
+    limit_m, limit_deg = settings.max_ambiguity
+    if spread[:3].max() > limit_m or np.degrees(spread[3:].max()) > limit_deg:
+        return candidates, spread, (f"ambiguous: {described}, beyond {1000 * limit_m:.0f} mm or {limit_deg:g} deg "
+                                    "(a repeating pattern in view?); not accepted")
+    return candidates, spread, f"multi-start spread: {described}; the sigmas are widened to cover them"
 
 
 # ---------------------------------------------------------------- the solve
@@ -416,8 +615,8 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     (:class:`~backend.solvers.edge_search.CoarseSearchSettings`: 6 deg per axis and about 10 cm). Raises
     :class:`InputError` for no pairs, a bad image, cloud or transform, too few LiDAR edge points or image
     edge pixels in a pair (named), too few matches, or edges that leave a motion unobservable. A solve
-    whose least squares fails or whose rms distance exceeds ``settings.max_rms_px`` is returned with
-    ``converged=False`` and a warning.
+    whose least squares fails, whose rms distance exceeds ``settings.max_rms_px`` or whose competing alignments
+    lie further apart than ``settings.max_ambiguity`` is returned with ``converged=False`` and a warning.
     """
     settings = settings or LidarCameraEdgesSettings()
     started = time.perf_counter()
@@ -430,65 +629,41 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
         progress(0.1 * i / len(pairs), f"finding edges in {name}")
         prepared.append(_prepare(observation, name, camera, T_init, settings))
 
-    T_coarse, warnings = coarse_search(T_init, [p.lidar.points for p in prepared],
-                                       [p.image.distance_px for p in prepared], camera, settings.coarse,
-                                       lambda fraction, message: progress(0.1 + 0.4 * fraction, message))
-    fine, t_prior = settings.fine, T_init[:3, 3]
-    T, result, iterations, converged = T_coarse, None, 0, True
-    for round_index in range(fine.max_rounds):
-        progress(0.5 + 0.35 * round_index / fine.max_rounds, f"fine alignment: round {round_index + 1}")
-        radius = fine.match_radius_px[min(round_index, len(fine.match_radius_px) - 1)]
-        matches, _ = _match_all(prepared, T, camera, radius, fine)
-        if round_index == 0:
-            if len(matches) < settings.min_matched:
-                counts = ", ".join(f"{name}: {np.count_nonzero(matches.pair == i)}" for i, name in enumerate(names))
-                raise InputError(
-                    f"too few edges: {len(matches)} LiDAR edge points match an image edge line within {radius:g} px "
-                    f"after the coarse search ({counts}); at least {settings.min_matched} are needed - the two "
-                    "sensors may not see the same edges, or the initial guess is too far off", ", ".join(names))
-            _check_observable(T, matches, camera, settings, names)
-        result = solve_matches(T, matches, camera, fine, max(fine.loss_scale_px, fine.loss_scale_share * radius),
-                               t_prior)
-        iterations += int(result.nfev)
-        T = apply_params(T, result.x)
-        if result.status <= 0:
-            warnings.append(f"fine round {round_index + 1}: least squares stopped without converging "
-                            f"({result.message}); not accepted")
-            converged = False
-            break
-        if round_index + 1 >= len(fine.match_radius_px) and (
-                np.linalg.norm(result.x[:3]) < fine.step_tolerance[0]
-                and np.degrees(np.linalg.norm(result.x[3:])) < fine.step_tolerance[1]):
-            break
-
-    assert result is not None  # max_rounds >= 1
+    starts, warnings = coarse_search(T_init, [p.lidar.points for p in prepared],
+                                     [p.image.distance_px for p in prepared], camera, settings.coarse,
+                                     lambda fraction, message: progress(0.1 + 0.4 * fraction, message))
+    t_prior = T_init[:3, 3]
+    fits = _fine_from_starts(prepared, starts, camera, settings, t_prior, names, progress)
+    best = max(fits, key=lambda f: (f.converged, len(f.matches), -(f.rms_px or np.inf)))
     # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
-    cov_j = jacobian_covariance(result)
-    matches, in_view_counts = _match_all(prepared, T, camera, fine.match_radius_px[-1], fine)
-    residuals, per_pair = _statistics(T, matches, prepared, in_view_counts, camera)
-    rms = residuals["edge_rms_px"]
-    if rms is None or rms > settings.max_rms_px:
-        warnings.append(f"poor fit: rms edge distance {'undefined (no matches)' if rms is None else f'{rms:.2f} px'} "
-                        f"> {settings.max_rms_px:g} px; not accepted")
-        converged = False
+    cov_j = jacobian_covariance(best.result)
+    residuals, per_pair = _statistics(best.T, best.matches, prepared, best.in_view_counts, camera)
+    converged, warnings = best.converged, warnings + best.warnings
     std_spread, spread_source = None, None
     if settings.spread and converged:
-        std_spread, spread_source = _spread(T, matches, camera, len(prepared), t_prior, settings, progress)
+        std_spread, spread_source = _spread(best.T, best.matches, camera, len(prepared), t_prior, settings, progress)
+    covariance = widen_covariance(cov_j, std_spread)
+    candidates, std_multistart, warning = _multistart(best, fits, np.sqrt(np.diag(covariance)), settings)
+    if warning is not None:
+        warnings.append(warning)
+        converged = converged and not warning.startswith("ambiguous")
     progress(1.0, "done")
     return LidarCameraEdgesResult(
-        T_camera_lidar=T,
-        covariance=widen_covariance(cov_j, std_spread),
+        T_camera_lidar=best.T,
+        covariance=widen_covariance(covariance, std_multistart),
         residuals=residuals,
         pairs=per_pair,
         settings=settings,
         converged=converged,
         seconds=time.perf_counter() - started,
         T_init=T_init,
-        T_coarse=T_coarse,
+        T_coarse=best.T_start,
         std_jacobian=np.sqrt(np.clip(np.diag(cov_j), 0, None)),
         std_spread=std_spread,
         spread_source=spread_source,
-        iterations=iterations,
-        rounds=round_index + 1,
+        std_multistart=std_multistart,
+        candidates=candidates,
+        iterations=best.iterations,
+        rounds=best.rounds,
         warnings=warnings,
     )

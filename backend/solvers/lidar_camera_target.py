@@ -46,6 +46,7 @@ from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
 from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
 from backend.solvers.result import (
+    LidarCameraSummary,
     ProgressCallback,
     SolveResult,
     finite_or_none,
@@ -53,7 +54,6 @@ from backend.solvers.result import (
     jacobian_covariance,
     no_progress,
     transform_record_fields,
-    transform_std,
     widen_covariance,
 )
 
@@ -154,7 +154,7 @@ class PoseResiduals:
 
 
 @dataclass
-class LidarCameraResult(SolveResult):
+class LidarCameraResult(LidarCameraSummary, SolveResult):
     kind = "lidar_camera"
 
     T_camera_lidar: np.ndarray
@@ -183,15 +183,6 @@ class LidarCameraResult(SolveResult):
     rounds: int
     """Segmentation + solve rounds run."""
     warnings: list[str] = field(default_factory=list)
-
-    @property
-    def std(self) -> dict[str, list[float | None]]:
-        """Reported 1-sigma: ``trans_m`` (m, camera axes), ``rot_deg`` (deg, about the LiDAR's axes)."""
-        return transform_std(self.covariance)
-
-    def summary(self) -> dict[str, Any]:
-        return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
-                "seconds": self.seconds}
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()

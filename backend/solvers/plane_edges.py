@@ -188,8 +188,11 @@ def _ransac_plane(points: np.ndarray, settings: PlaneEdgeSettings, rng: np.rando
     valid = length > 1e-9  # not three collinear (or repeated) points
     normals = normals[valid] / length[valid, None]
     offsets = -np.einsum("hi,hi->h", normals, samples[valid, 0])
-    scored = points[rng.permutation(len(points))[:RANSAC_SCORED_POINTS]]
-    counts = (np.abs(scored @ normals.T + offsets) <= settings.plane_threshold_m).sum(axis=0)
+    # Hypotheses are scored in float32 (5x faster; 1e-7 m off at 1 m), the chosen one's inliers in float64.
+    scored = points[rng.permutation(len(points))[:RANSAC_SCORED_POINTS]].astype(np.float32)
+    distances = scored @ normals.T.astype(np.float32)
+    distances += offsets.astype(np.float32)
+    counts = np.count_nonzero(np.abs(distances, out=distances) <= settings.plane_threshold_m, axis=0)
     if not len(counts):
         return np.zeros(len(points), bool)
     best = int(np.argmax(counts))

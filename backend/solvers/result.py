@@ -70,6 +70,26 @@ def transform_std(covariance: np.ndarray) -> dict[str, list[float | None]]:
     return {"trans_m": finite_or_none(std[:3]), "rot_deg": finite_or_none(np.degrees(std[3:]))}
 
 
+class LidarCameraSummary:
+    """The CLI's JSON and the reported sigmas of every LiDAR-to-camera solver's result (a dataclass holding
+    ``T_camera_lidar`` (4x4, m), ``covariance`` (6x6, :data:`TRANSFORM_PARAMETERS`), ``residuals`` and ``seconds``)."""
+
+    T_camera_lidar: np.ndarray
+    covariance: np.ndarray
+    residuals: dict[str, Any]
+    seconds: float
+
+    @property
+    def std(self) -> dict[str, list[float | None]]:
+        """Reported 1-sigma: ``trans_m`` (m, camera axes), ``rot_deg`` (deg, about the LiDAR's axes)."""
+        return transform_std(self.covariance)
+
+    def summary(self) -> dict[str, Any]:
+        """``{"T_camera_lidar", "std", "residuals", "seconds"}``, as ``conventions.md`` gives for ``lidar-camera``."""
+        return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
+                "seconds": self.seconds}
+
+
 def jacobian_covariance(result: Any, n_params: int = 6) -> np.ndarray:
     """``sigma^2 (J^T J)^-1`` of a :func:`scipy.optimize.least_squares` result, with ``J`` its robust-loss-scaled
     Jacobian and ``sigma^2 = 2 cost / (m - n_params)`` (the robust cost: about the residual variance when most
