@@ -29,7 +29,7 @@ from backend.core.rig import Rig
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
 from backend.services import intrinsics as intrinsics_service
-from backend.services.lidar_camera_pairs import CapturePair, check_camera, check_image_size, stored_pairs
+from backend.services.lidar_camera_pairs import check_camera, check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
 from backend.solvers.lidar_camera_edges import (
     EdgeObservation,
@@ -126,52 +126,76 @@ def edge_observation(image: np.ndarray, points: np.ndarray, intensity: np.ndarra
     return EdgeObservation(image, points if intensity is None else np.column_stack([points, intensity]), name=name)
 
 
-def observations_from_files(camera: CameraIntrinsics, board: BoardSpec, pairs: Sequence[tuple[Path, Path]],
-                            progress: ProgressCallback = no_progress) -> list[TargetObservation]:
-    """One observation per (image, cloud) pair: the camera's board pose and the LiDAR's points (m)."""
-    observations = []
+@dataclass
+class PairData:
+    """One image and the cloud taken with it, as the solvers take them."""
+
+    name: str
+    """How the solve names the pair (``image.png:cloud.pcd``, or a stored pair's name)."""
+    image_source: str
+    """How errors about the image name it (its path, or the stored pair's name)."""
+    image: np.ndarray
+    """uint8 gray or BGR image."""
+    points: np.ndarray
+    """(N, 3) cloud in the LiDAR frame (m)."""
+    intensity: np.ndarray | None
+    """(N,) return intensities, or None."""
+
+
+def check_method(method: str, input_name: str) -> None:
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", input_name)
+
+
+def read_pair_files(pairs: Sequence[tuple[Path, Path]], progress: ProgressCallback = no_progress) -> list[PairData]:
+    """The (image, cloud) files read; an unreadable one raises :class:`InputError` naming it."""
+    read = []
     for i, (image_path, cloud_path) in enumerate(pairs):
-        progress(0.3 * i / max(len(pairs), 1), f"finding the board in {image_path.name}")
-        image = read_image(image_path)
-        check_image_size(image, camera, str(image_path))
-        T_camera_board = camera_board_pose(image, camera, board, name=str(image_path))
-        observations.append(TargetObservation(T_camera_board, read_cloud(cloud_path).points,
-                                              name=f"{image_path.name}:{cloud_path.name}"))
-    return observations
+        progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_path.name}")
+        image, cloud = read_image(image_path), read_cloud(cloud_path)
+        read.append(PairData(f"{image_path.name}:{cloud_path.name}", str(image_path), image, cloud.points,
+                             cloud.intensity))
+    return read
+
+
+def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
+                *, method: str = "target", plate_margin_m: float | None = None,
+                translation_prior_m: float | None = None,
+                progress: ProgressCallback = no_progress) -> LidarCameraResult | LidarCameraEdgesResult:
+    """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
+
+    ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
+    beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    ``method="edges"`` is targetless (:func:`~backend.solvers.lidar_camera_edges.solve_edges`): it aligns the
+    edges of ordinary scenes and takes the clouds' intensities, where there are any, for reflectivity edges;
+    ``translation_prior_m``: see :func:`edges_settings`. An image whose size is not the intrinsics' is refused.
+    """
+    for pair in pairs:
+        check_image_size(pair.image, camera, pair.image_source)
+    if method == "edges":
+        observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
+        return solve_edges(camera, observations, T_init, edges_settings(translation_prior_m),
+                           lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
+    if board is None:
+        raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
+    settings = target_settings(board, plate_margin_m)
+    observations = []
+    for i, p in enumerate(pairs):
+        progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
+        T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source)
+        observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
+    return solve_target(board, observations, T_init, settings,
+                        lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
 
 
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
                 T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None,
                 progress: ProgressCallback = no_progress) -> LidarCameraResult | LidarCameraEdgesResult:
-    """``T_camera_lidar`` from image and cloud files of the same moments, starting from ``T_init``.
-
-    ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
-    beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
-    ``method="edges"`` is targetless (:func:`~backend.solvers.lidar_camera_edges.solve_edges`): it aligns the
-    edges of ordinary scenes and takes the clouds' intensities, where the files have them, for reflectivity edges;
-    ``translation_prior_m``: see :func:`edges_settings`.
-    """
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "--method")
-    if method == "edges":
-        settings = edges_settings(translation_prior_m)
-        observations = []
-        for i, (image_path, cloud_path) in enumerate(pairs):
-            progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_path.name}")
-            image = read_image(image_path)
-            check_image_size(image, camera, str(image_path))
-            cloud = read_cloud(cloud_path)
-            observations.append(edge_observation(image, cloud.points, cloud.intensity,
-                                                 f"{image_path.name}:{cloud_path.name}"))
-        return solve_edges(camera, observations, T_init, settings,
-                           progress=lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
-    if board is None:
-        raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
-    settings = target_settings(board, plate_margin_m)
-    observations = observations_from_files(camera, board, pairs, progress)
-    return solve_target(board, observations, T_init, settings,
-                        lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+    """:func:`solve_pairs` on (image, cloud) files of the same moments."""
+    check_method(method, "--method")
+    return solve_pairs(camera, board, read_pair_files(pairs, progress), T_init, method=method,
+                       plate_margin_m=plate_margin_m, translation_prior_m=translation_prior_m, progress=progress)
 
 
 OVERLAY_PAIRS = 4
@@ -180,27 +204,17 @@ OVERLAY_WIDTH_PX = 1280
 """Width of a stored before/after overlay mosaic (px)."""
 
 
-@dataclass
-class LoadedPair:
-    """A stored pair read back: the image (uint8) and the cloud in the LiDAR frame (m)."""
-
-    pair: CapturePair
-    image: np.ndarray
-    points: np.ndarray
-    intensity: np.ndarray | None
-
-
-def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[LoadedPair]:
+def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[PairData]:
     """The stored pairs (all, or those whose image is in ``image_ids``) with their data."""
     found = stored_pairs(session, camera, lidar, image_ids)
     if not found:
         raise InputError(f"no image+cloud pairs of {camera} and {lidar} yet: capture or upload pairs of the same "
                          "moments first", "pairs")
-    return [LoadedPair(p, session.capture_image(camera, p.image.id), *session.capture_cloud(lidar, p.cloud.id))
-            for p in found]
+    return [PairData(p.name, p.name, session.capture_image(camera, p.image.id),
+                     *session.capture_cloud(lidar, p.cloud.id)) for p in found]
 
 
-def overlay_files(loaded: Sequence[LoadedPair], camera: CameraIntrinsics, T_before: np.ndarray,
+def overlay_files(loaded: Sequence[PairData], camera: CameraIntrinsics, T_before: np.ndarray,
                   T_after: np.ndarray) -> dict[str, bytes]:
     """``overlay_before.jpg`` and ``overlay_after.jpg``: mosaics of the last :data:`OVERLAY_PAIRS` pairs (the newest,
     as the studio tiles them) drawn with the initial and the solved ``T_camera_lidar``."""
@@ -238,30 +252,17 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
     names the camera and the method, and before/after overlays are stored with it. ``plate_margin_m`` is for the
     target method (:func:`target_settings`), ``translation_prior_m`` for the edges method (:func:`edges_settings`).
     """
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", "method")
+    check_method(method, "method")
     check_lidar(session, lidar)
     intrinsics = camera_intrinsics(session, camera)
     T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
     loaded = load_pairs(session, camera, lidar, image_ids)
-    for p in loaded:
-        check_image_size(p.image, intrinsics, p.pair.name)
-    if method == "target":
-        board = intrinsics_service.session_board(session)
-        settings = target_settings(board, plate_margin_m)
-        observations = []
-        for i, p in enumerate(loaded):
-            progress(0.2 * i / len(loaded), f"finding the board in {p.pair.name}")
-            T_camera_board = camera_board_pose(p.image, intrinsics, board, name=p.pair.name)
-            observations.append(TargetObservation(T_camera_board, p.points, name=p.pair.name))
-        result = solve_target(board, observations, T_init, settings,
-                              lambda fraction, message: progress(0.2 + 0.7 * fraction, message))
-    else:
-        observations = [edge_observation(p.image, p.points, p.intensity, p.pair.name) for p in loaded]
-        result = solve_edges(intrinsics, observations, T_init, edges_settings(translation_prior_m),
-                             lambda fraction, message: progress(0.9 * fraction, message))
+    board = intrinsics_service.session_board(session) if method == "target" else None
+    result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,
+                         translation_prior_m=translation_prior_m,
+                         progress=lambda fraction, message: progress(0.9 * fraction, message))
     progress(0.95, "drawing the before/after overlays")
     files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_camera_lidar)
     record = result.to_record() | {"camera": camera, "method": method}
-    result_id = session.add_result(lidar, record, inputs=[p.pair.name for p in loaded], files=files)
+    result_id = session.add_result(lidar, record, inputs=[p.name for p in loaded], files=files)
     return result_id, result

@@ -18,7 +18,6 @@ own transform (as a result set by hand), re-mounts the LiDAR.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from backend.devices.image_io import read_image
 from backend.services import lidar_camera as lidar_camera_service
 from backend.services import lidar_camera_pairs as pairs_service
 from backend.services import lidar_lidar as lidar_service
+from backend.services.lidar_camera import PairData
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
@@ -50,20 +50,10 @@ HELP = ("Capture image + cloud pairs with the board held still in view of both (
         "left.")
 
 
-@dataclass
-class Scene:
-    """One image and cloud to draw (LiDAR frame, m)."""
-
-    name: str
-    image: np.ndarray
-    points: np.ndarray
-    intensity: np.ndarray | None
-
-
 class LidarCameraStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
-        self._scenes: list[Scene] = []
+        self._scenes: list[PairData] = []
         self._inputs: list[str] = []
         """The captures on screen, as ``sensor:capture`` (what an accepted transform was judged on)."""
         self._wake = threading.Event()
@@ -176,10 +166,9 @@ class LidarCameraStep:
             else:
                 stored = self._stored_pairs()
                 chosen = stored[-MAX_TILES:] if choice == ALL_PAIRS else [p for p in stored if p.name == choice]
-                for p in chosen:
-                    self._scenes.append(Scene(p.name, session.capture_image(camera, p.image.id),
-                                              *session.capture_cloud(lidar, p.cloud.id)))
-                    self._inputs += [f"{camera}:{p.image.id}", f"{lidar}:{p.cloud.id}"]
+                if chosen:
+                    self._scenes = lidar_camera_service.load_pairs(session, camera, lidar, [p.image.id for p in chosen])
+                self._inputs = [name for p in chosen for name in (f"{camera}:{p.image.id}", f"{lidar}:{p.cloud.id}")]
                 self.data_text.content = f"{len(stored)} pair(s) stored · showing {len(chosen)}"
             if session.rig.get(camera).intrinsics is None:
                 self.data_text.content += " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"
@@ -190,9 +179,9 @@ class LidarCameraStep:
         images = [c for c in session.captures(camera) if not c.n_points]
         clouds = [c for c in session.captures(lidar) if c.n_points]
         if images and clouds:
-            self._scenes = [Scene(f"{camera}:{images[-1].id}+{lidar}:{clouds[-1].id}",
-                                  session.capture_image(camera, images[-1].id),
-                                  *session.capture_cloud(lidar, clouds[-1].id))]
+            name = f"{camera}:{images[-1].id}+{lidar}:{clouds[-1].id}"
+            self._scenes = [PairData(name, name, session.capture_image(camera, images[-1].id),
+                                     *session.capture_cloud(lidar, clouds[-1].id))]
             self._inputs = [f"{camera}:{images[-1].id}", f"{lidar}:{clouds[-1].id}"]
         self.data_text.content = (
             f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
@@ -316,7 +305,7 @@ class LidarCameraStep:
             self.status.content += (" · ⚠️ no point lands in the image: the cloud and the camera do not overlap "
                                     "with this transform (check the range window and the sliders)")
 
-    def _paint_cloud(self, scene: Scene, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
+    def _paint_cloud(self, scene: PairData, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
         """The reverse view: the cloud in 3D in the image's colours (points the camera does not see left out)."""
         if self._colourised is not None:
             self._colourised.remove()
