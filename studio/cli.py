@@ -92,9 +92,23 @@ def build_parser() -> argparse.ArgumentParser:
                       help="initial T_camera_lidar: metres and degrees (ROS order)")
     lc.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
+    mc = sub.add_parser("multicam", help="multi-camera rig: every T_ref_cam from one joint solve, with uncertainty")
+    mc.add_argument("--camera", action="append", required=True, metavar="NAME=IMAGES_DIR",
+                    help="a camera and its folder of board images (repeat; the first is the reference); frames are "
+                         "matched across cameras by the number in their file names")
+    mc.add_argument("--board", required=True, help="e.g. checkerboard:9x6:0.025")
+    mc.add_argument("--intrinsics", action="append", default=[], metavar="NAME=camera.yaml",
+                    help="a camera's ROS camera_info YAML, held fixed (cameras without one are calibrated from their "
+                         "own images and refined with the rig)")
+    mc.add_argument("--refine-intrinsics", action="store_true", help="also refine the intrinsics given")
+    mc.add_argument("--kalibr", type=Path, metavar="camchain.yaml", help="write the rig as a Kalibr camchain YAML")
+    mc.add_argument("--transforms", type=Path, metavar="rig.yaml",
+                    help="write every T_ref_cam with its sigma and static_transform_publisher line")
+    mc.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
     export = sub.add_parser("export", help="export an accepted calibration from a session")
     export.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
-    export.add_argument("--format", required=True, choices=["camera_info", "opencv", "rig"])
+    export.add_argument("--format", required=True, choices=["camera_info", "opencv", "rig", "kalibr"])
     export.add_argument("--sensor", help="camera name (camera_info, opencv)")
     export.add_argument("--out", type=Path, help="file to write (default: stdout)")
     return parser
@@ -259,6 +273,41 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     return summary
 
 
+def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.core.boards import BoardSpec
+    from backend.exports.kalibr_camchain import dump_kalibr_camchain
+    from backend.exports.rig_transforms import dump_rig_transforms
+    from backend.services.multicam import parse_named, result_rig, solve_folders
+
+    folders = parse_named(args.camera, "IMAGES_DIR")
+    result, warnings = solve_folders(folders, BoardSpec.parse(args.board), parse_named(args.intrinsics, "camera.yaml"),
+                                     refine_intrinsics=args.refine_intrinsics, progress=_progress_to_stderr(False))
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    summary = result.summary()
+    if not result.converged:
+        print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
+        raise InputError(f"no usable calibration: {(result.warnings or ['the solve failed'])[0]}", "--camera")
+    if args.kalibr:
+        args.kalibr.write_text(dump_kalibr_camchain(list(result.cameras.items()), result.T_ref_cam))
+        print(f"wrote {args.kalibr}", file=sys.stderr)
+    if args.transforms:
+        args.transforms.write_text(dump_rig_transforms(result_rig(result)))
+        print(f"wrote {args.transforms}", file=sys.stderr)
+    if not args.json:
+        import numpy as np
+
+        from backend.core.transforms import to_xyz_ypr
+
+        for name, T in result.T_ref_cam.items():
+            xyz, ypr = to_xyz_ypr(T)
+            std = summary["std"][name]
+            print(f"T_{result.reference}_{name} (x y z m, yaw pitch roll deg): {' '.join(f'{v:.5f}' for v in xyz)}  "
+                  f"{' '.join(f'{v:.4f}' for v in np.degrees(ypr))}  1-sigma {std['trans_m']} m {std['rot_deg']} deg  "
+                  f"rms {result.rms_px[name]:.3f} px")
+    return summary
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
@@ -284,8 +333,9 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_intrinsics(args)
             if want_json:
                 print(json.dumps(summary))
-        elif args.command in ("lidar-lidar", "lidar-camera"):
-            summary = (run_lidar_lidar if args.command == "lidar-lidar" else run_lidar_camera)(args)
+        elif args.command in ("lidar-lidar", "lidar-camera", "multicam"):
+            run = {"lidar-lidar": run_lidar_lidar, "lidar-camera": run_lidar_camera, "multicam": run_multicam}
+            summary = run[args.command](args)
             if want_json:
                 print(json.dumps(summary))
         elif args.command == "export":

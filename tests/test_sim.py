@@ -47,6 +47,7 @@ def test_demo_rig_ground_truth() -> None:
     assert {f.name: f.kind for f in rig.sensors()} == {
         "cam_front": "camera",
         "cam_wide": "camera",
+        "cam_right": "camera",
         "lidar_top": "lidar3d",
         "lidar_front": "lidar3d",
         "scanner_2d": "lidar2d",
@@ -54,8 +55,10 @@ def test_demo_rig_ground_truth() -> None:
     }
     T_front_wide = rig.T_a_b("cam_front", "cam_wide")
     assert 0.1 <= np.linalg.norm(T_front_wide[:3, 3]) <= 0.2
+    T_front_right = rig.T_a_b("cam_front", "cam_right")  # a stereo pair: 12 cm along the front camera's x
+    assert T_front_right[0, 3] == pytest.approx(0.12, abs=0.005) and np.abs(T_front_right[1:3, 3]).max() < 0.01
     # Optical z of each camera looks roughly along body +x.
-    for name in ("cam_front", "cam_wide"):
+    for name in ("cam_front", "cam_wide", "cam_right"):
         assert rig.T_root_frame(name)[:3, 2] @ [1.0, 0.0, 0.0] > 0.98
         assert rig.get(name).device == {"driver": "simulated", "camera": name, "seed": 0}
 

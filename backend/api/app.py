@@ -15,7 +15,7 @@ from fastapi.responses import JSONResponse, RedirectResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend.api import auth
-from backend.api.routes import exports, intrinsics, lidar, lidar_camera, recordings, sessions, sweep
+from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, sessions, sweep
 from backend.api.routes import jobs as job_routes
 from backend.core.errors import InputError
 from backend.services.jobs import JobRunner
@@ -79,8 +79,7 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
     def root() -> RedirectResponse:
         return RedirectResponse(studio_url or "/docs")
 
-    for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, sweep.router,
-                   recordings.router,
-                   job_routes.router, exports.router):
+    for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, multicam.router,
+                   sweep.router, recordings.router, job_routes.router, exports.router):
         app.include_router(router, prefix="/api")
     return app

@@ -128,3 +128,28 @@ class LidarCameraManual(BaseModel):
     xyz_m: tuple[float, float, float] = Field(description="T_camera_lidar translation (m)")
     ypr_deg: tuple[float, float, float] = Field(description="T_camera_lidar as ROS yaw, pitch, roll (deg)")
     inputs: list[str] = Field(default_factory=list, description="the captures it was judged on, as sensor:capture")
+
+
+class MulticamSetCapture(BaseModel):
+    cameras: list[str] = Field(min_length=2, examples=[["cam_front", "cam_wide"]])
+    tolerance_s: float = Field(0.02, ge=0, description="largest spread of the cameras' frame stamps (s)")
+    require_board: bool = Field(True, description="refuse a set in which fewer than two cameras see the board")
+
+
+class MulticamBagImport(BaseModel):
+    path: str = Field(description="a ROS 2 bag (folder, .mcap or .db3) on the server's machine")
+    topics: dict[str, str] = Field(min_length=2, description="camera -> image topic",
+                                   examples=[{"cam_front": "/cam_front/image_raw", "cam_wide": "/cam_wide/image_raw"}])
+    tolerance_s: float = Field(0.02, ge=0, description="frames of one set lie within this many seconds (s)")
+    every: int = Field(1, ge=1, description="keep every n-th matched set")
+    limit: int | None = Field(None, ge=1, description="store at most this many sets")
+    start_s: float | None = Field(None, description="skip frames before this bag time (s)")
+    end_s: float | None = Field(None, description="skip frames after this bag time (s)")
+
+
+class MulticamSolveRequest(BaseModel):
+    cameras: list[str] = Field(min_length=2, description="the first is the reference", examples=[["cam_front",
+                                                                                                 "cam_wide"]])
+    refine_intrinsics: bool = Field(False, description="refine every camera's intrinsics with the rig (cameras "
+                                                       "without intrinsics are always estimated)")
+    set_names: list[str] | None = Field(None, description="solve from these sets only; default all")

@@ -122,6 +122,7 @@ class SimulatedCamera(CaptureDevice):
         if self._intrinsics is None or self._board_spec is None:
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
+        exposed_s = time.time()  # the frame's stamp is its exposure, not the end of the render
         pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
         T_camera_board = self._poses[pose_index]
         rng = np.random.default_rng([self.seed, index])
@@ -133,7 +134,7 @@ class SimulatedCamera(CaptureDevice):
                 "simulated": True}
         if self._T_base_boards is not None:
             meta["T_base_board"] = self._T_base_boards[pose_index].tolist()
-        return Sample(time.time(), image=image, meta=meta)
+        return Sample(exposed_s, image=image, meta=meta)
 
     def _yard_image(self, pose_index: int, rng: np.random.Generator) -> np.ndarray:
         """The yard with the board at pose ``pose_index``, with fresh sensor noise from ``rng``."""

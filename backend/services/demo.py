@@ -9,16 +9,23 @@ For LiDAR-to-camera calibration, ``cam_front`` and ``lidar_top`` then watch the 
 carried about the yard (:data:`PAIR_BOARD_POSES` poses, each held still for
 :data:`PAIR_HOLD_S` seconds, the same for both), and the session holds
 :data:`DEMO_PAIRS` image + cloud pairs of them to solve from.
+
+For the multi-camera rig, ``cam_front`` and its stereo partner ``cam_right`` photograph the
+same board poses: the session holds :data:`DEMO_SETS` synchronised sets of them, and both stay
+on the shared hold clock so more sets can be captured live. ``cam_right`` has no intrinsics:
+the joint solve estimates them with the rig.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 from backend.devices.base import create_device
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_camera_pairs import store_pair
+from backend.services.multicam_capture import capture_set
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.solvers.board_detection import detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings
@@ -32,6 +39,9 @@ DEMO_LIDAR = "lidar_top"
 DEMO_PAIRS = 10
 PAIR_BOARD_POSES = 12
 PAIR_HOLD_S = 3.0
+DEMO_SET_CAMERAS = ["cam_front", "cam_right"]
+DEMO_SETS = 10
+DEMO_SET_TOLERANCE_S = 5.0
 
 
 def _retire(store: SessionStore, name: str) -> None:
@@ -70,6 +80,7 @@ def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int 
     result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(), progress=progress)
     intrinsics_service.accept(session, DEMO_CAMERA, result_id)
     _add_board_pairs(session, progress)
+    _add_camera_sets(session, progress)
     return session
 
 
@@ -88,3 +99,21 @@ def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:
                        detection=detect_board(image.image, board))
     session.set_device(DEMO_CAMERA, camera_settings | {"board_hold_s": PAIR_HOLD_S})
     session.set_device(DEMO_LIDAR, lidar_settings | {"board_hold_s": PAIR_HOLD_S})
+
+
+def _add_camera_sets(session: Session, progress: ProgressCallback) -> None:
+    """Store :data:`DEMO_SETS` synchronised sets of :data:`DEMO_SET_CAMERAS` photographing the same board poses in
+    the yard (both read at once, frame ``i`` seeing pose ``i``), and leave both on the shared hold clock."""
+    settings = {name: {**session.rig.get(name).device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES,
+                       "board_hold_s": 0.0} for name in DEMO_SET_CAMERAS}
+    with contextlib.ExitStack() as stack:
+        devices = {name: stack.enter_context(create_device(settings[name])) for name in DEMO_SET_CAMERAS}
+        described = " + ".join(device.describe() for device in devices.values())
+        for i in range(DEMO_SETS):
+            progress(i / DEMO_SETS, f"storing simulated sets of {', '.join(DEMO_SET_CAMERAS)}")
+            # Frame i of each device sees pose i whenever it is read, so the stamps need not be close: a busy
+            # machine may start one render a little after the other.
+            capture_set(session, DEMO_SET_CAMERAS, {name: device.read for name, device in devices.items()},
+                        device=described, tolerance_s=DEMO_SET_TOLERANCE_S)
+    for name in DEMO_SET_CAMERAS:
+        session.set_device(name, settings[name] | {"board_hold_s": PAIR_HOLD_S})

@@ -67,7 +67,7 @@ def detect_uploads(files: list[tuple[str, bytes]], board: BoardSpec,
     return out
 
 
-def _check_size(session: Session, sensor: str, name: str, image: np.ndarray) -> None:
+def check_size(session: Session, sensor: str, name: str, image: np.ndarray) -> None:
     camera = session.rig.get(sensor)
     if camera.kind != "camera":
         raise InputError(f"sensor {sensor!r} is a {camera.kind}, not a camera", "sensor")
@@ -83,7 +83,7 @@ def store_capture(session: Session, sensor: str, image: np.ndarray, detection: D
                   device: str, timestamp_s: float, source: str | None = None,
                   meta: dict[str, Any] | None = None) -> CaptureRecord:
     """Keep one image (live or imported) with its board detection."""
-    _check_size(session, sensor, source or "image", image)
+    check_size(session, sensor, source or "image", image)
     return session.add_capture(sensor, image, {
         "timestamp_s": timestamp_s, "device": device, "source": source, "board": session.board,
         "detection": None if detection is None else detection.to_dict(), "meta": meta or {},
@@ -106,7 +106,7 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
         raise InputError(_no_board_message(", ".join(missing), board), missing[0])
     with session.lock:
         for d in detected:
-            _check_size(session, sensor, d.name, d.image)
+            check_size(session, sensor, d.name, d.image)
             # also within the batch, so a camera's first upload cannot be half stored
             first = detected[0]
             if d.image.shape[:2] != first.image.shape[:2]:

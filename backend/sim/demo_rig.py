@@ -44,6 +44,9 @@ def _mount(xyz_m: tuple[float, float, float], ypr_deg: tuple[float, float, float
 CAM_FRONT = _intrinsics(902.5, 899.0, 645.3, 357.8, [-0.12, 0.05, 0.0008, -0.0005, 0.0])
 """Narrow front camera with mild barrel distortion."""
 
+CAM_RIGHT = _intrinsics(898.0, 896.6, 640.8, 361.2, [-0.11, 0.045, -0.0004, 0.0006, 0.0])
+"""The front camera's stereo partner, 12 cm to its right: the same lens family, its own small differences."""
+
 CAM_WIDE = _intrinsics(520.0, 519.2, 637.6, 362.9, [-0.25, 0.0925, 0.0003, 0.0004, -0.0115])
 """Wide camera with strong barrel distortion (about 116 deg horizontal field of view).
 
@@ -69,7 +72,8 @@ def demo_rig() -> Rig:
     """A fresh copy of the ground-truth demo rig.
 
     Sensors: ``cam_front`` and ``cam_wide`` (cameras, 15 cm apart, a few degrees of
-    relative rotation, driven by the ``simulated`` capture driver), ``lidar_top``
+    relative rotation, driven by the ``simulated`` capture driver), ``cam_right`` (the front
+    camera's stereo partner, 12 cm to its right), ``lidar_top``
     (3D spinning LiDAR on the roof), ``lidar_front`` (a second 3D LiDAR on the front,
     pitched down), ``scanner_2d`` (2D scanner low at the front), all driven by the ``simulated_lidar``
     driver (scans of :mod:`backend.sim.lidar_scene`), and ``sweep_3d``: a 2D scanner swept into 3D by
@@ -82,6 +86,7 @@ def demo_rig() -> Rig:
     cameras = {
         "cam_front": (CAM_FRONT, (0.32, 0.06, 0.48), (1.5, 2.0, -0.8)),
         "cam_wide": (CAM_WIDE, (0.30, -0.09, 0.46), (-6.0, 4.5, 1.2)),
+        "cam_right": (CAM_RIGHT, (0.32, -0.06, 0.48), (0.8, 1.6, -0.5)),
     }
     for name, (intrinsics, xyz_m, ypr_deg) in cameras.items():
         rig.add(

@@ -1,0 +1,307 @@
+"""Multi-camera calibration as the studio, the API and the CLI run it.
+
+Two sources of board views seen together:
+
+* a session's synchronised sets (:mod:`backend.services.multicam_capture`): a frame is a set;
+* folders of images, one per camera (the CLI): a frame is the number in a file name
+  (``left07.png`` and ``cam_b_0007.jpg`` are both frame 7).
+
+A camera with intrinsics (accepted in its own step, or a ``camera.yaml``) keeps them
+unless asked to refine; a camera without any is first calibrated from its own views
+and then refined with the rig. Results are kept under the reference camera (the first
+named) with kind ``multicam``; accepting one mounts every other camera relative to the
+reference, and a later or earlier result of the same cameras replaces or reverts it.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.rig import Frame, Rig
+from backend.devices.file_sequence import natural_key
+from backend.devices.image_folder import IMAGE_EXTENSIONS
+from backend.devices.image_io import read_image
+from backend.exports.ros_camera_info import load_camera_info
+from backend.services import intrinsics as intrinsics_service
+from backend.services.lidar_camera_pairs import check_camera, check_image_size
+from backend.services.multicam_capture import stored_sets
+from backend.solvers.board_detection import Detection, detect_board
+from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
+from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
+from backend.solvers.multicam_graph import Observation
+from backend.solvers.result import ProgressCallback, no_progress
+from backend.solvers.stereo import epipolar_errors
+from backend.store.session import Session
+
+KIND = "multicam"
+FRAME_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+"""The last run of digits in a file's stem: its frame number."""
+
+
+@dataclass
+class StartingCameras:
+    """Each camera's intrinsics to start from, and which of them the solve refines."""
+
+    cameras: dict[str, CameraIntrinsics]
+    estimate: list[str]
+
+
+def slot(cameras: Sequence[str]) -> str:
+    """The acceptance slot of a set of cameras, whatever their order."""
+    return f"{KIND}:{'+'.join(sorted(cameras))}"
+
+
+def check_cameras(names: Sequence[str]) -> list[str]:
+    """At least two distinct camera names, in the order given."""
+    names = list(names)
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise InputError(f"camera {duplicates[0]} is named twice", duplicates[0])
+    if len(names) < 2:
+        raise InputError(f"a multi-camera calibration needs at least two cameras, got {names}", "cameras")
+    return names
+
+
+def _calibrated_from_views(name: str, views: list[View], board: BoardSpec, size: tuple[int, int],
+                           progress: ProgressCallback) -> CameraIntrinsics:
+    """A camera without intrinsics, calibrated from its own board views (refined later with the rig)."""
+    if len(views) < 3:
+        raise InputError(f"camera {name} has no intrinsics and only {len(views)} board views to calibrate them "
+                         f"from; calibrate it in its own step or give at least 3 views", name)
+    return calibrate_intrinsics(views, board, size, IntrinsicsSettings(jackknife=False), progress).camera
+
+
+def starting_cameras(known: dict[str, CameraIntrinsics | None], observations: list[Observation], board: BoardSpec,
+                     sizes: dict[str, tuple[int, int]], refine: bool, progress: ProgressCallback = no_progress
+                     ) -> StartingCameras:
+    """Intrinsics for every camera: the known ones, and a calibration from its own views for the others
+    (which the rig solve then refines, as it does all of them with ``refine``)."""
+    cameras, estimate = {}, []
+    for name, camera in known.items():
+        if camera is None:
+            views = [View(o.frame, o.detection) for o in observations if o.camera == name]
+            progress(0.0, f"calibrating {name}'s intrinsics from its {len(views)} views")
+            camera = _calibrated_from_views(name, views, board, sizes[name], no_progress)
+            estimate.append(name)
+        elif refine:
+            estimate.append(name)
+        cameras[name] = camera
+    return StartingCameras(cameras, estimate)
+
+
+def pair_checks(result: MulticamResult, observations: list[Observation]) -> list[dict[str, Any]]:
+    """For each pair of cameras that saw the board together: the baseline (m) and the epipolar error (px) of
+    the corners both saw, a check of the rig that does not use the board's geometry."""
+    by_view = {(o.camera, o.frame): o.detection for o in observations}
+    checks = []
+    for edge in result.graph.to_record()["edges"]:
+        a, b = edge["a"], edge["b"]
+        left_px, right_px = [], []
+        for frame in sorted({f for c, f in by_view if c == a} & {f for c, f in by_view if c == b}):
+            da, db = by_view[a, frame], by_view[b, frame]
+            common, ia, ib = np.intersect1d(da.ids, db.ids, return_indices=True)
+            left_px.append(da.corners_px[ia])
+            right_px.append(db.corners_px[ib])
+        T_a_b = np.linalg.solve(result.T_ref_cam[a], result.T_ref_cam[b])
+        errors = epipolar_errors(result.cameras[a], result.cameras[b], T_a_b, np.concatenate(left_px),
+                                 np.concatenate(right_px))
+        checks.append({"a": a, "b": b, "frames": edge["frames"], "baseline_m": float(np.linalg.norm(T_a_b[:3, 3])),
+                       "epipolar_rms_px": float(np.sqrt(np.mean(errors**2)))})
+    return checks
+
+
+def result_rig(result: MulticamResult) -> Rig:
+    """The result as a rig rooted at the reference camera: each camera's ``T_ref_cam`` with its covariance."""
+    rig = Rig(root=result.reference)
+    rig.get(result.reference).kind, rig.get(result.reference).intrinsics = "camera", result.cameras[result.reference]
+    for name, T in result.T_ref_cam.items():
+        if name != result.reference:
+            covariance = result.covariance[name]
+            rig.add(Frame(name, result.reference, T, kind="camera", intrinsics=result.cameras[name],
+                          covariance=covariance if np.isfinite(covariance).all() else None))
+    return rig
+
+
+# --------------------------------------------------------------------------------------------
+# Sessions
+
+
+def session_observations(session: Session, cameras: list[str], set_names: list[str] | None = None
+                         ) -> tuple[list[Observation], list[str]]:
+    """Every stored board view of ``cameras`` in the session's sets (or the sets named), and the sets used."""
+    sets = stored_sets(session, cameras)
+    if set_names is not None:
+        unknown = sorted(set(set_names) - {s.name for s in sets})
+        if unknown:
+            raise InputError(f"no set {unknown[0]} of {', '.join(cameras)} in session {session.name}", unknown[0])
+        sets = [s for s in sets if s.name in set(set_names)]
+    observations = [Observation(camera, s.name, Detection.from_dict(capture.detection))
+                    for s in sets for camera, capture in s.captures.items() if capture.detection]
+    if not sets:
+        raise InputError(f"session {session.name} holds no synchronised sets of {', '.join(cameras)}; capture "
+                         f"sets with the board in view of at least two cameras first", "cameras")
+    return observations, [s.name for s in sets]
+
+
+def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bool = False,
+                  set_names: list[str] | None = None, progress: ProgressCallback = no_progress
+                  ) -> tuple[str, MulticamResult]:
+    """Solve the rig of ``cameras`` (the first is the reference) from the session's sets; keep the result."""
+    cameras = check_cameras(cameras)
+    for name in cameras:
+        check_camera(session, name)
+    board = intrinsics_service.session_board(session)
+    observations, used = session_observations(session, cameras, set_names)
+    sizes = {}
+    for obs in observations:
+        sizes.setdefault(obs.camera, tuple(obs.detection.image_size))
+    start = starting_cameras({n: session.rig.get(n).intrinsics for n in cameras}, observations, board, sizes,
+                             refine_intrinsics, progress)
+    result = calibrate_multicam(start.cameras, board, observations, MulticamSettings(start.estimate), progress)
+    record = result.to_record() | {"camera_order": cameras, "pairs": pair_checks(result, observations)}
+    return session.add_result(cameras[0], record, inputs=used), result
+
+
+def apply_multicam(rig: Rig, record: dict[str, Any]) -> None:
+    """Mount every camera of a multicam result relative to its reference, and give the refined ones their
+    refined intrinsics."""
+    if record.get("kind") != KIND:
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    if not record.get("converged", False):
+        raise InputError(f"result {record['id']} did not converge and cannot be accepted: "
+                         + "; ".join(record.get("warnings", [])), "result")
+    reference = record["reference"]
+    for name, T in record["T_ref_cam"].items():
+        if name == reference:
+            continue
+        covariance = record["covariance"][name]
+        rig.set_relative(name, reference, np.array(T, dtype=float),
+                         None if any(v is None for row in covariance for v in row) else np.array(covariance))
+    for name in record["settings"]["estimate_intrinsics"]:
+        rig.get(name).intrinsics = CameraIntrinsics.from_dict(record["cameras"][name])
+
+
+def accept(session: Session, result_id: str) -> None:
+    """Make a stored multicam result the rig's (also how a user reverts to an earlier one)."""
+    record = session.result(result_id)
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    session.accept(slot(record["camera_order"]), result_id, apply_multicam)
+
+
+# --------------------------------------------------------------------------------------------
+# Folders (the CLI)
+
+
+def frame_number(path: Path) -> int:
+    """The frame number in a file name (its last run of digits), or an error naming the file."""
+    match = FRAME_NUMBER.search(path.stem)
+    if match is None:
+        raise InputError(f"{path.name} has no frame number in its name; frames are matched across cameras by the "
+                         f"number in their file names (e.g. left07.png and right07.png)", str(path))
+    return int(match.group(1))
+
+
+def _folder_images(camera: str, folder: Path) -> dict[str, Path]:
+    """Frame name -> image of one camera's folder; refuses a missing or empty folder and repeated numbers."""
+    if not folder.is_dir():
+        raise InputError(f"{folder} (camera {camera}) is not a folder of images", str(folder))
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                   key=lambda p: natural_key(p.name))
+    if not files:
+        raise InputError(f"{folder} (camera {camera}) holds no images (expected {', '.join(IMAGE_EXTENSIONS)})",
+                         str(folder))
+    frames: dict[str, Path] = {}
+    for path in files:
+        name = f"{frame_number(path):06d}"
+        if name in frames:
+            raise InputError(f"{path.name} and {frames[name].name} of camera {camera} have the same frame number "
+                             f"{int(name)}", str(path))
+        frames[name] = path
+    return frames
+
+
+def _detect(camera: str, path: Path, board: BoardSpec, expected: CameraIntrinsics | None
+            ) -> tuple[tuple[int, int], Detection | None]:
+    image = read_image(path, grayscale=True)
+    if expected is not None:
+        check_image_size(image, expected, str(path))
+    return (image.shape[1], image.shape[0]), detect_board(image, board)
+
+
+def folder_observations(folders: dict[str, Path], board: BoardSpec, known: dict[str, CameraIntrinsics | None],
+                        progress: ProgressCallback = no_progress
+                        ) -> tuple[list[Observation], dict[str, tuple[int, int]], list[str]]:
+    """Board views of every camera's folder, each image's size, and warnings about frames some cameras lack.
+
+    Refuses a camera whose images disagree in size, or in which the board is never found."""
+    images = {camera: _folder_images(camera, folder) for camera, folder in folders.items()}
+    jobs = [(camera, frame, path) for camera, frames in images.items() for frame, path in frames.items()]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # OpenCV releases the GIL while detecting
+        found = []
+        for i, detected in enumerate(pool.map(lambda job: _detect(job[0], job[2], board, known[job[0]]), jobs)):
+            progress(i / len(jobs), f"detecting the board in {jobs[i][2].name}")
+            found.append(detected)
+    observations, sizes = [], {}
+    for (camera, frame, path), (size, detection) in zip(jobs, found, strict=True):
+        if sizes.setdefault(camera, size) != size:
+            raise InputError(f"{path.name} is {size[0]}x{size[1]} px but camera {camera}'s other images are "
+                             f"{sizes[camera][0]}x{sizes[camera][1]}", str(path))
+        if detection is not None:
+            observations.append(Observation(camera, frame, detection))
+    for camera, frames in images.items():
+        if not any(o.camera == camera for o in observations):
+            raise InputError(f"the board {board} was not found in any of camera {camera}'s {len(frames)} images in "
+                             f"{folders[camera]}; check the board spec (inner corners for checkerboards, squares "
+                             f"for ChArUco)", camera)
+    every = set().union(*(frames.keys() for frames in images.values()))
+    warnings = []
+    for camera, frames in images.items():
+        if every - frames.keys():
+            missing = ", ".join(str(int(f)) for f in sorted(every - frames.keys()))
+            warnings.append(f"camera {camera} has no image for frames {missing}; those frames relate the others only")
+    return observations, sizes, warnings
+
+
+def parse_named(values: Sequence[str], what: str) -> dict[str, Path]:
+    """``NAME=PATH`` arguments in order; refuses a value without ``=`` or a name given twice."""
+    named: dict[str, Path] = {}
+    for value in values:
+        name, sep, path = value.partition("=")
+        if not sep or not name or not path:
+            raise InputError(f"expected NAME={what}, got {value!r}", value)
+        if name in named:
+            raise InputError(f"camera {name} is given twice", name)
+        named[name] = Path(path)
+    return named
+
+
+def solve_folders(folders: dict[str, Path], board: BoardSpec, intrinsics_files: dict[str, Path], *,
+                  refine_intrinsics: bool = False, progress: ProgressCallback = no_progress
+                  ) -> tuple[MulticamResult, list[str]]:
+    """The CLI's path: calibrate the rig of ``folders`` (camera -> images, the first the reference) with the
+    intrinsics of ``intrinsics_files`` (camera -> ROS camera_info YAML) where given. Returns the result and
+    warnings about frames some cameras lack."""
+    check_cameras(list(folders))
+    unknown = sorted(set(intrinsics_files) - set(folders))
+    if unknown:
+        raise InputError(f"--intrinsics names camera {unknown[0]}, which has no --camera folder", unknown[0])
+    known = {name: load_camera_info(intrinsics_files[name])[0] if name in intrinsics_files else None
+             for name in folders}
+    observations, sizes, warnings = folder_observations(folders, board, known,
+                                                        lambda f, m: progress(0.4 * f, m))
+    start = starting_cameras(known, observations, board, sizes, refine_intrinsics,
+                             lambda f, m: progress(0.4, m))
+    result = calibrate_multicam(start.cameras, board, observations, MulticamSettings(start.estimate),
+                                lambda f, m: progress(0.45 + 0.55 * f, m))
+    return result, warnings + result.warnings
