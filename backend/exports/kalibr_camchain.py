@@ -67,6 +67,7 @@ from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.core.transforms import invert
 from backend.exports.text_file import read_text
+from backend.exports.yaml_fields import YamlFields, floats
 
 K3_TOLERANCE_PX = 1e-3
 """Largest shift (px) ``k3`` may cause at the farthest image corner for a camera to be written as Kalibr radtan."""
@@ -127,13 +128,13 @@ def dump_kalibr_camchain(
                 )
         entry: dict[str, Any] = {}
         if i > 0:
-            entry["T_cn_cnm1"] = [_floats(row) for row in invert(poses[i]) @ poses[i - 1]]
+            entry["T_cn_cnm1"] = [floats(row) for row in invert(poses[i]) @ poses[i - 1]]
         entry |= {
             "cam_overlaps": sorted(index[n] for n in others),
             "camera_model": "pinhole",
             "distortion_coeffs": _kalibr_coeffs(name, camera),
             "distortion_model": DISTORTION_MODELS[camera.model],
-            "intrinsics": _floats([camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]]),
+            "intrinsics": floats([camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]]),
             "resolution": [int(camera.width), int(camera.height)],
             "rostopic": str(topics.get(name, default_topic(name))),
         }
@@ -245,7 +246,7 @@ def _kalibr_coeffs(name: str, camera: CameraIntrinsics) -> list[float]:
             f"{name}: K has skew {camera.K[0, 1]!r} px, which Kalibr's pinhole [fu, fv, pu, pv] cannot hold; "
             "recalibrate without skew", name)
     if camera.is_fisheye:
-        return _floats(camera.dist)
+        return floats(camera.dist)
     k3 = float(camera.dist[4])
     if k3 != 0.0:
         shift_px = _k3_shift_px(camera)
@@ -254,7 +255,7 @@ def _kalibr_coeffs(name: str, camera: CameraIntrinsics) -> list[float]:
                 f"{name}: k3 = {k3!r} moves the farthest image corner by {shift_px:.3g} px, but Kalibr's radtan "
                 f"holds only [k1, k2, r1, r2] (no k3; at most {K3_TOLERANCE_PX} px is dropped); recalibrate "
                 f"{name} with k3 fixed at 0 or export another format", name)
-    return _floats(camera.dist[:4])
+    return floats(camera.dist[:4])
 
 
 def _k3_shift_px(camera: CameraIntrinsics) -> float:
@@ -265,43 +266,8 @@ def _k3_shift_px(camera: CameraIntrinsics) -> float:
     return abs(float(camera.dist[4])) * r**7 * float(max(camera.K[0, 0], camera.K[1, 1]))
 
 
-def _floats(values: Any) -> list[float]:
-    """Plain Python floats, so YAML gets full-precision numbers."""
-    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
-
-
-class _Fields:
+class _Fields(YamlFields):
     """Typed, checked access to the fields of one camchain document."""
-
-    def __init__(self, origin: str):
-        self.origin = origin
-
-    def error(self, field: str, problem: str, expected: str) -> InputError:
-        return InputError(f"{self.origin}: field '{field}' {problem}; expected {expected}", self.origin)
-
-    def get(self, mapping: dict[str, Any], key: str, field: str, expected: str) -> Any:
-        if key not in mapping:
-            raise self.error(field, "is missing", expected)
-        return mapping[key]
-
-    def mapping(self, value: Any, field: str, expected: str) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.error(field, f"is {value!r}", expected)
-        return value
-
-    def number(self, value: Any, field: str) -> float:
-        """A finite number; strings such as ``1e-05`` (a float in YAML 1.2, a string to PyYAML) are accepted."""
-        number: float | None = None
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            number = float(value)
-        elif isinstance(value, str):
-            try:
-                number = float(value)
-            except ValueError:
-                number = None
-        if number is None or not math.isfinite(number):
-            raise self.error(field, f"is {value!r}", "a finite number")
-        return number
 
     def numbers(self, entry: dict[str, Any], key: str, field: str, count: int, expected: str) -> np.ndarray:
         values = self.get(entry, key, field, expected)

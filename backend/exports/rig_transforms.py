@@ -45,6 +45,7 @@ from backend.core.transforms import (
     to_xyz_ypr,
 )
 from backend.exports.text_file import read_text
+from backend.exports.yaml_fields import YamlFields, floats
 
 FORMAT = "calib-studio-rig-transforms"
 VERSION = 1
@@ -70,10 +71,10 @@ def dump_rig_transforms(rig: Rig) -> str:
             {
                 "parent": frame.parent,
                 "child": frame.name,
-                "translation_m": dict(zip("xyz", _floats(xyz_m), strict=True)),
-                "quaternion_xyzw": dict(zip("xyzw", _floats(q), strict=True)),
-                "yaw_pitch_roll_deg": dict(zip(("yaw", "pitch", "roll"), _floats(np.degrees(ypr_rad)), strict=True)),
-                "sigma": None if sigmas is None else {"trans_m": _floats(sigmas[0]), "rot_deg": _floats(sigmas[1])},
+                "translation_m": dict(zip("xyz", floats(xyz_m), strict=True)),
+                "quaternion_xyzw": dict(zip("xyzw", floats(q), strict=True)),
+                "yaw_pitch_roll_deg": dict(zip(("yaw", "pitch", "roll"), floats(np.degrees(ypr_rad)), strict=True)),
+                "sigma": None if sigmas is None else {"trans_m": floats(sigmas[0]), "rot_deg": floats(sigmas[1])},
                 "static_transform_publisher": static_transform_publisher(frame.parent, frame.name, T),
             }
         )
@@ -83,7 +84,7 @@ def dump_rig_transforms(rig: Rig) -> str:
 
 def static_transform_publisher(parent: str, child: str, T_parent_child: np.ndarray) -> str:
     """The ROS 2 command publishing ``T_parent_child`` (translation m, yaw/pitch/roll rad)."""
-    (x, y, z), (yaw, pitch, roll) = (_floats(v) for v in to_xyz_ypr(T_parent_child))
+    (x, y, z), (yaw, pitch, roll) = (floats(v) for v in to_xyz_ypr(T_parent_child))
     values = {"x": x, "y": y, "z": z, "yaw": yaw, "pitch": pitch, "roll": roll}
     flags = " ".join(f"--{name} {value!r}" for name, value in values.items())
     return (
@@ -147,29 +148,8 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
     return result
 
 
-def _floats(values: np.ndarray) -> list[float]:
-    """Plain Python floats, so YAML gets full-precision numbers."""
-    return [float(v) for v in np.asarray(values).ravel()]
-
-
-class _Fields:
+class _Fields(YamlFields):
     """Typed, checked access to the fields of one rig transforms document."""
-
-    def __init__(self, origin: str):
-        self.origin = origin
-
-    def error(self, field: str, problem: str, expected: str) -> InputError:
-        return InputError(f"{self.origin}: field '{field}' {problem}; expected {expected}", self.origin)
-
-    def get(self, mapping: dict[str, Any], key: str, field: str, expected: str) -> Any:
-        if key not in mapping:
-            raise self.error(field, "is missing", expected)
-        return mapping[key]
-
-    def mapping(self, value: Any, field: str, expected: str) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.error(field, f"is {value!r}", expected)
-        return value
 
     def name(self, mapping: dict[str, Any], key: str, field: str) -> str:
         value = self.get(mapping, key, field, "a frame name")
@@ -182,11 +162,6 @@ class _Fields:
         expected = f"a mapping {{{', '.join(names)}}} of numbers ({unit})"
         node = self.mapping(self.get(mapping, key, field, expected), field, expected)
         return np.array([self.number(self.get(node, n, f"{field}.{n}", expected), f"{field}.{n}") for n in names])
-
-    def number(self, value: Any, field: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.error(field, f"is {value!r}", "a finite number")
-        return float(value)
 
     def transform(self, entry: dict[str, Any], where: str) -> np.ndarray:
         """``T_parent_child`` from ``translation_m`` and ``quaternion_xyzw`` and/or ``yaw_pitch_roll_deg``."""

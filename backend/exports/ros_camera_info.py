@@ -28,6 +28,7 @@ import yaml
 from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.exports.text_file import read_text
+from backend.exports.yaml_fields import YamlFields
 
 MODELS_BY_ROS_NAME: dict[str, CameraModelName] = {
     "plumb_bob": "pinhole-radtan",
@@ -154,23 +155,15 @@ def _matrix_node(M: np.ndarray) -> dict[str, Any]:
     return {"rows": int(M.shape[0]), "cols": int(M.shape[1]), "data": [float(v) for v in M.ravel()]}
 
 
-class _Fields:
+class _Fields(YamlFields):
     """Typed, checked access to the fields of one camera_info document."""
 
     def __init__(self, path: Path, document: dict[str, Any]):
-        self.path = path
+        super().__init__(str(path))
         self.document = document
 
-    def error(self, field: str, problem: str, expected: str) -> InputError:
-        return InputError(f"{self.path}: field '{field}' {problem}; expected {expected}", str(self.path))
-
-    def _get(self, mapping: dict[str, Any], key: str, field: str, expected: str) -> Any:
-        if key not in mapping:
-            raise self.error(field, "is missing", expected)
-        return mapping[key]
-
     def positive_int(self, key: str) -> int:
-        value = self._get(self.document, key, key, "a positive integer (pixels)")
+        value = self.get(self.document, key, key, "a positive integer (pixels)")
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
             raise self.error(key, f"is {value!r}", "a positive integer (pixels)")
         return value
@@ -191,35 +184,22 @@ class _Fields:
         """A ``{rows, cols, data}`` matrix; ``rows``/``cols`` of None accept any positive size."""
         shape = f"{rows if rows is not None else 'R'}x{cols if cols is not None else 'C'}"
         expected = f"a mapping {{rows, cols, data}} holding a {shape} matrix, data row-major"
-        node = self._get(self.document, key, key, expected)
+        node = self.get(self.document, key, key, expected)
         if not isinstance(node, dict):
             raise self.error(key, f"is {node!r}", expected)
         size: dict[str, int] = {}
         for part, want in (("rows", rows), ("cols", cols)):
-            value = self._get(node, part, f"{key}.{part}", expected)
+            value = self.get(node, part, f"{key}.{part}", expected)
             wrong_size = want is not None and value != want
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0 or wrong_size:
                 raise self.error(f"{key}.{part}", f"is {value!r}", str(want) if want else "a positive integer")
             size[part] = value
         count = size["rows"] * size["cols"]
-        data = self._get(node, "data", f"{key}.data", f"a list of {count} numbers")
+        data = self.get(node, "data", f"{key}.data", f"a list of {count} numbers")
         if not isinstance(data, list) or len(data) != count:
             found = f"has {len(data)} values" if isinstance(data, list) else f"is {data!r}"
             raise self.error(
                 f"{key}.data", f"{found} but rows*cols = {size['rows']}*{size['cols']}", f"a list of {count} numbers"
             )
-        numbers = [self._number(value, f"{key}.data[{i}]") for i, value in enumerate(data)]
+        numbers = [self.number(value, f"{key}.data[{i}]") for i, value in enumerate(data)]
         return np.array(numbers, dtype=float).reshape(size["rows"], size["cols"])
-
-    def _number(self, value: Any, field: str) -> float:
-        number: float | None = None
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            number = float(value)
-        elif isinstance(value, str):
-            try:
-                number = float(value)
-            except ValueError:
-                number = None
-        if number is None or not math.isfinite(number):
-            raise self.error(field, f"is {value!r}", "a finite number")
-        return number

@@ -1,0 +1,53 @@
+"""Checked access to the fields of a YAML document, shared by the exports' readers.
+
+Every problem raises :class:`InputError` whose message names the document (its file),
+the field (a dotted path such as ``cam1.T_cn_cnm1[2]``) and what was expected.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from backend.core.errors import InputError
+
+
+def floats(values: Any) -> list[float]:
+    """Plain Python floats, so YAML gets full-precision numbers."""
+    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
+
+
+class YamlFields:
+    """Typed, checked access to the fields of one document read from ``origin`` (a file name)."""
+
+    def __init__(self, origin: str):
+        self.origin = origin
+
+    def error(self, field: str, problem: str, expected: str) -> InputError:
+        return InputError(f"{self.origin}: field '{field}' {problem}; expected {expected}", self.origin)
+
+    def get(self, mapping: dict[str, Any], key: str, field: str, expected: str) -> Any:
+        if key not in mapping:
+            raise self.error(field, "is missing", expected)
+        return mapping[key]
+
+    def mapping(self, value: Any, field: str, expected: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.error(field, f"is {value!r}", expected)
+        return value
+
+    def number(self, value: Any, field: str) -> float:
+        """A finite number; strings such as ``1e-05`` (a float in YAML 1.2, a string to PyYAML) are accepted."""
+        number: float | None = None
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            number = float(value)
+        elif isinstance(value, str):
+            try:
+                number = float(value)
+            except ValueError:
+                number = None
+        if number is None or not math.isfinite(number):
+            raise self.error(field, f"is {value!r}", "a finite number")
+        return number
