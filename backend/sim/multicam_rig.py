@@ -79,10 +79,11 @@ class SimulatedMulticam:
 
 
 def simulated_ring(n_cameras: int = 6, n_frames: int = 245, seed: int = 0, *, spacing_deg: float = SPACING_DEG,
-                   board: BoardSpec = MULTICAM_BOARD) -> SimulatedMulticam:
+                   walk_deg: float | None = None, board: BoardSpec = MULTICAM_BOARD) -> SimulatedMulticam:
     """``n_cameras`` around a ring (``cam0`` ... looking at azimuths 0, ``spacing_deg``, 2 ``spacing_deg`` ...),
     slightly off their nominal mounts, and ``n_frames`` board poses walking around them. A small spacing
-    (8 deg) makes a forward-looking cluster in which most frames are seen by most cameras."""
+    (3 deg) makes a forward-looking cluster; with a short ``walk_deg`` (the azimuths the board walks through,
+    deg, centred on the cameras; default 50 deg beyond the outer cameras) every camera sees most frames."""
     rng = np.random.default_rng(seed)
     cameras, T_rig_cam = {}, {}
     for i, lens in enumerate(_lenses(n_cameras)):
@@ -93,9 +94,10 @@ def simulated_ring(n_cameras: int = 6, n_frames: int = 245, seed: int = 0, *, sp
         T_rig_cam[f"cam{i}"] = T_rig_optical @ from_xyz_ypr(np.zeros(3), np.radians(rng.normal(0, 1.0, 3)))
         cameras[f"cam{i}"] = lens
     span = spacing_deg * (n_cameras - 1)
+    walk_deg = span + 50 if walk_deg is None else walk_deg
     T_rig_board = []
     for k in range(n_frames):
-        azimuth = np.radians(-25 + (span + 50) * (k + rng.uniform(-0.5, 0.5)) / n_frames)
+        azimuth = np.radians((span - walk_deg) / 2 + walk_deg * (k + rng.uniform(-0.5, 0.5)) / n_frames)
         distance = rng.uniform(1.2, 3.0)
         centre = RING_RADIUS_M + distance
         position = np.array([centre * np.cos(azimuth), centre * np.sin(azimuth), rng.uniform(-0.3, 0.3)])
