@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import queue
 import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -145,9 +146,30 @@ class Studio:
         return response.json()
 
 
+@pytest.fixture(scope="session")
+def demo_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A sessions folder holding the demo session, built once per run (about 40 s) and copied by every test
+    that wants a demo of its own (:func:`fresh_demo`)."""
+    from backend.services.demo import ensure_demo_session
+    from backend.store.session import SessionStore
+
+    root = tmp_path_factory.mktemp("demo_template")
+    ensure_demo_session(SessionStore(root))
+    return root
+
+
+def fresh_demo(template: Path, sessions: Path) -> Path:
+    """Copy the template's demo session into ``sessions`` (created); returns ``sessions``."""
+    shutil.copytree(template, sessions)
+    return sessions
+
+
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Studio]:
+def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int], demo_template: Path
+           ) -> Iterator[Studio]:
+    """``calib-studio demo`` in a subprocess, on a copy of the run's demo session (so it starts in seconds)."""
     tmp = tmp_path_factory.mktemp("studio")
+    fresh_demo(demo_template, tmp / "sessions")
     api_port, viewer_port = free_port(), free_port()
     while viewer_port == api_port:
         viewer_port = free_port()
@@ -167,7 +189,7 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
     studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
     try:
         try:
-            first = lines.get(timeout=90)  # building the demo session takes ~10 s
+            first = lines.get(timeout=90)
         except queue.Empty:
             pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
         studio.url = first.strip()

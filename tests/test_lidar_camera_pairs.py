@@ -9,6 +9,7 @@ import io
 import cv2
 import numpy as np
 import pytest
+from conftest import fresh_demo
 
 from backend.core.errors import InputError, NotFoundError
 from backend.core.transforms import from_xyz_ypr, invert
@@ -16,7 +17,7 @@ from backend.devices.base import Sample, create_device
 from backend.devices.image_io import read_image
 from backend.services import lidar_camera as service
 from backend.services import lidar_camera_pairs as pairs_service
-from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, DEMO_PAIRS, ensure_demo_session
+from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, DEMO_PAIRS
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.store.session import Session, SessionStore
 
@@ -154,8 +155,8 @@ def test_result_files_stay_inside_the_result_folder(session):
 
 
 @pytest.mark.slow
-def test_the_demo_session_holds_pairs_ready_to_solve(tmp_path):
-    session = ensure_demo_session(SessionStore(tmp_path))
+def test_the_demo_session_holds_pairs_ready_to_solve(tmp_path, demo_template):
+    session = SessionStore(fresh_demo(demo_template, tmp_path / "sessions")).get("demo")
     stored = pairs_service.stored_pairs(session, DEMO_CAMERA, DEMO_LIDAR)
     assert len(stored) == DEMO_PAIRS
     assert all(p.image.meta["board_pose_index"] == p.cloud.meta["board_pose_index"] for p in stored)

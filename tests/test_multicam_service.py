@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import wait_job
+from conftest import fresh_demo, wait_job
 from fastapi.testclient import TestClient
+from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
 from backend.core.boards import BoardSpec
@@ -27,8 +28,9 @@ from backend.exports.ros_camera_info import load_camera_info, write_camera_info
 from backend.services import multicam as service
 from backend.services.intrinsics import calibrate_folder
 from backend.services.multicam_capture import capture_set
+from backend.sim.demo_rig import demo_rig
 from backend.solvers.intrinsics import IntrinsicsSettings
-from backend.store.session import Session
+from backend.store.session import Session, SessionStore
 
 BOARD = "checkerboard:9x6:0.025"
 FRAMES = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
@@ -203,3 +205,23 @@ def test_api_refusals_name_the_input(client):
     status = wait_job(client, response.json()["id"])
     assert status["state"] == "failed" and "no capture device" in status["error"]["message"]
     assert len(client.get("/api/sessions/stereo/multicam/sets").json()) == 13  # nothing stored
+
+
+@pytest.mark.slow
+def test_the_demo_sets_solve_the_stereo_partner_near_the_truth(tmp_path, demo_template):
+    session = SessionStore(fresh_demo(demo_template, tmp_path / "sessions")).get("demo")
+    assert session.rig.get("cam_right").intrinsics is None
+    result_id, result = service.solve_session(session, ["cam_front", "cam_right"])
+    truth = demo_rig().T_a_b("cam_front", "cam_right")
+    error = invert(truth) @ result.T_ref_cam["cam_right"]
+    std = result.std("cam_right")
+    print(f"demo cam_right: {np.linalg.norm(error[:3, 3]) * 1e3:.2f} mm, "
+          f"{np.degrees(Rotation.from_matrix(error[:3, :3]).magnitude()):.3f} deg off; sigma {std}")
+    assert result.converged and result.settings.estimate_intrinsics == ["cam_right"]
+    assert np.all(np.abs(result.T_ref_cam["cam_right"][:3, 3] - truth[:3, 3]) < 3 * np.array(std["trans_m"]) + 1e-4)
+    assert np.all(np.abs(np.degrees(Rotation.from_matrix(error[:3, :3]).as_rotvec())) < 3 * np.array(std["rot_deg"]))
+    assert np.linalg.norm(error[:3, 3]) < 0.005 and np.degrees(Rotation.from_matrix(error[:3, :3]).magnitude()) < 0.5
+    K_true = demo_rig().get("cam_right").intrinsics.K
+    assert np.abs(result.cameras["cam_right"].K - K_true).max() < 10.0  # px, from 10 views of the yard
+    service.accept(session, result_id)
+    assert np.allclose(session.rig.T_a_b("cam_front", "cam_right"), result.T_ref_cam["cam_right"], atol=1e-12)
