@@ -11,6 +11,7 @@ from studio.scene import RigScene
 from studio.wizard.intrinsics_step import IntrinsicsStep
 from studio.wizard.lidar_camera_step import LidarCameraStep
 from studio.wizard.lidar_step import LidarStep
+from studio.wizard.multicam_step import MulticamStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
 from studio.wizard.sweep_step import SweepStep
@@ -30,6 +31,7 @@ class StudioApp:
         self.lidar_step = LidarStep(self.ctx)
         self.sweep_step = SweepStep(self.ctx)
         self.lidar_camera_step = LidarCameraStep(self.ctx)
+        self.multicam_step = MulticamStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

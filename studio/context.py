@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import viser
 
+from backend.core.errors import InputError
+from backend.services.exports import ExportFormat, export_text
 from backend.services.jobs import JobRunner
 from backend.store.session import Session, SessionStore
 from studio.scene import RigScene
@@ -30,6 +32,15 @@ class StudioContext:
         self.scene.show_rig(session.rig)
         for listener in self._listeners:
             listener(session)
+
+    def download(self, event: viser.GuiEvent, fmt: ExportFormat, sensor: str | None = None) -> None:
+        """Send one export of the open session to the page that clicked (a toast says why when there is none)."""
+        try:
+            filename, text = export_text(self.session, fmt, sensor)
+        except InputError as exc:
+            self.notify("Nothing to export", exc.message, error=True)
+            return
+        event.client.send_file_download(filename, text.encode())
 
     def notify(self, title: str, body: str, error: bool = False) -> None:
         """Show a toast on every connected page."""

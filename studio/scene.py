@@ -1,4 +1,4 @@
-"""The rig in 3D: frames, camera frusta with their images, and boards at their poses.
+"""The rig in 3D: frames, camera frusta with their images, boards at their poses, and a solved camera rig.
 
 Holds viser scene handles and updates them; all geometry comes from
 :mod:`backend.core` (poses are ``T_root_frame`` from the rig). The root frame is
@@ -13,6 +13,7 @@ import viser
 import viser.transforms as vtf
 
 from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
 
 DEFAULT_FOV_RAD = np.radians(60.0)
@@ -31,6 +32,8 @@ SENSOR_COLOURS = {
     "lidar2d": (200, 60, 160),
     "depth": (40, 170, 90),
 }
+SOLVED_COLOUR = (235, 130, 20)
+"""Frusta of a solved camera rig on show (:meth:`RigScene.show_solved_cameras`), beside the rig's own (blue)."""
 
 
 def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
@@ -47,6 +50,16 @@ def _fov_aspect(frame: Frame) -> tuple[float, float]:
     return float(camera.fov_y_rad), camera.width / camera.height
 
 
+def _board_drawing(board: BoardSpec) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """The board's texture (RGB), its size (m) and ``T_board_plane``, which places a viser image plane on it."""
+    texture = cv2.cvtColor(board.render(BOARD_TEXTURE_PX), cv2.COLOR_GRAY2RGB)
+    width_m, height_m = board.size_m
+    T_board_plane = np.eye(4)
+    T_board_plane[:3, :3] = R_PLANE_BOARD
+    T_board_plane[:3, 3] = board.outer_origin_m + np.array([width_m / 2, height_m / 2, 0.0])
+    return texture, width_m, height_m, T_board_plane
+
+
 def _thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     small = cv2.resize(image, (width, int(round(image.shape[0] * scale))), interpolation=cv2.INTER_AREA)
@@ -61,6 +74,7 @@ class RigScene:
         self._frames: dict[str, viser.FrameHandle] = {}
         self._frusta: dict[str, viser.CameraFrustumHandle] = {}
         self._boards: dict[str, list[viser.ImageHandle]] = {"live": [], "captured": []}
+        self._solved: list[viser.SceneNodeHandle] = []
         server.scene.set_up_direction("+z")
         server.initial_camera.position = INITIAL_CAMERA_POSITION_M
         server.initial_camera.look_at = INITIAL_LOOK_AT_M
@@ -73,6 +87,7 @@ class RigScene:
         self._frames.clear()
         self._frusta.clear()
         self._boards = {"live": [], "captured": []}
+        self._solved = []
         self.update_rig(rig)
 
     def update_rig(self, rig: Rig) -> None:
@@ -122,14 +137,48 @@ class RigScene:
         """Draw the board at each pose in front of ``camera`` (captured views, or the live view)."""
         group = "live" if live else "captured"
         self.clear_boards(live)
-        texture = cv2.cvtColor(board.render(BOARD_TEXTURE_PX), cv2.COLOR_GRAY2RGB)
-        width_m, height_m = board.size_m
-        T_board_plane = np.eye(4)
-        T_board_plane[:3, :3] = R_PLANE_BOARD
-        T_board_plane[:3, 3] = board.outer_origin_m + np.array([width_m / 2, height_m / 2, 0.0])
+        texture, width_m, height_m, T_board_plane = _board_drawing(board)
         T_root_camera = rig.T_root_frame(camera)
         self._boards[group] = [
             self.server.scene.add_image(f"/boards/{group}/{i}", texture, render_width=width_m, render_height=height_m,
                                         format="png", **_pose(T_root_camera @ T_camera_board @ T_board_plane))
             for i, T_camera_board in enumerate(T_camera_boards)
+        ]
+
+    def clear_solved_cameras(self) -> None:
+        """Remove what :meth:`show_solved_cameras` drew."""
+        for handle in reversed(self._solved):  # children before their parents
+            try:
+                handle.remove()
+            except RuntimeError:  # gone with its parent or a redrawn rig
+                pass
+        self._solved = []
+
+    def show_solved_cameras(self, rig: Rig, reference: str, T_ref_cams: dict[str, np.ndarray],
+                            cameras: dict[str, CameraIntrinsics], board: BoardSpec,
+                            T_ref_boards: dict[str, np.ndarray], tag: str = "solved") -> None:
+        """Draw a solved camera rig beside the rig's own, placed from the reference camera's pose in the rig.
+
+        Each camera's frustum (:data:`SOLVED_COLOUR`, its solved field of view) sits at
+        ``T_root_ref @ T_ref_cam`` and is labelled ``name · tag``; the board is drawn at every
+        ``T_ref_board`` (4x4, m, in the reference's optical frame) it was seen at.
+        """
+        self.clear_solved_cameras()
+        scene = self.server.scene
+        T_root_ref = rig.T_root_frame(reference)
+        for name, T_ref_cam in T_ref_cams.items():
+            node = f"/solved/cameras/{name}"
+            camera = cameras[name]
+            self._solved.append(scene.add_frame(node, axes_length=0.05, axes_radius=0.003,
+                                                **_pose(T_root_ref @ T_ref_cam)))
+            self._solved.append(scene.add_camera_frustum(
+                f"{node}/frustum", fov=float(camera.fov_y_rad), aspect=camera.width / camera.height,
+                scale=FRUSTUM_SCALE_M, color=SOLVED_COLOUR))
+            self._solved.append(scene.add_label(f"{node}/label", f"{name} · {tag}", position=(0.0, -0.05, 0.0),
+                                                font_screen_scale=0.7))
+        texture, width_m, height_m, T_board_plane = _board_drawing(board)
+        self._solved += [
+            scene.add_image(f"/solved/boards/{name}", texture, render_width=width_m, render_height=height_m,
+                            format="png", **_pose(T_root_ref @ T_ref_board @ T_board_plane))
+            for name, T_ref_board in T_ref_boards.items()
         ]

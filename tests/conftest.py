@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import queue
 import re
@@ -16,9 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import httpx
+import numpy as np
 import pytest
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Browser, Locator, Page, expect, sync_playwright
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -265,3 +268,25 @@ def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
         assert time.monotonic() < deadline, f"{pattern.pattern!r} never appeared:\n{page.inner_text('body')[-2000:]}"
         time.sleep(0.5)
     return match
+
+
+BLOB_BYTES_JS = """async img => {
+    const bytes = new Uint8Array(await (await fetch(img.src)).arrayBuffer());
+    let text = ""; for (const b of bytes) text += String.fromCharCode(b);
+    return btoa(text);
+}"""
+"""The bytes of an <img>'s (blob) source, base64: the image as the server sent it, at full size."""
+
+
+def labelled_image(page: Page, label: str) -> Locator:
+    """The image under the GUI label ``label`` (viser puts the label in a <p> beside the image's box)."""
+    return page.locator("div", has=page.locator("> p", has_text=re.compile(f"^{re.escape(label)}$"))).locator(
+        "img").last
+
+
+def decoded_image(image: Locator) -> np.ndarray:
+    """The image an <img> shows, decoded at its full size (BGR)."""
+    data = base64.b64decode(image.evaluate(BLOB_BYTES_JS))
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded is not None, f"the image is not a JPEG/PNG ({len(data)} bytes)"
+    return decoded

@@ -10,14 +10,23 @@ result, the sliders and the acceptance are checked against the truth through the
 
 from __future__ import annotations
 
-import base64
 import re
 import time
 
 import cv2
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, button, choose, studio_page, text_input, wait_body
+from conftest import (
+    ARTIFACTS,
+    Studio,
+    button,
+    choose,
+    decoded_image,
+    labelled_image,
+    studio_page,
+    text_input,
+    wait_body,
+)
 from playwright.sync_api import Browser, Locator, Page, expect
 
 from backend.core.transforms import from_xyz_ypr, invert
@@ -37,31 +46,11 @@ RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · target · ✅ converged ·
 YAW_OFF_DEG, X_OFF_M = 3.0, 0.05
 """How far the sliders are typed away from the truth before solving."""
 TOLERANCE_M, TOLERANCE_DEG = 0.015, 0.3
-BLOB_BYTES_JS = """async img => {
-    const bytes = new Uint8Array(await (await fetch(img.src)).arrayBuffer());
-    let text = ""; for (const b of bytes) text += String.fromCharCode(b);
-    return btoa(text);
-}"""
-"""The bytes of an <img>'s (blob) source, base64: the image as the server sent it, at full size."""
 
 
 def _overlay(page: Page) -> Locator:
     """The overlay: the last image of the panel (step 6 is the last step)."""
     return page.locator("img").last
-
-
-def _labelled_image(page: Page, label: str) -> Locator:
-    """The image under the GUI label ``label`` (viser puts the label in a <p> beside the image's box)."""
-    return page.locator("div", has=page.locator("> p", has_text=re.compile(f"^{re.escape(label)}$"))).locator(
-        "img").last
-
-
-def _image(image: Locator) -> np.ndarray:
-    """The image an <img> shows, decoded at its full size (BGR)."""
-    data = base64.b64decode(image.evaluate(BLOB_BYTES_JS))
-    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    assert decoded is not None, f"the image is not a JPEG/PNG ({len(data)} bytes)"
-    return decoded
 
 
 def _wait_new_source(image: Locator, old_source: str | None, what: str, timeout_s: float = 20.0) -> str:
@@ -150,7 +139,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
         overlay = _overlay(page)
         time.sleep(1)  # the last redraw of the selection lands
-        at_truth = _image(overlay)
+        at_truth = decoded_image(overlay)
         assert at_truth.shape[1] == 960 and at_truth.shape[0] > 540, f"not a mosaic: {at_truth.shape}"
 
         # 2. Typed away from the truth: the overlay is redrawn.
@@ -170,7 +159,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         _press(page, "Shift+J", yaw_off - 0.45, overlay)  # Shift+J: yaw plus, fine step (0.05°)
         _press(page, "z", yaw_off - 0.5, overlay)  # Z: undo the fine step
         time.sleep(1)
-        off = _image(overlay)
+        off = decoded_image(overlay)
         T_off = _slider_T(page)
         off_m, off_deg = _errors(T_off, truth)
         assert off_m > 0.04 and off_deg > 2.0, (off_m, off_deg)
@@ -206,7 +195,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
 
         source = _wait_new_source(overlay, source, "the solve moved the sliders")
         time.sleep(1)
-        solved = _image(overlay)
+        solved = decoded_image(overlay)
         cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_solve_overlay_solved.png"), solved)
         near, far = _difference(solved, at_truth), _difference(off, at_truth)
         print(f"solve {result_id} in {solve_s:.1f} s: {solved_m * 1000:.1f} mm / {solved_deg:.3f}° from the truth "
@@ -216,9 +205,9 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
 
         page.get_by_text("Before / after", exact=True).click()
         for label in ("Before", "After"):
-            image = _labelled_image(page, label)
+            image = labelled_image(page, label)
             expect(image).to_be_visible()
-            picture = _image(image)
+            picture = decoded_image(image)
             assert picture.shape[1] > 400, f"the {label} image is still the placeholder: {picture.shape}"
             cv2.imwrite(str(ARTIFACTS / f"studio_lidar_camera_solve_{label.lower()}.png"), picture)
         page.get_by_text("Before / after", exact=True).scroll_into_view_if_needed()

@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import threading
 import weakref
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -54,6 +55,8 @@ from backend.store.session import Session
 DEFAULT_TOLERANCE_S = 0.02
 """Largest spread (s) of the frame times within one set."""
 MIN_BOARD_VIEWS = 2
+READ_ATTEMPTS = 3
+"""Reads of all cameras together before frames out of step are refused."""
 """Cameras that must see the board for a set to constrain their relative pose."""
 SET_NAME = re.compile(r"set(\d+)")
 SCAN_SHARE = 0.3
@@ -313,10 +316,28 @@ def stored_sets(session: Session, cameras: list[str] | None = None) -> list[Mult
 
 
 def _read_together(cameras: Sequence[str], read: Mapping[str, Callable[[], Sample]]) -> dict[str, Sample]:
-    """One sample per camera, every read started at the same moment (a thread each)."""
+    """One sample per camera, every read started at the same moment (a thread each, released together)."""
+    start = threading.Barrier(len(cameras))
+
+    def read_when_all_ready(camera: str) -> Sample:
+        start.wait()
+        return read[camera]()
+
     with ThreadPoolExecutor(max_workers=len(cameras), thread_name_prefix="multicam-read") as pool:
-        futures = {camera: pool.submit(read[camera]) for camera in cameras}
+        futures = {camera: pool.submit(read_when_all_ready, camera) for camera in cameras}
         return {camera: future.result() for camera, future in futures.items()}
+
+
+def _read_in_step(cameras: Sequence[str], read: Mapping[str, Callable[[], Sample]], tolerance_s: float
+                  ) -> dict[str, Sample]:
+    """:func:`_read_together` until the frame stamps lie within ``tolerance_s`` (s), at most :data:`READ_ATTEMPTS`
+    times (free-running cameras drift in and out of step); the last attempt's refusal names the late camera."""
+    for attempt in range(1, READ_ATTEMPTS + 1):
+        samples = _read_together(cameras, read)
+        stamps = {camera: sample.timestamp_s for camera, sample in samples.items()}
+        if attempt == READ_ATTEMPTS or max(stamps.values()) - min(stamps.values()) <= tolerance_s:
+            _check_spread(stamps, tolerance_s)
+            return samples
 
 
 def capture_set(session: Session, cameras: list[str], read: Mapping[str, Callable[[], Sample]], *,
@@ -338,8 +359,7 @@ def capture_set(session: Session, cameras: list[str], read: Mapping[str, Callabl
         raise InputError(f"no way to read {', '.join(missing)}", missing[0])
     board = _set_board(session, require_board)
     progress(0.0, f"reading {', '.join(cameras)}")
-    samples = _read_together(cameras, read)
-    _check_spread({camera: sample.timestamp_s for camera, sample in samples.items()}, tolerance_s)
+    samples = _read_in_step(cameras, read, tolerance_s)
     for camera, sample in samples.items():
         _check_image(session, camera, sample.image)
     progress(0.3, "detecting the board")

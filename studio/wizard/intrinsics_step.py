@@ -7,7 +7,6 @@ import time
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.services import exports as export_service
 from backend.services import intrinsics as intrinsics_service
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
 from backend.solvers.board_detection import Detection
@@ -75,9 +74,9 @@ class IntrinsicsStep:
         self.solve_button.on_click(lambda _: self._solve())
         self.history.on_update(lambda _: self._show_result(self.history.value))
         self.accept_button.on_click(lambda _: self._accept())
-        self.export_ros.on_click(lambda event: self._download(event, "camera_info"))
-        self.export_opencv.on_click(lambda event: self._download(event, "opencv"))
-        self.export_rig.on_click(lambda event: self._download(event, "rig"))
+        self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
+        self.export_opencv.on_click(lambda event: self.ctx.download(event, "opencv", self.sensor))
+        self.export_rig.on_click(lambda event: self.ctx.download(event, "rig", self.sensor))
         ctx.on_session_changed(self._on_session)
 
     # -- session and camera -------------------------------------------------------------
@@ -249,14 +248,6 @@ class IntrinsicsStep:
         self.ctx.notify("Accepted", f"{self.history.value} is now the intrinsics of {self.sensor}.")
         self.ctx.scene.update_rig(self.ctx.session.rig)
         self._show_result(self.history.value)
-
-    def _download(self, event, fmt: str) -> None:
-        try:
-            filename, text = export_service.export_text(self.ctx.session, fmt, self.sensor)
-        except InputError as exc:
-            self.ctx.notify("Nothing to export", exc.message, error=True)
-            return
-        event.client.send_file_download(filename, text.encode())
 
 
 def result_markdown(record: dict, accepted: str | None) -> str:

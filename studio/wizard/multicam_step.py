@@ -1,0 +1,461 @@
+"""Step 7: multi-camera rig - synchronised sets, one joint solve of every camera, its checks, accept, export.
+
+A *set* is one moment seen by several cameras (:mod:`backend.services.multicam_capture`):
+captured here from every chosen camera's device at once, refused when the frame times
+spread over more than the tolerance, or imported from a recorded bag, whose frames are
+matched by timestamp (frames no other camera matches are reported, not stored). *Solve*
+runs the joint calibration (:func:`backend.services.multicam.solve_session`) as a job:
+the reference camera keeps its place in the rig and every other camera is solved
+relative to it; cameras without intrinsics get them estimated from the sets.
+
+Each result answers "how good is this": per camera its ``T_ref_cam`` with 1-sigma (mm,
+degrees), RMS and estimated intrinsics; the observation graph (which cameras saw the
+board together, how often); per-frame residual bars; per pair the baseline and the
+epipolar error, with a rectified preview of any set; and in 3D the solved frusta and
+board poses beside the rig. Accepting mounts the cameras (an older result reverts);
+the rig is then exported as the rig transforms YAML (with ROS static transforms) or a
+Kalibr camchain.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.transforms import invert, to_xyz_ypr
+from backend.services import multicam as multicam_service
+from backend.services import multicam_capture as capture_service
+from backend.solvers.board_detection import Detection
+from backend.solvers.stereo import (
+    LINE_COLOUR_BGR,
+    Rectification,
+    epipolar_errors,
+    rectified_preview,
+    rectified_row_errors,
+    rectify,
+)
+from studio import plots
+from studio.context import StudioContext
+from studio.job_panel import JobPanel
+from studio.result_history import ResultHistory
+
+NONE = "(none)"
+HELP = ("Hold the board still where **two or more cameras** see it and capture a set; move it so that every camera "
+        "shares sets with the others (the observation graph must link them all) and the board reaches the corners "
+        "of each image. Or import sets from a recorded bag. **Solve rig** calibrates all cameras at once: the "
+        "reference stays where the rig has it and the others are placed relative to it; a camera without "
+        "intrinsics has them estimated from the sets.")
+HELP_FILE = Path(__file__).resolve().parents[2] / "frontend_assets" / "help" / "heating_the_board.md"
+MAX_SET_ROWS = 5
+"""Newest sets listed one by one (all are counted)."""
+MAX_UNMATCHED_LISTED = 12
+PREVIEW_WIDTH_PX = 960
+LINE_SPACING_PX = 64
+"""Rows (px of the full images) between the rectified preview's lines."""
+PLACEHOLDER = np.full((90, 320, 3), 235, np.uint8)
+DEFAULT_LIMIT = 200
+
+
+def _help_text() -> str:
+    """The thermal help page, its title dropped (the folder carries it)."""
+    try:
+        lines = HELP_FILE.read_text(encoding="utf-8").splitlines()
+    except OSError:
+        return ("Warm or cool the board evenly (sunlight, a heat gun from behind, a heated plate) until its pattern "
+                "shows.")
+    return "\n".join(lines[1:] if lines and lines[0].startswith("# ") else lines).strip()
+
+
+class MulticamStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self._boxes: dict = {}
+        """Camera -> its checkbox ("use in the rig")."""
+        self._topics: dict = {}
+        """Camera -> the text box of its bag topic."""
+        self._record: dict | None = None
+        """The result on show."""
+        self._filling = False
+        """True while the step itself sets a dropdown (setting one fires its callback)."""
+        gui = ctx.server.gui
+        with gui.add_folder("7 · Multi-camera", expand_by_default=False):
+            gui.add_markdown(HELP)
+            self.camera_folder = gui.add_folder("Cameras")
+            self.reference = gui.add_dropdown("Reference camera", options=[NONE],
+                                              hint="keeps its place in the rig; the others are solved relative to it")
+            self.sets_text = gui.add_markdown("")
+            self.tolerance_ms = gui.add_number("Time tolerance (ms)", initial_value=1e3 * capture_service.
+                                               DEFAULT_TOLERANCE_S, min=0.0, max=5000.0, step=1.0,
+                                               hint="largest spread of the frame times within one set")
+            self.need_board = gui.add_checkbox("Board in view of two", initial_value=True,
+                                               hint="refuse a set unless at least two cameras see the board")
+            self.capture_button = gui.add_button("Capture set", color="green",
+                                                 hint="one frame of every chosen camera, read at the same moment")
+            with gui.add_folder("Import from a bag", expand_by_default=False):
+                self.bag_path = gui.add_text("Bag path", "", hint="a ROS 2 bag folder (or its .db3 / .mcap file)")
+                self.topic_folder = gui.add_folder("Image topic per camera")
+                self.match_ms = gui.add_number("Match tolerance (ms)", initial_value=1e3 * capture_service.
+                                               DEFAULT_TOLERANCE_S, min=0.0, max=5000.0, step=1.0,
+                                               hint="frames are matched by header stamp: the largest spread within "
+                                                    "one set (well under half the frame period)")
+                self.every = gui.add_number("Every n-th set", initial_value=1, min=1, max=1000, step=1)
+                self.limit = gui.add_number("At most (sets)", initial_value=DEFAULT_LIMIT, min=1, max=10_000, step=1)
+                self.import_button = gui.add_button("Import sets")
+                self.import_jobs = JobPanel(ctx, [self.import_button])
+                self.import_text = gui.add_markdown("")
+            self.refine = gui.add_checkbox("Refine intrinsics", initial_value=False,
+                                           hint="refine every camera's intrinsics with the rig (a camera without "
+                                                "intrinsics is always estimated)")
+            self.solve_button = gui.add_button("Solve rig", color="blue")
+            self.jobs = JobPanel(ctx, [self.capture_button, self.solve_button])
+            self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, draw=True),
+                                         label="Rig result",
+                                         hint="every solve of these cameras; pick one to inspect, accept or revert to")
+            self.result_text = gui.add_markdown("No multi-camera result yet.")
+            self.accept_button = gui.add_button("Accept rig", color="green",
+                                                hint="mount the cameras as the picked result has them")
+            self.show_3d = gui.add_checkbox("Show the solved rig in 3D", initial_value=True,
+                                            hint="orange frusta and the board poses, placed from the reference")
+            self.graph_image = gui.add_image(plots.observation_graph_image([], {}, []), label="Observation graph")
+            self.residual_image = gui.add_image(plots.frame_residual_bars([], []), label="Per-frame RMS")
+            with gui.add_folder("Stereo check", expand_by_default=False):
+                self.stereo_pair = gui.add_dropdown("Stereo pair", options=[NONE])
+                self.stereo_set = gui.add_dropdown("Stereo set", options=[NONE])
+                self.stereo_text = gui.add_markdown("")
+                self.stereo_image = gui.add_image(PLACEHOLDER, label="Rectified (rows should match)", format="png")
+            with gui.add_folder("Export", expand_by_default=False):
+                gui.add_markdown("The rig as accepted: every transform with its sigmas and the "
+                                 "`static_transform_publisher` lines, or Kalibr's camchain (`T_cn_cnm1`).")
+                self.export_rig = gui.add_button("Download rig YAML (ROS transforms)")
+                self.export_kalibr = gui.add_button("Download Kalibr camchain")
+            with gui.add_folder("Thermal cameras: heating the board", expand_by_default=False):
+                gui.add_markdown(_help_text())
+        self.reference.on_update(lambda _: None if self._filling else self._select())
+        self.capture_button.on_click(lambda _: self._capture())
+        self.import_button.on_click(lambda _: self._import())
+        self.solve_button.on_click(lambda _: self._solve())
+        self.accept_button.on_click(lambda _: self._accept())
+        self.show_3d.on_update(lambda _: self._draw_3d())
+        self.stereo_pair.on_update(lambda _: None if self._filling else self._pair_sets())
+        self.stereo_set.on_update(lambda _: None if self._filling else self._show_stereo())
+        self.export_rig.on_click(lambda event: self.ctx.download(event, "rig"))
+        self.export_kalibr.on_click(lambda event: self.ctx.download(event, "kalibr"))
+        ctx.on_session_changed(self._on_session)
+
+    # -- session and cameras -------------------------------------------------------------------
+    def _on_session(self, session) -> None:
+        for handle in [*self._boxes.values(), *self._topics.values()]:
+            handle.remove()
+        self.ctx.scene.clear_solved_cameras()
+        names = [f.name for f in session.rig.sensors("camera")]
+        in_sets = {c for s in capture_service.stored_sets(session) for c in s.cameras} if len(names) >= 2 else set()
+        ticked = [n for n in names if n in in_sets] if len(in_sets) >= 2 else names
+        gui = self.ctx.server.gui
+        with self.camera_folder:
+            self._boxes = {name: gui.add_checkbox(name, initial_value=name in ticked) for name in names}
+        recorded = {name: session.rig.get(name).device for name in names
+                    if session.rig.get(name).device.get("driver") == "rosbag"}
+        with self.topic_folder:
+            self._topics = {name: gui.add_text(name, str(recorded.get(name, {}).get("topic", ""))) for name in names}
+        if recorded and not self.bag_path.value:  # cameras replaying a bag: offer it
+            self.bag_path.value = str(next(iter(recorded.values())).get("path", ""))
+        for box in self._boxes.values():
+            box.on_update(lambda _: self._on_ticked())
+        self._on_ticked(draw=False)
+
+    @property
+    def ticked(self) -> list[str]:
+        return [name for name, box in self._boxes.items() if box.value]
+
+    @property
+    def cameras(self) -> list[str]:
+        """The chosen cameras, the reference first (the order the solve takes them in)."""
+        ticked, reference = self.ticked, self.reference.value
+        if reference not in ticked:
+            return ticked
+        return [reference] + [name for name in ticked if name != reference]
+
+    def _offer(self, dropdown, options: list[str]) -> None:
+        """Set a dropdown's options, keeping its value if still offered (else the first), without its callback."""
+        self._filling = True
+        try:
+            dropdown.options = options or [NONE]
+            if dropdown.value not in dropdown.options:
+                dropdown.value = dropdown.options[0]
+        finally:
+            self._filling = False
+
+    def _on_ticked(self, draw: bool = True) -> None:
+        """Offer the ticked cameras as the reference (keeping the current one if still ticked) and list again."""
+        self._offer(self.reference, self.ticked)
+        self._select(draw)
+
+    def _select(self, draw: bool = True) -> None:
+        """List the chosen cameras' sets and results; show the accepted result, or the newest."""
+        self._list_sets()
+        cameras = self.cameras
+        accepted = self.ctx.session.accepted(multicam_service.slot(cameras)) if len(cameras) >= 2 else None
+        self._show_result(self.history.fill(self._results(), accepted), draw)
+
+    def _list_sets(self) -> None:
+        session, cameras = self.ctx.session, self.cameras
+        if session is None or len(cameras) < 2:
+            self.sets_text.content = "Tick at least two cameras."
+            return
+        sets = capture_service.stored_sets(session, cameras)
+        self.sets_text.content = sets_markdown(sets, cameras)
+
+    # -- capture and import (jobs) -----------------------------------------------------------------
+    def _capture(self) -> None:
+        session, cameras = self.ctx.session, self.cameras
+        if len(cameras) < 2:
+            self.ctx.notify("Tick two cameras", "A set needs at least two cameras.", error=True)
+            return
+        tolerance_s, need_board = float(self.tolerance_ms.value) / 1e3, bool(self.need_board.value)
+        self.jobs.run(f"set of {', '.join(cameras)}", lambda progress: capture_service.capture_set_from_devices(
+            session, cameras, tolerance_s=tolerance_s, require_board=need_board, progress=progress),
+            self._on_captured, done_message="Set captured in {seconds:.1f} s.")
+
+    def _on_captured(self, found: capture_service.MulticamSet) -> None:
+        session = self.ctx.session
+        for camera, capture in found.captures.items():
+            self.ctx.scene.show_camera_image(camera, session.capture_image(camera, capture.id))
+        seen = ", ".join(found.cameras_with_board) or "no camera"
+        self.jobs.text.content += f" **{found.name}**: the board was seen by {seen}."
+        self._list_sets()
+
+    def _import(self) -> None:
+        session, cameras, path = self.ctx.session, self.cameras, self.bag_path.value.strip()
+        topics = {name: self._topics[name].value.strip() for name in cameras if self._topics[name].value.strip()}
+        if not path or len(topics) < 2:
+            self.ctx.notify("Bag and topics", "Give the bag's path and the image topic of at least two ticked "
+                            "cameras.", error=True)
+            return
+        tolerance_s, every, limit = float(self.match_ms.value) / 1e3, int(self.every.value), int(self.limit.value)
+        self.import_jobs.run(f"sets from {Path(path).name}", lambda progress: capture_service.import_bag_sets(
+            session, path, topics, tolerance_s=tolerance_s, every=every, limit=limit, progress=progress).to_dict(),
+            self._on_imported, done_message="Imported in {seconds:.1f} s.")
+
+    def _on_imported(self, report: dict) -> None:
+        self.import_text.content = bag_report_markdown(report)
+        self._list_sets()
+
+    # -- solve and results --------------------------------------------------------------------------
+    def _solve(self) -> None:
+        session, cameras, refine = self.ctx.session, self.cameras, bool(self.refine.value)
+        if len(cameras) < 2:
+            self.ctx.notify("Tick two cameras", "A rig needs at least two cameras.", error=True)
+            return
+        self.jobs.run(f"rig of {', '.join(cameras)}", lambda progress: multicam_service.solve_session(
+            session, cameras, refine_intrinsics=refine, progress=progress)[0], self._on_solved,
+            done_message="Solved in {seconds:.1f} s.")
+
+    def _on_solved(self, result_id: str) -> None:
+        self._show_result(self.history.fill(self._results(), result_id), draw=True)
+
+    def _results(self) -> list[str]:
+        """Ids of the multicam results of exactly the chosen cameras (any reference), newest first."""
+        chosen = sorted(self.cameras)
+        if self.ctx.session is None or len(chosen) < 2:
+            return []
+        results = self.ctx.session.results(None, multicam_service.KIND)
+        return [r["id"] for r in reversed(results) if sorted(r.get("camera_order", [])) == chosen]
+
+    def _show_result(self, result_id: str | None, draw: bool) -> None:
+        session = self.ctx.session
+        self._record = None if session is None or result_id is None else session.result(result_id)
+        record = self._record
+        accepted = None if record is None else session.accepted(multicam_service.slot(record["camera_order"]))
+        for handle in (self.export_rig, self.export_kalibr):
+            handle.disabled = accepted is None
+        if record is None:
+            self.result_text.content = "No multi-camera result for these cameras yet."
+            self.graph_image.image = plots.observation_graph_image([], {}, [])
+            self.residual_image.image = plots.frame_residual_bars([], [])
+            self.ctx.scene.clear_solved_cameras()
+            self._fill_pairs()
+            return
+        self.result_text.content = result_markdown(record, accepted)
+        graph = record["graph"]
+        self.graph_image.image = plots.observation_graph_image(graph["cameras"], graph["frames_seen"],
+                                                               graph["edges"], record["reference"])
+        self.residual_image.image = plots.frame_residual_bars(record["camera_order"], record["frames"])
+        self._fill_pairs()
+        if draw:
+            self._draw_3d()
+
+    def _draw_3d(self) -> None:
+        """The solved frusta and board poses of the result on show, if asked for."""
+        session, record = self.ctx.session, self._record
+        if record is None or not self.show_3d.value:
+            self.ctx.scene.clear_solved_cameras()
+            return
+        self.ctx.scene.clear_boards()  # another step's boards would mix with this result's
+        self.ctx.scene.show_solved_cameras(
+            session.rig, record["reference"], {n: np.array(T) for n, T in record["T_ref_cam"].items()},
+            {n: CameraIntrinsics.from_dict(c) for n, c in record["cameras"].items()}, BoardSpec.parse(record["board"]),
+            {n: np.array(T) for n, T in record["T_ref_board"].items()}, tag=record["id"])
+
+    def _accept(self) -> None:
+        session, result_id = self.ctx.session, self.history.selected
+        if result_id is None:
+            self.ctx.notify("Nothing to accept", "Solve the rig first.", error=True)
+            return
+        try:
+            multicam_service.accept(session, result_id)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.scene.update_rig(session.rig)
+        self._show_result(result_id, draw=True)
+        record = session.result(result_id)
+        others = ", ".join(c for c in record["camera_order"] if c != record["reference"])
+        self.ctx.notify("Accepted", f"{result_id}: {others} now mounted relative to {record['reference']}.")
+
+    # -- stereo check ----------------------------------------------------------------------------------
+    def _fill_pairs(self) -> None:
+        record = self._record
+        self._offer(self.stereo_pair, [f"{p['a']} + {p['b']}" for p in record["pairs"]] if record else [])
+        self._pair_sets()
+
+    @property
+    def pair(self) -> tuple[str, str] | None:
+        if self._record is None or self.stereo_pair.value == NONE:
+            return None
+        a, b = self.stereo_pair.value.split(" + ")
+        return a, b
+
+    def _shared_sets(self) -> dict[str, capture_service.MulticamSet]:
+        """The result's sets in which both cameras of the pair saw the board."""
+        pair, record = self.pair, self._record
+        if pair is None:
+            return {}
+        used = set(record["T_ref_board"])
+        return {s.name: s for s in capture_service.stored_sets(self.ctx.session, list(pair))
+                if s.name in used and set(pair) <= set(s.cameras_with_board)}
+
+    def _pair_sets(self) -> None:
+        self._offer(self.stereo_set, list(self._shared_sets()))
+        self._show_stereo()
+
+    def _show_stereo(self) -> None:
+        pair, record, found = self.pair, self._record, self._shared_sets().get(self.stereo_set.value)
+        if pair is None or found is None:
+            self.stereo_text.content = "Solve a rig whose cameras saw the board together."
+            self.stereo_image.image = PLACEHOLDER
+            return
+        a, b = pair
+        cameras = {n: CameraIntrinsics.from_dict(record["cameras"][n]) for n in pair}
+        T_a_b = invert(np.array(record["T_ref_cam"][a])) @ np.array(record["T_ref_cam"][b])
+        da, db = (Detection.from_dict(found.captures[n].detection) for n in pair)
+        _, ia, ib = np.intersect1d(da.ids, db.ids, return_indices=True)
+        epipolar = epipolar_errors(cameras[a], cameras[b], T_a_b, da.corners_px[ia], db.corners_px[ib])
+        line = (f"**{found.name}**, {a} left, {b} right: {len(ia)} corners seen by both · epipolar error RMS "
+                f"{_rms(epipolar):.2f} px, max {epipolar.max(initial=0.0):.2f} px")
+        session = self.ctx.session
+        try:  # both cameras need one model and image size, and 8-bit images
+            rect = rectify(cameras[a], cameras[b], T_a_b)
+            images = [session.capture_image(n, found.captures[n].id) for n in pair]
+            preview = rectified_preview(rect, *images, LINE_SPACING_PX)
+        except InputError as exc:
+            self.stereo_text.content = f"{line}\n\n⚠️ no rectified preview: {exc.message}"
+            self.stereo_image.image = PLACEHOLDER
+            return
+        rows = rectified_row_errors(rect, da.corners_px[ia], db.corners_px[ib])
+        self.stereo_image.image = _panel_preview(rect, preview)[..., ::-1]
+        across = "column" if rect.vertical else "row"
+        self.stereo_text.content = (f"{line} · rectified {across} offset RMS {_rms(rows):.2f} px · baseline "
+                                    f"{1e3 * rect.baseline_m:.1f} mm")
+
+
+def _panel_preview(rect: Rectification, preview: np.ndarray) -> np.ndarray:
+    """The rectified preview (BGR) scaled to the panel, its lines drawn again one pixel wide so that they stay
+    crisp (averaged into the image they would fade)."""
+    scale = PREVIEW_WIDTH_PX / preview.shape[1]
+    small = cv2.resize(preview, (PREVIEW_WIDTH_PX, int(round(preview.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+    across = 1 if rect.vertical else 0
+    lines = np.arange(0, preview.shape[across], LINE_SPACING_PX)
+    lines = np.minimum(np.round(lines * scale).astype(int), small.shape[across] - 1)
+    if rect.vertical:
+        small[:, lines] = LINE_COLOUR_BGR
+    else:
+        small[lines] = LINE_COLOUR_BGR
+    return small
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else 0.0
+
+
+def _sigmas(values: list[float | None], scale: float) -> str:
+    """1-sigmas per axis, two decimals, as one unbreakable word (the table stays narrow)."""
+    return "/".join("n/a" if v is None else f"{scale * v:.2f}" for v in values)
+
+
+def sets_markdown(sets: list[capture_service.MulticamSet], cameras: list[str]) -> str:
+    """How many sets hold at least two of ``cameras``, which cameras saw the board in each (newest first)."""
+    if not sets:
+        return (f"**No sets** of {', '.join(cameras)} yet: capture one with the board in view of at least two of "
+                "them, or import a bag.")
+    useful = sum(len(s.cameras_with_board) >= capture_service.MIN_BOARD_VIEWS for s in sets)
+    rows = "\n".join(f"| {s.name} | {', '.join(s.cameras_with_board) or 'none'} |"
+                     for s in sets[::-1][:MAX_SET_ROWS])
+    more = f"\n\n… and {len(sets) - MAX_SET_ROWS} older" if len(sets) > MAX_SET_ROWS else ""
+    return (f"**{len(sets)} sets** of {', '.join(cameras)} · {useful} with the board in view of two or more\n\n"
+            f"| set | board seen by |\n|---|---|\n{rows}{more}")
+
+
+def bag_report_markdown(report: dict) -> str:
+    """A bag import's counts per camera, and the frames no other camera matched."""
+    rows, unmatched = [], []
+    for camera, c in report["cameras"].items():
+        rows.append(f"| {camera} | `{c['topic']}` | {c['read']} | {c['matched']} | {c['unmatched']} | {c['stored']} |")
+        if c["unmatched_frames"]:
+            listed = ", ".join(f"#{i}" for i in c["unmatched_frames"][:MAX_UNMATCHED_LISTED])
+            extra = " …" if len(c["unmatched_frames"]) > MAX_UNMATCHED_LISTED else ""
+            unmatched.append(f"- {camera}: {listed}{extra}")
+        if c["skipped"]:
+            unmatched.append(f"- {camera}: {len(c['skipped'])} messages skipped ({c['skipped'][0]['message']})")
+    no_board = f" · {report['no_board']} without the board in two views" if report["no_board"] else ""
+    return (f"**{len(report['sets'])} sets stored** of {report['matched_sets']} matched{no_board} · {report['ended']}"
+            "\n\n| camera | topic | read | matched | unmatched | stored |\n|---|---|---|---|---|---|\n"
+            + "\n".join(rows)
+            + ("\n\n**Frames in no set** (no other camera within the tolerance):\n" + "\n".join(unmatched)
+               if unmatched else "\n\nEvery frame was matched."))
+
+
+def result_markdown(record: dict, accepted: str | None) -> str:
+    """A multicam result: per camera its RMS, 1-sigma and intrinsics, each pose in the reference, the pair checks
+    and the warnings."""
+    status = "✅ accepted" if record["id"] == accepted else "not accepted"
+    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    reference, estimated = record["reference"], set(record["settings"]["estimate_intrinsics"])
+    flagged = sum(f["flagged"] for f in record["frames"])
+    rows, poses = [], []
+    for name in record["camera_order"]:
+        std = record["std"][name]
+        sigmas = ("reference", "reference") if name == reference else (_sigmas(std["trans_m"], 1e3),
+                                                                      _sigmas(std["rot_deg"], 1.0))
+        rows.append(f"| {name} | {record['rms_px'][name]:.3f} | {sigmas[0]} | {sigmas[1]} | "
+                    f"{'yes' if name in estimated else 'no'} |")
+        if name != reference:
+            xyz, ypr = to_xyz_ypr(np.array(record["T_ref_cam"][name]))
+            poses.append(f"- **{name}**: x, y, z {', '.join(f'{v:.4f}' for v in xyz)} m · yaw, pitch, roll "
+                         f"{', '.join(f'{np.degrees(v):.2f}' for v in ypr)}°")
+    pairs = "\n".join(f"| {p['a']} + {p['b']} | {p['frames']} | {1e3 * p['baseline_m']:.1f} | "
+                      f"{p['epipolar_rms_px']:.3f} |" for p in record.get("pairs", []))
+    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
+    return (f"**{record['id']}** ({status}) · {verdict} · {len(record['T_ref_board'])} sets · "
+            f"{len(record['frames']) - flagged} views used, {flagged} flagged · {record.get('seconds', 0.0):.2f} s\n\n"
+            "| camera | RMS (px) | σ x/y/z (mm) | σ rx/ry/rz (°) | intrinsics estimated |\n|---|---|---|---|---|\n"
+            + "\n".join(rows)
+            + f"\n\nσ: 1-sigma of T_{reference}_camera, rotations about the camera's own axes.\n\n"
+            + "\n".join(poses)
+            + ("\n\n| pair | shared sets | baseline (mm) | epipolar RMS (px) |\n|---|---|---|---|\n" + pairs
+               if pairs else "")
+            + warnings)
