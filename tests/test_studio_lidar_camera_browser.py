@@ -9,8 +9,8 @@ import time
 import cv2
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, button, choose, studio_page, text_input, wait_body
-from playwright.sync_api import Browser, Page, expect
+from conftest import ARTIFACTS, Studio, button, choose, labelled_image, studio_page, text_input, wait_body
+from playwright.sync_api import Browser, expect
 
 from backend.sim.demo_rig import demo_rig
 
@@ -18,11 +18,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 VIEWPORT = {"width": 1600, "height": 2000}
 DRAWN_RE = re.compile(r"([\d,]+) of ([\d,]+) points drawn")
-
-
-def _overlay(page: Page):
-    """The overlay: the last image of the panel (step 6 is the last step)."""
-    return page.locator("img").last
 
 
 def _coloured_pixels(png: bytes) -> int:
@@ -50,7 +45,7 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         choose(page, "From LiDAR", "lidar_front")
         first = wait_body(page, DRAWN_RE, timeout_s=30)
         time.sleep(1)
-        overlay = _overlay(page)
+        overlay = labelled_image(page, "Overlay")
         overlay.scroll_into_view_if_needed()
         source_before = overlay.get_attribute("src")
         coloured = _coloured_pixels(overlay.screenshot())

@@ -48,11 +48,6 @@ YAW_OFF_DEG, X_OFF_M = 3.0, 0.05
 TOLERANCE_M, TOLERANCE_DEG = 0.015, 0.3
 
 
-def _overlay(page: Page) -> Locator:
-    """The overlay: the last image of the panel (step 6 is the last step)."""
-    return page.locator("img").last
-
-
 def _wait_new_source(image: Locator, old_source: str | None, what: str, timeout_s: float = 20.0) -> str:
     """Wait until ``image`` shows a new picture (viser swaps the blob URL on every update); the new source."""
     deadline = time.monotonic() + timeout_s
@@ -137,7 +132,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         assert int(drawn.group(3)) == 6, drawn.group(0)
         assert int(drawn.group(1).replace(",", "")) > 1000, drawn.group(0)
         assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
-        overlay = _overlay(page)
+        overlay = labelled_image(page, "Overlay")
         time.sleep(1)  # the last redraw of the selection lands
         at_truth = decoded_image(overlay)
         assert at_truth.shape[1] == 960 and at_truth.shape[0] > 540, f"not a mosaic: {at_truth.shape}"

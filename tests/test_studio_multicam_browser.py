@@ -5,8 +5,9 @@ cam_front, with accepted intrinsics, and a partner without any), and its rig is 
 the two cameras of the sets are ticked, the first the reference; the rig is solved (the partner's intrinsics
 estimated from the sets), checked against the truth through the HTTP API and accepted.
 A set is then captured from both simulated cameras: refused at a 0 ms time tolerance (the status line says
-which camera was late), stored at the default 20 ms (the reads start together and are retried when out of step). The stereo check rectifies one set, and the Kalibr camchain is
-downloaded. Screenshots and the panel's images are left in ``tests/artifacts`` to look at.
+which camera was late), stored at the default 20 ms (the reads start together and are retried when out of
+step). The stereo check rectifies one set, and the Kalibr camchain is downloaded. Screenshots and the
+panel's images are left in ``tests/artifacts`` to look at.
 """
 
 from __future__ import annotations
