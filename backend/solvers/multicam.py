@@ -64,7 +64,8 @@ class MulticamSettings:
     loss_scale_px: float = 1.0
     """Soft-L1 loss scale (px): residuals well below it count as squares, far above as absolute values."""
     outlier_sigmas: float = 5.0
-    """A corner is an outlier beyond this many robust sigmas (1.4826 MAD of the residual lengths, as a 2-D normal's)."""
+    """A corner is an outlier beyond this many robust sigmas (the median residual length / sqrt(2 ln 2): a 2-D normal's
+    sigma per axis)."""
     outlier_min_px: float = 1.0
     """... and never below this many pixels."""
     frame_outlier_factor: float = 3.0
