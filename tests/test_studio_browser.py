@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, button, studio_page
+from conftest import ARTIFACTS, Studio, button, studio_page, wait_body
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
@@ -121,8 +121,8 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     # Solve with the default settings (pinhole-radtan) and inspect the result.
     button(page, "Solve").click()
     expect(page.get_by_text(re.compile(r"^Solved in \d"))).to_be_visible(timeout=90_000)
-    match = RESULT_RE.search(_body(page))
-    assert match and match.group(2) == "not accepted", _body(page)
+    match = wait_body(page, RESULT_RE, timeout_s=15)  # the result lands just after the status line
+    assert match.group(2) == "not accepted", _body(page)
     result_id = match.group(1)
     body = _body(page)
     assert re.search(r"RMS \d+\.\d+ px over \d+ views", body), body
