@@ -54,20 +54,18 @@ on load; ``cam_overlaps`` is checked but not returned.
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.core.transforms import invert
 from backend.exports.text_file import read_text
-from backend.exports.yaml_fields import YamlFields, floats
+from backend.exports.yaml_fields import YamlFields, dump_yaml, floats, parse_yaml
 
 K3_TOLERANCE_PX = 1e-3
 """Largest shift (px) ``k3`` may cause at the farthest image corner for a camera to be written as Kalibr radtan."""
@@ -139,7 +137,7 @@ def dump_kalibr_camchain(
             "rostopic": str(topics.get(name, default_topic(name))),
         }
         document[f"cam{i}"] = entry
-    return yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=math.inf)
+    return dump_yaml(document)
 
 
 def load_kalibr_camchain(
@@ -163,16 +161,7 @@ def load_kalibr_camchain(
         origin, text = str(source), read_text(source, _EXPECTED_FILE)
     else:
         origin, text = "Kalibr camchain text", source
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or "syntax error"
-        raise InputError(
-            f"{origin}: not valid YAML{where} ({problem}); the file may be truncated; expected {_EXPECTED_FILE}",
-            origin,
-        ) from None
+    document = parse_yaml(text, origin, _EXPECTED_FILE)
     fields = _Fields(origin)
     if not isinstance(document, dict) or not document:
         found = "empty" if document is None else f"{document!r}"[:80]

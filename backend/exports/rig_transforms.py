@@ -27,15 +27,12 @@ angles in radians as tf2 expects. Floats are written at full precision.
 
 from __future__ import annotations
 
-import math
 import shlex
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from backend.core.errors import InputError
 from backend.core.rig import Rig
 from backend.core.transforms import (
     from_quaternion_xyzw,
@@ -45,7 +42,7 @@ from backend.core.transforms import (
     to_xyz_ypr,
 )
 from backend.exports.text_file import read_text
-from backend.exports.yaml_fields import YamlFields, floats
+from backend.exports.yaml_fields import YamlFields, dump_yaml, floats, parse_yaml
 
 FORMAT = "calib-studio-rig-transforms"
 VERSION = 1
@@ -79,7 +76,7 @@ def dump_rig_transforms(rig: Rig) -> str:
             }
         )
     document = {"format": FORMAT, "version": VERSION, "root": rig.root, "frames": frames}
-    return yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=math.inf)
+    return dump_yaml(document)
 
 
 def static_transform_publisher(parent: str, child: str, T_parent_child: np.ndarray) -> str:
@@ -108,12 +105,7 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
         origin, text = str(source), read_text(source, f"a {FORMAT} YAML file")
     else:
         origin, text = "rig transforms text", source
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise InputError(f"{origin}: not valid YAML{where}; expected a {FORMAT} document", origin) from None
+    document = parse_yaml(text, origin, f"a {FORMAT} document")
     fields = _Fields(origin)
     top = fields.mapping(document, "(document)", f"a {FORMAT} mapping with format, version, root and frames")
     if fields.get(top, "format", "format", repr(FORMAT)) != FORMAT:

@@ -17,18 +17,16 @@ write and read unchanged; ROS's own ``camera_calibration`` node writes its
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 
 from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.exports.text_file import read_text
-from backend.exports.yaml_fields import YamlFields
+from backend.exports.yaml_fields import YamlFields, dump_yaml, parse_yaml
 
 MODELS_BY_ROS_NAME: dict[str, CameraModelName] = {
     "plumb_bob": "pinhole-radtan",
@@ -89,7 +87,7 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
     # default_flow_style=None puts only the all-scalar ``data`` lists in flow style,
     # which is exactly yaml-cpp's layout in parse_yml.cpp; an infinite width keeps
     # each list on one line.
-    return yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=math.inf)
+    return dump_yaml(document)
 
 
 def write_camera_info(path: Path, camera: CameraIntrinsics, camera_name: str) -> None:
@@ -112,18 +110,7 @@ def load_camera_info(path: Path) -> tuple[CameraIntrinsics, str]:
     """
     path = Path(path)
     text = read_text(path, _EXPECTED_FILE)
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = ""
-        mark = getattr(exc, "problem_mark", None)
-        if mark is not None:
-            where = f" at line {mark.line + 1}, column {mark.column + 1}"
-        problem = getattr(exc, "problem", None) or "syntax error"
-        raise InputError(
-            f"{path}: not valid YAML{where} ({problem}); the file may be truncated; expected {_EXPECTED_FILE}",
-            str(path),
-        ) from None
+    document = parse_yaml(text, str(path), _EXPECTED_FILE)
     if not isinstance(document, dict):
         found = "empty" if document is None else f"a {type(document).__name__}"
         raise InputError(f"{path}: the document is {found}; expected {_EXPECTED_FILE}", str(path))

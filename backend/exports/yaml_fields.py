@@ -10,8 +10,27 @@ import math
 from typing import Any
 
 import numpy as np
+import yaml
 
 from backend.core.errors import InputError
+
+
+def dump_yaml(document: Any) -> str:
+    """YAML text of ``document`` in its own key order, short lists inline, no line folding."""
+    return yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=math.inf)
+
+
+def parse_yaml(text: str, origin: str, expected: str) -> Any:
+    """``yaml.safe_load`` of ``text``; invalid YAML raises :class:`InputError` naming ``origin``, the line and
+    column, PyYAML's problem and ``expected`` (a cut-off file is the usual cause)."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or "syntax error"
+        raise InputError(f"{origin}: not valid YAML{where} ({problem}); the file may be truncated; expected "
+                         f"{expected}", origin) from None
 
 
 def floats(values: Any) -> list[float]:
