@@ -11,12 +11,26 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from backend.core.errors import InputError
 from backend.devices.base import Sample, register_driver
-from backend.devices.file_sequence import FileSequence
+from backend.devices.file_sequence import FileSequence, natural_key
 from backend.devices.image_io import read_image
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 """File extensions treated as images (compared case-insensitively)."""
+
+
+def image_files(folder: Path, label: str | None = None) -> list[Path]:
+    """The images of ``folder`` in natural order; :class:`InputError` naming ``label`` (default the folder)
+    when it is not a folder or holds no :data:`IMAGE_EXTENSIONS` file."""
+    label = str(folder) if label is None else label
+    if not folder.is_dir():
+        raise InputError(f"{label} is not a folder of images", str(folder))
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                   key=lambda p: natural_key(p.name))
+    if not files:
+        raise InputError(f"{label} holds no images (expected {', '.join(IMAGE_EXTENSIONS)})", str(folder))
+    return files
 
 
 @register_driver

@@ -17,8 +17,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.rig import Rig
-from backend.devices.file_sequence import natural_key
-from backend.devices.image_folder import IMAGE_EXTENSIONS
+from backend.devices.image_folder import image_files
 from backend.devices.image_io import decode_image_bytes, read_image
 from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
@@ -159,12 +158,7 @@ def accept(session: Session, sensor: str, result_id: str) -> None:
 def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
                      progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
     """The CLI's path: every image in a folder, no session. Returns the result and skipped images."""
-    if not images_dir.is_dir():
-        raise InputError(f"{images_dir} is not a folder of images", str(images_dir))
-    files = sorted((p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
-                   key=lambda p: natural_key(p.name))
-    if not files:
-        raise InputError(f"{images_dir} holds no images (expected {', '.join(IMAGE_EXTENSIONS)})", str(images_dir))
+    files = image_files(images_dir)
     views, skipped, size = [], [], None
     for i, path in enumerate(files):
         progress(0.5 * i / len(files), f"detecting the board in {path.name}")

@@ -28,8 +28,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
-from backend.devices.file_sequence import natural_key
-from backend.devices.image_folder import IMAGE_EXTENSIONS
+from backend.devices.image_folder import image_files
 from backend.devices.image_io import read_image
 from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as intrinsics_service
@@ -214,13 +213,7 @@ def frame_number(path: Path) -> int:
 
 def _folder_images(camera: str, folder: Path) -> dict[str, Path]:
     """Frame name -> image of one camera's folder; refuses a missing or empty folder and repeated numbers."""
-    if not folder.is_dir():
-        raise InputError(f"{folder} (camera {camera}) is not a folder of images", str(folder))
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
-                   key=lambda p: natural_key(p.name))
-    if not files:
-        raise InputError(f"{folder} (camera {camera}) holds no images (expected {', '.join(IMAGE_EXTENSIONS)})",
-                         str(folder))
+    files = image_files(folder, f"{folder} (camera {camera})")
     frames: dict[str, Path] = {}
     for path in files:
         name = f"{frame_number(path):06d}"
