@@ -27,7 +27,7 @@ from backend.devices.base import DeviceError, Sample, create_device
 from backend.devices.image_io import decode_image_bytes
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_lidar import check_lidar, read_uploaded_cloud, store_cloud
-from backend.solvers.board_detection import Detection, detect_board
+from backend.solvers.board_detection import Detection, common_corners, detect_board
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
@@ -113,10 +113,10 @@ def import_pair(session: Session, camera: str, lidar: str, image_file: tuple[str
 
 def _corner_motion_px(before: Detection, after: Detection) -> float:
     """Largest motion (px) of a corner detected in both frames; inf when they share none."""
-    shared, i, j = np.intersect1d(before.ids, after.ids, return_indices=True)
-    if not len(shared):
+    then_px, now_px = common_corners(before, after)
+    if not len(then_px):
         return float("inf")
-    return float(np.max(np.linalg.norm(before.corners_px[i] - after.corners_px[j], axis=1)))
+    return float(np.max(np.linalg.norm(then_px - now_px, axis=1)))
 
 
 def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable[[], Sample],

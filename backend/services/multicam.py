@@ -34,7 +34,7 @@ from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_camera_pairs import check_camera, check_image_size
 from backend.services.multicam_capture import stored_sets
-from backend.solvers.board_detection import Detection, detect_board
+from backend.solvers.board_detection import Detection, common_corners, detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.solvers.multicam_graph import Observation
@@ -107,10 +107,9 @@ def pair_checks(result: MulticamResult, observations: list[Observation]) -> list
         a, b = edge["a"], edge["b"]
         left_px, right_px = [], []
         for frame in sorted({f for c, f in by_view if c == a} & {f for c, f in by_view if c == b}):
-            da, db = by_view[a, frame], by_view[b, frame]
-            common, ia, ib = np.intersect1d(da.ids, db.ids, return_indices=True)
-            left_px.append(da.corners_px[ia])
-            right_px.append(db.corners_px[ib])
+            in_a, in_b = common_corners(by_view[a, frame], by_view[b, frame])
+            left_px.append(in_a)
+            right_px.append(in_b)
         T_a_b = np.linalg.solve(result.T_ref_cam[a], result.T_ref_cam[b])
         errors = epipolar_errors(result.cameras[a], result.cameras[b], T_a_b, np.concatenate(left_px),
                                  np.concatenate(right_px))

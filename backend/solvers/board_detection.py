@@ -82,6 +82,12 @@ class Detection:
                    tuple(data["image_size"]), data.get("preprocessing", "none"))
 
 
+def common_corners(a: Detection, b: Detection) -> tuple[np.ndarray, np.ndarray]:
+    """The corners (px) both detections found, as two (N, 2) arrays in corner-id order (for a stereo pair)."""
+    _, in_a, in_b = np.intersect1d(a.ids, b.ids, return_indices=True)
+    return a.corners_px[in_a], b.corners_px[in_b]
+
+
 def to_gray(image: np.ndarray) -> np.ndarray:
     """Single-channel view of a gray or BGR image, keeping its depth."""
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)

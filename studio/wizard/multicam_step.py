@@ -30,7 +30,7 @@ from backend.core.errors import InputError
 from backend.core.transforms import invert, to_xyz_ypr
 from backend.services import multicam as multicam_service
 from backend.services import multicam_capture as capture_service
-from backend.solvers.board_detection import Detection
+from backend.solvers.board_detection import Detection, common_corners
 from backend.solvers.stereo import (
     LINE_COLOUR_BGR,
     Rectification,
@@ -352,10 +352,9 @@ class MulticamStep:
         a, b = pair
         cameras = {n: CameraIntrinsics.from_dict(record["cameras"][n]) for n in pair}
         T_a_b = invert(np.array(record["T_ref_cam"][a])) @ np.array(record["T_ref_cam"][b])
-        da, db = (Detection.from_dict(found.captures[n].detection) for n in pair)
-        _, ia, ib = np.intersect1d(da.ids, db.ids, return_indices=True)
-        epipolar = epipolar_errors(cameras[a], cameras[b], T_a_b, da.corners_px[ia], db.corners_px[ib])
-        line = (f"**{found.name}**, {a} left, {b} right: {len(ia)} corners seen by both · epipolar error RMS "
+        left_px, right_px = common_corners(*(Detection.from_dict(found.captures[n].detection) for n in pair))
+        epipolar = epipolar_errors(cameras[a], cameras[b], T_a_b, left_px, right_px)
+        line = (f"**{found.name}**, {a} left, {b} right: {len(left_px)} corners seen by both · epipolar error RMS "
                 f"{_rms(epipolar):.2f} px, max {epipolar.max(initial=0.0):.2f} px")
         session = self.ctx.session
         try:  # both cameras need one model and image size, and 8-bit images
@@ -366,7 +365,7 @@ class MulticamStep:
             self.stereo_text.content = f"{line}\n\n⚠️ no rectified preview: {exc.message}"
             self.stereo_image.image = PLACEHOLDER
             return
-        rows = rectified_row_errors(rect, da.corners_px[ia], db.corners_px[ib])
+        rows = rectified_row_errors(rect, left_px, right_px)
         self.stereo_image.image = _panel_preview(rect, preview)[..., ::-1]
         across = "column" if rect.vertical else "row"
         self.stereo_text.content = (f"{line} · rectified {across} offset RMS {_rms(rows):.2f} px · baseline "
