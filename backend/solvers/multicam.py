@@ -208,6 +208,9 @@ class _Problem:
         self.uv = np.concatenate([o.detection.corners_px for o in self.observations])
         self.camera_slices = [slice(*np.searchsorted(self.corner_camera, [c, c + 1])) for c in range(len(self.names))]
         self.free = {name: _free_intrinsics(cameras[name]) for name in estimate}
+        self.free_columns = {name: [(INTRINSIC_NAMES + DIST_NAMES[cameras[name].model]).index(q) for q in free]
+                             for name, free in self.free.items()}
+        """Where each refined camera's free parameters sit in ``[fx, fy, cx, cy, dist...]``."""
         self.T_cam = np.stack([T_ref_cam[n] for n in self.names])
         self.T_board = np.stack([T_ref_board[f] for f in self.frames])
 
@@ -256,10 +259,9 @@ class _Problem:
             uv, d_point[where], d_intrinsics = _pixel_jacobians(self.cameras[name], p[where])
             residuals[where] = uv - self.uv[where]
             if name in self.free:
-                full = INTRINSIC_NAMES + DIST_NAMES[self.cameras[name].model]
-                columns = [full.index(q) for q in self.free[name]]
                 corners = np.arange(where.start, where.stop)
-                blocks.append((corners, np.full(len(corners), offsets[name].start), d_intrinsics[:, :, columns]))
+                blocks.append((corners, np.full(len(corners), offsets[name].start),
+                               d_intrinsics[:, :, self.free_columns[name]]))
         R_cam_t = self.T_cam[self.corner_camera, :3, :3].transpose(0, 2, 1)
         R_board = self.T_board[self.corner_frame, :3, :3]
         d_translation = d_point @ R_cam_t  # d pixel / d t (reference axes), for the board (+) and the camera (-)
@@ -288,8 +290,7 @@ class _Problem:
         cameras = dict(self.cameras)
         for name, where in self.intrinsics_offsets().items():
             vector = _intrinsics_vector(cameras[name])
-            full = INTRINSIC_NAMES + DIST_NAMES[cameras[name].model]
-            vector[[full.index(q) for q in self.free[name]]] += step[where]
+            vector[self.free_columns[name]] += step[where]
             cameras[name] = _with_vector(cameras[name], vector)
         return _moved(self.T_cam, camera_step), _moved(self.T_board, board_step), cameras
 
