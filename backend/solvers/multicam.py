@@ -590,13 +590,14 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
     final_rms = {(obs.camera, obs.frame): _rms(r) for obs, r in _views(problem, solve.residuals)}
     frames = [replace(o, rms_px=final_rms.get((o.camera, o.frame), o.rms_px)) for o in outcomes]
     warnings = []
-    converged = solve.converged and all(v <= settings.max_rms_px for v in rms_px.values())
+    solved = solve.converged and all(v <= settings.max_rms_px for v in rms_px.values())
     worst, worst_rms, others_rms = worst_fitting_camera([f for f in frames if not f.flagged])
-    if worst_rms > max(settings.outlier_min_px, settings.frame_outlier_factor * others_rms):
-        converged = False
+    misfit = worst_rms > max(settings.outlier_min_px, settings.frame_outlier_factor * others_rms)
+    converged = solved and not misfit
+    if misfit:
         warnings.append(f"camera {worst} fits {worst_rms / others_rms:.1f}x worse than the others (median view RMS "
                         f"{worst_rms:.2f} px against {others_rms:.2f} px): check its intrinsics and the board spec")
-    if not converged:
+    if not solved:  # a camera that only fits worse is said above; this is the solve itself failing
         warnings.append("the solve did not converge (" + solve.message + "): RMS "
                         + ", ".join(f"{n} {v:.2f} px" for n, v in rms_px.items())
                         + "; check the board spec and the intrinsics")
