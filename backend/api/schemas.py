@@ -50,6 +50,7 @@ class IntrinsicsSolveRequest(BaseModel):
 
 class AcceptRequest(BaseModel):
     result_id: str
+    confirm: bool = Field(False, description="accept a result whose verdict is 'check' (its reasons were read)")
 
 
 class JobStatus(BaseModel):
@@ -84,6 +85,7 @@ class LidarLidarSolveRequest(BaseModel):
 
 class LidarLidarAccept(BaseModel):
     result_id: str
+    confirm: bool = Field(False, description="accept a result whose verdict is 'check' (its reasons were read)")
 
 
 class RecordingImportRequest(BaseModel):

@@ -147,12 +147,12 @@ def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
     rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
 
 
-def accept(session: Session, sensor: str, result_id: str) -> None:
+def accept(session: Session, sensor: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored result the camera's intrinsics (also how a user reverts)."""
     record = session.result(result_id)
     if record["sensor"] != sensor:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    session.accept(f"{sensor}/{SLOT}", result_id, apply_intrinsics)
+    session.accept(f"{sensor}/{SLOT}", result_id, apply_intrinsics, confirm)
 
 
 def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,

@@ -86,12 +86,12 @@ def apply_lidar_camera(rig: Rig, record: dict[str, Any]) -> None:
                      None if covariance is None else np.array(covariance, dtype=float))
 
 
-def accept(session: Session, lidar: str, result_id: str) -> None:
+def accept(session: Session, lidar: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored LiDAR-to-camera result the LiDAR's mounting (also how a user reverts)."""
     record = session.result(result_id)
     if record["sensor"] != lidar:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
-    session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera)
+    session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera, confirm)
 
 
 def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> LidarCameraTargetSettings:

@@ -123,9 +123,9 @@ def apply_lidar_lidar(rig: Rig, record: dict[str, Any]) -> None:
     rig.set_relative(record["sensor"], record["target"], np.array(record["T_target_source"]), covariance)
 
 
-def accept(session: Session, source: str, result_id: str) -> None:
+def accept(session: Session, source: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored LiDAR-to-LiDAR result the source LiDAR's mounting (also how a user reverts)."""
     record = session.result(result_id)
     if record["sensor"] != source:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
-    session.accept(slot(source, record["target"]), result_id, apply_lidar_lidar)
+    session.accept(slot(source, record["target"]), result_id, apply_lidar_lidar, confirm)

@@ -189,12 +189,12 @@ def apply_multicam(rig: Rig, record: dict[str, Any]) -> None:
         rig.get(name).intrinsics = CameraIntrinsics.from_dict(record["cameras"][name])
 
 
-def accept(session: Session, result_id: str) -> None:
+def accept(session: Session, result_id: str, confirm: bool = False) -> None:
     """Make a stored multicam result the rig's (also how a user reverts to an earlier one)."""
     record = session.result(result_id)
     if record.get("kind") != KIND:
         raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    session.accept(slot(record["camera_order"]), result_id, apply_multicam)
+    session.accept(slot(record["camera_order"]), result_id, apply_multicam, confirm)
 
 
 # --------------------------------------------------------------------------------------------

@@ -154,13 +154,13 @@ def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
     frame.device = {**frame.device, "geometry": record["geometry"]}
 
 
-def accept(session: Session, sensor: str, result_id: str) -> None:
+def accept(session: Session, sensor: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored sweep geometry the sensor's (also how a user reverts to an older one)."""
     _check_swept(session, sensor)
     record = session.result(result_id)
     if record["sensor"] != sensor:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    session.accept(slot(sensor), result_id, apply_sweep_geometry)
+    session.accept(slot(sensor), result_id, apply_sweep_geometry, confirm)
 
 
 def _beam_columns(scan_angles: np.ndarray, steps: np.ndarray) -> int:

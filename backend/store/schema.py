@@ -60,6 +60,9 @@ class Acceptance(BaseModel):
     slot: str = Field(description="what the result calibrates, e.g. 'cam_front/intrinsics'")
     result_id: str
     at: float = Field(description="seconds since the epoch")
+    verdict: Literal["trusted", "check", "reject"] | None = Field(
+        None, description="the result's verdict when accepted (None in logs from before verdicts)")
+    confirmed: bool = Field(False, description="the user confirmed a 'check' verdict to accept it")
 
 
 class SessionFile(BaseModel):

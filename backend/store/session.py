@@ -33,6 +33,7 @@ from backend.core.rig import Frame, Rig
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import write_bytes_atomic, write_json_atomic
 from backend.store.rig_io import rig_from_model, rig_to_model
+from backend.core.verdict import Verdict
 from backend.store.schema import FILE_NAME_PATTERN, NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
 
 SESSION_FILE = "session.json"
@@ -277,16 +278,29 @@ class Session:
     def acceptance_log(self) -> list[Acceptance]:
         return list(self._data.acceptance_log)
 
-    def accept(self, slot: str, result_id: str, apply: Callable[[Rig, dict[str, Any]], None]) -> None:
+    def accept(self, slot: str, result_id: str, apply: Callable[[Rig, dict[str, Any]], None],
+               confirm: bool = False) -> None:
         """Make ``result_id`` current for ``slot``; ``apply(rig, record)`` writes it into the rig.
 
-        Accepting an older result is how a user reverts; the log keeps every step.
+        The result's verdict decides (:mod:`backend.core.verdict`): a ``reject`` is refused, a ``check``
+        is taken only with ``confirm`` (the user saw its reasons), and the log records the verdict and the
+        confirmation. Accepting an older result is how a user reverts; the log keeps every step.
         """
         record = self.result(result_id)
+        verdict = Verdict.from_record(record)
+        reasons = "; ".join(verdict.reasons) or "no reason given"
+        if verdict.level == "reject":
+            raise InputError(f"result {result_id} was judged 'reject' and cannot be accepted: {reasons}",
+                             "result", 409)
+        if verdict.level == "check" and not confirm:
+            raise InputError(f"result {result_id} was judged 'check' ({reasons}); confirm to accept it as it is",
+                             "confirm", 409)
         with self._change():
             apply(self.rig, record)
             self._data.accepted[slot] = result_id
-            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=time.time()))
+            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=time.time(),
+                                                        verdict=verdict.level,
+                                                        confirmed=verdict.level == "check"))
 
 
 class SessionStore:

@@ -53,5 +53,5 @@ def solve(sensor: str, body: IntrinsicsSolveRequest, session: deps.SessionDep,
 
 @router.post("/intrinsics/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id)
+    service.accept(session, sensor, body.result_id, body.confirm)
     return session.info()

@@ -43,5 +43,5 @@ def solve(body: LidarLidarSolveRequest, session: deps.SessionDep, jobs: deps.Job
 
 @router.post("/sensors/{sensor}/lidar-lidar/accept")
 def accept(sensor: str, body: LidarLidarAccept, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id)
+    service.accept(session, sensor, body.result_id, body.confirm)
     return session.info()

@@ -78,7 +78,7 @@ def manual(body: LidarCameraManual, session: deps.SessionDep) -> dict[str, Any]:
 
 @router.post("/sensors/{sensor}/lidar-camera/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id)
+    service.accept(session, sensor, body.result_id, body.confirm)
     return session.info()
 
 

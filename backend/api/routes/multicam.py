@@ -60,5 +60,5 @@ def solve(body: MulticamSolveRequest, session: deps.SessionDep, jobs: deps.JobsD
 @router.post("/accept")
 def accept(body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
     """Mount the result's cameras relative to its reference (an older result reverts)."""
-    service.accept(session, body.result_id)
+    service.accept(session, body.result_id, body.confirm)
     return session.info()

@@ -28,7 +28,7 @@ def calibrate(sensor: str, body: SweepCalibrateRequest, session: deps.SessionDep
 
 @router.post("/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id)
+    service.accept(session, sensor, body.result_id, body.confirm)
     return session.info()
 
 
