@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
 from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
 from backend.core.transforms import invert
 from backend.devices.base import Sample
@@ -228,5 +229,14 @@ def test_the_demo_sets_solve_the_stereo_partner_near_the_truth(tmp_path, demo_te
     assert np.linalg.norm(error[:3, 3]) < 0.005 and np.degrees(Rotation.from_matrix(error[:3, :3]).magnitude()) < 0.5
     K_true = demo_rig().get("cam_right").intrinsics.K
     assert np.abs(result.cameras["cam_right"].K - K_true).max() < 10.0  # px, from 10 views of the yard
-    service.accept(session, result_id)
-    assert np.allclose(session.rig.T_a_b("cam_front", "cam_right"), result.T_ref_cam["cam_right"], atol=1e-12)
+    # cam_right's lens came from the 10 sets alone: never trusted, and step 3 is named as the remedy.
+    verdict = result.verdicts["cam_right"]
+    print("demo cam_right verdict:", verdict, result.intrinsics_projection_sigma_px)
+    assert verdict.level in ("check", "reject") and any("step 3" in reason for reason in verdict.reasons), verdict
+    assert result.summary()["verdict"]["cam_right"] == verdict.to_dict()
+    with pytest.raises(InputError, match="confirm|reject"):
+        service.accept(session, result_id)
+    if verdict.level == "check":
+        service.accept(session, result_id, confirm=True)
+        assert np.allclose(session.rig.T_a_b("cam_front", "cam_right"), result.T_ref_cam["cam_right"], atol=1e-12)
+        assert session.acceptance_log[-1].verdict == "check" and session.acceptance_log[-1].confirmed

@@ -127,6 +127,9 @@ def test_calibration_of_a_stored_sweep_recovers_the_truth(calibrated):
     assert all(abs(e) <= 3 * s for e, s in zip(error_t[1:], std["offset_m"][1:], strict=True))
     assert abs(math.degrees(error_zero)) <= 3 * std["zero_offset_deg"]
     assert record["rms_after_m"] < 0.6 * record["rms_before_m"]
+    # within its tolerances (2 mm, 0.1 deg) and the even and odd servo steps agree: trusted, and it says why
+    assert record["verdict"]["level"] == "trusted", record["verdict"]
+    assert any("cross-check of the even and odd servo steps" in r for r in record["verdict"]["reasons"])
 
 
 @pytest.mark.slow

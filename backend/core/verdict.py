@@ -59,9 +59,15 @@ class Verdict:
     def from_record(cls, record: dict[str, Any]) -> Verdict:
         """The verdict stored in a result record; a record without one (older, or hand-set) is ``check``."""
         stored = record.get("verdict")
+        if isinstance(stored, dict) and stored and "level" not in stored:  # one per part (multicam: per camera)
+            return worst_of([cls._from_dict(part, f"{name}: ") for name, part in stored.items()])
+        return cls._from_dict(stored)
+
+    @classmethod
+    def _from_dict(cls, stored: Any, prefix: str = "") -> Verdict:
         if not isinstance(stored, dict) or stored.get("level") not in LEVELS:
-            return cls("check", [NO_VERDICT_REASON])
-        return cls(stored["level"], [str(r) for r in stored.get("reasons", [])])
+            return cls("check", [prefix + NO_VERDICT_REASON])
+        return cls(stored["level"], [prefix + str(r) for r in stored.get("reasons", [])])
 
     def worst(self, other: Verdict) -> Verdict:
         """One verdict holding both: the worse level, every reason."""
@@ -85,8 +91,8 @@ class VerdictBuilder:
     def __init__(self) -> None:
         self._level: Level = "trusted"
         self._reasons: list[str] = []
-        self._cross_checks_passed = 0
-        self._cross_checks_missing = 0
+        self._cross_checks = 0
+        """Cross-checks made (passed or failed) or named as missing."""
 
     def _raise(self, level: Level, reason: str) -> None:
         self._level = max(self._level, level, key=LEVELS.index)
@@ -121,20 +127,21 @@ class VerdictBuilder:
 
     def cross_check(self, name: str, passed: bool, detail: str, fail_level: Level = "check") -> None:
         """An independent cross-check ``name`` that was made: passed, or failed at ``fail_level``."""
+        self._cross_checks += 1
         if passed:
-            self._cross_checks_passed += 1
             self.note(f"cross-check {name}: {detail}")
         else:
             self._raise(fail_level, f"cross-check {name} failed: {detail}")
 
     def missing_check(self, name: str, why: str) -> None:
         """A cross-check that could not be made; the result cannot be ``trusted`` on its sigmas alone."""
-        self._cross_checks_missing += 1
+        self._cross_checks += 1
         self.check(f"no cross-check {name}: {why}")
 
     def verdict(self) -> Verdict:
-        """The verdict so far; without any passed or named-missing cross-check it is at best ``check``."""
-        if self._cross_checks_passed == 0 and self._cross_checks_missing == 0:
+        """The verdict so far; a result whose cross-checks were neither made nor named missing is at best ``check``
+        (and ``trusted`` needs every one made to pass: a missing one is a ``check`` finding)."""
+        if self._cross_checks == 0:
             self.check("no independent cross-check was made")
         return Verdict(self._level, list(self._reasons))
 

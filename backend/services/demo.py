@@ -78,7 +78,9 @@ def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int 
             intrinsics_service.store_capture(session, DEMO_CAMERA, sample.image, detection, device=name,
                                              timestamp_s=sample.timestamp_s, meta={"frame_index": i})
     result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(), progress=progress)
-    intrinsics_service.accept(session, DEMO_CAMERA, result_id)
+    # The demo stands in for a user who read the verdict: a 'check' (e.g. too few views in the image corners) is
+    # taken as it is and the confirmation recorded; a 'reject' is still refused.
+    intrinsics_service.accept(session, DEMO_CAMERA, result_id, confirm=True)
     _add_board_pairs(session, progress)
     _add_camera_sets(session, progress)
     return session

@@ -34,12 +34,11 @@ from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_camera_pairs import check_camera, check_image_size
 from backend.services.multicam_capture import stored_sets
-from backend.solvers.board_detection import Detection, common_corners, detect_board
+from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.solvers.multicam_graph import Observation
 from backend.solvers.result import ProgressCallback, no_progress
-from backend.solvers.stereo import epipolar_errors
 from backend.store.session import Session
 
 KIND = "multicam"
@@ -98,26 +97,6 @@ def starting_cameras(known: dict[str, CameraIntrinsics | None], observations: li
     return StartingCameras(cameras, estimate)
 
 
-def pair_checks(result: MulticamResult, observations: list[Observation]) -> list[dict[str, Any]]:
-    """For each pair of cameras that saw the board together: the baseline (m) and the epipolar error (px) of
-    the corners both saw, a check of the rig that does not use the board's geometry."""
-    by_view = {(o.camera, o.frame): o.detection for o in observations}
-    checks = []
-    for edge in result.graph.to_record()["edges"]:
-        a, b = edge["a"], edge["b"]
-        left_px, right_px = [], []
-        for frame in sorted({f for c, f in by_view if c == a} & {f for c, f in by_view if c == b}):
-            in_a, in_b = common_corners(by_view[a, frame], by_view[b, frame])
-            left_px.append(in_a)
-            right_px.append(in_b)
-        T_a_b = np.linalg.solve(result.T_ref_cam[a], result.T_ref_cam[b])
-        errors = epipolar_errors(result.cameras[a], result.cameras[b], T_a_b, np.concatenate(left_px),
-                                 np.concatenate(right_px))
-        checks.append({"a": a, "b": b, "frames": edge["frames"], "baseline_m": float(np.linalg.norm(T_a_b[:3, 3])),
-                       "epipolar_rms_px": float(np.sqrt(np.mean(errors**2)))})
-    return checks
-
-
 def result_rig(result: MulticamResult) -> Rig:
     """The result as a rig rooted at the reference camera: each camera's ``T_ref_cam`` with its covariance."""
     rig = Rig(root=result.reference)
@@ -166,7 +145,7 @@ def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bo
     start = starting_cameras({n: session.rig.get(n).intrinsics for n in cameras}, observations, board, sizes,
                              refine_intrinsics, progress)
     result = calibrate_multicam(start.cameras, board, observations, MulticamSettings(start.estimate), progress)
-    record = result.to_record() | {"camera_order": cameras, "pairs": pair_checks(result, observations)}
+    record = result.to_record() | {"camera_order": cameras}
     return session.add_result(cameras[0], record, inputs=used), result
 
 

@@ -41,6 +41,8 @@ from scipy.spatial.transform import Rotation
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.verdict import Verdict
+from backend.solvers.multicam_checks import camera_verdicts, intrinsics_projection_sigma_px, pair_checks
 from backend.solvers.multicam_graph import (
     Observation,
     ObservationGraph,
@@ -109,6 +111,8 @@ class MulticamResult(SolveResult):
     """6x6 per camera over [t (m, reference axes), r (rad, about the camera's axes)]; zeros for the reference."""
     intrinsics_std: dict[str, dict[str, float | None]]
     """1-sigma of the refined intrinsics (px, or unitless for distortion terms) of cameras that were estimated."""
+    intrinsics_projection_sigma_px: dict[str, float]
+    """Worst 1-sigma (px) across the image of projecting a far point, per camera whose intrinsics were estimated."""
     rms_px: dict[str, float]
     frames: list[FrameResidual]
     T_ref_board: dict[str, np.ndarray]
@@ -121,6 +125,10 @@ class MulticamResult(SolveResult):
     converged: bool
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    pairs: list[dict[str, Any]] = field(default_factory=list)
+    """:func:`~backend.solvers.multicam_checks.pair_checks`: baseline and epipolar RMS of each pair that shared sets."""
+    verdicts: dict[str, Verdict] = field(default_factory=dict)
+    """:func:`~backend.solvers.multicam_checks.camera_verdicts`: how far each camera can be trusted."""
 
     def std(self, camera: str) -> dict[str, list[float | None]]:
         """1-sigma of ``T_ref_cam[camera]``: ``trans_m`` (m, reference axes), ``rot_deg`` (deg, camera axes)."""
@@ -132,13 +140,17 @@ class MulticamResult(SolveResult):
                 "T_ref_cam": {name: T.tolist() for name, T in self.T_ref_cam.items()},
                 "std": {name: self.std(name) for name in self.cameras},
                 "rms_px": dict(self.rms_px),
-                "seconds": self.seconds}
+                "seconds": self.seconds,
+                "verdict": {name: verdict.to_dict() for name, verdict in self.verdicts.items()}}
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()
         record.update(kind=self.kind, reference=self.reference, board=str(self.board), settings=asdict(self.settings),
                       covariance={name: [finite_or_none(row) for row in cov] for name, cov in self.covariance.items()},
-                      intrinsics_std=self.intrinsics_std, frames=[f.to_record() for f in self.frames],
+                      intrinsics_std=self.intrinsics_std, pairs=self.pairs,
+                      intrinsics_projection_sigma_px={name: finite_or_none([sigma])[0] for name, sigma
+                                                      in self.intrinsics_projection_sigma_px.items()},
+                      frames=[f.to_record() for f in self.frames],
                       T_ref_board={name: T.tolist() for name, T in self.T_ref_board.items()},
                       graph=self.graph.to_record(), correlation=self.correlation, converged=self.converged,
                       warnings=list(self.warnings))
@@ -567,7 +579,10 @@ def calibrate_multicam(cameras: dict[str, CameraIntrinsics], board: BoardSpec, o
         first = _solve(problem, settings, report(0.3, "solving the rig and the intrinsics"))
     problem, solve, outcomes = _without_outliers(problem, board, observations, estimate, settings, first, report)
     progress(0.9, "uncertainty at the answer")
-    return _result(problem, solve, outcomes, board, settings, time.perf_counter() - started)
+    result = _result(problem, solve, outcomes, board, settings, time.perf_counter() - started)
+    result.pairs = pair_checks(result, observations)
+    result.verdicts = camera_verdicts(result)
+    return result
 
 
 def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], board: BoardSpec,
@@ -580,11 +595,14 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
     for i, name in enumerate(problem.names[1:]):
         covariance[name] = cov[6 * i:6 * i + 6, 6 * i:6 * i + 6]
     board_params = 6 * len(problem.frames)
-    intrinsics_std = {}
+    intrinsics_std, projection_sigma_px = {}, {}
     for name, where in problem.intrinsics_offsets().items():
         rig_where = slice(where.start - board_params, where.stop - board_params)
-        std = np.sqrt(np.clip(np.diag(cov[rig_where, rig_where]), 0, None))
+        cov_intrinsics = cov[rig_where, rig_where]
+        std = np.sqrt(np.clip(np.diag(cov_intrinsics), 0, None))
         intrinsics_std[name] = dict(zip(problem.free[name], finite_or_none(std), strict=True))
+        projection_sigma_px[name] = (intrinsics_projection_sigma_px(cameras[name], problem.free[name], cov_intrinsics)
+                                     if np.isfinite(cov_intrinsics).all() else float("inf"))
     lengths = np.linalg.norm(solve.residuals, axis=1)
     rms_px = {name: _rms(lengths[where]) for name, where in zip(problem.names, problem.camera_slices, strict=True)}
     final_rms = {(obs.camera, obs.frame): _rms(r) for obs, r in _views(problem, solve.residuals)}
@@ -606,5 +624,6 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
         warnings.append(f"{len(flagged)} views left out as outliers: "
                         + ", ".join(f"{f.camera}@{f.frame}" for f in flagged[:8]) + ("..." if len(flagged) > 8 else ""))
     graph = observation_graph(problem.names, [(o.camera, o.frame) for o in problem.observations])
-    return MulticamResult(problem.names[0], cameras, T_ref_cam, covariance, intrinsics_std, rms_px, frames,
+    return MulticamResult(problem.names[0], cameras, T_ref_cam, covariance, intrinsics_std, projection_sigma_px,
+                          rms_px, frames,
                           T_ref_board, graph, _correlation(problem, cov), board, settings, converged, seconds, warnings)

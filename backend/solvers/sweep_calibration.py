@@ -57,6 +57,7 @@ from backend.solvers.result import (
     no_progress,
     widen_covariance,
 )
+from backend.solvers.sweep_checks import sweep_verdict
 
 MIN_STEPS = 10
 """A sweep needs at least this many servo steps."""
@@ -148,6 +149,11 @@ class SweepCalibrationResult(SolveResult):
     v: np.ndarray
     settings: SweepCalibrationSettings
     warnings: list[str] = field(default_factory=list)
+    halves_difference: np.ndarray | None = None
+    """The parameters (``estimated`` order, m or rad) solved from the even servo steps minus those from the odd
+    ones, on the same planes: the independent cross-check; None when a half has too few points."""
+    halves_std: np.ndarray | None = None
+    """1-sigma of ``halves_difference`` (the two halves' Jacobian sigmas combined)."""
 
     @property
     def std(self) -> dict[str, float]:
@@ -185,6 +191,7 @@ class SweepCalibrationResult(SolveResult):
             "rms_after_m": self.rms_after_m,
             "planes": self.planes,
             "seconds": self.seconds,
+            "verdict": sweep_verdict(self).to_dict(),
         }
 
     def to_record(self) -> dict[str, Any]:
@@ -198,6 +205,8 @@ class SweepCalibrationResult(SolveResult):
             covariance=[finite_or_none(row) for row in self.covariance],
             std_jacobian=finite_or_none(self.std_jacobian),
             std_spread=finite_or_none(self.std_spread),
+            halves_difference=finite_or_none(self.halves_difference),
+            halves_std=finite_or_none(self.halves_std),
             u=self.u.tolist(),
             v=self.v.tolist(),
             floor_found=self.floor_found,
@@ -536,6 +545,20 @@ def calibrate_sweep(scans: Sequence[ScanAtAngle], initial: SweepGeometry | None 
             std_spread = jackknife_std(np.array(estimates))
     covariance = widen_covariance(cov_j, std_spread)
 
+    # cross-check: the same planes solved from the even and from the odd servo steps alone
+    progress(0.98, "cross-check: the even and the odd servo steps alone")
+    halves = []
+    for parity in (0, 1):
+        keep = step[planes.index] % 2 == parity
+        if keep.sum() < len(x) + 3 * planes.count + 10:
+            break
+        half = least_squares(residuals, x, args=(planes, keep), x_scale="jac", method="trf")
+        halves.append((half.x, _jacobian_std(half.jac, half.fun, planes.count)))
+    halves_difference = halves_std = None
+    if len(halves) == 2:
+        halves_difference = halves[0][0] - halves[1][0]
+        halves_std = np.hypot(halves[0][1], halves[1][1])
+
     r0 = residuals(np.zeros(len(x)), planes)
     progress(1.0, "done")
     return SweepCalibrationResult(
@@ -543,4 +566,5 @@ def calibrate_sweep(scans: Sequence[ScanAtAngle], initial: SweepGeometry | None 
         std_jacobian=std_j, std_spread=std_spread, rms_before_m=float(np.sqrt(np.mean(r0 ** 2))),
         rms_after_m=float(np.sqrt(np.mean(r ** 2))), planes=planes.count, floor_found=planes.floor is not None,
         points_used=len(planes.index), steps=n_steps, iterations=iterations, converged=converged,
-        seconds=time.monotonic() - started, u=model.u, v=model.v, settings=settings, warnings=warnings)
+        seconds=time.monotonic() - started, u=model.u, v=model.v, settings=settings, warnings=warnings,
+        halves_difference=halves_difference, halves_std=halves_std)

@@ -30,10 +30,10 @@ from pydantic import ValidationError
 
 from backend.core.errors import InputError, NotFoundError
 from backend.core.rig import Frame, Rig
+from backend.core.verdict import Verdict
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import write_bytes_atomic, write_json_atomic
 from backend.store.rig_io import rig_from_model, rig_to_model
-from backend.core.verdict import Verdict
 from backend.store.schema import FILE_NAME_PATTERN, NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
 
 SESSION_FILE = "session.json"

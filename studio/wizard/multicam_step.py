@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from backend.core.boards import BoardSpec
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import invert, to_xyz_ypr
 from backend.services import multicam as multicam_service
@@ -43,6 +43,7 @@ from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
+from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 NONE = "(none)"
 HELP = ("Hold the board still where **two or more cameras** see it and capture a set; move it so that every camera "
@@ -117,6 +118,7 @@ class MulticamStep:
                                          label="Rig result",
                                          hint="every solve of these cameras; pick one to inspect, accept or revert to")
             self.result_text = gui.add_markdown("No multi-camera result yet.")
+            self.confirm = ConfirmCheck(gui)
             self.accept_button = gui.add_button("Accept rig", color="green",
                                                 hint="mount the cameras as the picked result has them")
             self.show_3d = gui.add_checkbox("Show the solved rig in 3D", initial_value=True,
@@ -307,7 +309,7 @@ class MulticamStep:
             self.ctx.notify("Nothing to accept", "Solve the rig first.", error=True)
             return
         try:
-            multicam_service.accept(session, result_id)
+            multicam_service.accept(session, result_id, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -396,6 +398,17 @@ def _sigmas(values: list[float | None], scale: float) -> str:
     return "/".join("n/a" if v is None else f"{scale * v:.2f}" for v in values)
 
 
+def _estimated(record: dict, camera: str) -> str:
+    """An estimated camera's intrinsics with their 1-sigma and its worst projection sigma across the image."""
+    intrinsics, std = CameraIntrinsics.from_dict(record["cameras"][camera]), record["intrinsics_std"][camera]
+    values = {"fx": intrinsics.K[0, 0], "fy": intrinsics.K[1, 1], "cx": intrinsics.K[0, 2], "cy": intrinsics.K[1, 2],
+              **dict(zip(DIST_NAMES[intrinsics.model], intrinsics.dist, strict=False))}
+    terms = " ".join(f"{name} {values[name]:.4g}±{'n/a' if sigma is None else f'{sigma:.2g}'}"
+                     for name, sigma in std.items())
+    projection = record.get("intrinsics_projection_sigma_px", {}).get(camera)
+    return f"yes: {terms}; projection σ ≤ {'n/a' if projection is None else f'{projection:.2f}'} px"
+
+
 def sets_markdown(sets: list[capture_service.MulticamSet], cameras: list[str]) -> str:
     """How many sets hold at least two of ``cameras``, which cameras saw the board in each (newest first)."""
     if not sets:
@@ -432,16 +445,18 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     """A multicam result: per camera its RMS, 1-sigma and intrinsics, each pose in the reference, the pair checks
     and the warnings."""
     status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    converged = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
     reference, estimated = record["reference"], set(record["settings"]["estimate_intrinsics"])
+    verdicts = record.get("verdict", {})
     flagged = sum(f["flagged"] for f in record["frames"])
     rows, poses = [], []
     for name in record["camera_order"]:
         std = record["std"][name]
         sigmas = ("reference", "reference") if name == reference else (_sigmas(std["trans_m"], 1e3),
                                                                       _sigmas(std["rot_deg"], 1.0))
-        rows.append(f"| {name} | {record['rms_px'][name]:.3f} | {sigmas[0]} | {sigmas[1]} | "
-                    f"{'yes' if name in estimated else 'no'} |")
+        level = verdicts.get(name, {}).get("level", "none")
+        rows.append(f"| {name} | {level} | {record['rms_px'][name]:.3f} | {sigmas[0]} | {sigmas[1]} | "
+                    f"{_estimated(record, name) if name in estimated else 'no'} |")
         if name != reference:
             xyz, ypr = to_xyz_ypr(np.array(record["T_ref_cam"][name]))
             poses.append(f"- **{name}**: x, y, z {', '.join(f'{v:.4f}' for v in xyz)} m · yaw, pitch, roll "
@@ -449,9 +464,11 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     pairs = "\n".join(f"| {p['a']} + {p['b']} | {p['frames']} | {1e3 * p['baseline_m']:.1f} | "
                       f"{p['epipolar_rms_px']:.3f} |" for p in record.get("pairs", []))
     warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
-    return (f"**{record['id']}** ({status}) · {verdict} · {len(record['T_ref_board'])} sets · "
+    return (f"**{record['id']}** ({status}) · {converged} · {len(record['T_ref_board'])} sets · "
             f"{len(record['frames']) - flagged} views used, {flagged} flagged · {record.get('seconds', 0.0):.2f} s\n\n"
-            "| camera | RMS (px) | σ x/y/z (mm) | σ rx/ry/rz (°) | intrinsics estimated |\n|---|---|---|---|---|\n"
+            + verdict_markdown(record) + "\n\n"
+            "| camera | verdict | RMS (px) | σ x/y/z (mm) | σ rx/ry/rz (°) | intrinsics estimated |\n"
+            "|---|---|---|---|---|---|\n"
             + "\n".join(rows)
             + f"\n\nσ: 1-sigma of T_{reference}_camera, rotations about the camera's own axes.\n\n"
             + "\n".join(poses)

@@ -23,6 +23,7 @@ from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
+from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 NONE = "(no swept scanner)"
 POINT_SIZE_M = 0.02
@@ -50,6 +51,7 @@ class SweepStep:
             self.result_text = gui.add_markdown("No sweep calibration yet.")
             self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
             self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
+            self.confirm = ConfirmCheck(gui)
             self.accept_button = gui.add_button("Accept", color="green")
         self.sensor.on_update(lambda _: self._select())
         self.capture_button.on_click(lambda _: self._capture())
@@ -116,7 +118,7 @@ class SweepStep:
             self.ctx.notify("Nothing to accept", "Calibrate first.", error=True)
             return
         try:
-            sweep_service.accept(self.ctx.session, sensor, result_id)
+            sweep_service.accept(self.ctx.session, sensor, result_id, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -162,13 +164,14 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     offset_std = [None if s is None else 1000 * s for s in std["offset_m"]]
     tilt_std = std.get("tilt_deg") or [None, None, None]
     status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
+    converged = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
     offsets = " · ".join(f"{axis} {_pm(1000 * v, s, 1)}" for axis, v, s in zip("xyz", offset_mm, offset_std,
                                                                                  strict=True))
     warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
     return (
-        f"**{record['id']}** ({status}) · {verdict} · {record['planes']} planes"
+        f"**{record['id']}** ({status}) · {converged} · {record['planes']} planes"
         f"{'' if record.get('floor_found') else ' (no floor found)'} · {record['seconds']:.1f} s\n\n"
+        f"{verdict_markdown(record)}\n\n"
         f"Optical centre from the servo axis (mm): {offsets}\n\n"
         f"Tilt yaw / pitch / roll (°): {', '.join(f'{np.degrees(a):.3f}' for a in ypr)}"
         f" (1σ about mount x, y, z: {', '.join('n/a' if s is None else f'{s:.3f}' for s in tilt_std)})\n\n"
