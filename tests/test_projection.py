@@ -15,7 +15,15 @@ from backend.core import projection as projection_module
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.camera_inverse import visible_radius
-from backend.core.colour_maps import colormap, depth_colours, height_colours, intensity_colours
+from backend.core.colour_maps import (
+    colormap,
+    colour_bar,
+    depth_colours,
+    height_colours,
+    intensity_colours,
+    spread_range,
+)
+from backend.core.overlay import OverlayStyle, render_overlays, with_legend
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
 from backend.core.transforms import from_xyz_ypr, invert, make_T, to_rvec_tvec, transform_points
 from backend.sim.board_renderer import plate_corners_m, render_board_image
@@ -198,6 +206,41 @@ def test_colour_modes_use_turbo() -> None:
     T_root_sensor = make_T(np.eye(3), [0, 0, 1.0])
     low, high = height_colours(np.array([[0, 0, -1.0], [0, 0, 2.0]]), T_root_sensor, 0.0, 3.0)
     assert low[2] > low[0] and high[0] > high[2]
+
+
+def test_depth_colours_spread_a_scene_between_its_2nd_and_98th_percentile() -> None:
+    """A wall 8-12 m away within the default 0.5-40 m window: the window painted it all one blue; the percentiles
+    spread it over the whole map, and the legend beneath says from where to where."""
+    camera = demo_rig().get("cam_front").intrinsics
+    rng = np.random.default_rng(4)
+    depth = rng.uniform(8.0, 12.0, 20_000)
+    points_cam = np.column_stack([rng.uniform(-0.5, 0.5, 20_000) * depth, rng.uniform(-0.3, 0.3, 20_000) * depth,
+                                  depth])
+    points = transform_points(invert(T_CAMERA_SENSOR), points_cam)
+    image = np.full((camera.height, camera.width), 90, np.uint8)
+    (drawn,), (projection,), scale = render_overlays([(image, points, None)], T_CAMERA_SENSOR, camera,
+                                                     OverlayStyle(occlusion_px=0))
+    assert len(projection) > 15_000 and scale.label == "depth (m)"
+    lo, hi = np.percentile(projection.depth_m, [2, 98])
+    assert scale.lo == pytest.approx(lo, abs=0.05) and scale.hi == pytest.approx(hi, abs=0.05)  # a 65k subsample
+    old = depth_colours(projection.depth_m, *OverlayStyle.range_m)
+    new = colormap(projection.depth_m, scale.lo, scale.hi)
+    spread = lambda colours: len(np.unique(colours, axis=0))  # noqa: E731
+    assert spread(new) > 200 > 5 * spread(old), (spread(new), spread(old))
+    near, far = np.argmin(projection.depth_m), np.argmax(projection.depth_m)
+    assert new[near][2] > new[near][0] and new[far][0] > new[far][2]  # blue near, red far
+
+    legend = with_legend(drawn, scale)
+    assert legend.shape == (camera.height + 40, camera.width, 3)
+    np.testing.assert_array_equal(legend[:camera.height], drawn)
+    np.testing.assert_array_equal(legend[camera.height:], colour_bar(scale.lo, scale.hi, "depth (m)", camera.width))
+
+
+def test_spread_range_ignores_non_finite_values_and_falls_back() -> None:
+    assert spread_range(np.r_[np.linspace(0.0, 100.0, 101), np.nan, np.inf]) == pytest.approx((2.0, 98.0))
+    assert spread_range(np.array([np.nan]), fallback=(0.5, 40.0)) == (0.5, 40.0)
+    lo, hi = spread_range(np.full(10, 3.0))
+    assert lo == 3.0 and hi > lo
 
 
 def opencalib() -> tuple[np.ndarray, np.ndarray, CameraIntrinsics, np.ndarray]:

@@ -1,12 +1,13 @@
-"""LiDAR-to-camera pairs, solves, transforms set by hand, acceptance and overlays."""
+"""LiDAR-to-camera pairs, solves, transforms set by hand, acceptance, overlays and the full-size overlay page."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from pathlib import Path
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, File, Form, Query, Response, UploadFile
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, HTMLResponse
 
 from backend.api.routes import deps
 from backend.api.schemas import (
@@ -16,13 +17,19 @@ from backend.api.schemas import (
     LidarCameraPairCapture,
     LidarCameraSolveRequest,
 )
-from backend.core.overlay import OverlayStyle, render_overlay
+from backend.core.errors import InputError
+from backend.core.overlay import COLOUR_MODES, OverlayStyle, render_overlays, with_legend
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
 from backend.services import lidar_camera as service
 from backend.services import lidar_camera_pairs as pairs_service
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"])
+
+VIEW_PAGE = Path(__file__).resolve().parents[3] / "frontend_assets" / "overlay_view.html"
+"""The full-size overlay page: zoom and pan over one pair's or every pair's overlay at the image's resolution."""
+MAX_OVERLAY_PIXELS = 50_000_000
+"""Largest image (width x height, px) an overlay is drawn on; checked on the intrinsics, before anything is decoded."""
 
 
 def _pair_dict(pair: pairs_service.CapturePair) -> dict[str, Any]:
@@ -82,18 +89,82 @@ def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[s
     return session.info()
 
 
+def _numbers(text: str, count: int, field: str, unit: str) -> np.ndarray:
+    """``count`` comma-separated finite numbers from the query field ``field``; InputError naming it otherwise."""
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        values = np.zeros(0)
+    if len(values) != count or not np.isfinite(values).all():
+        raise InputError(f"expected {count} comma-separated numbers ({unit}), got {text!r}", field)
+    return values
+
+
+def _overlay_transform(session, camera: str, lidar: str, result_id: str | None, xyz_m: str | None,
+                       ypr_deg: str | None) -> np.ndarray:
+    """``T_camera_lidar`` to draw with: given as xyz + ypr, a result's, or the rig's."""
+    if (xyz_m is None) != (ypr_deg is None):
+        raise InputError("give both xyz_m and ypr_deg, or neither", "xyz_m" if xyz_m is None else "ypr_deg")
+    if xyz_m is not None:
+        if result_id is not None:
+            raise InputError("give either a result_id or xyz_m and ypr_deg, not both", "result_id")
+        return from_xyz_ypr(_numbers(xyz_m, 3, "xyz_m", "m"), np.radians(_numbers(ypr_deg, 3, "ypr_deg", "deg")))
+    if result_id is not None:
+        return service.result_transform(session, lidar, result_id)
+    return session.rig.T_a_b(camera, lidar)
+
+
 @router.get("/lidar-camera/overlay/{image_id}", responses={200: {"content": {"image/jpeg": {}}}})
-def overlay(image_id: str, camera: str, lidar: str, session: deps.SessionDep,
-            result_id: Annotated[str | None, Query(description="draw with this result's T_camera_lidar; "
-                                                              "default the rig's")] = None) -> Response:
-    """One stored pair's image with its cloud drawn on it (depth colours)."""
-    loaded = service.load_pairs(session, camera, lidar, [image_id])[0]
+def overlay(
+    image_id: str, camera: str, lidar: str, session: deps.SessionDep,
+    result_id: Annotated[str | None, Query(description="draw with this result's T_camera_lidar; default the rig's")]
+    = None,
+    xyz_m: Annotated[str | None, Query(description="draw with this T_camera_lidar: translation 'x,y,z' (m)")] = None,
+    ypr_deg: Annotated[str | None, Query(description="... and ROS 'yaw,pitch,roll' (deg)")] = None,
+    cloud_id: Annotated[str | None, Query(description="draw this cloud capture of the LiDAR on the image capture "
+                                                      "(any two captures); default the image's stored pair")] = None,
+    colour_by: Annotated[Literal[COLOUR_MODES], Query(description="point colours")] = "depth",
+    range_m: Annotated[str | None, Query(description="range window 'lo,hi' (m) from the LiDAR")] = None,
+    occlusion_px: Annotated[int, Query(ge=0, le=64, description="occlusion filter block (px); 0: off")] = 6,
+    radius_px: Annotated[int, Query(ge=0, le=8, description="point square's half side (px)")] = 1,
+    legend: Annotated[bool, Query(description="add the colour scale's legend beneath the image")] = False,
+) -> Response:
+    """One image with the LiDAR's cloud drawn on it at the image's full size, as a JPEG.
+
+    The headers ``X-Colour-Scale`` (what the colours mean, e.g. ``depth (m)``), ``X-Colour-Range`` (``lo,hi`` at the
+    colour map's ends: for depth the 2nd-98th percentile of the drawn points' depths) and ``X-Points-Drawn`` say
+    what was drawn.
+    """
     intrinsics = service.camera_intrinsics(session, camera)
-    T_camera_lidar = (session.rig.T_a_b(camera, lidar) if result_id is None
-                      else service.result_transform(session, lidar, result_id))
-    drawn, _ = render_overlay(loaded.image, loaded.points, loaded.intensity, T_camera_lidar, intrinsics,
-                              OverlayStyle())
-    return Response(encode_jpeg(drawn), media_type="image/jpeg")
+    if intrinsics.width * intrinsics.height > MAX_OVERLAY_PIXELS:
+        raise InputError(f"{camera}'s images are {intrinsics.width}x{intrinsics.height} px, more than the "
+                         f"{MAX_OVERLAY_PIXELS:,} px an overlay is drawn on", camera, status_code=413)
+    T_camera_lidar = _overlay_transform(session, camera, lidar, result_id, xyz_m, ypr_deg)
+    window = OverlayStyle.range_m if range_m is None else tuple(_numbers(range_m, 2, "range_m", "m"))
+    if not 0 <= window[0] < window[1]:
+        raise InputError(f"expected a range window 'lo,hi' with 0 <= lo < hi (m), got {range_m!r}", "range_m")
+    style = OverlayStyle(colour_by=colour_by, range_m=window, occlusion_px=occlusion_px, radius_px=radius_px)
+    if cloud_id is None:
+        loaded = service.load_pairs(session, camera, lidar, [image_id])[0]
+        scene = (loaded.image, loaded.points, loaded.intensity)
+    else:
+        image = session.capture_image(camera, image_id)
+        pairs_service.check_image_size(image, intrinsics, image_id)
+        scene = (image, *session.capture_cloud(lidar, cloud_id))
+    (drawn,), (projection,), scale = render_overlays([scene], T_camera_lidar, intrinsics, style,
+                                                     session.rig.T_root_frame(lidar))
+    headers = {"X-Colour-Scale": scale.label, "X-Colour-Range": f"{scale.lo:.6g},{scale.hi:.6g}",
+               "X-Points-Drawn": str(len(projection)), "Cache-Control": "no-store"}
+    return Response(encode_jpeg(with_legend(drawn, scale) if legend else drawn), media_type="image/jpeg",
+                    headers=headers)
+
+
+@router.get("/lidar-camera/view", response_class=HTMLResponse)
+def overlay_view(name: str) -> HTMLResponse:
+    """The full-size overlay page (zoom with the wheel, pan by dragging). Its query is the overlay's
+    (``camera``, ``lidar``, ``xyz_m``, ``ypr_deg``, ``colour_by``, ``range_m``, ``occlusion_px``, ``radius_px``) and
+    ``scene``: an image capture id (with ``cloud_id`` for two captures that are not a stored pair) or ``all``."""
+    return HTMLResponse(VIEW_PAGE.read_text(), headers={"Cache-Control": "no-store"})
 
 
 @router.get("/results/{result_id}/files/{file_name}")
