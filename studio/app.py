@@ -21,10 +21,10 @@ class StudioApp:
     """Builds the wizard on a viser server and opens an initial session."""
 
     def __init__(self, server: viser.ViserServer, store: SessionStore, jobs: JobRunner,
-                 session: Session | None = None):
+                 session: Session | None = None, api_url: str = ""):
         server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
         server.gui.add_markdown("## Calibration Studio\nFrom raw sensors to trusted transforms, step by step.")
-        self.ctx = StudioContext(server, store, jobs, RigScene(server))
+        self.ctx = StudioContext(server, store, jobs, RigScene(server), api_url=api_url)
         self.session_step = SessionStep(self.ctx)
         self.sensors_step = SensorsStep(self.ctx)
         self.intrinsics_step = IntrinsicsStep(self.ctx)

@@ -21,6 +21,8 @@ class StudioContext:
     jobs: JobRunner
     scene: RigScene
     session: Session | None = None
+    api_url: str = ""
+    """Where the browser reaches the REST API (``http://host:port``; empty when the studio page is served by it)."""
     _listeners: list[Callable[[Session], None]] = field(default_factory=list)
 
     def on_session_changed(self, listener: Callable[[Session], None]) -> None:

@@ -45,7 +45,8 @@ def serve(args: argparse.Namespace) -> int:
     app = create_app(store, jobs, token=token, studio_url=studio_url if token is None else "/studio/")
     if token is not None:
         mount_viewer_proxy(app, viewer_port, token)
-    studio = StudioApp(viewer, store, jobs, session)
+    host = f"[{args.host}]" if ":" in args.host else args.host
+    studio = StudioApp(viewer, store, jobs, session, api_url=f"http://{host}:{args.port}" if token is None else "")
     print(studio_url, flush=True)
     _log(f"API and docs: http://{args.host}:{args.port}/docs")
     logging.getLogger("uvicorn.error").setLevel(logging.WARNING)

@@ -1,29 +1,36 @@
 """Step 6: LiDAR to camera - the LiDAR's points drawn onto the camera's images, solved and nudged.
 
-The six sliders *are* ``T_camera_lidar`` (m, ROS yaw/pitch/roll in degrees; it maps LiDAR
-points into the camera's optical frame), with nudges, keys, undo and redo
+The editor holds ``T_camera_lidar`` (it maps LiDAR points into the camera's optical frame): six
+sliders move it along and about the camera's or the LiDAR's axes, with nudges, keys, undo and
+redo, and its x, y, z, yaw, pitch, roll are shown read-only
 (:class:`~studio.transform_sliders.TransformSliders`). Every change redraws the overlay
-(:func:`backend.core.overlay.render_overlay`): the chosen scene - one stored image + cloud
+(:func:`backend.core.overlay.render_overlays`): the chosen scene - one stored image + cloud
 pair, all pairs tiled so that every scene is judged at once, or the latest captures -
-projected with the camera's intrinsics. Redraws run on one worker thread that always draws
-the newest slider pose, so dragging never queues work. The first scene's overlay also fills
-the camera's frustum in 3D, and its cloud can be painted with the image's colours.
+projected with the camera's intrinsics, coloured over one scale with its legend beneath.
+Redraws run on one worker thread that always draws the newest pose, so dragging never queues
+work. The first scene's overlay also fills the camera's frustum in 3D, and its cloud can be
+painted with the image's colours. *Open the full-size overlay* opens the API's overlay page
+(zoom and pan at the image's resolution) on the same scene, transform and style.
 
 Solving runs as a job from the sliders' transform (solve, then nudge; or nudge, then
 solve): target-based on the pairs with a board, or targetless on edges. Each solve is kept
-in the result history with its before/after overlays; accepting a result, or the sliders'
-own transform (as a result set by hand), re-mounts the LiDAR.
+in the result history with its before/after overlays and its verdict; accepting a result, or
+the sliders' own transform (as a result set by hand), re-mounts the LiDAR (a ``check`` verdict
+only with *Confirm the check* ticked).
 """
 
 from __future__ import annotations
 
+import html
 import threading
+from urllib.parse import quote, urlencode
 
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlay
+from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
 from backend.core.projection import colourise_cloud
+from backend.core.transforms import to_xyz_ypr
 from backend.devices.image_io import read_image
 from backend.services import lidar_camera as lidar_camera_service
 from backend.services import lidar_camera_pairs as pairs_service
@@ -33,6 +40,7 @@ from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
+from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 NONE = "(none)"
 ALL_PAIRS = "all pairs"
@@ -40,14 +48,21 @@ LATEST = "latest captures"
 MAX_TILES = 6
 """Most pairs tiled in the "all pairs" view."""
 OVERLAY_WIDTH_PX = 960
-"""Width of the overlay shown in the panel (the projection itself runs at the image's full size)."""
+"""Width of the overlay shown in the panel (the projection itself runs at the image's full size; the full-size page
+shows it so)."""
+MAX_SLIDER_TRANSLATION_M = 0.5
+"""The translation sliders reach this far either way from where they were centred."""
 COLOURISED_POINT_SIZE_M = 0.02
 PLACEHOLDER = np.full((90, 160, 3), 235, np.uint8)
 METHODS = {"target (board)": "target", "targetless (edges)": "edges"}
 HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
-        "scene with plenty of straight edges). Move the sliders (keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for "
-        "fine, Z/Y undo/redo) until edges, poles and the board line up, then solve from there and nudge what is "
-        "left.")
+        "scene with plenty of straight edges). Move the sliders (increments along and about the camera's or the "
+        "LiDAR's axes; keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for fine, Z/Y undo/redo) until edges, poles "
+        "and the board line up, then solve from there and nudge what is left.")
+FULL_SIZE_LINK = ('<a href="{url}" target="calib_studio_overlay" rel="opener" style="display:block;padding:6px 10px;'
+                  'border-radius:4px;background:#228be6;color:#fff;text-align:center;text-decoration:none;'
+                  'font-size:0.85em">Open the full-size overlay ↗</a>')
+"""A link styled as a button: one named tab, which opening the link again redraws with the sliders' newest pose."""
 
 
 class LidarCameraStep:
@@ -56,6 +71,8 @@ class LidarCameraStep:
         self._scenes: list[PairData] = []
         self._inputs: list[str] = []
         """The captures on screen, as ``sensor:capture`` (what an accepted transform was judged on)."""
+        self._page_scene: dict[str, str] = {}
+        """The scene on screen in the full-size page's terms: ``scene`` (an image id, or ``all``) and ``cloud_id``."""
         self._wake = threading.Event()
         self._colourised = None
         self.result_id: str | None = None
@@ -72,7 +89,7 @@ class LidarCameraStep:
             self.capture_button = gui.add_button("Capture pair", hint="an image and a cloud of the same still moment")
             self.need_board = gui.add_checkbox("Board in view", initial_value=True,
                                                hint="refuse a pair without the board, and wait for it to hold still")
-            self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=3.0)
+            self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=MAX_SLIDER_TRANSLATION_M)
             self.editor.bind_keys(gui, "LiDAR to camera")
             self.reset_button = gui.add_button("Reset to rig")
             self.method = gui.add_dropdown("Method", options=list(METHODS))
@@ -86,6 +103,7 @@ class LidarCameraStep:
                                          hint="every solve and hand-set transform of this pair; pick one to "
                                               "inspect or accept")
             self.stats_text = gui.add_markdown("")
+            self.confirm = ConfirmCheck(gui)
             self.accept_button = gui.add_button("Accept as the mounting", color="green",
                                                 hint="the picked result, or the sliders' transform if you moved them")
             with gui.add_folder("Before / after", expand_by_default=False):
@@ -97,6 +115,7 @@ class LidarCameraStep:
             self.occlusion = gui.add_checkbox("Hide occluded points", initial_value=True)
             self.radius = gui.add_slider("Point radius (px)", min=0, max=4, step=1, initial_value=1)
             self.paint_cloud = gui.add_checkbox("Paint the cloud with the image (3D)", initial_value=False)
+            self.full_size = gui.add_html("")
             self.overlay = gui.add_image(np.full((270, 480, 3), 235, np.uint8), label="Overlay", format="jpeg")
             self.status = gui.add_markdown("")
         self.camera.on_update(lambda _: self._select())
@@ -158,7 +177,7 @@ class LidarCameraStep:
     def _load_scenes(self) -> None:
         """Read the chosen scene(s) from the session and redraw."""
         session, pair, choice = self.ctx.session, self.pair, self.scene_choice.value
-        self._scenes, self._inputs = [], []
+        self._scenes, self._inputs, self._page_scene = [], [], {}
         if pair is not None:
             camera, lidar = pair
             if choice == LATEST:
@@ -169,6 +188,8 @@ class LidarCameraStep:
                 if chosen:
                     self._scenes = lidar_camera_service.load_pairs(session, camera, lidar, [p.image.id for p in chosen])
                 self._inputs = [name for p in chosen for name in (f"{camera}:{p.image.id}", f"{lidar}:{p.cloud.id}")]
+                if chosen:
+                    self._page_scene = {"scene": "all" if choice == ALL_PAIRS else chosen[0].image.id}
                 self.data_text.content = f"{len(stored)} pair(s) stored · showing {len(chosen)}"
             if session.rig.get(camera).intrinsics is None:
                 self.data_text.content += " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"
@@ -183,6 +204,7 @@ class LidarCameraStep:
             self._scenes = [PairData(name, name, session.capture_image(camera, images[-1].id),
                                      *session.capture_cloud(lidar, clouds[-1].id))]
             self._inputs = [f"{camera}:{images[-1].id}", f"{lidar}:{clouds[-1].id}"]
+            self._page_scene = {"scene": images[-1].id, "cloud_id": clouds[-1].id}
         self.data_text.content = (
             f"Image: {images[-1].id if images else '**none captured yet** (step 3)'} · "
             f"cloud: {clouds[-1].id + f' ({clouds[-1].n_points:,} pts)' if clouds else '**none yet** (step 4)'}")
@@ -229,7 +251,7 @@ class LidarCameraStep:
         if move_sliders:
             self.editor.set(np.array(record["T_camera_lidar"]))
         accepted = session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
-        self.stats_text.content = result_markdown(record, accepted)
+        self.stats_text.content = f"{result_markdown(record, accepted)}\n\n{verdict_markdown(record)}"
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
             stored = name in record.get("files", [])  # a transform set by hand has none
             handle.image = read_image(session.result_file(result_id, name))[..., ::-1] if stored else PLACEHOLDER
@@ -246,7 +268,7 @@ class LidarCameraStep:
             if result_id is None or not np.allclose(np.array(session.result(result_id)["T_camera_lidar"]), T_sliders,
                                                     atol=1e-6):
                 result_id = lidar_camera_service.store_manual(session, camera, lidar, T_sliders, inputs=self._inputs)
-            lidar_camera_service.accept(session, lidar, result_id)
+            lidar_camera_service.accept(session, lidar, result_id, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -280,6 +302,7 @@ class LidarCameraStep:
         intrinsics = None if pair is None else session.rig.get(pair[0]).intrinsics
         if pair is None or not scenes or intrinsics is None:
             self.status.content = "Nothing to draw yet."
+            self.full_size.content = ""
             return
         camera, lidar = pair
         for scene in scenes:
@@ -288,13 +311,11 @@ class LidarCameraStep:
                                        f"px but {camera}'s intrinsics are for {intrinsics.width}×{intrinsics.height}")
                 return
         T_camera_lidar, style, T_root_lidar = self.editor.T, self.style, session.rig.T_root_frame(lidar)
-        drawn, kept = [], 0
-        for scene in scenes:
-            image, projection = render_overlay(scene.image, scene.points, scene.intensity, T_camera_lidar, intrinsics,
-                                               style, T_root_lidar)
-            drawn.append(image)
-            kept += len(projection)
-        self.overlay.image = mosaic(drawn, OVERLAY_WIDTH_PX)[..., ::-1]
+        drawn, projections, scale = render_overlays([(s.image, s.points, s.intensity) for s in scenes], T_camera_lidar,
+                                                    intrinsics, style, T_root_lidar)
+        kept = sum(len(p) for p in projections)
+        self.overlay.image = with_legend(mosaic(drawn, OVERLAY_WIDTH_PX), scale)[..., ::-1]
+        self.full_size.content = FULL_SIZE_LINK.format(url=html.escape(self._page_url(T_camera_lidar, style)))
         self.ctx.scene.show_camera_image(camera, drawn[0])
         self._paint_cloud(scenes[0], T_camera_lidar, intrinsics, lidar)
         self.redraws += 1
@@ -304,6 +325,17 @@ class LidarCameraStep:
         if kept == 0:
             self.status.content += (" · ⚠️ no point lands in the image: the cloud and the camera do not overlap "
                                     "with this transform (check the range window and the sliders)")
+
+    def _page_url(self, T_camera_lidar: np.ndarray, style: OverlayStyle) -> str:
+        """The full-size overlay page of the API on the scene on screen, drawn with ``T_camera_lidar`` and ``style``."""
+        camera, lidar = self.pair
+        xyz, ypr = to_xyz_ypr(T_camera_lidar)
+        query = {"camera": camera, "lidar": lidar, **self._page_scene,
+                 "xyz_m": ",".join(f"{v:.9g}" for v in xyz), "ypr_deg": ",".join(f"{v:.9g}" for v in np.degrees(ypr)),
+                 "colour_by": style.colour_by, "range_m": ",".join(f"{v:g}" for v in style.range_m),
+                 "occlusion_px": style.occlusion_px, "radius_px": style.radius_px}
+        return (f"{self.ctx.api_url}/api/sessions/{quote(self.ctx.session.name)}/lidar-camera/view?"
+                f"{urlencode(query)}")
 
     def _paint_cloud(self, scene: PairData, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
         """The reverse view: the cloud in 3D in the image's colours (points the camera does not see left out)."""
