@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -60,9 +61,13 @@ def build_parser() -> argparse.ArgumentParser:
     intr.add_argument("--camera-name", default="camera", help="camera_name in the YAML")
     intr.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
-    ll = sub.add_parser("lidar-lidar", help="register two LiDAR clouds: T_target_source with its uncertainty")
-    ll.add_argument("source_cloud", type=Path, help="cloud of the source (child) LiDAR: .pcd .ply .las .laz .npy")
-    ll.add_argument("target_cloud", type=Path, help="cloud of the target (parent) LiDAR")
+    ll = sub.add_parser("lidar-lidar", help="register two LiDARs' clouds: T_target_source with its uncertainty")
+    ll.add_argument("source_cloud", type=Path, nargs="?",
+                    help="cloud of the source (child) LiDAR: .pcd .ply .las .laz .npy (or give --pair)")
+    ll.add_argument("target_cloud", type=Path, nargs="?", help="cloud of the target (parent) LiDAR")
+    ll.add_argument("--pair", action="append", metavar="SRC:TGT",
+                    help="a source cloud and the target cloud taken with it; repeat for every scene (the rig in "
+                         "another place): one transform is solved for all, and the scenes cross-check each other")
     init = ll.add_mutually_exclusive_group()
     init.add_argument("--init", type=Path, metavar="T.txt",
                       help="initial T_target_source: a 4x4 in a text file, four whitespace-separated rows")
@@ -174,11 +179,26 @@ def _read_init(args: argparse.Namespace):
     return None
 
 
+def _lidar_pairs(args: argparse.Namespace) -> list[tuple[Path, Path]]:
+    """The (source, target) cloud files: ``--pair SRC:TGT`` arguments, or the two positional clouds."""
+    positional = [p for p in (args.source_cloud, args.target_cloud) if p is not None]
+    if args.pair and positional:
+        raise InputError("give either SOURCE_CLOUD TARGET_CLOUD or --pair SRC:TGT (repeated), not both", "--pair")
+    if args.pair:
+        return _pairs(args.pair, "SRC:TGT")
+    if len(positional) != 2:
+        raise InputError("expected two clouds, SOURCE_CLOUD TARGET_CLOUD, or --pair SRC:TGT for every scene",
+                         "SOURCE_CLOUD")
+    return [(args.source_cloud, args.target_cloud)]
+
+
 def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
     from backend.devices.cloud_files import read_cloud
-    from backend.solvers.lidar_lidar import LidarLidarSettings, check_transform, register_pair
+    from backend.solvers.lidar_lidar import LidarLidarSettings, check_transform
+    from backend.solvers.lidar_lidar_scenes import register_pairs
 
     progress = _progress_to_stderr(False)
+    files = _lidar_pairs(args)
     T_init = _read_init(args)
     if T_init is not None:
         check_transform(T_init, str(args.init) if args.init is not None else "--init-xyzypr")
@@ -191,15 +211,15 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
         if not args.max_distance > 0:
             raise InputError(f"expected a positive distance in metres, got {args.max_distance}", "--max-distance")
         settings.max_correspondence_m = args.max_distance
-    clouds = []
-    for path in (args.source_cloud, args.target_cloud):
+    clouds = {}
+    for path in dict.fromkeys(p for pair in files for p in pair):
         progress(0.0, f"reading {path}")
         cloud = read_cloud(path)
         if cloud.dropped_non_finite:
             print(f"warning: {path}: dropped {cloud.dropped_non_finite} non-finite points", file=sys.stderr)
-        clouds.append(cloud.points)
-    result = register_pair(clouds[0], clouds[1], T_init, settings, progress,
-                           source_name=str(args.source_cloud), target_name=str(args.target_cloud))
+        clouds[path] = cloud.points
+    result = register_pairs([(clouds[s], clouds[t]) for s, t in files], T_init, settings, progress,
+                            names=[(str(s), str(t)) for s, t in files])
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     summary = result.summary()
@@ -207,8 +227,8 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
         # Not an answer to use: say so the contract's way (non-zero exit, {"error": ...}), the numbers to stderr.
         print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
         problems = [w for w in result.warnings if "not accepted" in w] or ["the refinement failed"]
-        raise InputError(f"no usable alignment: {problems[0]}",
-                         f"{args.source_cloud},{args.target_cloud}")
+        raise InputError(f"no usable alignment: {problems[0]}", ",".join(f"{s}:{t}" for s, t in files))
+    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)
     if not args.json:
         import numpy as np
 
@@ -221,17 +241,23 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
               f"{np.array2string(result.T_target_source, precision=6, suppress_small=True)}\n"
               f"fitness {result.fitness:.3f}  rmse {result.rmse_m:.4f} m  converged {result.converged}\n"
               f"1-sigma trans (m) {trans}  rot (deg, source axes) {rot}")
+        for k, scene in enumerate(summary["scenes"]):
+            xyz, ypr = to_xyz_ypr(np.array(scene["T_target_source"]))
+            print(f"scene {k + 1} (pairs {scene['pairs']}): {' '.join(f'{v:.4f}' for v in xyz)}  "
+                  f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}  fitness {scene['fitness']:.3f}  "
+                  f"agrees {scene['agrees']}")
+        print(f"verdict {result.verdict.level}")
     return summary
 
 
-def _pairs(values: list[str]) -> list[tuple[Path, Path]]:
-    """``IMAGE:CLOUD`` arguments as path pairs (split at the last colon: paths may hold one)."""
+def _pairs(values: list[str], form: str = "IMAGE:CLOUD") -> list[tuple[Path, Path]]:
+    """``A:B`` arguments (``form`` names them) as path pairs (split at the last colon: paths may hold one)."""
     pairs = []
     for value in values:
-        image, sep, cloud = value.rpartition(":")
-        if not sep or not image or not cloud:
-            raise InputError(f"expected IMAGE:CLOUD, got {value!r}", "--pair")
-        pairs.append((Path(image), Path(cloud)))
+        first, sep, second = value.rpartition(":")
+        if not sep or not first or not second:
+            raise InputError(f"expected {form}, got {value!r}", "--pair")
+        pairs.append((Path(first), Path(second)))
     return pairs
 
 
@@ -321,8 +347,38 @@ def run_export(args: argparse.Namespace) -> None:
         sys.stdout.write(text)
 
 
+NEGATIVE_VALUE = re.compile(r"^-\.?\d")
+"""A value that starts like a negative number (``-0.07,0.63,...``, ``-5``)."""
+
+
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Every option string, in the parser and its subcommands, that takes a value."""
+    options = set()
+    for action in parser._actions:  # argparse has no public listing of its actions
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                options |= _value_options(sub)
+        elif action.option_strings and action.nargs != 0:
+            options.update(action.option_strings)
+    return options
+
+
+def join_negative_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--opt -0.07,...`` as ``--opt=-0.07,...`` for every option that takes a value: argparse reads a value
+    after a space that starts with ``-`` (and is not one plain number) as an unknown option."""
+    options = _value_options(parser)
+    joined: list[str] = []
+    for arg in argv:
+        if joined and joined[-1] in options and NEGATIVE_VALUE.match(arg):
+            joined[-1] = f"{joined[-1]}={arg}"
+        else:
+            joined.append(arg)
+    return joined
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(join_negative_values(parser, sys.argv[1:] if argv is None else argv))
     want_json = getattr(args, "json", False)
     try:
         if args.command in ("demo", "serve"):

@@ -44,7 +44,13 @@ def test_real_pair_through_the_api(client, stereo_chessboard):
     record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()
     assert record["kind"] == "lidar_lidar" and record["target"] == "qt" and record["converged"]
     assert record["fitness"] > 0.13
-    accepted = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
+    assert record["verdict"]["level"] == "check" and len(record["scenes"]) == 1  # one real scene: no cross-check
+    assert client.get("/api/sessions/car/lidar-lidar/pairs", params={"source": "p64", "target": "qt"}).json() == [
+        list(p) for p in [record["inputs"][0].split(":")]]
+    refused = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
+    assert refused.status_code == 409 and refused.json()["error"]["input"] == "confirm"
+    accepted = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept",
+                           json={"result_id": status["result_id"], "confirm": True})
     assert accepted.status_code == 200
     assert accepted.json()["accepted"] == {"p64/T_qt_p64": status["result_id"]}
 
@@ -59,3 +65,39 @@ def test_errors_name_the_input(client):
     assert camera.status_code == 422 and "not a LiDAR" in camera.json()["error"]["message"]
     unknown = client.post("/api/sessions/car/lidar-lidar/solve", json={"source": "nope", "target": "qt"})
     assert unknown.status_code == 404 and unknown.json()["error"]["input"] == "sensor"
+
+
+@pytest.mark.slow
+def test_three_scenes_through_the_api_are_trusted_and_accepted(client, tmp_path):
+    """Clouds of three places of the simulated robot: one job over the chosen pairs, per-scene solves, a
+    'trusted' verdict (the scenes agree), accepted without a confirmation."""
+    import io
+
+    from test_lidar_lidar import T_TRUE, perturbed, scan_pair
+    from test_lidar_lidar_scenes import PLACEMENTS
+
+    from backend.sim.lidar_scene import LidarScene
+
+    scene = LidarScene()
+    for i, placement in enumerate(PLACEMENTS):
+        for sensor, points in zip(("p64", "qt"), scan_pair(scene, 40 + i, placement), strict=True):
+            buffer = io.BytesIO()
+            np.save(buffer, points)
+            assert client.post(f"/api/sessions/car/sensors/{sensor}/clouds",
+                               files=[("files", (f"{sensor}_{i}.npy", buffer.getvalue()))]).status_code == 201
+    pairs = client.get("/api/sessions/car/lidar-lidar/pairs", params={"source": "p64", "target": "qt"}).json()
+    assert len(pairs) == 3
+    xyz, ypr = to_xyz_ypr(perturbed(T_TRUE, 7, 0.10, 5.0))
+    job = client.post("/api/sessions/car/lidar-lidar/solve", json={
+        "source": "p64", "target": "qt", "pairs": pairs, "init_xyz_m": list(xyz),
+        "init_ypr_deg": list(np.degrees(ypr))})
+    status = wait_job(client, job.json()["id"], timeout_s=120)
+    assert status["state"] == "done", status
+    record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()
+    assert [s["pairs"] for s in record["scenes"]] == [[0], [1], [2]] and all(s["agrees"] for s in record["scenes"])
+    assert record["verdict"]["level"] == "trusted", record["verdict"]
+    assert record["scene_spread"]["trans_m"] < 0.01
+    error = np.linalg.inv(T_TRUE) @ np.array(record["T_target_source"])
+    assert np.linalg.norm(error[:3, 3]) < 0.003
+    accepted = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
+    assert accepted.status_code == 200, accepted.text

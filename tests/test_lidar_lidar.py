@@ -19,13 +19,12 @@ from backend.solvers.lidar_lidar import (
     check_transform,
     evaluate_alignment,
     register_pair,
-    register_pairs,
     transform_error,
 )
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2lidar_pair"
-SUMMARY_KEYS = {"T_target_source", "fitness", "rmse_m", "c2c_m", "std", "seconds"}
+SUMMARY_KEYS = {"T_target_source", "fitness", "rmse_m", "c2c_m", "std", "seconds", "verdict", "scenes", "scene_spread"}
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 """Source LiDAR on the simulated robot (m, rad)."""
@@ -102,18 +101,11 @@ def test_summary_is_the_cli_contract_and_record_is_json(scene) -> None:
     assert record["settings"]["num_threads"] == 2 and record["std_spread"] is None
     # sigma reported in degrees about the source axes = sqrt of the rotation block of the covariance (rad)
     assert np.allclose(np.degrees(np.sqrt(np.diag(result.covariance)[3:])), summary["std"]["rot_deg"])
-
-
-@pytest.mark.slow
-def test_several_frame_pairs_give_the_spread(scene) -> None:
-    poses = [np.eye(4), from_xyz_ypr(np.array([1.0, 0.5, 0.0]), np.radians([30.0, 0, 0])),
-             from_xyz_ypr(np.array([-0.5, -1.0, 0.0]), np.radians([-50.0, 0, 0]))]
-    pairs = [scan_pair(scene, 10 + i, T) for i, T in enumerate(poses)]
-    result = register_pairs(pairs, perturbed(T_TRUE, 7, 0.20, 10.0))
-    assert_recovered(result, T_TRUE)
-    assert result.spread_source == "pairs" and len(result.pairs) == 3
-    assert all(p.converged for p in result.pairs)
-    assert len(result.to_record()["pairs"]) == 3
+    # one scene: no cross-check, so never more than 'check', whatever the sigmas
+    assert summary["verdict"]["level"] == "check" and record["verdict"] == summary["verdict"]
+    assert "no cross-check across scenes: only one scene: capture the rig in two more places" in \
+        summary["verdict"]["reasons"]
+    assert len(summary["scenes"]) == 1 and summary["scenes"][0]["agrees"] is None and summary["scene_spread"] is None
 
 
 @pytest.mark.slow
@@ -167,6 +159,7 @@ def test_no_overlap_is_not_converged_and_says_so(scene) -> None:
     assert result.fitness < 0.01
     assert any("do not overlap" in w for w in result.warnings)
     assert set(result.summary()) == SUMMARY_KEYS
+    assert result.verdict.level == "reject" and "do not overlap" in result.verdict.reasons[0]
     json.dumps(result.summary(), allow_nan=False)  # undetermined sigmas are null, not NaN
 
 
@@ -230,6 +223,11 @@ def test_real_pair_p64_to_qt() -> None:
     assert np.all(np.abs(spread_t) < 0.01) and np.all(np.abs(spread_r) < 0.05)
     T = results[0].T_target_source
     assert results[0].std[:3].max() < 0.1  # a few cm: the honest spread on this hard pair
+    # its verdict: one scene and sigmas of a few cm / 0.4 deg, so 'check', saying both
+    verdict = results[0].verdict
+    assert verdict.level == "check", verdict.reasons
+    assert any(r.startswith("translation sigma") and "above the tolerance" in r for r in verdict.reasons)
+    assert any("no cross-check across scenes: only one scene" in r for r in verdict.reasons)
 
     # ground: p64's ground points against qt's dominant plane (the ground), along its normal
     import open3d as o3d
@@ -314,3 +312,53 @@ def test_cli_bad_init_file_and_mm_cloud(cloud_files: tuple[Path, Path], tmp_path
 
     run = cli("lidar-lidar", *cloud_files, "--init-xyzypr", "1,2,3", "--json")
     assert run.returncode != 0 and json.loads(run.stdout)["error"]["input"] == "--init-xyzypr"
+
+
+@pytest.mark.slow
+def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_path: Path) -> None:
+    """``--pair`` per scene, and ``--init-xyzypr -0.7,...`` (a value that starts with '-') after a space.
+
+    Source and target are swapped here, so the initial T_target_source is the inverse of T_TRUE: x < 0."""
+    from test_lidar_lidar_scenes import PLACEMENTS
+
+    args = []
+    for i, placement in enumerate(PLACEMENTS[:2]):
+        source, target = scan_pair(scene, 30 + i, placement)
+        np.save(tmp_path / f"front{i}.npy", source)
+        np.save(tmp_path / f"top{i}.npy", target)
+        args += ["--pair", f"{tmp_path / f'top{i}.npy'}:{tmp_path / f'front{i}.npy'}"]
+    T_true = invert(T_TRUE)
+    xyz, ypr = to_xyz_ypr(perturbed(T_true, 9, 0.05, 3.0))
+    init = ",".join(f"{v:.6f}" for v in [*xyz, *np.degrees(ypr)])
+    assert init.startswith("-")
+    run = cli("lidar-lidar", *args, "--init-xyzypr", init, "--json")
+    assert run.returncode == 0, run.stderr
+    body = json.loads(run.stdout)
+    assert set(body) == SUMMARY_KEYS and len(body["scenes"]) == 2
+    assert [scene["pairs"] for scene in body["scenes"]] == [[0], [1]]
+    err_t, err_r = transform_error(np.array(body["T_target_source"]), T_true)
+    assert np.linalg.norm(err_t) < 0.005 and np.abs(err_r).max() < 0.1
+    assert body["verdict"]["level"] in ("trusted", "check")
+    assert any(r.startswith("cross-check across scenes") for r in body["verdict"]["reasons"])
+    assert "verdict:" in run.stderr
+
+
+def test_cli_negative_values_after_a_space_reach_the_command(tmp_path: Path) -> None:
+    """argparse alone takes ``-0.07,...`` for an unknown option; every subcommand now takes it as the value."""
+    missing = tmp_path / "missing.npy"
+    run = cli("lidar-lidar", missing, missing, "--init-xyzypr", "-0.07,0.63,-0.35,90,0,0", "--json")
+    assert run.returncode != 0 and "expected one argument" not in run.stderr
+    assert json.loads(run.stdout)["error"]["input"] == str(missing)
+    run = cli("lidar-camera", "--camera", tmp_path / "none.yaml", "--pair", "a.png:b.npy", "--init-xyzypr",
+              "-0.07,0.63,-0.35,90,0,0", "--json")
+    assert run.returncode != 0 and "expected one argument" not in run.stderr
+    assert json.loads(run.stdout)["error"]["input"] == str(tmp_path / "none.yaml")
+    run = cli("lidar-lidar", "--init-xyzypr", "-1,2", missing, missing, "--json")
+    assert json.loads(run.stdout)["error"]["input"] == "--init-xyzypr"  # parsed as the value, then refused
+
+
+def test_cli_pair_and_positional_clouds_are_exclusive(cloud_files: tuple[Path, Path]) -> None:
+    run = cli("lidar-lidar", *cloud_files, "--pair", f"{cloud_files[0]}:{cloud_files[1]}", "--json")
+    assert run.returncode != 0 and json.loads(run.stdout)["error"]["input"] == "--pair"
+    run = cli("lidar-lidar", "--pair", str(cloud_files[0]), "--json")
+    assert json.loads(run.stdout)["error"]["message"].startswith("expected SRC:TGT")

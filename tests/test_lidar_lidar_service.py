@@ -42,7 +42,14 @@ def test_solve_accept_and_export(session):
     assert rotation_angle_deg(error[:3, :3]) < 0.1
     assert np.all(np.abs(error[:3, 3]) < 3 * result.std[:3] + 1e-4)
 
-    service.accept(session, SOURCE, result_id)
+    record = session.result(result_id)
+    # both frames were taken with the rig standing still: one scene, so no cross-check and a 'check'
+    assert record["verdict"]["level"] == "check" and len(record["scenes"]) == 1
+    assert len(record["inputs"]) == 2  # the two frame pairs, as "source id:target id"
+    with pytest.raises(InputError, match="confirm"):
+        service.accept(session, SOURCE, result_id)
+    service.accept(session, SOURCE, result_id, confirm=True)
+    assert session.acceptance_log[-1].confirmed and session.acceptance_log[-1].verdict == "check"
     accepted = session.rig.T_a_b(TARGET, SOURCE)
     np.testing.assert_allclose(accepted, result.T_target_source, atol=1e-9)
     assert session.accepted(service.slot(SOURCE, TARGET)) == result_id
@@ -63,8 +70,8 @@ def test_non_converged_result_cannot_be_accepted(session):
               "T_target_source": np.eye(4).tolist(), "covariance": np.eye(6).tolist()}
     result_id = session.add_result(SOURCE, record, inputs=[])
     before = session.rig.get(SOURCE).T_parent_child.copy()
-    with pytest.raises(InputError, match="did not converge"):
-        service.accept(session, SOURCE, result_id)
+    with pytest.raises(InputError, match="did not converge"):  # a hand-made record has no verdict: 'check'
+        service.accept(session, SOURCE, result_id, confirm=True)
     np.testing.assert_array_equal(session.rig.get(SOURCE).T_parent_child, before)
     assert session.accepted(service.slot(SOURCE, TARGET)) is None
 

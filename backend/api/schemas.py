@@ -80,7 +80,10 @@ class LidarLidarSolveRequest(BaseModel):
     use_rig_guess: bool = Field(True, description="start from the rig's current transform when no init is given; "
                                                   "false runs global registration")
     voxel_m: float | None = Field(None, gt=0, description="fine GICP voxel size (m)")
-    pairs: list[tuple[str, str]] | None = Field(None, description="(source capture id, target capture id) pairs")
+    pairs: list[tuple[str, str]] | None = Field(
+        None, description="(source capture id, target capture id) pairs, default the i-th capture of each; pairs "
+                          "taken in different places are scenes: one transform is solved for all of them and each "
+                          "scene's own solve cross-checks the others (the result's 'scenes' and 'verdict')")
 
 
 class LidarLidarAccept(BaseModel):

@@ -1,9 +1,10 @@
 """LiDAR-to-LiDAR workflow shared by the API, the studio and the CLI.
 
 capture or import clouds -> store them -> solve ``T_target_source`` from pairs of
-captures -> store the result -> accept it into the rig as the source LiDAR's
-``T_parent_child`` with its covariance. A result that did not converge is stored
-(so the user can see why) but cannot be accepted.
+captures (one per scene, or several) -> store the result with its verdict -> accept it into
+the rig as the source LiDAR's ``T_parent_child`` with its covariance. A result that did not
+converge is stored (so the user can see why) but cannot be accepted; a ``check`` verdict needs
+the user's confirmation.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from backend.core.errors import InputError
 from backend.core.rig import Rig
 from backend.devices.base import Sample
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
-from backend.solvers.lidar_lidar import LidarLidarResult, LidarLidarSettings, register_pairs
+from backend.solvers.lidar_lidar import LidarLidarResult, LidarLidarSettings
+from backend.solvers.lidar_lidar_scenes import register_pairs
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
@@ -78,18 +80,25 @@ def read_uploaded_cloud(name: str, data: bytes) -> Sample:
                   meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
 
 
+def pair_ids(session: Session, source: str, target: str) -> list[tuple[str, str]]:
+    """The default frame pairs, (source capture id, target capture id): the i-th cloud of each sensor."""
+    check_lidar(session, source)
+    check_lidar(session, target)
+    source_ids = [c.id for c in session.captures(source) if c.n_points]
+    target_ids = [c.id for c in session.captures(target) if c.n_points]
+    if not source_ids or not target_ids:
+        empty = source if not source_ids else target
+        raise InputError(f"no clouds captured for {empty} yet; capture or import clouds of both LiDARs", empty)
+    return list(zip(source_ids, target_ids, strict=False))
+
+
 def capture_pairs(session: Session, source: str, target: str,
                   pairs: list[tuple[str, str]] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Clouds to register: the given (source id, target id) pairs, or the i-th capture of each sensor."""
+    """Clouds to register: the given (source id, target id) pairs, or :func:`pair_ids`."""
     check_lidar(session, source)
     check_lidar(session, target)
     if pairs is None:
-        source_ids = [c.id for c in session.captures(source) if c.n_points]
-        target_ids = [c.id for c in session.captures(target) if c.n_points]
-        if not source_ids or not target_ids:
-            empty = source if not source_ids else target
-            raise InputError(f"no clouds captured for {empty} yet; capture or import clouds of both LiDARs", empty)
-        pairs = list(zip(source_ids, target_ids, strict=False))
+        pairs = pair_ids(session, source, target)
     return [(session.capture_cloud(source, s)[0], session.capture_cloud(target, t)[0]) for s, t in pairs]
 
 
@@ -97,17 +106,21 @@ def solve_session(session: Session, source: str, target: str, *, T_init: np.ndar
                   use_rig_guess: bool = True, settings: LidarLidarSettings | None = None,
                   pairs: list[tuple[str, str]] | None = None,
                   progress: ProgressCallback = no_progress) -> tuple[str, LidarLidarResult]:
-    """Register ``source`` into ``target`` and store the result (not yet accepted).
+    """Register ``source`` into ``target`` over the frame ``pairs`` (default :func:`pair_ids`) and store the
+    result (not yet accepted). Pairs from different places are scenes that cross-check each other (see
+    :mod:`backend.solvers.lidar_lidar_scenes`).
 
     The initial guess is ``T_init`` if given, else the rig's current transform
     (manual nudges included) when ``use_rig_guess``, else global registration.
     """
+    pairs = pair_ids(session, source, target) if pairs is None else [tuple(p) for p in pairs]
     clouds = capture_pairs(session, source, target, pairs)
     if T_init is None and use_rig_guess:
         T_init = session.rig.T_a_b(target, source)
-    result = register_pairs(clouds, T_init, settings, progress)
+    result = register_pairs(clouds, T_init, settings, progress,
+                            names=[(f"{source} {s}", f"{target} {t}") for s, t in pairs])
     record = result.to_record() | {"target": target}
-    result_id = session.add_result(source, record, inputs=[f"{s}:{t}" for s, t in (pairs or [])])
+    result_id = session.add_result(source, record, inputs=[f"{s}:{t}" for s, t in pairs])
     return result_id, result
 
 

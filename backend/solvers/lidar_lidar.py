@@ -24,16 +24,22 @@ is mapped to the reported parameters ``[t_x, t_y, t_z (m, parent/target axes),
 r_x, r_y, r_z (rad, about the child/source axes)]``: ``dt = R @ v``, rotation
 ``omega`` as is. Neighbouring residuals are correlated (they share surfaces,
 downsampling and scan-line patterns), which this model cannot see, so the reported
-sigma is the larger of the Hessian sigma and the *spread*: the jackknife over frame
-pairs when several are given (:func:`register_pairs`), and otherwise the jackknife
-over azimuth sectors of the one pair (re-registering without each sector of the
+sigma is the larger of the Hessian sigma and the *spread*: the jackknife over scenes
+when several are given (:func:`backend.solvers.lidar_lidar_scenes.register_pairs`), and
+otherwise the jackknife over azimuth sectors (re-registering without each sector of the
 source), as the intrinsics solver does with views.
+
+Every result carries a :class:`~backend.core.verdict.Verdict`: the sigmas against the stated
+tolerances, the fit, and the independent cross-check across scenes. The sector jackknife is not
+counted as a cross-check: it re-uses the same scan of the same place (its spread is already in the
+sigma), so one scene is never more than ``check``.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -42,6 +48,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.transforms import make_T, transform_points
+from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.solvers.result import (
     ProgressCallback,
     SolveResult,
@@ -49,6 +56,7 @@ from backend.solvers.result import (
     jackknife_std,
     no_progress,
     transform_record_fields,
+    transform_std,
     widen_covariance,
 )
 
@@ -73,7 +81,12 @@ GLOBAL_VOXEL_FACTORS = (0.6, 1.0, 1.6)
 GLOBAL_SEEDS = 3
 """Global registration tries these multiples of ``global_voxel_m``, each with this many RANSAC seeds."""
 SECTORS = 8
-"""Azimuth sectors of the source cloud for the single-pair jackknife."""
+"""Azimuth sectors of the source cloud for the single-scene jackknife."""
+LOW_FITNESS = 0.1
+"""Below this fitness (but above ``min_fitness``) little of the source overlaps the target: the verdict asks
+for a look at the alignment (the real OpenCalib pair, a 64-beam and a short-range LiDAR, reaches 0.15)."""
+ONE_SCENE = "only one scene: capture the rig in two more places"
+"""Why a single-scene result has no cross-check (the verdict's missing check)."""
 
 
 @dataclass
@@ -109,25 +122,42 @@ class LidarLidarSettings:
 
 
 @dataclass
-class PairResult:
-    """One frame pair's own registration, kept in the record of a multi-pair solve."""
+class SceneResult:
+    """One scene's own solve (its frame pairs only), kept beside the joint solve over every scene."""
 
+    pairs: list[int]
+    """Indices (from 0) of the frame pairs taken in this place."""
     T_target_source: np.ndarray
+    """4x4 from this scene alone (m)."""
     fitness: float
     rmse_m: float
     converged: bool
-    iterations: int
-    std_trans_m: list[float | None]
-    std_rot_deg: list[float | None]
+    covariance: np.ndarray
+    """6x6 of this scene's solve (:data:`~backend.solvers.result.TRANSFORM_PARAMETERS`)."""
+    deviation: np.ndarray | None = None
+    """(6,) this scene's solve about the joint solve of the *other* scenes (m, rad); None with one scene."""
+    allowance: np.ndarray | None = None
+    """(6,) the largest deviation the cross-check lets pass, per axis (m, rad); None with one scene."""
+
+    @property
+    def agrees(self) -> bool | None:
+        """Whether this scene agrees with the others (None: nothing to compare with)."""
+        if self.deviation is None or self.allowance is None:
+            return None
+        return bool(self.converged and np.all(np.abs(self.deviation) <= self.allowance))
 
     def to_record(self) -> dict[str, Any]:
+        deviation = None if self.deviation is None else {
+            "trans_m": finite_or_none(self.deviation[:3]), "rot_deg": finite_or_none(np.degrees(self.deviation[3:]))}
         return {
+            "pairs": list(self.pairs),
             "T_target_source": self.T_target_source.tolist(),
             "fitness": self.fitness,
             "rmse_m": self.rmse_m,
             "converged": self.converged,
-            "iterations": self.iterations,
-            "std": {"trans_m": self.std_trans_m, "rot_deg": self.std_rot_deg},
+            "std": transform_std(self.covariance),
+            "deviation": deviation,
+            "agrees": self.agrees,
         }
 
 
@@ -158,11 +188,25 @@ class LidarLidarResult(SolveResult):
     std_spread: np.ndarray | None
     """(6,) 1-sigma from the jackknife spread, or None when not computed."""
     spread_source: str | None
-    """"pairs" or "sectors": what the spread was taken over."""
+    """"scenes" or "sectors": what the spread was taken over."""
     iterations: int
     num_inliers: int
-    pairs: list[PairResult] = field(default_factory=list)
+    verdict: Verdict
+    """How far this result can be trusted (sigmas, fit, the cross-check across scenes)."""
+    scenes: list[SceneResult] = field(default_factory=list)
+    """Every scene's own solve (one entry when all the pairs were taken in one place)."""
     warnings: list[str] = field(default_factory=list)
+
+    @property
+    def scene_spread(self) -> dict[str, float] | None:
+        """The largest distance between two scenes' own solves: ``trans_m`` (m) and ``rot_deg`` (deg), or None
+        with fewer than two scenes."""
+        solved = [s.T_target_source for s in self.scenes]
+        if len(solved) < 2:
+            return None
+        steps = [params_between(a, b) for i, a in enumerate(solved) for b in solved[i + 1:]]
+        return {"trans_m": float(max(np.linalg.norm(p[:3]) for p in steps)),
+                "rot_deg": float(np.degrees(max(np.linalg.norm(p[3:]) for p in steps)))}
 
     @property
     def std(self) -> np.ndarray:
@@ -184,6 +228,9 @@ class LidarLidarResult(SolveResult):
             "c2c_m": dict(self.c2c_m),
             "std": {"trans_m": trans, "rot_deg": rot},
             "seconds": self.seconds,
+            "verdict": self.verdict.to_dict(),
+            "scenes": [scene.to_record() for scene in self.scenes],
+            "scene_spread": self.scene_spread,
         }
 
     def to_record(self) -> dict[str, Any]:
@@ -198,7 +245,6 @@ class LidarLidarResult(SolveResult):
             init_method=self.init_method,
             iterations=self.iterations,
             num_inliers=self.num_inliers,
-            pairs=[p.to_record() for p in self.pairs],
         )
         return record
 
@@ -271,15 +317,17 @@ def evaluate_alignment(source_points: np.ndarray, target_points: np.ndarray, T_t
     aligned = transform_points(T_target_source, source_points)
     d, _ = tree.query(aligned, k=1, distance_upper_bound=max_distance_m, workers=num_threads)
     inlier = np.isfinite(d)
-    d = d[inlier]
+    return {"fitness": float(inlier.mean()), **distance_statistics(d[inlier])}
+
+
+def distance_statistics(d: np.ndarray) -> dict[str, Any]:
+    """``{"rmse_m", "c2c_m": {"mean", "median", "p95", "std"}, "distances_m"}`` of inlier distances ``d`` (m);
+    zeros when there are none."""
     if d.size == 0:
-        c2c = {"mean": 0.0, "median": 0.0, "p95": 0.0, "std": 0.0}
-        rmse = 0.0
-    else:
-        c2c = {"mean": float(d.mean()), "median": float(np.median(d)), "p95": float(np.percentile(d, 95)),
-               "std": float(d.std())}
-        rmse = float(np.sqrt(np.mean(d**2)))
-    return {"fitness": float(inlier.mean()), "rmse_m": rmse, "c2c_m": c2c, "distances_m": d}
+        return {"rmse_m": 0.0, "c2c_m": {"mean": 0.0, "median": 0.0, "p95": 0.0, "std": 0.0}, "distances_m": d}
+    c2c = {"mean": float(d.mean()), "median": float(np.median(d)), "p95": float(np.percentile(d, 95)),
+           "std": float(d.std())}
+    return {"rmse_m": float(np.sqrt(np.mean(d**2))), "c2c_m": c2c, "distances_m": d}
 
 
 # ---------------------------------------------------------------- global registration
@@ -321,7 +369,7 @@ def global_initial_guess(source_points: np.ndarray, target_points: np.ndarray, v
 
 def _gicp(source, target, target_tree, T_init: np.ndarray, settings: LidarLidarSettings, max_distance_m: float,
           fine: bool, max_iterations: int | None = None):
-    """One small_gicp GICP run between preprocessed clouds (see :func:`_preprocess`)."""
+    """One small_gicp GICP run between preprocessed clouds (see :func:`preprocess`)."""
     import small_gicp
 
     kwargs = {"rotation_epsilon": ROTATION_EPSILON_RAD, "translation_epsilon": TRANSLATION_EPSILON_M} if fine else {}
@@ -330,7 +378,7 @@ def _gicp(source, target, target_tree, T_init: np.ndarray, settings: LidarLidarS
                             max_iterations=max_iterations or settings.max_iterations, **kwargs)
 
 
-def _preprocess(points: np.ndarray, voxel_m: float, settings: LidarLidarSettings):
+def preprocess(points: np.ndarray, voxel_m: float, settings: LidarLidarSettings):
     """Voxel-downsampled small_gicp cloud with covariances, and its KD-tree."""
     import small_gicp
 
@@ -357,7 +405,7 @@ def _delta_to_params(T: np.ndarray) -> np.ndarray:
     return A
 
 
-def _hessian_covariance(result, T: np.ndarray) -> np.ndarray:
+def hessian_covariance(result, T: np.ndarray) -> np.ndarray:
     """``sigma^2 H^-1`` in our parameters (see the module docstring); NaN if undetermined."""
     H = np.asarray(result.H, dtype=float)
     dof = int(result.num_inliers) - 6
@@ -385,26 +433,27 @@ def apply_params(T_ref: np.ndarray, p: np.ndarray) -> np.ndarray:
     return make_T(T_ref[:3, :3] @ Rotation.from_rotvec(p[3:]).as_matrix(), T_ref[:3, 3] + p[:3])
 
 
-def _sector_jackknife(source_points: np.ndarray, target, target_tree, T: np.ndarray,
-                      settings: LidarLidarSettings, progress: ProgressCallback) -> np.ndarray | None:
-    """Leave-one-azimuth-sector-out jackknife std (6,) of the fine stage, or None.
+def sector_jackknife(sources: list[np.ndarray], solve: Callable[[list[Any]], np.ndarray], T: np.ndarray,
+                     settings: LidarLidarSettings, progress: ProgressCallback) -> np.ndarray | None:
+    """Leave-one-azimuth-sector-out jackknife std (6,) about ``T`` (m, rad), or None.
 
-    The source's points are split into ``SECTORS`` wedges by azimuth around the source origin;
-    each is left out in turn and GICP re-run from ``T``. ``var = (n-1)/n * sum((p_i - mean)^2)``.
-    Whole structures (a wall, a row of poles) are the correlated units here, as views are for
-    the intrinsics solver.
+    Every source cloud (sensor frame, m) is split into ``SECTORS`` wedges by azimuth around the
+    source origin; each wedge is left out of all of them in turn, the rest preprocessed at the fine
+    voxel size and ``solve(kept_clouds)`` re-run (it returns ``T_target_source``).
+    ``var = (n-1)/n * sum((p_i - mean)^2)``. Whole structures (a wall, a row of poles) are the
+    correlated units here, as views are for the intrinsics solver.
     """
-    azimuth = np.arctan2(source_points[:, 1], source_points[:, 0])
-    sector = np.minimum(((azimuth + np.pi) / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1)
+    sectors = []
+    for points in sources:
+        azimuth = np.arctan2(points[:, 1], points[:, 0])
+        sectors.append(np.minimum(((azimuth + np.pi) / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1))
     estimates = []
     for i in range(SECTORS):
         progress(0.7 + 0.25 * i / SECTORS, f"spread: re-registering without azimuth sector {i + 1} of {SECTORS}")
-        keep = source_points[sector != i]
-        if len(keep) < MIN_POINTS or len(keep) == len(source_points):
+        kept = [points[sector != i] for points, sector in zip(sources, sectors, strict=True)]
+        if any(len(k) < MIN_POINTS for k in kept) or all(len(k) == len(p) for k, p in zip(kept, sources, strict=True)):
             continue
-        kept, _ = _preprocess(keep, settings.voxel_m, settings)
-        result = _gicp(kept, target, target_tree, T, settings, settings.max_correspondence_m, fine=True)
-        estimates.append(params_between(T, np.asarray(result.T_target_source)))
+        estimates.append(params_between(T, solve([preprocess(k, settings.voxel_m, settings)[0] for k in kept])))
     if len(estimates) < 3:
         return None
     return jackknife_std(np.array(estimates))
@@ -415,12 +464,12 @@ def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings
     """Coarse-to-fine GICP; returns (fine small_gicp result, T, converged, a note or None, fine target, its tree)."""
     T = T_init
     if settings.coarse_to_fine:
-        coarse_source, _ = _preprocess(source, settings.coarse_voxel_m, settings)
-        coarse_target, coarse_tree = _preprocess(target, settings.coarse_voxel_m, settings)
+        coarse_source, _ = preprocess(source, settings.coarse_voxel_m, settings)
+        coarse_target, coarse_tree = preprocess(target, settings.coarse_voxel_m, settings)
         T = _coarse_stages(coarse_source, coarse_target, coarse_tree, T, settings, progress)
     progress(0.45, f"fine GICP ({settings.voxel_m} m voxels, {settings.max_correspondence_m} m correspondences)")
-    fine_source, _ = _preprocess(source, settings.voxel_m, settings)
-    fine_target, fine_tree = _preprocess(target, settings.voxel_m, settings)
+    fine_source, _ = preprocess(source, settings.voxel_m, settings)
+    fine_target, fine_tree = preprocess(target, settings.voxel_m, settings)
     result = _gicp(fine_source, fine_target, fine_tree, T, settings, settings.max_correspondence_m, fine=True)
     T = np.asarray(result.T_target_source).copy()
     converged, note = bool(result.converged), None
@@ -436,7 +485,7 @@ def _refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, settings
     return result, T, converged, note, fine_target, fine_tree
 
 
-def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLidarSettings,
+def best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLidarSettings,
                        progress: ProgressCallback) -> np.ndarray:
     """The best of several FPFH + RANSAC guesses, judged after a coarse GICP from each.
 
@@ -445,8 +494,8 @@ def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLi
     with ``GLOBAL_SEEDS`` seeds each; every candidate gets the coarse GICP stages and the one
     with the highest fitness at ``coarse_max_correspondence_m[-1]`` wins.
     """
-    coarse_source, _ = _preprocess(source, settings.coarse_voxel_m, settings)
-    coarse_target, coarse_tree = _preprocess(target, settings.coarse_voxel_m, settings)
+    coarse_source, _ = preprocess(source, settings.coarse_voxel_m, settings)
+    coarse_target, coarse_tree = preprocess(target, settings.coarse_voxel_m, settings)
     tree = cKDTree(target)
     best, best_fitness = np.eye(4), -1.0
     candidates = [(f * settings.global_voxel_m, seed) for f in GLOBAL_VOXEL_FACTORS for seed in range(GLOBAL_SEEDS)]
@@ -462,7 +511,7 @@ def _best_global_guess(source: np.ndarray, target: np.ndarray, settings: LidarLi
     return best
 
 
-def _quality_warnings(fitness: float, converged: bool, settings: LidarLidarSettings) -> list[str]:
+def fit_warnings(fitness: float, converged: bool, settings: LidarLidarSettings) -> list[str]:
     """Why a refinement must not be accepted (empty when it may be)."""
     warnings = []
     if not converged:
@@ -475,6 +524,77 @@ def _quality_warnings(fitness: float, converged: bool, settings: LidarLidarSetti
         warnings.append(f"poor fit: fitness {fitness:.3f} < {settings.min_fitness} at "
                         f"{settings.max_correspondence_m} m; not accepted")
     return warnings
+
+
+def judge_fit(std: dict[str, list[float | None]], fitness: float, ok: bool, problems: list[str],
+              settings: LidarLidarSettings) -> VerdictBuilder:
+    """The verdict's findings on one solve's own numbers: ``reject`` when it did not converge or fits poorly
+    (``problems``: why, from :func:`fit_warnings`), its sigmas (``std``: m and deg) against the default
+    tolerances, and a ``check`` when its fitness is below :data:`LOW_FITNESS`. The caller adds the cross-check."""
+    judge = VerdictBuilder()
+    if not ok:
+        judge.reject("; ".join(problems) or "the refinement failed")
+    judge_transform_sigmas(judge, std)
+    overlap = f"fitness {fitness:.3f} (share of source points within {settings.max_correspondence_m} m of the target)"
+    if ok and fitness < LOW_FITNESS:
+        judge.check(f"little overlap: {overlap}; look at the alignment before accepting")
+    else:
+        judge.note(overlap)
+    return judge
+
+
+def judge_one_scene(judge: VerdictBuilder, sectors: bool, frames: int = 1) -> None:
+    """The missing cross-check of a solve from one place (``frames`` pairs there), and what the sectors gave."""
+    judge.missing_check("across scenes", ONE_SCENE if frames == 1 else
+                        f"{ONE_SCENE} (the {frames} frame pairs were all taken in one place)")
+    if sectors:
+        judge.note(f"the spread over {SECTORS} azimuth sectors is inside the sigma; it re-uses the same scan, "
+                   "so it is no independent cross-check")
+
+
+def initial_guess(T_init: np.ndarray | None, source: np.ndarray, target: np.ndarray, settings: LidarLidarSettings,
+                  progress: ProgressCallback, warnings: list[str]) -> tuple[np.ndarray, str]:
+    """The checked initial ``T_target_source`` and how it was found ("given", or "global": FPFH + RANSAC from
+    ``source`` into ``target`` when ``T_init`` is None); what the user should know is appended to ``warnings``."""
+    if T_init is None:
+        warnings.append("no initial guess: started from global registration (FPFH + RANSAC); "
+                        "check the alignment by eye, symmetric scenes can fool it")
+        return best_global_guess(source, target, settings, progress), "global"
+    T_init, deviation = check_transform(T_init, "T_init")
+    if deviation > 1e-4:
+        warnings.append(f"T_init: the 3x3 was not orthonormal (max |R^T R - I| = {deviation:.3g}); "
+                        "projected onto the nearest rotation")
+    return T_init, "given"
+
+
+def assemble_result(T: np.ndarray, quality: dict[str, Any], covariance: np.ndarray, cov_h: np.ndarray,
+                    std_spread: np.ndarray | None, spread_source: str, settings: LidarLidarSettings, ok: bool,
+                    started: float, init: tuple[np.ndarray, str], fit: Any, verdict: Verdict,
+                    scenes: list[SceneResult], warnings: list[str]) -> LidarLidarResult:
+    """A :class:`LidarLidarResult` from a solve's parts: ``quality`` as :func:`evaluate_alignment` gives it,
+    ``started`` the ``time.perf_counter()`` at the start (s), ``init`` the initial guess and its method,
+    ``fit`` the fine stage (its ``iterations`` and ``num_inliers``); ``spread_source`` names what ``std_spread``
+    (if any) was taken over."""
+    return LidarLidarResult(
+        T_target_source=T,
+        fitness=quality["fitness"],
+        rmse_m=quality["rmse_m"],
+        c2c_m=quality["c2c_m"],
+        covariance=covariance,
+        settings=settings,
+        converged=ok,
+        seconds=time.perf_counter() - started,
+        T_init=np.asarray(init[0], dtype=float),
+        init_method=init[1],
+        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
+        std_spread=std_spread,
+        spread_source=spread_source if std_spread is not None else None,
+        iterations=int(fit.iterations),
+        num_inliers=int(fit.num_inliers),
+        verdict=verdict,
+        scenes=scenes,
+        warnings=warnings,
+    )
 
 
 def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: np.ndarray | None = None,
@@ -495,145 +615,28 @@ def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: 
     target, dropped_t = check_cloud(target_points, target_name)
     warnings = [f"{name}: dropped {n} non-finite points" for name, n in ((source_name, dropped_s),
                                                                           (target_name, dropped_t)) if n]
-    if T_init is None:
-        T_init = _best_global_guess(source, target, settings, progress)
-        init_method = "global"
-        warnings.append("no initial guess: started from global registration (FPFH + RANSAC); "
-                        "check the alignment by eye, symmetric scenes can fool it")
-    else:
-        T_init, deviation = check_transform(T_init, "T_init")
-        init_method = "given"
-        if deviation > 1e-4:
-            warnings.append(f"T_init: the 3x3 was not orthonormal (max |R^T R - I| = {deviation:.3g}); "
-                            "projected onto the nearest rotation")
+    T_init, init_method = initial_guess(T_init, source, target, settings, progress, warnings)
 
     result, T, converged, note, fine_target, fine_tree = _refine(source, target, T_init, settings, progress)
     progress(0.65, "evaluating the alignment")
     quality = evaluate_alignment(source, target, T, settings.max_correspondence_m, num_threads=settings.num_threads)
     warnings += [note] if note else []
-    quality_warnings = _quality_warnings(quality["fitness"], converged, settings)
+    quality_warnings = fit_warnings(quality["fitness"], converged, settings)
     warnings += quality_warnings
     ok = not quality_warnings
-    cov_h = _hessian_covariance(result, T)
+    cov_h = hessian_covariance(result, T)
     std_spread = None
     if settings.spread and ok:
-        std_spread = _sector_jackknife(source, fine_target, fine_tree, T, settings, progress)
+        std_spread = sector_jackknife([source], lambda kept: np.asarray(_gicp(
+            kept[0], fine_target, fine_tree, T, settings, settings.max_correspondence_m, fine=True).T_target_source),
+            T, settings, progress)
+    covariance = widen_covariance(cov_h, std_spread)
+    judge = judge_fit(transform_std(covariance), quality["fitness"], ok, quality_warnings, settings)
+    judge_one_scene(judge, std_spread is not None)
     progress(1.0, "done")
-    return LidarLidarResult(
-        T_target_source=T,
-        fitness=quality["fitness"],
-        rmse_m=quality["rmse_m"],
-        c2c_m=quality["c2c_m"],
-        covariance=widen_covariance(cov_h, std_spread),
-        settings=settings,
-        converged=ok,
-        seconds=time.perf_counter() - started,
-        T_init=np.asarray(T_init, dtype=float),
-        init_method=init_method,
-        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
-        std_spread=std_spread,
-        spread_source="sectors" if std_spread is not None else None,
-        iterations=int(result.iterations),
-        num_inliers=int(result.num_inliers),
-        warnings=warnings,
-    )
-
-
-def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarray | None = None,
-                   settings: LidarLidarSettings | None = None,
-                   progress: ProgressCallback = no_progress) -> LidarLidarResult:
-    """Estimate one ``T_target_source`` from several (source, target) frame pairs of a static rig.
-
-    Each pair is registered on its own (the first from ``T_init`` or global registration, the
-    rest from the first's result); the estimate is the information-weighted mean (weights: each
-    pair's Hessian information) of the converged pairs in ``[t, r]`` about the first, i.e. one
-    Gauss-Newton step of the joint problem. Sigma per axis is the larger of the joint Hessian
-    sigma ``(sum_i cov_i^-1)^-1`` and the leave-one-pair-out jackknife of the weighted mean.
-    """
-    settings = settings or LidarLidarSettings()
-    if not pairs:
-        raise InputError("no frame pairs given", "pairs")
-    if len(pairs) == 1:
-        return register_pair(pairs[0][0], pairs[0][1], T_init, settings, progress)
-    started = time.perf_counter()
-    per_pair_settings = replace(settings, spread=False)
-    results: list[LidarLidarResult] = []
-    checked: list[tuple[np.ndarray, np.ndarray]] = []
-    for i, (source_points, target_points) in enumerate(pairs):
-        def pair_progress(fraction: float, message: str, i: int = i) -> None:
-            progress(0.9 * (i + fraction) / len(pairs), f"pair {i + 1} of {len(pairs)}: {message}")
-
-        init = T_init if i == 0 or not results[0].converged else results[0].T_target_source
-        result = register_pair(source_points, target_points, init, per_pair_settings, pair_progress,
-                               f"pair {i + 1} source", f"pair {i + 1} target")
-        results.append(result)
-        checked.append((check_cloud(source_points, "source")[0], check_cloud(target_points, "target")[0]))
-
-    good = [i for i, r in enumerate(results) if r.converged and np.isfinite(r.std_hessian).all()]
-    warnings = [w for i, r in enumerate(results) for w in (f"pair {i + 1}: {x}" for x in r.warnings)]
-    if not good:
-        base = results[0]
-        T, cov_h, std_spread = base.T_target_source, np.full((6, 6), np.nan), None
-        converged = False
-        warnings.append("no frame pair converged to a good fit; not accepted")
-    else:
-        T_ref = results[good[0]].T_target_source
-        params = np.array([params_between(T_ref, results[i].T_target_source) for i in good])
-        infos = np.array([np.linalg.inv(_hessian_cov_of(results[i])) for i in good])
-
-        def weighted_mean(rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
-            info = infos[rows].sum(axis=0)
-            return np.linalg.solve(info, np.einsum("nij,nj->i", infos[rows], params[rows])), info
-
-        mean, info = weighted_mean(list(range(len(good))))
-        T = apply_params(T_ref, mean)
-        cov_h = np.linalg.inv(info)
-        cov_h = 0.5 * (cov_h + cov_h.T)
-        std_spread = None
-        if settings.spread and len(good) >= 2:
-            n = len(good)
-            std_spread = jackknife_std(np.array([weighted_mean([j for j in range(n) if j != k])[0] for k in range(n)]))
-        converged = True
-
-    progress(0.95, "evaluating the joint alignment")
-    qualities = [evaluate_alignment(s, t, T, settings.max_correspondence_m, num_threads=settings.num_threads)
-                 for s, t in checked]
-    fitness = float(np.mean([q["fitness"] for q in qualities]))
-    d = np.concatenate([q["distances_m"] for q in qualities])
-    if d.size:
-        c2c = {"mean": float(d.mean()), "median": float(np.median(d)), "p95": float(np.percentile(d, 95)),
-               "std": float(d.std())}
-    else:
-        c2c = {"mean": 0.0, "median": 0.0, "p95": 0.0, "std": 0.0}
-    if converged and fitness < settings.min_fitness:
-        converged = False
-        warnings.append(f"poor fit: mean fitness {fitness:.3f} < {settings.min_fitness}; not accepted")
-    progress(1.0, "done")
-    return LidarLidarResult(
-        T_target_source=T,
-        fitness=fitness,
-        rmse_m=float(np.sqrt(np.mean(d**2))) if d.size else 0.0,
-        c2c_m=c2c,
-        covariance=widen_covariance(cov_h, std_spread),
-        settings=settings,
-        converged=converged,
-        seconds=time.perf_counter() - started,
-        T_init=results[0].T_init,
-        init_method=results[0].init_method,
-        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
-        std_spread=std_spread,
-        spread_source="pairs" if std_spread is not None else None,
-        iterations=max(r.iterations for r in results),
-        num_inliers=sum(r.num_inliers for r in results),
-        pairs=[PairResult(r.T_target_source, r.fitness, r.rmse_m, r.converged, r.iterations, *r._std_lists())
-               for r in results],
-        warnings=warnings,
-    )
-
-
-def _hessian_cov_of(result: LidarLidarResult) -> np.ndarray:
-    """The Hessian-only covariance of a single-pair result (its covariance carries no spread)."""
-    return result.covariance
+    return assemble_result(T, quality, covariance, cov_h, std_spread, "sectors", settings, ok, started,
+                           (T_init, init_method), result, judge.verdict(),
+                           [SceneResult([0], T, quality["fitness"], quality["rmse_m"], ok, covariance)], warnings)
 
 
 def transform_error(T_estimate: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

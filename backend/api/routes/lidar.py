@@ -25,9 +25,16 @@ async def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
     return {"added": [c.model_dump() for c in service.import_clouds(session, sensor, payload)]}
 
 
+@router.get("/lidar-lidar/pairs")
+def pairs(source: str, target: str, session: deps.SessionDep) -> list[tuple[str, str]]:
+    """The default frame pairs of ``source`` and ``target`` (the i-th capture of each), to pick scenes from."""
+    return service.pair_ids(session, source, target)
+
+
 @router.post("/lidar-lidar/solve", status_code=202, response_model=JobStatus)
 def solve(body: LidarLidarSolveRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
-    """Register ``source`` into ``target`` in the background; poll ``/api/jobs/{id}`` for ``result_id``."""
+    """Register ``source`` into ``target`` over the chosen frame pairs (scenes) in the background; poll
+    ``/api/jobs/{id}`` for ``result_id``."""
     service.capture_pairs(session, body.source, body.target, body.pairs)  # fail fast, before queueing
     T_init = None
     if body.init_xyz_m is not None or body.init_ypr_deg is not None:
