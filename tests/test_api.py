@@ -256,9 +256,18 @@ def test_accept_and_export(client: TestClient, solved: dict, tmp_path: Path):
     record = client.get(f"/api/sessions/{session}/results/{rid}").json()
     K = record["camera"]["K"]
 
-    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept", json={"result_id": rid})
+    verdict = record["verdict"]
+    assert verdict["level"] in ("trusted", "check") and verdict["reasons"], verdict
+    if verdict["level"] == "check":  # a 'check' wants the confirmation, and the log keeps it
+        response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept", json={"result_id": rid})
+        assert response.status_code == 409 and response.json()["error"]["input"] == "confirm", response.text
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept",
+                           json={"result_id": rid, "confirm": True})
     assert response.status_code == 200, response.text
     assert response.json()["accepted"] == {"cam/intrinsics": rid}
+    (entry,) = response.json()["acceptance_log"]
+    assert (entry["result_id"], entry["verdict"], entry["confirmed"]) == (rid, verdict["level"],
+                                                                          verdict["level"] == "check")
     assert client.get(f"/api/sessions/{session}").json()["accepted"] == {"cam/intrinsics": rid}
 
     info = client.get(f"/api/sessions/{session}/export/camera_info", params={"sensor": "cam"})

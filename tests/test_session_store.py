@@ -26,6 +26,7 @@ def camera_record(fx: float) -> dict:
                    "K": [[fx, 0.0, 320.0], [0.0, fx, 240.0], [0.0, 0.0, 1.0]],
                    "dist": [-0.3, 0.1, 0.001, 0.0005, 0.0]},
         "rms_px": 0.25,
+        "verdict": {"level": "trusted", "reasons": ["a test record"]},
     }
 
 
@@ -288,7 +289,7 @@ def test_failed_accept_leaves_memory_as_on_disk(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "replace", broken_replace)
     with pytest.raises(OSError, match="disk full"):
-        session.accept("cam/intrinsics", result_id, service.apply_intrinsics)
+        session.accept("cam/intrinsics", result_id, service.apply_intrinsics, confirm=True)
     with pytest.raises(OSError, match="disk full"):
         session.set_board("checkerboard:9x6:0.025")
     assert session.accepted("cam/intrinsics") is None

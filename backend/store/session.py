@@ -142,6 +142,7 @@ class Session:
             "board": self.board,
             "sensors": [f.name for f in self.rig.sensors()],
             "accepted": dict(self._data.accepted),
+            "acceptance_log": [entry.model_dump() for entry in self._data.acceptance_log],
         }
 
     # -- sensors ----------------------------------------------------------------------
