@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     intr = sub.add_parser("intrinsics", help="calibrate a camera from a folder of board images")
     intr.add_argument("images_dir", type=Path)
     intr.add_argument("--board", required=True, help="e.g. checkerboard:9x6:0.025")
-    intr.add_argument("--model", default="pinhole-radtan", choices=["pinhole-radtan", "fisheye-equidistant"])
+    intr.add_argument("--model", default="pinhole-radtan", choices=["pinhole-radtan", "fisheye-equidistant", "auto"],
+                      help="auto: compare the lens models on held-out views and solve with the recommended one")
     intr.add_argument("--k3", action="store_true", help="estimate k3 (pinhole-radtan)")
     intr.add_argument("--no-tangential", action="store_true", help="fix p1 = p2 = 0 (pinhole-radtan)")
     intr.add_argument("--fix-aspect", action="store_true", help="keep fx = fy")
@@ -143,7 +144,11 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
         print(f"rms {result.rms_px:.4f} px over {sum(v.used for v in result.views)} views\n"
               f"fx {cam.K[0, 0]:.3f} +- {result.std['fx']:.3f}  fy {cam.K[1, 1]:.3f} +- {result.std['fy']:.3f}\n"
               f"cx {cam.K[0, 2]:.3f} +- {result.std['cx']:.3f}  cy {cam.K[1, 2]:.3f} +- {result.std['cy']:.3f}\n"
-              f"dist {[round(d, 6) for d in cam.dist]}")
+              f"dist {[round(d, 6) for d in cam.dist]}\n"
+              f"cross-validation: {result.cross_validation['status']} ({result.cross_validation['detail']})")
+        if result.model_comparison:
+            print(f"model: {result.model_comparison['reason']}")
+        print(f"verdict: {result.verdict.level}: " + "; ".join(result.verdict.reasons))
     return summary
 
 

@@ -65,7 +65,13 @@ def test_intrinsics_json_contract(intrinsics_run):
     assert len(lines) == 1, run.stdout
     out = json.loads(run.stdout)
     assert isinstance(out, dict)
-    assert set(out) == {"camera", "rms_px", "views", "std", "correlation", "seconds"}
+    assert set(out) == {"camera", "rms_px", "views", "std", "correlation", "projection_sigma_px", "corners",
+                        "cross_validation", "model_comparison", "verdict", "seconds"}
+    assert out["model_comparison"] is None  # only with --model auto
+    assert out["verdict"]["level"] in ("check", "reject") and out["verdict"]["reasons"]
+    assert out["cross_validation"]["status"] == "consistent" and "difference_px" not in out["cross_validation"]
+    assert out["corners"]["chosen"] == "refined" and set(out["corners"]["rms_px"]) == {"sb", "refined"}
+    assert set(out["projection_sigma_px"]) == {"max", "mean", "centre"}
 
     camera = out["camera"]
     assert set(camera) == {"model", "width", "height", "K", "dist"}
@@ -98,6 +104,23 @@ def test_intrinsics_json_contract(intrinsics_run):
     np.testing.assert_allclose(np.diag(matrix), 1.0, atol=1e-9)
     np.testing.assert_allclose(matrix, matrix.T, atol=1e-9)
     assert 0 < out["seconds"] < 60
+
+
+@pytest.mark.slow
+def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_path: Path):
+    run = cli("intrinsics", copy_images(left_images, tmp_path / "images"), "--board", BOARD, "--model", "auto",
+              "--fix-aspect", "--json")
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    comparison = out["model_comparison"]
+    assert comparison["status"] == "compared"
+    models = [c["model"] for c in comparison["candidates"]]
+    assert models == ["pinhole-radtan k1-k2", "fisheye-equidistant", "pinhole-radtan k1-k3", "pinhole-rational"]
+    assert all(0 < c["held_out_rms_px"] < 0.5 for c in comparison["candidates"])
+    winner = next(c for c in comparison["candidates"] if c["recommended"])
+    assert comparison["recommended"] == winner["model"] and comparison["reason"].startswith(winner["model"])
+    assert out["camera"]["model"] == winner["model"].split(" ")[0]
+    assert out["verdict"]["level"] in ("trusted", "check", "reject")
 
 
 @pytest.mark.slow

@@ -6,7 +6,7 @@ import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.solvers.board_detection import Detection
-from backend.solvers.coverage import Coverage, view_parameters
+from backend.solvers.coverage import FULL_CELLS, Coverage, enough_data, view_parameters
 
 BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 SIZE = (1280, 720)
@@ -37,16 +37,48 @@ def test_only_new_views_add_coverage_and_bars_fill():
     coverage.add(first)
     assert not coverage.adds_coverage(grid_detection((645, 362), 40))  # the same view, barely moved
     assert coverage.adds_coverage(grid_detection((250, 360), 40))
-    assert coverage.progress["x"] == 0.0 and not coverage.enough
+    assert coverage.progress["x"] == 0.0 and not coverage.full
 
     for centre in [(200, 150), (1080, 150), (200, 570), (1080, 570)]:
         for spacing, shear in [(25, 0.0), (70, 0.0), (40, 0.45)]:
             coverage.add(grid_detection(centre, spacing, shear))
     coverage.add(grid_detection((640, 360), 120))  # close to the camera: fills the size bar
     assert all(value == 1.0 for value in coverage.progress.values()), coverage.progress
-    assert coverage.enough
     assert coverage.heatmap.sum() == len(coverage.params) * BOARD.n_corners
-    assert coverage.cells_seen > 0.5
+    # full bars, but corners only landed in part of the image: not full (ROS would call this enough)
+    assert 0.5 < coverage.cells_seen < FULL_CELLS
+    assert coverage.missing() == [f"corners seen in {coverage.cells_seen:.0%} of the image (95% needed)"]
     summary = coverage.summary()
-    assert summary["views"] == 14 and summary["enough"] is True
+    assert summary["views"] == 14 and summary["full"] is False
     assert np.array(summary["heatmap"]).shape == (9, 16)
+    for x in np.linspace(60, 1220, 12):  # sweep the board over the image's every row of cells
+        for y in (40, 200, 360, 520, 680):
+            coverage.add(grid_detection((x, y), 25))
+    assert coverage.full and coverage.missing() == []
+
+
+def uncertainty(max_px: float, where: tuple[int, int]) -> dict:
+    """A projection_uncertainty with 0.1 px everywhere but ``max_px`` at the (row, col) cell ``where``."""
+    sigma = np.full((9, 16), 0.1)
+    sigma[where] = max_px
+    return {"sigma_px": sigma.tolist(), "max_px": max_px}
+
+
+def test_enough_data_needs_full_coverage_and_a_small_projection_sigma():
+    full = Coverage(BOARD, SIZE)
+    for x in np.linspace(60, 1220, 12):
+        for y in (40, 200, 360, 520, 680):
+            for spacing, shear in [(25, 0.0), (70, 0.45)]:
+                full.add(grid_detection((x, y), spacing, shear))
+    full.add(grid_detection((640, 360), 120))
+    assert full.full
+    assert enough_data(full, None) == (False, ["solve to see the projection sigma"])
+    assert enough_data(full, uncertainty(0.2, (0, 0))) == (True, [])
+    enough, missing = enough_data(full, uncertainty(0.45, (0, 15)))
+    assert not enough and missing == ["0.45 px in the top right corner: add views there (below 0.3 px needed)"]
+    assert enough_data(full, uncertainty(0.5, (4, 8)))[1][0].startswith("0.50 px in the centre")
+    partial = Coverage(BOARD, SIZE)
+    partial.add(grid_detection((640, 360), 40))
+    enough, missing = enough_data(partial, uncertainty(0.2, (0, 0)))
+    assert not enough and "X bar at 0%" in missing and any("views (10 needed)" in m for m in missing)
+    assert enough_data(None, None)[1] == ["no views yet", "solve to see the projection sigma"]

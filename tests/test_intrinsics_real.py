@@ -51,8 +51,9 @@ def test_matches_opencv_on_the_same_corners_within_sigma(views, result):
     OpenCV's sigmas are the analytic (per-corner noise) ones; ours with the jackknife off
     must equal them, and the reported ones are never smaller.
     """
+    assert result.corners["chosen"] == "refined"  # they fit better than SB's own here (see below)
     object_points = [v.detection.object_points(BOARD) for v in views]
-    image_points = [v.detection.corners_px.astype(np.float32) for v in views]
+    image_points = [v.detection.refined_px.astype(np.float32) for v in views]
     rms, K, dist, _, _, std_intrinsics, _, _ = cv2.calibrateCameraExtended(
         object_points, image_points, (640, 480), np.eye(3), None, flags=cv2.CALIB_FIX_ASPECT_RATIO)
     assert result.rms_px == pytest.approx(rms, rel=1e-3)
@@ -110,3 +111,44 @@ def test_folder_service_reports_per_view_and_skips_nothing(stereo_chessboard, tm
     assert skipped == []
     assert [v.name for v in result.views][:3] == ["left01.jpg", "left02.jpg", "left03.jpg"]
     assert max(v.rms_px for v in result.views) < 0.5
+
+
+def opencv_rms(images: list[np.ndarray], pipeline: str) -> tuple[float, int]:
+    """RMS (px) and views of OpenCV's own pipeline on ``images`` (this test's model: fixed aspect, k3)."""
+    corners = []
+    for gray in images:
+        if pipeline == "sb":
+            found, c = cv2.findChessboardCornersSB(gray, (9, 6), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE)
+        else:
+            found, c = cv2.findChessboardCorners(gray, (9, 6), flags=cv2.CALIB_CB_ADAPTIVE_THRESH
+                                                 | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            c = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)) if found else c
+        if found:
+            corners.append(c)
+    rms, *_ = cv2.calibrateCamera([BOARD.object_points] * len(corners), corners, (640, 480), np.eye(3), None,
+                                  flags=cv2.CALIB_FIX_ASPECT_RATIO)
+    return rms, len(corners)
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_rms_no_worse_than_opencvs_best_pipeline(stereo_chessboard, side):
+    """On both cameras, our corners fit better than SB-ACCURACY's and the classic detector's, with every view."""
+    paths = sorted(stereo_chessboard.glob(f"{side}*.jpg"))
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+    ours = calibrate_intrinsics([View(p.name, detect_board(g, BOARD)) for p, g in zip(paths, images, strict=True)],
+                                BOARD, (640, 480), replace(SETTINGS, jackknife=False, cross_validate=False))
+    sb, sb_views = opencv_rms(images, "sb")
+    classic, classic_views = opencv_rms(images, "classic")
+    assert len(ours.views) == 13 >= max(sb_views, classic_views)
+    assert ours.rms_px <= 0.97 * min(sb, classic), (ours.rms_px, sb, classic)
+
+
+def test_verdict_is_check_with_a_consistent_cross_validation(result):
+    """13 VGA views: the halves agree, but the image corners are not pinned to 0.3 px, so the user must confirm."""
+    assert result.cross_validation["status"] == "consistent"
+    assert result.verdict.level in ("check", "reject")
+    assert any("worst projection" in r and "above the tolerance" in r for r in result.verdict.reasons)
+    summary = result.summary()
+    assert summary["verdict"] == result.verdict.to_dict() and result.to_record()["verdict"] == summary["verdict"]
+    assert result.to_record()["cross_validation"]["difference_px"]

@@ -39,7 +39,8 @@ class SensorCreate(BaseModel):
 
 
 class IntrinsicsSolveRequest(BaseModel):
-    model: Literal["pinhole-radtan", "fisheye-equidistant"] = "pinhole-radtan"
+    model: Literal["pinhole-radtan", "fisheye-equidistant", "auto"] = Field(
+        "pinhole-radtan", description="'auto': compare the lens models on held-out views and solve with the best")
     estimate_k3: bool = False
     estimate_tangential: bool = True
     fix_aspect: bool = False

@@ -20,7 +20,8 @@ from backend.core.rig import Rig
 from backend.devices.image_folder import image_files
 from backend.devices.image_io import decode_image_bytes, read_image
 from backend.solvers.board_detection import Detection, detect_board
-from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
+from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View
+from backend.solvers.intrinsics_models import solve_auto
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
@@ -135,7 +136,7 @@ def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, c
     """Solve from the session's captures and store the result (not yet accepted)."""
     board = session_board(session)
     views, size = session_views(session, sensor, capture_ids)
-    result = calibrate_intrinsics(views, board, size, settings, progress)
+    result = solve_auto(views, board, size, settings, progress)
     result_id = session.add_result(sensor, result.to_record(), inputs=[v.name for v in views])
     return result_id, result
 
@@ -179,5 +180,5 @@ def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSet
     def solve_progress(fraction: float, message: str) -> None:
         progress(0.5 + 0.5 * fraction, message)
 
-    result = calibrate_intrinsics(views, board, size, settings, solve_progress)
+    result = solve_auto(views, board, size, settings, solve_progress)
     return result, skipped

@@ -1,9 +1,18 @@
 """Find a calibration board in an image.
 
-Checkerboards use OpenCV's sector-based detector (``findChessboardCornersSB``),
-which is sub-pixel accurate on its own; ChArUco boards use ``CharucoDetector`` so
+Checkerboards use OpenCV's sector-based detector (``findChessboardCornersSB`` with
+``CALIB_CB_ACCURACY | CALIB_CB_EXHAUSTIVE``; its ``CALIB_CB_NORMALIZE_IMAGE`` moves
+corners, so it is only a fallback); ChArUco boards use ``CharucoDetector`` so
 partial views give usable corners. Corner ``ids`` index the rows of
 :attr:`BoardSpec.object_points`.
+
+Full-accuracy checkerboard detections also carry :attr:`Detection.refined_px`: the
+same corners refined by ``cornerSubPix`` with a window sized to each corner's own
+spacing (:func:`refine_corners`). No OpenCV pipeline wins on every set (a fixed
+11x11 window is best on large squares and worst on small ones); sized per corner,
+the refinement beat SB and every fixed window on both real OpenCV stereo sets and
+on rendered mild and wide lenses (``benchmarks/intrinsics_accuracy.py``). The
+intrinsics solve picks, per set, the corners that fit better.
 
 Thermal cameras show a heated or cooled board with weak, often inverted contrast,
 and may deliver 16-bit raw counts. When the plain 8-bit image gives no board (or
@@ -35,22 +44,43 @@ checkerboards with 6 grey levels between squares under a 60-level gradient, 3.0 
 CLAHE_TILES = (8, 8)
 """Tiles (columns, rows) over which ``clahe`` equalises the image."""
 
+SUBPIX_WINDOW_FRACTION = 0.3
+"""Half-width of a corner's ``cornerSubPix`` window as a fraction of the distance to its nearest neighbour.
+Measured on real and rendered sets (0.2, 0.25, 0.3, 0.4): 0.3 fit best everywhere; at 0.4 windows reach
+the next corner on small squares."""
+SUBPIX_WINDOW_PX = (2, 20)
+"""Smallest and largest half-width (px) of the refinement window."""
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
+NEIGHBOUR_RADIUS = 2
+"""Grid steps around a corner whose corners predict it (a homography of up to 24 neighbours)."""
+MAX_NEIGHBOUR_DEVIATION = 0.25
+"""A corner farther than this fraction of its nearest-neighbour spacing (and :data:`MIN_DEVIATION_PX`) from
+where its neighbours put it is dropped: on a rendered wide-lens view at 80 deg of tilt SB placed one corner
+10.5 px off (half a square); lens curvature over 5 squares moved good corners by less than 0.05 of a square."""
+MIN_DEVIATION_PX = 1.5
+SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
+"""Full-accuracy flags of ``findChessboardCornersSB``: the most accurate of OpenCV's own on every set measured."""
+LIVE_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
+"""Preview flags: fast, and the corners of preview frames are not kept."""
+
 FALLBACKS: dict[tuple[str, bool], tuple[str, ...]] = {
-    ("checkerboard", False): ("normalised+clahe",),
+    ("checkerboard", False): ("sb-normalised", "normalised+clahe"),
     ("checkerboard", True): ("normalised+clahe",),
     ("charuco", False): ("normalised", "normalised+inverted", "normalised+clahe", "normalised+clahe+inverted"),
     ("charuco", True): ("normalised", "normalised+inverted"),
 }
 """Treatments tried, in order, per (board kind, live) when the plain image gives no board.
 
-A name is its steps joined by ``+``, applied left to right; every treatment starts
-with ``normalised``, which also turns images of any depth into 8 bits. The
-checkerboard detector normalises the image itself (``CALIB_CB_NORMALIZE_IMAGE``)
-and finds either polarity with the same corner numbering up to its usual half
-turn; on simulated thermal boards (of every parity) a global stretch or an
-inversion found no board that ``normalised+clahe`` missed, so checkerboards try
-only that: each failed attempt costs a whole detector run (about 0.8 s on a
-1280x720 frame without a board, 0.2 s live).
+A name is its steps joined by ``+``, applied left to right; every treatment but
+``sb-normalised`` starts with ``normalised``, which also turns images of any depth
+into 8 bits. ``sb-normalised`` is the plain image with the detector's own
+``CALIB_CB_NORMALIZE_IMAGE`` added (it found a 13th board on OpenCV's left stereo
+set that the plain flags missed). The checkerboard detector finds either polarity
+with the same corner numbering up to its usual half turn; on simulated thermal
+boards (of every parity) a global stretch or an inversion found no board that
+``normalised+clahe`` missed, so checkerboards try only these: each failed attempt
+costs a whole detector run (about 0.8 s on a 1280x720 frame without a board, 0.2 s
+live).
 """
 
 
@@ -66,20 +96,28 @@ class Detection:
     """(width, height) of the image the corners were found in (px)."""
     preprocessing: str = "none"
     """Contrast treatment the board was found after: ``none`` or a name from :data:`FALLBACKS`."""
+    refined_px: np.ndarray | None = None
+    """(N, 2) the same corners after :func:`refine_corners` (full-accuracy checkerboards only), else None."""
 
     def object_points(self, board: BoardSpec) -> np.ndarray:
         """(N, 3) float32 board-frame positions (m) of the detected corners."""
         return board.object_points[self.ids]
 
     def to_dict(self) -> dict:
-        return {"corners_px": self.corners_px.tolist(), "ids": self.ids.tolist(), "image_size": list(self.image_size),
+        data = {"corners_px": self.corners_px.tolist(), "ids": self.ids.tolist(), "image_size": list(self.image_size),
                 "preprocessing": self.preprocessing}
+        if self.refined_px is not None:
+            data["refined_px"] = self.refined_px.tolist()
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> Detection:
-        """Inverse of :meth:`to_dict`; dicts stored before ``preprocessing`` existed read as ``none``."""
+        """Inverse of :meth:`to_dict`; dicts stored before ``preprocessing`` (``refined_px``) existed read as
+        ``none`` (None)."""
+        refined = data.get("refined_px")
         return cls(np.asarray(data["corners_px"], float).reshape(-1, 2), np.asarray(data["ids"], int),
-                   tuple(data["image_size"]), data.get("preprocessing", "none"))
+                   tuple(data["image_size"]), data.get("preprocessing", "none"),
+                   None if refined is None else np.asarray(refined, float).reshape(-1, 2))
 
 
 def common_corners(a: Detection, b: Detection) -> tuple[np.ndarray, np.ndarray]:
@@ -103,19 +141,83 @@ def detect_board(image: np.ndarray, board: BoardSpec, *, live: bool = False) -> 
     """
     gray = to_gray(image)
     size = (gray.shape[1], gray.shape[0])
-    attempts = (("none",) if gray.dtype == np.uint8 else ()) + FALLBACKS[(board.kind, live)]
+    attempts = (("none",) if gray.dtype == np.uint8 else ()) + tuple(
+        name for name in FALLBACKS[(board.kind, live)] if gray.dtype == np.uint8 or name != "sb-normalised")
     treated: dict[str, np.ndarray] = {"none": gray}
     for name in attempts:
-        found = _find_corners(_treat(treated, name), board, live)
+        sb_normalise = name == "sb-normalised"
+        image = treated["none"] if sb_normalise else _treat(treated, name)
+        found = _find_corners(image, board, live, sb_normalise)
         if found is not None:
-            return Detection(*found, size, name)
+            if live or board.kind != "checkerboard":
+                return Detection(*found, size, name)
+            corners, ids = found
+            refined = refine_corners(image, board, corners)
+            keep = _agrees_with_neighbours(board, refined)
+            return Detection(corners[keep], ids[keep], size, name, refined[keep])
     return None
 
 
-def _find_corners(gray: np.ndarray, board: BoardSpec, live: bool) -> tuple[np.ndarray, np.ndarray] | None:
-    """Corners (N, 2) float64 px and ids (N,) int of ``board`` in the uint8 ``gray``, or None."""
+def _nearest_spacing(board: BoardSpec, corners_px: np.ndarray) -> np.ndarray:
+    """(N,) distance (px) from each corner of a full checkerboard grid (id order) to its nearest grid neighbour."""
+    cols, rows = board.corner_grid
+    grid = corners_px.reshape(rows, cols, 2)
+    along_rows = np.linalg.norm(np.diff(grid, axis=1), axis=2)
+    along_cols = np.linalg.norm(np.diff(grid, axis=0), axis=2)
+    nearest = np.full((rows, cols), np.inf)
+    for spacing, before, after in ((along_rows, np.s_[:, :-1], np.s_[:, 1:]), (along_cols, np.s_[:-1], np.s_[1:])):
+        nearest[before] = np.minimum(nearest[before], spacing)
+        nearest[after] = np.minimum(nearest[after], spacing)
+    return nearest.ravel()
+
+
+def _agrees_with_neighbours(board: BoardSpec, corners_px: np.ndarray) -> np.ndarray:
+    """(N,) bool: each corner lies where a RANSAC homography of its grid neighbours puts it.
+
+    OpenCV has no such check on a found grid; a corner the detector misplaced (by a fraction of a square,
+    which the calibration would take as lens distortion) is caught here, and its own misplacement is kept out
+    of the neighbours' fits by RANSAC.
+    """
+    cols, rows = board.corner_grid
+    col, row = np.arange(cols * rows) % cols, np.arange(cols * rows) // cols
+    limit = np.maximum(MAX_NEIGHBOUR_DEVIATION * _nearest_spacing(board, corners_px), MIN_DEVIATION_PX)
+    keep = np.ones(len(corners_px), bool)
+    grid_xy = np.column_stack([col, row]).astype(np.float64)
+    for i in range(len(corners_px)):
+        near = (np.abs(col - col[i]) <= NEIGHBOUR_RADIUS) & (np.abs(row - row[i]) <= NEIGHBOUR_RADIUS)
+        near[i] = False
+        H, _ = cv2.findHomography(grid_xy[near], corners_px[near], cv2.RANSAC, MIN_DEVIATION_PX)
+        if H is not None:
+            predicted = cv2.perspectiveTransform(grid_xy[i].reshape(1, 1, 2), H).ravel()
+            keep[i] = np.linalg.norm(predicted - corners_px[i]) <= limit[i]
+    return keep
+
+
+def refine_corners(gray: np.ndarray, board: BoardSpec, corners_px: np.ndarray) -> np.ndarray:
+    """(N, 2) checkerboard corners (all of ``board``'s, in id order) refined by ``cornerSubPix`` in ``gray``.
+
+    Each corner's half-window is :data:`SUBPIX_WINDOW_FRACTION` of the distance (px) to its nearest grid
+    neighbour, so a wide lens's compressed edge corners get smaller windows than its centre's. OpenCV takes one
+    window per call, so corners are refined in groups of equal window.
+    """
+    window = np.clip(np.floor(SUBPIX_WINDOW_FRACTION * _nearest_spacing(board, corners_px)),
+                     *SUBPIX_WINDOW_PX).astype(int)
+    refined = corners_px.astype(np.float32)
+    for half in np.unique(window):
+        group = window == half
+        refined[group] = cv2.cornerSubPix(gray, refined[group].reshape(-1, 1, 2).copy(), (int(half), int(half)),
+                                          (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
+    return refined.astype(np.float64)
+
+
+def _find_corners(gray: np.ndarray, board: BoardSpec, live: bool,
+                  sb_normalise: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """Corners (N, 2) float64 px and ids (N,) int of ``board`` in the uint8 ``gray``, or None.
+
+    ``sb_normalise`` adds ``CALIB_CB_NORMALIZE_IMAGE`` to the full-accuracy checkerboard flags.
+    """
     if board.kind == "checkerboard":
-        flags = cv2.CALIB_CB_NORMALIZE_IMAGE | (0 if live else cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+        flags = LIVE_FLAGS if live else SB_FLAGS | (cv2.CALIB_CB_NORMALIZE_IMAGE if sb_normalise else 0)
         found, corners = cv2.findChessboardCornersSB(gray, board.corner_grid, flags=flags)
         if not found:
             return None

@@ -7,24 +7,34 @@ distance to every kept view exceeds 0.2; a parameter's bar is full when the kept
 views span its range (0.7, 0.7, 0.4, 0.5). ROS calls the data good enough at 40
 views or full bars; we add a heat map of where corners have landed, since
 distortion is only constrained where corners were seen.
+
+"Enough data" is stricter than ROS's rule (:func:`enough_data`): the coverage must
+be full (every bar, and :data:`FULL_CELLS` of the heat map) *and* a solve of these
+views must give a worst projection sigma across the image below
+:data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`. Coverage alone says where
+corners landed, not whether they pin the lens down there.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from backend.core.boards import BoardSpec
+from backend.core.verdict import PROJECTION_TOLERANCE_PX
 from backend.solvers.board_detection import Detection
 
 PARAM_NAMES = ("x", "y", "size", "skew")
 PARAM_RANGES = np.array([0.7, 0.7, 0.4, 0.5])
 MIN_PARAM_DISTANCE = 0.2
-ENOUGH_VIEWS = 40
 MIN_VIEWS_WITH_FULL_BARS = 10
 HEATMAP_CELLS = (16, 9)
 """Heat map grid (columns, rows) over the image."""
+FULL_CELLS = 0.95
+"""Fraction of heat-map cells that must hold a corner for the coverage to be full: at most 7 of the 144 may
+stay empty (the outermost cells of a wide lens are hard to reach with the whole board in view)."""
 
 
 def _board_outline(detection: Detection, board: BoardSpec) -> np.ndarray:
@@ -96,11 +106,19 @@ class Coverage:
         """Fraction of heat-map cells with at least one corner."""
         return float(np.count_nonzero(self.heatmap) / self.heatmap.size)
 
+    def missing(self) -> list[str]:
+        """What keeps the coverage from being full (empty when it is): bars, heat-map cells, views."""
+        missing = [f"{name.upper()} bar at {value:.0%}" for name, value in self.progress.items() if value < 1.0]
+        if self.cells_seen < FULL_CELLS:
+            missing.append(f"corners seen in {self.cells_seen:.0%} of the image ({FULL_CELLS:.0%} needed)")
+        if len(self.params) < MIN_VIEWS_WITH_FULL_BARS:
+            missing.append(f"{len(self.params)} views ({MIN_VIEWS_WITH_FULL_BARS} needed)")
+        return missing
+
     @property
-    def enough(self) -> bool:
-        """ROS's rule: 40 views, or every bar full with at least a handful of views."""
-        full = all(v >= 1.0 for v in self.progress.values())
-        return len(self.params) >= ENOUGH_VIEWS or (full and len(self.params) >= MIN_VIEWS_WITH_FULL_BARS)
+    def full(self) -> bool:
+        """Every bar full, :data:`FULL_CELLS` of the heat map seen, at least a handful of views."""
+        return not self.missing()
 
     def summary(self) -> dict:
         return {
@@ -108,5 +126,33 @@ class Coverage:
             "progress": self.progress,
             "cells_seen": self.cells_seen,
             "heatmap": self.heatmap.tolist(),
-            "enough": self.enough,
+            "full": self.full,
         }
+
+
+def enough_data(coverage: Coverage | None, projection_uncertainty: dict[str, Any] | None) -> tuple[bool, list[str]]:
+    """Whether the views are enough, and what is missing (one phrase each; empty when enough).
+
+    ``projection_uncertainty`` is a solve's (``IntrinsicsResult.projection_uncertainty``) of these same views,
+    or None when there is none yet. Enough takes full coverage and a worst projection sigma across the image
+    below :data:`PROJECTION_TOLERANCE_PX`; the phrase for the sigma says where it is worst.
+    """
+    missing = ["no views yet"] if coverage is None else coverage.missing()
+    if projection_uncertainty is None:
+        missing.append("solve to see the projection sigma")
+    elif projection_uncertainty["max_px"] >= PROJECTION_TOLERANCE_PX:
+        sigma = np.asarray(projection_uncertainty["sigma_px"])
+        row, col = np.unravel_index(int(np.argmax(sigma)), sigma.shape)
+        missing.append(f"{sigma[row, col]:.2f} px in the {_region(row, col, sigma.shape)}: add views there "
+                       f"(below {PROJECTION_TOLERANCE_PX} px needed)")
+    return not missing, missing
+
+
+def _region(row: int, col: int, shape: tuple[int, int]) -> str:
+    """Where a cell of a (rows, cols) grid lies: 'top left corner', 'right edge', 'centre', ..."""
+    rows, cols = shape
+    vertical = "top" if row < rows / 3 else "bottom" if row >= 2 * rows / 3 else ""
+    horizontal = "left" if col < cols / 3 else "right" if col >= 2 * cols / 3 else ""
+    if vertical and horizontal:
+        return f"{vertical} {horizontal} corner"
+    return f"{vertical or horizontal} edge" if vertical or horizontal else "centre"

@@ -50,6 +50,8 @@ MAX_TILES = 6
 OVERLAY_WIDTH_PX = 960
 """Width of the overlay shown in the panel (the projection itself runs at the image's full size; the full-size page
 shows it so)."""
+LEGEND_DIGITS = 2
+"""Decimals of the colour scale's ends in the status line."""
 MAX_SLIDER_TRANSLATION_M = 0.5
 """The translation sliders reach this far either way from where they were centred."""
 COLOURISED_POINT_SIZE_M = 0.02
@@ -321,7 +323,8 @@ class LidarCameraStep:
         self.redraws += 1
         total = sum(len(s.points) for s in scenes)
         self.status.content = (f"{kept:,} of {total:,} points drawn"
-                               + (f" over {len(scenes)} pairs" if len(scenes) > 1 else ""))
+                               + (f" over {len(scenes)} pairs" if len(scenes) > 1 else "")
+                               + f" · colours: {scale.label} {scale.lo:.{LEGEND_DIGITS}f}–{scale.hi:.{LEGEND_DIGITS}f}")
         if kept == 0:
             self.status.content += (" · ⚠️ no point lands in the image: the cloud and the camera do not overlap "
                                     "with this transform (check the range window and the sliders)")
