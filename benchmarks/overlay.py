@@ -11,8 +11,13 @@ What it measures, in one run on the same data:
 - ``overlays_per_s_float64``: the same with ``project_cloud(..., dtype=np.float64)``;
 - ``redraw_100k_ms``: the same for an even stride of 100k of those points: what the server
   spends to redraw after a slider moves;
+- ``full_resolution_ms``: what the full-size overlay page's route spends on one image:
+  ``render_overlays`` (the same projection, colours over the 2nd-98th percentile of the drawn
+  depths, drawing), ``with_legend`` and ``encode_jpeg`` at the image's full size;
+  ``full_resolution_ratio`` = baseline / that;
 - ``stages_ms``: the 1M overlay's steps timed alone (projection without and with the
-  occlusion filter, colouring, drawing), to see what dominates;
+  occlusion filter, the percentile colour range, colouring, drawing, legend, JPEG), to see what
+  dominates;
 - ``float32_vs_float64``: whether the default float32 projection keeps the same points as
   float64, and its largest pixel difference (px);
 - ``baseline_projectpoints_per_s``: the in-run baseline, ``cv2.projectPoints`` of the same 1M
@@ -45,9 +50,11 @@ import numpy as np
 from bench_util import log, median_time, peak_rss_mb
 
 from backend.core.boards import BoardSpec
-from backend.core.colour_maps import depth_colours
+from backend.core.colour_maps import depth_colours, spread_range
+from backend.core.overlay import ColourScale, OverlayStyle, render_overlays, with_legend
 from backend.core.projection import draw_points, project_cloud
 from backend.core.transforms import invert, to_rvec_tvec
+from backend.devices.image_io import encode_jpeg
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene
@@ -110,6 +117,15 @@ def main():
     redraw_s = median_time(lambda: overlay(subset), REPEATS_FAST)
     overlay_float64_s = median_time(lambda: overlay(points, np.float64), REPEATS_FAST)
 
+    def full_resolution():
+        (drawn,), _, scale = render_overlays([(image, points, None)], T_camera_lidar, camera, full_style)
+        return encode_jpeg(with_legend(drawn, scale))
+
+    log(f"timing the full-resolution page's overlay x{REPEATS_FAST} ...")
+    full_style = OverlayStyle(range_m=(0.0, 1e3), occlusion_px=OCCLUSION_PX, radius_px=1)
+    full_resolution()
+    full_resolution_s = median_time(full_resolution, REPEATS_FAST)
+
     log("timing the stages ...")
     plain = project_cloud(points, T_camera_lidar, camera)
     occluded = project_cloud(points, T_camera_lidar, camera, occlusion_px=OCCLUSION_PX)
@@ -122,6 +138,11 @@ def main():
                              REPEATS_FAST)
     colour_s = median_time(lambda: depth_colours(occluded.depth_m, *DEPTH_RANGE_M), REPEATS_FAST)
     draw_s = median_time(lambda: draw_points(image, occluded.uv, colours, radius_px=1), REPEATS_FAST)
+    range_s = median_time(lambda: spread_range(occluded.depth_m), REPEATS_FAST)
+    drawn = draw_points(image, occluded.uv, colours, radius_px=1)
+    scale = ColourScale("depth (m)", *spread_range(occluded.depth_m))
+    legend_s = median_time(lambda: with_legend(drawn, scale), REPEATS_FAST)
+    jpeg_s = median_time(lambda: encode_jpeg(drawn), REPEATS_FAST)
 
     log("timing the baseline cv2.projectPoints ...")
     rvec, tvec = to_rvec_tvec(T_camera_lidar)
@@ -141,15 +162,20 @@ def main():
         "overlay_ms_best": round(min(overlay_times) * 1000, 1),
         "overlays_per_s_float64": round(1.0 / overlay_float64_s, 2),
         "redraw_100k_ms": round(redraw_s * 1000, 1),
+        "full_resolution_ms": round(full_resolution_s * 1000, 1),
         "stages_ms": {
             "project": round(project_s * 1000, 1),
             "project_with_occlusion": round(occluded_s * 1000, 1),
+            "colour_range": round(range_s * 1000, 2),
             "colour": round(colour_s * 1000, 1),
             "draw": round(draw_s * 1000, 1),
+            "legend": round(legend_s * 1000, 2),
+            "jpeg": round(jpeg_s * 1000, 1),
         },
         "float32_vs_float64": {"same_kept_points": same_points, "max_px": max_px},
         "baseline_projectpoints_per_s": round(1.0 / baseline_s, 2),
         "ratio": round(baseline_s / overlay_s, 2),
+        "full_resolution_ratio": round(baseline_s / full_resolution_s, 2),
         "peak_rss_mb": round(peak_memory_mb, 1),
         "cpu_count": os.cpu_count(),
     }

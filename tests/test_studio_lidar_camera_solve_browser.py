@@ -1,11 +1,14 @@
 """The LiDAR-to-camera solve of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium.
 
 The demo session stores 10 image + cloud pairs of cam_front and lidar_top with the board in view, and its rig
-is the simulator's truth. On step 6 the overlay opens on the mosaic of all pairs at the truth; the sliders are
-then typed away from it (yaw and x), nudged from the keyboard (viser command-palette hotkeys: L is yaw minus,
-Shift+J a fine yaw plus, Z undo), solved from there with the board method, and the result is accepted. The
-result, the sliders and the acceptance are checked against the truth through the HTTP API, and the overlays
-(off the truth, solved) and the solve's before/after images are left in ``tests/artifacts`` to look at.
+is the simulator's truth. On step 6 the overlay opens on the mosaic of all pairs at the truth, with its depth
+legend; the full-size overlay page opens from the step's link on the same transform, every pair at 1280x720 with its
+legend, and is zoomed with the wheel and panned. The increment sliders are then typed away from the truth (3° about
+the camera's z, which is yaw, and 5 cm along its x), nudged from the keyboard (viser command-palette hotkeys: L is yaw
+minus, Shift+J a fine yaw plus, Z undo), solved from there with the board method, and the result is accepted with
+its verdict confirmed. The result, the read-only pose and the acceptance are checked against the truth through the
+HTTP API, and the overlays (off the truth, solved, full size and zoomed) and the solve's before/after images are left
+in ``tests/artifacts`` to look at.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ VIEWPORT = {"width": 1600, "height": 2400}
 STEP = "6 · LiDAR to camera"
 CAMERA, LIDAR = "cam_front", "lidar_top"
 SLOT = f"{LIDAR}/T_{CAMERA}_{LIDAR}"
-SLIDERS = ("x (m)", "y (m)", "z (m)", "yaw (°)", "pitch (°)", "roll (°)")
+POSE = ("x (m)", "y (m)", "z (m)", "yaw (°)", "pitch (°)", "roll (°)")
+"""The read-only pose table beside the increment sliders."""
 DRAWN_RE = re.compile(r"([\d,]+) of ([\d,]+) points drawn over (\d+) pairs")
 RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · target · ✅ converged · [\d.]+ s\s+"
                        r"1σ translation \(mm\): ([\d.]+), ([\d.]+), ([\d.]+) · rotation \(°\): ([\d.]+), ([\d.]+), "
@@ -58,21 +62,91 @@ def _wait_new_source(image: Locator, old_source: str | None, what: str, timeout_
 
 
 def _slider_values(page: Page) -> list[float]:
-    return [float(text_input(page, name).input_value()) for name in SLIDERS]
+    """x, y, z (m), yaw, pitch, roll (°) of the step's read-only pose table."""
+    table = page.locator("table", has_text="pitch (°)").filter(visible=True)
+    expect(table).to_have_count(1)
+    assert table.locator("th").all_inner_texts() == list(POSE)
+    return [float(v) for v in table.locator("td").all_inner_texts()]
 
 
 def _slider_T(page: Page) -> np.ndarray:
-    """``T_camera_lidar`` as the six slider boxes show it."""
+    """``T_camera_lidar`` as the read-only pose shows it."""
     values = _slider_values(page)
     return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
 
 
 def _wait_yaw(page: Page, expected: float, what: str, timeout_s: float = 10.0) -> None:
-    box = text_input(page, "yaw (°)")
     deadline = time.monotonic() + timeout_s
-    while abs(float(box.input_value()) - expected) > 0.006:  # the box shows two decimals
-        assert time.monotonic() < deadline, f"after {what} yaw is {box.input_value()}°, expected {expected:.2f}°"
+    while abs((yaw := _slider_values(page)[3]) - expected) > 0.0015:  # the pose shows three decimals
+        assert time.monotonic() < deadline, f"after {what} yaw is {yaw}°, expected {expected:.3f}°"
         time.sleep(0.1)
+
+
+def _type(page: Page, label: str, value: float) -> None:
+    box = text_input(page, label)
+    box.fill(str(value))
+    box.press("Enter")
+
+
+def _visible(page: Page, label: str) -> Locator:
+    """Step 6's control labelled ``label`` (other steps have their own: the last on screen is step 6's)."""
+    return page.get_by_label(label, exact=True).filter(visible=True).last
+
+
+def _legend_range(legend: np.ndarray) -> tuple[float, float]:
+    """How far TURBO's blue and red ends lie apart in a legend strip (BGR): its blue and red channels' spans."""
+    bar = legend[4:16, legend.shape[1] // 4:-40].reshape(-1, 3).astype(int)
+    return float(np.ptp(bar[:, 0])), float(np.ptp(bar[:, 2]))
+
+
+def _full_size_page(page: Page) -> None:
+    """Open the full-size overlay from the step's link: every pair at its image's size with its legend, on the
+    sliders' transform; zoom with the wheel about the pointer and pan by dragging."""
+    link = page.get_by_role("link", name="Open the full-size overlay ↗")
+    link.scroll_into_view_if_needed()
+    assert "xyz_m=" in link.get_attribute("href") and "scene=all" in link.get_attribute("href")
+    with page.expect_popup() as popup:
+        link.click()
+    view = popup.value
+    view.set_viewport_size({"width": 1600, "height": 1000})
+    expect(view.locator("body[data-ready=true]")).to_have_count(1, timeout=60_000)
+    expect(view.locator("#error")).to_be_hidden()
+    images = view.locator("#content img")
+    expect(images).to_have_count(10)  # every stored pair, not only the six the panel tiles
+    first = decoded_image(images.first)
+    assert first.shape == (720 + 40, 1280, 3), f"not the full-size overlay with its legend: {first.shape}"
+    blue_span, red_span = _legend_range(first[720:])
+    assert blue_span > 150 and red_span > 150, (blue_span, red_span)
+    captions = view.locator("#content figcaption").all_inner_texts()
+    ranges = [re.search(r"([\d,]+) points drawn · depth \(m\): ([\d.]+) – ([\d.]+)", c) for c in captions]
+    assert all(ranges), captions
+    for match in ranges:  # each scene's depths spread, within the 0.5-40 m window
+        assert int(match.group(1).replace(",", "")) > 100 and 0.5 <= float(match.group(2)) < float(match.group(3)) \
+            <= 40, match.group(0)
+    pose = view.locator("#pose").inner_text()  # the transform drawn: the step's, read-only
+    drawn = [float(v) for v in re.findall(r"-?\d+\.\d+", pose)]
+    assert np.allclose(drawn, _slider_values(page), atol=1e-3), (pose, _slider_values(page))
+    view.screenshot(path=ARTIFACTS / "studio_lidar_camera_full_size.png")
+
+    zoom = view.locator("#zoom")
+    fitted = float(zoom.inner_text().rstrip(" %"))
+    box = view.locator("#viewport").bounding_box()
+    view.mouse.move(box["x"] + 600, box["y"] + 300)
+    for _ in range(8):
+        view.mouse.wheel(0, -100)  # in
+    expect(zoom).not_to_have_text(f"{fitted:.0f} %")
+    zoomed = float(zoom.inner_text().rstrip(" %"))
+    assert zoomed > 3 * fitted, (fitted, zoomed)
+    before = view.locator("#content").evaluate("e => e.style.transform")
+    view.mouse.move(box["x"] + 600, box["y"] + 300)
+    view.mouse.down()
+    view.mouse.move(box["x"] + 400, box["y"] + 200, steps=5)
+    view.mouse.up()
+    assert view.locator("#content").evaluate("e => e.style.transform") != before, "dragging did not pan"
+    view.screenshot(path=ARTIFACTS / "studio_lidar_camera_full_size_zoomed.png")
+    print(f"full-size page: 10 overlays of {first.shape[1]}x{first.shape[0]} px, zoom {fitted:.0f} % -> "
+          f"{zoomed:.0f} %; {captions[0]}")
+    view.close()
 
 
 def _errors(T: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -136,16 +210,18 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         time.sleep(1)  # the last redraw of the selection lands
         at_truth = decoded_image(overlay)
         assert at_truth.shape[1] == 960 and at_truth.shape[0] > 540, f"not a mosaic: {at_truth.shape}"
+        blue_span, red_span = _legend_range(at_truth[-40:])  # the depth legend beneath the mosaic
+        assert blue_span > 150 and red_span > 150, (blue_span, red_span)
+        _full_size_page(page)
 
-        # 2. Typed away from the truth: the overlay is redrawn.
+        # 2. Typed away from the truth (about and along the camera's axes, the default): the overlay is redrawn.
         source = overlay.get_attribute("src")
-        yaw_box, x_box = text_input(page, "yaw (°)"), text_input(page, "x (m)")
-        yaw_off = round(float(yaw_box.input_value()) + YAW_OFF_DEG, 2)
-        yaw_box.fill(str(yaw_off))
-        yaw_box.press("Enter")
-        x_box.fill(str(round(float(x_box.input_value()) + X_OFF_M, 3)))
-        x_box.press("Enter")
-        _wait_yaw(page, yaw_off, "typing the yaw")
+        expect(_visible(page, "In the axes of")).to_have_value("parent")
+        yaw_off = _slider_values(page)[3] + YAW_OFF_DEG
+        _type(page, "Δ about z (°)", YAW_OFF_DEG)  # about the camera's z: the same as yaw
+        _type(page, "Δx (m)", X_OFF_M)
+        _wait_yaw(page, yaw_off, "typing 3° about z")
+        wait_body(page, re.compile(r"From where it was put: turned 3\.000°"), timeout_s=10)
         source = _wait_new_source(overlay, source, "the sliders were typed away from the truth")
 
         # 3. Keyboard nudges (viser command hotkeys, delivered while no input has the focus).
@@ -165,6 +241,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         # 4. Solve from there (board method): converged, with sigmas, the sliders back at the truth.
         expect(page.get_by_label("Method", exact=True)).to_have_value("target (board)")
         started = time.monotonic()
+        source = overlay.get_attribute("src")  # the overlay off the truth, which the solve will replace
         button(page, "Solve from the sliders").click()
         result = wait_body(page, RESULT_RE, timeout_s=120)
         solve_s = time.monotonic() - started
@@ -208,7 +285,11 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         page.get_by_text("Before / after", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve.png")
 
-        # 5. Accept, sliders untouched since the solve: the solve itself is the mounting, not a manual copy.
+        # 5. Accept, sliders untouched since the solve: the solve itself is the mounting, not a manual copy. Its
+        # verdict is on the card; one that says 'check' needs the box ticked.
+        verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)"), timeout_s=5).group(1)
+        assert verdict != "reject", page.inner_text("body")[-2000:]
+        _visible(page, "Confirm the check").check()
         button(page, "Accept as the mounting").click()
         wait_body(page, re.compile(f"{result_id}: {LIDAR} is now mounted so that T_{CAMERA}_{LIDAR} is the "
                                    r"result's transform \(target solve\)"), timeout_s=15)

@@ -72,65 +72,66 @@ def test_rotation_nudges_turn_about_the_parent_or_the_child_axis(axis, k):
     np.testing.assert_allclose(turned[:, k], T0[:3, k], atol=1e-12)  # the child's own axis stays put
 
 
-def test_editor_undo_redo_and_reports(free_port):
+@pytest.fixture(scope="module")
+def gui(free_port):
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    try:
-        reports = []
-        editor = TransformSliders(server.gui, reports.append)
-        editor.frames = ("cam_front", "lidar_front")
-        editor.set(T0, undoable=False)
-        assert len(reports) == 1 and editor.undo_button.disabled
-        np.testing.assert_allclose(editor.T, T0, atol=1e-9)
-        assert "--frame-id cam_front --child-frame-id lidar_front" in editor.text.content
-
-        editor.axes.value = "child"
-        assert len(reports) == 1  # changing the axes only re-centres the sliders
-        editor.step.value = "fine: 1 mm, 0.05°"
-        editor.nudge("x", +1)
-        np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
-        editor.nudge("yaw", -1)
-        np.testing.assert_allclose(editor.T, nudged(nudged(T0, "x", 0.001, True), "yaw", -0.05, True), atol=1e-9)
-        assert len(reports) == 3 and not editor.undo_button.disabled
-
-        editor.undo()  # what the Undo button runs
-        np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
-        editor.undo()
-        np.testing.assert_allclose(editor.T, T0, atol=1e-9)
-        assert editor.undo_button.disabled and not editor.redo_button.disabled
-        editor.redo()
-        np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
-
-        before = editor.T
-        editor.sliders["Δz (m)"].value = 0.2  # a drag: one report, along the child's z, undoable back
-        np.testing.assert_allclose(reports[-1][:3, 3], before[:3, 3] + 0.2 * before[:3, 2], atol=1e-9)
-        editor.undo()
-        np.testing.assert_allclose(editor.T, before, atol=1e-9)
-        assert all(slider.value == 0.0 for slider in editor.sliders.values())  # undo re-centres the sliders
-    finally:
-        server.stop()
+    yield server.gui
+    server.stop()
 
 
-def test_sliders_at_pitch_minus_87_show_the_error_and_recentre(free_port):
-    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    try:
-        reports = []
-        editor = TransformSliders(server.gui, reports.append)
-        editor.frames = ("cam_front", "lidar_top")
-        editor.set(T_STEEP, undoable=False)
-        assert "| -87.000 |" in editor.pose_text.content  # the read-only pose: pitch as it is
-        editor.sliders["Δ about z (°)"].value = ERROR_DEG  # the parent's z (the default axes)
-        np.testing.assert_allclose(editor.T, _error_rotation(np.array([0, 0, 1.0])) @ T_STEEP, atol=1e-12)
-        assert "turned **0.190°**" in editor.pose_text.content
+def _editor(gui, T: np.ndarray) -> tuple[TransformSliders, list[np.ndarray]]:
+    """An editor between cam_front and lidar_front put at ``T``, and the list of transforms it reported."""
+    reports = []
+    editor = TransformSliders(gui, reports.append)
+    editor.frames = ("cam_front", "lidar_front")
+    editor.set(T, undoable=False)
+    assert len(reports) == 1 and editor.undo_button.disabled
+    np.testing.assert_allclose(editor.T, T, atol=1e-12)
+    assert "--frame-id cam_front --child-frame-id lidar_front" in editor.text.content
+    return editor, reports
 
-        editor.axes.value = "child"  # re-centres on the same transform
-        moved = editor.T
-        assert all(editor.sliders[label].value == 0.0 for label in SLIDERS)
-        np.testing.assert_allclose(moved, reports[-1], atol=1e-12)
-        editor.sliders["Δ about x (°)"].value = -ERROR_DEG
-        np.testing.assert_allclose(editor.T, moved @ _error_rotation(np.array([-1.0, 0, 0])), atol=1e-12)
-        editor.recentre()
-        np.testing.assert_allclose(editor.T, moved @ _error_rotation(np.array([-1.0, 0, 0])), atol=1e-12)
-        assert editor.sliders["Δ about x (°)"].value == 0.0
-        assert "--frame-id cam_front --child-frame-id lidar_top" in editor.text.content
-    finally:
-        server.stop()
+
+def test_editor_undo_redo_and_reports(gui):
+    editor, reports = _editor(gui, T0)
+
+    editor.axes.value = "child"
+    assert len(reports) == 1  # changing the axes only re-centres the sliders
+    editor.step.value = "fine: 1 mm, 0.05°"
+    editor.nudge("x", +1)
+    np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
+    editor.nudge("yaw", -1)
+    np.testing.assert_allclose(editor.T, nudged(nudged(T0, "x", 0.001, True), "yaw", -0.05, True), atol=1e-9)
+    assert len(reports) == 3 and not editor.undo_button.disabled
+
+    editor.undo()  # what the Undo button runs
+    np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
+    editor.undo()
+    np.testing.assert_allclose(editor.T, T0, atol=1e-9)
+    assert editor.undo_button.disabled and not editor.redo_button.disabled
+    editor.redo()
+    np.testing.assert_allclose(editor.T, nudged(T0, "x", 0.001, True), atol=1e-9)
+
+    before = editor.T
+    editor.sliders["Δz (m)"].value = 0.2  # a drag: one report, along the child's z, undoable back
+    np.testing.assert_allclose(reports[-1][:3, 3], before[:3, 3] + 0.2 * before[:3, 2], atol=1e-9)
+    editor.undo()
+    np.testing.assert_allclose(editor.T, before, atol=1e-9)
+    assert all(slider.value == 0.0 for slider in editor.sliders.values())  # undo re-centres the sliders
+
+
+def test_sliders_at_pitch_minus_87_show_the_error_and_recentre(gui):
+    editor, reports = _editor(gui, T_STEEP)
+    assert "| -87.000 |" in editor.pose_text.content  # the read-only pose: pitch as it is
+    editor.sliders["Δ about z (°)"].value = ERROR_DEG  # the parent's z (the default axes)
+    np.testing.assert_allclose(editor.T, _error_rotation(np.array([0, 0, 1.0])) @ T_STEEP, atol=1e-12)
+    assert "turned **0.190°**" in editor.pose_text.content
+
+    editor.axes.value = "child"  # re-centres on the same transform
+    moved = editor.T
+    assert all(editor.sliders[label].value == 0.0 for label in SLIDERS)
+    np.testing.assert_allclose(moved, reports[-1], atol=1e-12)
+    editor.sliders["Δ about x (°)"].value = -ERROR_DEG
+    np.testing.assert_allclose(editor.T, moved @ _error_rotation(np.array([-1.0, 0, 0])), atol=1e-12)
+    editor.recentre()
+    np.testing.assert_allclose(editor.T, moved @ _error_rotation(np.array([-1.0, 0, 0])), atol=1e-12)
+    assert editor.sliders["Δ about x (°)"].value == 0.0
