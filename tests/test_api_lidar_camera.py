@@ -76,7 +76,9 @@ def test_pairs_solve_overlay_and_accept(client):
     escape = client.get(f"/api/sessions/l2c/results/{result_id}/files/..%2Fsession.json")
     assert escape.status_code in (404, 422), escape.text
 
-    accepted = client.post("/api/sessions/l2c/sensors/lidar_front/lidar-camera/accept", json={"result_id": result_id})
+    assert record["verdict"]["level"] in ("trusted", "check"), record["verdict"]
+    accepted = client.post("/api/sessions/l2c/sensors/lidar_front/lidar-camera/accept",
+                           json={"result_id": result_id, "confirm": record["verdict"]["level"] == "check"})
     assert accepted.status_code == 200, accepted.text
     assert accepted.json()["accepted"]["lidar_front/T_cam_front_lidar_front"] == result_id
 
@@ -88,6 +90,7 @@ def test_hand_set_transform_and_errors(client):
     assert response.status_code == 201, response.text
     record = client.get(f"/api/sessions/l2c/results/{response.json()['result_id']}").json()
     np.testing.assert_allclose(record["T_camera_lidar"], T_TRUE, atol=1e-9)
+    assert record["verdict"] == {"level": "check", "reasons": ["set by hand: no uncertainty, no cross-check"]}
 
     files = {"image": ("frame.png", b"garbage", "image/png"), "cloud": ("c.npy", b"garbage", "application/x")}
     bad = client.post("/api/sessions/l2c/lidar-camera/pairs", data={"camera": "cam_front", "lidar": "lidar_front"},

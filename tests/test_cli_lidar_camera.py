@@ -80,8 +80,9 @@ def test_target_method_recovers_the_truth_with_the_conventions_json(recording):
                "--method", "target", "--board", DEMO_BOARD, "--init", str(_init(folder)), "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
-    assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
     assert set(result["std"]) == {"trans_m", "rot_deg"} and len(result["std"]["trans_m"]) == 3
+    assert result["verdict"]["level"] in ("trusted", "check") and result["verdict"]["reasons"]
     trans_error_m, rot_error_deg = transform_error(np.array(result["T_camera_lidar"]), TRUTH)
     print(f"lidar-camera CLI: error {1000 * trans_error_m} mm, {rot_error_deg} deg; std {result['std']}")
     assert np.all(np.abs(trans_error_m) < 0.01) and np.all(np.abs(rot_error_deg) < 0.5)
@@ -96,8 +97,9 @@ def test_edges_method_recovers_the_truth_without_a_board(edge_recording):
                "--method", "edges", "--init", str(folder / "init.txt"), "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
-    assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
     assert set(result["std"]) == {"trans_m", "rot_deg"} and len(result["std"]["rot_deg"]) == 3
+    assert result["verdict"]["level"] in ("trusted", "check") and result["verdict"]["reasons"]
     assert result["residuals"]["matched"] > 300 and len(result["residuals"]["per_pair_rms_px"]) == 4
     trans_error_m, rot_error_deg = transform_error(np.array(result["T_camera_lidar"]), TRUTH)
     print(f"lidar-camera --method edges CLI: error {1000 * trans_error_m} mm, {rot_error_deg} deg; "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,11 +16,10 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import CancelledError, InputError
 from backend.core.projection import project_cloud
 from backend.core.transforms import from_xyz_ypr, make_T, transform_points
+from backend.services.lidar_camera import TOLERANCES, edges_settings, judge
 from backend.sim.demo_rig import CAM_FRONT, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
 from backend.sim.scene_camera import render_scene_image
-from backend.solvers.edge_alignment import FineAlignmentSettings
-from backend.solvers.edge_search import CoarseSearchSettings
 from backend.solvers.image_edges import find_image_edges
 from backend.solvers.lidar_camera_edges import (
     PLANE,
@@ -30,7 +30,7 @@ from backend.solvers.lidar_camera_edges import (
     in_view,
     solve_edges,
 )
-from backend.solvers.lidar_lidar import params_between, transform_error
+from backend.solvers.lidar_lidar import transform_error
 from backend.solvers.plane_edges import find_plane_edges
 from backend.solvers.result import TRANSFORM_PARAMETERS
 
@@ -134,7 +134,8 @@ def test_simulated_rig_recovers_the_truth_from_10cm_5deg(sim_result):
 
 def test_summary_is_the_cli_contract_and_the_record_is_strict_json(sim_result):
     summary = sim_result.summary()
-    assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
+    assert summary["verdict"] is None  # the solver leaves judging to the service (test_verdicts_* below)
     assert set(summary["std"]) == {"trans_m", "rot_deg"} and len(summary["std"]["trans_m"]) == 3
     assert {"edge_rms_px", "edge_median_px", "edge_p95_px", "lidar_edge_points", "image_edge_pixels", "matched",
             "per_pair_rms_px"} <= set(summary["residuals"])
@@ -148,6 +149,27 @@ def test_summary_is_the_cli_contract_and_the_record_is_strict_json(sim_result):
     assert record["std_multistart"] is None and len(record["candidates"]) >= 2  # the yard has one alignment
     assert record["candidates"][0]["offset_m"] == [0.0, 0.0, 0.0] and not any(
         c["competing"] for c in record["candidates"])
+
+
+@pytest.mark.slow
+def test_verdicts_on_the_simulated_rig_are_trusted_only_within_tolerance(sim_result, sim_pairs):
+    verdict = judge(sim_result)
+    error, _ = errors_and_sigmas(sim_result, TRUTH)
+    translation_m, rotation_deg = TOLERANCES["edges"]
+    print(f"edges, 4 pairs: {verdict}")
+    # Four pairs from four robot poses, solved in two halves apart as the cross-check (here 1.0 of the expected sigma
+    # of their difference); three sigmas (about 2.5 mm and 0.025 deg) fit in the tolerances, and so does the error.
+    assert verdict.level == "trusted", verdict.reasons
+    assert np.all(np.abs(error[:3]) <= translation_m) and np.all(np.abs(error[3:]) <= rotation_deg)
+    assert any(r.startswith("cross-check between two halves of the pairs: ") for r in verdict.reasons)
+    assert sim_result.to_record()["verdict"] == verdict.to_dict()
+    # Halves that disagree (a pair from another rig, say) fail the cross-check.
+    disagreeing = replace(sim_result, halves_offset=np.r_[0.01, 0, 0, 0, 0, 0])
+    assert judge(disagreeing).level == "check" and any(
+        r.startswith("cross-check between two halves of the pairs failed") for r in disagreeing.verdict.reasons)
+    one_pair = judge(solve_edges(CAM_FRONT, sim_pairs[:1], initial_guess(1)))
+    assert one_pair.level != "trusted" and any(r.startswith("no cross-check between pairs: one pair")
+                                               for r in one_pair.reasons), one_pair.reasons
 
 
 def test_progress_is_reported_and_its_exception_cancels(sim_pairs):
@@ -218,6 +240,8 @@ def test_a_printed_pattern_competing_with_the_scene_is_flagged_ambiguous(board_p
     print(f"print kept: {result.warnings}")
     assert not result.converged
     assert any(w.startswith("ambiguous: ") and "(a repeating pattern in view?)" in w for w in result.warnings)
+    verdict = judge(result)
+    assert verdict.level == "reject" and verdict.reasons[0].startswith("the solve is not usable: ")
     record = json.loads(json.dumps(result.to_record(), allow_nan=False))
     competing = [c for c in record["candidates"] if c["competing"]]
     assert competing and np.allclose(record["std_multistart"][:3], np.max([np.abs(c["offset_m"]) for c in competing],
@@ -293,51 +317,42 @@ def perturbed(T: np.ndarray, rotation_deg: tuple[float, float, float], translati
     return turned
 
 
-REAL_SETTINGS = LidarCameraEdgesSettings(fine=FineAlignmentSettings(translation_prior_m=0.02),
-                                         coarse=CoarseSearchSettings(max_translation_m=0.05))
-"""For the road frame: its edges are 8-40 m away, where 1 cm of translation is about 1 px (f = 2117 px) and the
-fit's translation wanders by 5-20 cm between starts; the translation of ``T_init`` is taken as a measurement of
-2 cm and the coarse search kept within 5 cm of it, so the edges fix the rotation."""
+REAL_PRIOR_M = 0.005
+"""For the road frame, its translation is held as a measured mounting (``--translation-prior 0.005``): its edges are
+8-40 m away, where 1 cm of translation is about 1 px (f = 2117 px) and a translation along x trades against yaw
+(10 cm is 0.3 deg at 20 m); with a 2 cm prior the fits wander 5-10 cm and 0.2-0.5 deg between starts."""
+REAL_SETTINGS = edges_settings(REAL_PRIOR_M)
 
 
-REAL_STARTS = (((3, 3, 3), (0.03, -0.03, 0.03)), ((-3, -3, -3), (-0.03, 0.03, -0.03)))
-"""Initial guesses for the road frame: rotations (deg) and translations (m) of :func:`perturbed`."""
+REAL_STARTS = ((3, 3, 3), (-3, -3, -3), (3, -3, 3))
+"""OpenCalib's own test: the reference turned 3 deg in roll, pitch and yaw (deg, about the LiDAR's x, y, z), with
+the reference translation."""
 
 
 @pytest.fixture(scope="module")
 def real_results():
-    """The solves from :data:`REAL_STARTS` and the reference ``T_camera_lidar``."""
+    """The solves from :data:`REAL_STARTS` and from within 1 deg, and the reference ``T_camera_lidar``."""
     pair, camera, reference = opencalib()
-    results = [solve_edges(camera, [pair], perturbed(reference, *start), REAL_SETTINGS) for start in REAL_STARTS]
+    starts = [*REAL_STARTS, (0.8, -0.6, 0.9)]
+    results = [solve_edges(camera, [pair], perturbed(reference, start, (0.0, 0.0, 0.0)), REAL_SETTINGS)
+               for start in starts]
     return results, reference
 
 
 @pytest.mark.slow
-def test_real_frame_comes_back_near_the_reference_and_reports_its_ambiguity(real_results):
+def test_real_frame_from_3_deg_off_comes_back_within_0_3_deg_and_5_cm(real_results):
     results, reference = real_results
-    for result, (rotation_deg, translation_m) in zip(results, REAL_STARTS, strict=True):
-        error, sigma = errors_and_sigmas(result, reference)
-        print(f"OpenCalib from {rotation_deg} deg, {translation_m} m: error {np.round(1000 * error[:3], 1)} mm, "
-              f"{np.round(error[3:], 3)} deg; sigma {np.round(1000 * sigma[:3], 1)} mm, {np.round(sigma[3:], 3)} deg; "
-              f"{result.seconds:.1f} s; {result.residuals}; {result.warnings}")
-        # The reference is the authors' calibration, not surveyed truth, and one frame with about 100 matched edge
-        # points (crossing stripes and lane lines; the only plane intersection in view is a block's corner) fixes
-        # the rotation to a few tenths of a degree: the reference's overlay is no better by an independent measure
-        # (depth discontinuities against image edges, as in test_projection: 5.18 px for the reference, 5.1-5.4 px
-        # for the solves). So: within 0.5 deg per axis, and within 10 cm (measured 8 cm).
-        assert np.all(np.abs(error[3:]) < 0.5) and np.all(np.abs(error[:3]) < 0.1)
-        _, start_r = transform_error(perturbed(reference, rotation_deg, translation_m), reference)
-        assert np.linalg.norm(error[3:]) < 0.2 * np.linalg.norm(start_r)
-    # From six starts 3 deg off the solves fall in two clusters about 0.6 deg apart, with sigmas of 0.02-0.04 deg
-    # from the Jacobian and jackknife; each solve finds alignments 0.5-0.8 deg (and more than 10 cm) from its own
-    # that match 94-99 edge points to its 95-102, and all six are flagged as ambiguous. A solve that is not must
-    # have sigmas that cover the other start's solution.
-    difference = params_between(results[0].T_camera_lidar, results[1].T_camera_lidar)
     for result in results:
-        ambiguous = any(w.startswith("ambiguous: ") for w in result.warnings)
-        assert (ambiguous and not result.converged) or (
-            result.converged and np.all(np.abs(difference) < 3 * np.sqrt(np.diag(result.covariance)))), result.warnings
-        assert result.std_multistart is not None and any(c.competing for c in result.candidates)
+        error, sigma = errors_and_sigmas(result, reference)
+        print(f"OpenCalib: error {np.round(1000 * error[:3], 1)} mm, {np.round(error[3:], 3)} deg; sigma "
+              f"{np.round(1000 * sigma[:3], 1)} mm, {np.round(sigma[3:], 3)} deg; {result.seconds:.1f} s; "
+              f"{result.residuals}; {result.warnings}")
+        # Measured from eight random starts up to 3 deg off: 0.04-0.15 deg per axis, 1-3 mm, all converged to the
+        # same few alignments (0.1 deg apart; the multi-start spread widens the sigmas to 0.15-0.37 deg).
+        assert result.converged, result.warnings
+        assert np.linalg.norm(error[3:]) < 0.3 and np.linalg.norm(error[:3]) < 0.05
+        assert np.all(np.abs(error) <= 3 * sigma), (error, sigma)
+        assert judge(result).level != "reject", result.verdict  # started within 1 deg (the last) it never refuses
 
 
 def test_a_poor_fit_is_returned_unconverged_with_a_warning():

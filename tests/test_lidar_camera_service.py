@@ -24,20 +24,23 @@ def test_a_hand_set_transform_is_accepted_and_reverted(session):
     second = first @ from_xyz_ypr(np.array([0, 0.01, 0]), np.radians([0, 0.5, 0]))
     first_id = service.store_manual(session, "cam_front", "lidar_front", first,
                                     inputs=["cam_front:00001", "lidar_front:00001"])
-    service.accept(session, "lidar_front", first_id)
+    with pytest.raises(InputError, match="set by hand: no uncertainty, no cross-check"):
+        service.accept(session, "lidar_front", first_id)  # a manual result is a 'check': it needs confirming
+    service.accept(session, "lidar_front", first_id, confirm=True)
     np.testing.assert_allclose(session.rig.T_a_b("cam_front", "lidar_front"), first, atol=1e-12)
     np.testing.assert_array_equal(session.rig.get("cam_front").T_parent_child, camera_before)
     assert session.rig.get("lidar_front").covariance is None  # nothing measured it
 
     second_id = service.store_manual(session, "cam_front", "lidar_front", second, inputs=[])
-    service.accept(session, "lidar_front", second_id)
+    service.accept(session, "lidar_front", second_id, confirm=True)
     np.testing.assert_allclose(Session.load(session.path).rig.T_a_b("cam_front", "lidar_front"), second, atol=1e-12)
-    service.accept(session, "lidar_front", first_id)  # back to the first
+    service.accept(session, "lidar_front", first_id, confirm=True)  # back to the first
     np.testing.assert_allclose(session.rig.T_a_b("cam_front", "lidar_front"), first, atol=1e-12)
     assert session.accepted("lidar_front/T_cam_front_lidar_front") == first_id
     assert [r["id"] for r in session.results("lidar_front", "lidar_camera")] == [first_id, second_id]
     record = session.result(first_id)
     assert record["method"] == "manual" and record["inputs"] == ["cam_front:00001", "lidar_front:00001"]
+    assert record["verdict"] == {"level": "check", "reasons": ["set by hand: no uncertainty, no cross-check"]}
 
 
 def test_what_cannot_be_stored_or_accepted_is_named(session):

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.transforms import invert, make_T
+from backend.services.lidar_camera import TOLERANCES, judge
 from backend.sim.board_renderer import PLATE_MARGIN_SQUARES, render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
@@ -126,7 +127,7 @@ def test_board_axes_flipped_by_pnp_give_the_same_result(vlp16_poses):
 
 def test_summary_has_exactly_the_cli_keys_and_record_is_json(vlp16_result):
     summary = vlp16_result.summary()
-    assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds"}
+    assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
     assert set(summary["std"]) == {"trans_m", "rot_deg"}
     assert len(summary["std"]["trans_m"]) == 3 and len(summary["std"]["rot_deg"]) == 3
     assert {"plane_rms_m", "plane_median_m", "plane_p95_m", "edge_rms_m", "per_pose_rms_m"} <= set(
@@ -136,6 +137,21 @@ def test_summary_has_exactly_the_cli_keys_and_record_is_json(vlp16_result):
     assert record["kind"] == "lidar_camera" and record["converged"] is True
     assert np.asarray(record["T_camera_lidar"]).shape == (4, 4)
     assert len(record["poses"]) == 12 and record["std_spread"] is not None
+
+
+def test_the_verdict_weighs_the_sigmas_and_the_poses_against_each_other(vlp16_result):
+    verdict = judge(vlp16_result)
+    err_t, err_r = transform_error(vlp16_result.T_camera_lidar, TRUTH)
+    print(f"target, 12 poses: {verdict}; error {1000 * err_t} mm, {err_r} deg")
+    translation_m, rotation_deg = TOLERANCES["target"]
+    # Here 2-5 mm and 0.23 deg off with sigmas of 3.1 mm and 0.13 deg: three sigmas exceed the 0.3 deg tolerance.
+    assert verdict.level == "check" and any(r.startswith("rotation sigma 0.1") and "above the tolerance" in r
+                                            for r in verdict.reasons), verdict.reasons
+    assert np.all(np.abs(err_t) <= translation_m) and np.all(np.abs(err_r) <= rotation_deg)
+    assert any(r.startswith("cross-check leave one of the poses out: ") for r in verdict.reasons)
+    assert vlp16_result.summary()["verdict"] == verdict.to_dict() == vlp16_result.to_record()["verdict"]
+    unconverged = judge(replace(vlp16_result, converged=False, warnings=["poor fit"]))
+    assert unconverged.level == "reject" and unconverged.reasons[0] == "the solve is not usable: poor fit"
 
 
 def test_degenerate_pose_set_raises():

@@ -26,6 +26,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
 from backend.core.rig import Rig
+from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
 from backend.services import intrinsics as intrinsics_service
@@ -45,7 +46,7 @@ from backend.solvers.lidar_camera_target import (
     solve_target,
 )
 from backend.solvers.lidar_lidar import check_transform
-from backend.solvers.result import ProgressCallback, no_progress
+from backend.solvers.result import TRANSFORM_PARAMETERS, ProgressCallback, no_progress
 from backend.store.session import Session
 
 METHODS = ("target", "edges")
@@ -55,6 +56,88 @@ DEFAULT_PLATE_MARGIN_SQUARES = 1.0
 
 
 KIND = "lidar_camera"
+
+
+TOLERANCES = {"target": (0.01, 0.3), "edges": (0.02, 0.3), "intensity": (0.02, 0.3)}
+"""Largest acceptable error per method, per axis: translation (m), rotation (deg). A board pins the LiDAR to a
+centimetre; a targetless scene's edges are mostly far (10-40 m on a road), where they fix the rotation well and
+the translation barely, so the edges method is allowed 2 cm (its translation is often held by a prior). A result is
+trusted only when :data:`COVERAGE` sigmas fit inside them."""
+COVERAGE = 3.0
+"""The sigmas are judged against the :data:`TOLERANCES` divided by this: an error of up to three sigmas is to be
+expected (on the simulated board, 12 poses: 0.23 deg off with a 0.13 deg sigma)."""
+MAX_SPREAD_RATIO = 3.0
+"""The target's leave-one-pose-out cross-check (:func:`_spread_check`) passes when the spread of the re-solves
+without one pose is at most this many times the Jacobian's sigma on every parameter: the poses agree within their
+noise."""
+MANUAL_VERDICT = Verdict("check", ["set by hand: no uncertainty, no cross-check"])
+"""The verdict of a hand-set (``manual``) result."""
+
+
+@dataclass(frozen=True)
+class CrossCheck:
+    """An independent check of a result made elsewhere (another method on the same pairs, say)."""
+
+    name: str
+    passed: bool
+    detail: str
+    fail_level: Level = "check"
+    made: bool = True
+    """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
+
+
+def judge(result: LidarCameraResult | LidarCameraEdgesResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
+    """The verdict of a solved ``T_camera_lidar`` (also stored on ``result.verdict``).
+
+    Unconverged or ambiguous: ``reject``. Else the sigmas against the method's :data:`TOLERANCES`, competing
+    alignments of the edges method (``check``), the cross-check between independent captures (:func:`_spread_check`:
+    the target's poses, the edges' two halves of the pairs), and the ``extra`` cross-checks: another method's
+    answer on the same pairs, say. Without any cross-check it stays at ``check``, saying which is missing.
+    """
+    builder = VerdictBuilder()
+    method = getattr(result, "method", "target")
+    if not result.converged:
+        builder.reject("the solve is not usable: " + "; ".join(result.warnings or ["it did not converge"]))
+    translation_m, rotation_deg = TOLERANCES[method]
+    judge_transform_sigmas(builder, result.std, translation_m / COVERAGE, rotation_deg / COVERAGE)
+    if method == "edges" and result.std_multistart is not None:
+        builder.check("other alignments fit about as well; the sigmas are widened to cover them")
+    _spread_check(builder, result, method)
+    for check in extra:
+        if check.made:
+            builder.cross_check(check.name, check.passed, check.detail, check.fail_level)
+        else:
+            builder.missing_check(check.name, check.detail)
+    result.verdict = builder.verdict()
+    return result.verdict
+
+
+def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCameraEdgesResult, method: str) -> None:
+    """The cross-check between independent captures. Target: the leave-one-pose-out spread against the Jacobian's
+    sigma (:data:`MAX_SPREAD_RATIO`). Edges: its two halves of the pairs solved apart
+    (:attr:`~backend.solvers.lidar_camera_edges.LidarCameraEdgesResult.halves_offset`) differ by at most
+    :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
+    data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again)."""
+    if method == "target":
+        if result.std_spread is None:
+            builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
+            return
+        ratio = np.asarray(result.std_spread) / np.maximum(result.std_jacobian, 1e-12)
+        worst = int(np.nanargmax(ratio))
+        builder.cross_check("leave one of the poses out", bool(np.all(ratio <= MAX_SPREAD_RATIO)),
+                            f"the re-solves spread at most {ratio[worst]:.1f} times the Jacobian's sigma "
+                            f"({TRANSFORM_PARAMETERS[worst]}), limit {MAX_SPREAD_RATIO:g}")
+        return
+    if result.halves_offset is None:
+        builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
+                              "pairs with another method")
+        return
+    expected = 2 * np.sqrt(np.diag(result.covariance))
+    ratio = np.abs(result.halves_offset) / np.maximum(expected, 1e-12)
+    worst = int(np.nanargmax(ratio))
+    builder.cross_check("between two halves of the pairs", bool(np.all(ratio <= COVERAGE)),
+                        f"the halves' solutions differ by at most {ratio[worst]:.1f} times the expected sigma of the "
+                        f"difference ({TRANSFORM_PARAMETERS[worst]}), limit {COVERAGE:g}")
 
 
 def slot(lidar: str, camera: str) -> str:
@@ -70,7 +153,8 @@ def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.n
     T_camera_lidar, _ = check_transform(T_camera_lidar, "T_camera_lidar")
     record = {"kind": KIND, "method": "manual", "camera": camera, "T_camera_lidar": T_camera_lidar.tolist(),
               "covariance": None, "std": {"trans_m": [None] * 3, "rot_deg": [None] * 3}, "residuals": {},
-              "converged": True, "seconds": 0.0, "warnings": ["set by hand: no uncertainty"]}
+              "converged": True, "seconds": 0.0, "warnings": ["set by hand: no uncertainty"],
+              "verdict": MANUAL_VERDICT.to_dict()}
     return session.add_result(lidar, record, inputs=inputs)
 
 
@@ -174,8 +258,10 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
         check_image_size(pair.image, camera, pair.image_source)
     if method == "edges":
         observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
-        return solve_edges(camera, observations, T_init, edges_settings(translation_prior_m),
-                           lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
+        result = solve_edges(camera, observations, T_init, edges_settings(translation_prior_m),
+                             lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
+        judge(result)
+        return result
     if board is None:
         raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
     settings = target_settings(board, plate_margin_m)
@@ -184,8 +270,10 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
         progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
         T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source)
         observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
-    return solve_target(board, observations, T_init, settings,
-                        lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+    result = solve_target(board, observations, T_init, settings,
+                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+    judge(result)
+    return result
 
 
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],

@@ -52,7 +52,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -64,6 +64,7 @@ from backend.core.camera_inverse import visible_radius
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.transforms import transform_points
+from backend.core.verdict import Verdict
 from backend.solvers.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.solvers.edge_search import CoarseSearchSettings, coarse_search
 from backend.solvers.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
@@ -135,6 +136,12 @@ class LidarCameraEdgesSettings:
     0.005 (the line directions fitted to Canny pixels are off by a few degrees), a varied scene 0.05 or more."""
     max_rms_px: float = 2.0
     """A solution whose rms point-to-line distance exceeds this (px) is a poor fit: ``converged=False``."""
+    focal_px: float = 1000.0
+    """The fine alignment's pixel lengths (its match radii and loss scale, and ``max_rms_px``) are for a camera of
+    this focal length (px); on a longer one they are scaled by ``f / focal_px`` (:func:`scaled_to`), since the
+    LiDAR's own errors are angular: a 0.2 deg azimuth step is 3.5 px at f = 1000 px and 7.4 px at the OpenCalib
+    camera's 2117 px, where a 3 px final radius drops about half of the true matches and the fits of the
+    remaining ~100 wander along the yaw-translation ridge (0.2-0.5 deg apart between starts)."""
     spread: bool = True
     """Widen the sigmas to the jackknife spread (:func:`_spread`)."""
     spread_cell_px: float = 160.0
@@ -269,6 +276,10 @@ class LidarCameraEdgesResult(LidarCameraSummary, SolveResult):
     """(6,) 1-sigma of the jackknife, or None when not computed."""
     spread_source: str | None
     """What the jackknife left out: "edge groups" or "edge groups and pairs"."""
+    halves_offset: np.ndarray | None
+    """(6,) the solution from the pairs of even place (2nd, 4th, ...) about the one from the others (m, camera axes;
+    rad, LiDAR axes), each re-solved at the solution's matches (:func:`_halves`): an independent cross-check of two
+    halves of the data; None with one pair, or when not converged."""
     std_multistart: np.ndarray | None
     """(6,) 1-sigma covering the competing alignments (the multi-start spread): per parameter the largest
     ``|offset|`` of a competing :class:`CandidateFit`; None when none competes."""
@@ -280,6 +291,8 @@ class LidarCameraEdgesResult(LidarCameraSummary, SolveResult):
     rounds: int
     """Fine association + solve rounds run."""
     warnings: list[str] = field(default_factory=list)
+    verdict: Verdict | None = None
+    """How far the result can be trusted (:func:`backend.services.lidar_camera.judge`); None until judged."""
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()
@@ -290,6 +303,7 @@ class LidarCameraEdgesResult(LidarCameraSummary, SolveResult):
             std_jacobian=finite_or_none(self.std_jacobian),
             std_spread=finite_or_none(self.std_spread),
             spread_source=self.spread_source,
+            halves_offset=finite_or_none(self.halves_offset),
             T_init=self.T_init.tolist(),
             T_coarse=self.T_coarse.tolist(),
             std_multistart=finite_or_none(self.std_multistart),
@@ -463,6 +477,18 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
     return np.max(spreads, axis=0), " and ".join(units)
 
 
+def _halves(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pairs: int, t_prior: np.ndarray,
+            settings: LidarCameraEdgesSettings) -> np.ndarray | None:
+    """(6,) :attr:`LidarCameraEdgesResult.halves_offset`: the pairs of odd and of even place re-solved apart at fixed
+    matches from ``T``, the second's solution about the first's; None with fewer than two pairs."""
+    if n_pairs < 2:
+        return None
+    first = matches.pair % 2 == 0
+    solved = [apply_params(T, solve_matches(T, matches.subset(half), camera, settings.fine,
+                                            settings.fine.loss_scale_px, t_prior).x) for half in (first, ~first)]
+    return params_between(*solved)
+
+
 @dataclass
 class _Fine:
     """One fine alignment, from one start."""
@@ -605,6 +631,15 @@ def _statistics(T: np.ndarray, matches: EdgeMatches, pairs: list[_Pair], in_view
     return residuals, per_pair
 
 
+def scaled_to(camera: CameraIntrinsics, settings: LidarCameraEdgesSettings) -> LidarCameraEdgesSettings:
+    """``settings`` with the fine alignment's pixel lengths scaled to ``camera``'s focal length
+    (:attr:`~LidarCameraEdgesSettings.focal_px`; never scaled down)."""
+    scale = max(1.0, float(np.mean(np.diag(camera.K)[:2])) / settings.focal_px)
+    fine = replace(settings.fine, match_radius_px=tuple(scale * r for r in settings.fine.match_radius_px),
+                   loss_scale_px=scale * settings.fine.loss_scale_px)
+    return replace(settings, fine=fine, max_rms_px=scale * settings.max_rms_px)
+
+
 def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_init: np.ndarray,
                 settings: LidarCameraEdgesSettings | None = None,
                 progress: ProgressCallback = no_progress) -> LidarCameraEdgesResult:
@@ -618,7 +653,7 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     whose least squares fails, whose rms distance exceeds ``settings.max_rms_px`` or whose competing alignments
     lie further apart than ``settings.max_ambiguity`` is returned with ``converged=False`` and a warning.
     """
-    settings = settings or LidarCameraEdgesSettings()
+    settings = scaled_to(camera, settings or LidarCameraEdgesSettings())
     started = time.perf_counter()
     if not pairs:
         raise InputError("no image and cloud pairs given; at least one is needed", "pairs")
@@ -661,6 +696,7 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
         std_jacobian=np.sqrt(np.clip(np.diag(cov_j), 0, None)),
         std_spread=std_spread,
         spread_source=spread_source,
+        halves_offset=_halves(best.T, best.matches, camera, len(prepared), t_prior, settings) if converged else None,
         std_multistart=std_multistart,
         candidates=candidates,
         iterations=best.iterations,

@@ -42,6 +42,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import invert, right_jacobian, transform_points
+from backend.core.verdict import Verdict
 from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
 from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
@@ -183,6 +184,8 @@ class LidarCameraResult(LidarCameraSummary, SolveResult):
     rounds: int
     """Segmentation + solve rounds run."""
     warnings: list[str] = field(default_factory=list)
+    verdict: Verdict | None = None
+    """How far the result can be trusted (:func:`backend.services.lidar_camera.judge`); None until judged."""
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()

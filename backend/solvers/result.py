@@ -16,6 +16,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from backend.core.verdict import Verdict
+
 ProgressCallback = Callable[[float, str], None]
 """Called with (fraction done in [0, 1], what is happening) during long work."""
 
@@ -78,6 +80,8 @@ class LidarCameraSummary:
     covariance: np.ndarray
     residuals: dict[str, Any]
     seconds: float
+    verdict: Verdict | None
+    """Set by :func:`backend.services.lidar_camera.judge` (the solvers leave it None)."""
 
     @property
     def std(self) -> dict[str, list[float | None]]:
@@ -85,9 +89,10 @@ class LidarCameraSummary:
         return transform_std(self.covariance)
 
     def summary(self) -> dict[str, Any]:
-        """``{"T_camera_lidar", "std", "residuals", "seconds"}``, as ``conventions.md`` gives for ``lidar-camera``."""
+        """``{"T_camera_lidar", "std", "residuals", "seconds", "verdict"}``, as ``conventions.md`` gives for
+        ``lidar-camera`` (``verdict`` None until judged)."""
         return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
-                "seconds": self.seconds}
+                "seconds": self.seconds, "verdict": None if self.verdict is None else self.verdict.to_dict()}
 
 
 def jacobian_covariance(result: Any, n_params: int = 6) -> np.ndarray:
