@@ -599,7 +599,8 @@ def _multistart(best: _Fine, fits: list[_Fine], std: np.ndarray, settings: Lidar
     limit_m, limit_deg = settings.max_ambiguity
     if spread[:3].max() > limit_m or np.degrees(spread[3:].max()) > limit_deg:
         return candidates, spread, (f"ambiguous: {described}, beyond {1000 * limit_m:.0f} mm or {limit_deg:g} deg "
-                                    "(a repeating pattern in view?); not accepted")
+                                    "(a repeating pattern in view, or edges all far away that leave the translation "
+                                    "free: hold it as measured with a translation prior); not accepted")
     return candidates, spread, f"multi-start spread: {described}; the sigmas are widened to cover them"
 
 
