@@ -123,10 +123,8 @@ def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCame
             builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
             return
         ratio = np.asarray(result.std_spread) / np.maximum(result.std_jacobian, 1e-12)
-        worst = int(np.nanargmax(ratio))
-        builder.cross_check("leave one of the poses out", bool(np.all(ratio <= MAX_SPREAD_RATIO)),
-                            f"the re-solves spread at most {ratio[worst]:.1f} times the Jacobian's sigma "
-                            f"({TRANSFORM_PARAMETERS[worst]}), limit {MAX_SPREAD_RATIO:g}")
+        ratio_check(builder, "leave one of the poses out", ratio, MAX_SPREAD_RATIO,
+                    "the re-solves spread at most {ratio} times the Jacobian's sigma")
         return
     if result.halves_offset is None:
         builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
@@ -134,10 +132,17 @@ def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCame
         return
     expected = 2 * np.sqrt(np.diag(result.covariance))
     ratio = np.abs(result.halves_offset) / np.maximum(expected, 1e-12)
-    worst = int(np.nanargmax(ratio))
-    builder.cross_check("between two halves of the pairs", bool(np.all(ratio <= COVERAGE)),
-                        f"the halves' solutions differ by at most {ratio[worst]:.1f} times the expected sigma of the "
-                        f"difference ({TRANSFORM_PARAMETERS[worst]}), limit {COVERAGE:g}")
+    ratio_check(builder, "between two halves of the pairs", ratio, COVERAGE,
+                "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
+
+
+def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str) -> None:
+    """A cross-check ``name`` that passes when every parameter's (6,) ``ratio`` (of :data:`TRANSFORM_PARAMETERS`) is
+    at most ``limit``; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
+    ratio = np.where(np.isfinite(ratio), ratio, np.inf)
+    worst = int(np.argmax(ratio))
+    builder.cross_check(name, bool(np.all(ratio <= limit)), detail.format(ratio=f"{ratio[worst]:.1f}")
+                        + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
 
 
 def slot(lidar: str, camera: str) -> str:
