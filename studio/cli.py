@@ -83,15 +83,20 @@ def build_parser() -> argparse.ArgumentParser:
     lc.add_argument("--camera", type=Path, required=True, metavar="camera.yaml",
                     help="the camera's ROS camera_info YAML (as `intrinsics --out` writes it)")
     lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
-                    help="an image and the cloud taken with it (repeat for every board pose)")
-    lc.add_argument("--method", choices=["target", "edges"], default="target",
-                    help="target: a board seen by both sensors; edges: targetless, aligns the edges of the scene")
+                    help="an image and the cloud taken with it (repeat for every board pose or scene); "
+                         "IMAGE:CLOUD1,CLOUD2,... merges several scans of a static scene into one denser cloud")
+    lc.add_argument("--method", choices=["target", "edges", "intensity"], default="target",
+                    help="target: a board seen by both sensors; edges: targetless, aligns the edges of the scene; "
+                         "intensity: targetless, matches the LiDAR's intensities with the image (needs intensities)")
+    lc.add_argument("--cross-check", action="store_true",
+                    help="edges, intensity: also solve with the other targetless method and put the two methods' "
+                         "agreement into the verdict")
     lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
     lc.add_argument("--plate-margin", type=float, metavar="M",
                     help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
     lc.add_argument("--translation-prior", type=float, metavar="M",
-                    help="edges: hold the initial translation as measured to this 1-sigma (m), for scenes whose edges "
-                         "are all far away (they fix the rotation, hardly the translation)")
+                    help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
+                         "whose edges are all far away (they fix the rotation, hardly the translation)")
     init = lc.add_mutually_exclusive_group()
     init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
     init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
@@ -272,7 +277,7 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     from backend.services.lidar_camera import solve_files
     from backend.solvers.lidar_lidar import check_transform
 
-    pairs = _pairs(args.pair)
+    pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in _pairs(args.pair)]
     camera, _ = load_camera_info(args.camera)
     if args.method == "target" and not args.board:
         raise InputError("--method target needs the board's spec, e.g. --board checkerboard:9x6:0.04", "--board")
@@ -283,7 +288,8 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     check_transform(T_init, str(args.init) if args.init is not None else "--init-xyzypr")
     board = BoardSpec.parse(args.board) if args.board else None
     result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,
-                         translation_prior_m=args.translation_prior, progress=_progress_to_stderr(False))
+                         translation_prior_m=args.translation_prior, cross_check=args.cross_check,
+                         progress=_progress_to_stderr(False))
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     summary = result.summary()

@@ -117,15 +117,17 @@ class LidarCameraPairCapture(BaseModel):
 class LidarCameraSolveRequest(BaseModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
-    method: Literal["target", "edges"] = "target"
+    method: Literal["target", "edges", "intensity"] = "target"
     image_ids: list[str] | None = Field(None, description="solve from the pairs of these image captures; default all")
     init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_camera_lidar translation (m); "
                                                                             "default the rig's current transform")
     init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
     plate_margin_m: float | None = Field(None, ge=0, description="the board plate's margin beyond the pattern (m); "
                                                                   "default one square")
-    translation_prior_m: float | None = Field(None, gt=0, description="edges: hold the initial translation as "
-                                                                       "measured to this 1-sigma (m)")
+    translation_prior_m: float | None = Field(None, gt=0, description="edges, intensity: hold the initial "
+                                                                       "translation as measured to this 1-sigma (m)")
+    cross_check: bool = Field(False, description="edges, intensity: also solve with the other targetless method; "
+                                                 "their agreement is a cross-check in the verdict")
 
 
 class LidarCameraManual(BaseModel):

@@ -32,11 +32,18 @@ from backend.devices.image_io import encode_jpeg, read_image
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_camera_pairs import check_camera, check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
+from backend.solvers.cloud_accumulation import accumulate_scans
 from backend.solvers.lidar_camera_edges import (
     EdgeObservation,
     LidarCameraEdgesResult,
     LidarCameraEdgesSettings,
     solve_edges,
+)
+from backend.solvers.lidar_camera_intensity import (
+    IntensityObservation,
+    LidarCameraIntensityResult,
+    LidarCameraIntensitySettings,
+    solve_intensity,
 )
 from backend.solvers.lidar_camera_target import (
     LidarCameraResult,
@@ -46,10 +53,14 @@ from backend.solvers.lidar_camera_target import (
     solve_target,
 )
 from backend.solvers.lidar_lidar import check_transform
+from backend.solvers.method_agreement import compare_methods
 from backend.solvers.result import TRANSFORM_PARAMETERS, ProgressCallback, no_progress
 from backend.store.session import Session
 
-METHODS = ("target", "edges")
+METHODS = ("target", "edges", "intensity")
+AnyLidarCameraResult = LidarCameraResult | LidarCameraEdgesResult | LidarCameraIntensityResult
+TARGETLESS = ("edges", "intensity")
+"""The targetless methods: each cross-checks the other on the same pairs."""
 DEFAULT_PLATE_MARGIN_SQUARES = 1.0
 """The board's plate reaches this many squares beyond the pattern's outer corners unless told otherwise
 (a white border of one square, as printed boards usually have; the LiDAR sees the plate's edges)."""
@@ -117,7 +128,11 @@ def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCame
     sigma (:data:`MAX_SPREAD_RATIO`). Edges: its two halves of the pairs solved apart
     (:attr:`~backend.solvers.lidar_camera_edges.LidarCameraEdgesResult.halves_offset`) differ by at most
     :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
-    data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again)."""
+    data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again). Intensity:
+    :func:`_intensity_pairs_check`."""
+    if method == "intensity":
+        _intensity_pairs_check(builder, result)
+        return
     if method == "target":
         if result.std_spread is None:
             builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
@@ -143,6 +158,18 @@ def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: fl
     worst = int(np.argmax(ratio))
     builder.cross_check(name, bool(np.all(ratio <= limit)), detail.format(ratio=f"{ratio[worst]:.1f}")
                         + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
+
+
+def _intensity_pairs_check(builder: VerdictBuilder, result: LidarCameraIntensityResult) -> None:
+    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (with three pairs or more)
+    is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the larger of the curvature's and
+    the spread over image regions and restarts, which one pair already shows)."""
+    if result.std_pairs is None:
+        builder.missing_check("over pairs", "too few pairs for a leave-one-out re-solve (3 or more are needed)")
+        return
+    within = np.fmax(result.std_curvature, result.std_groups)
+    ratio_check(builder, "leave one of the pairs out", np.asarray(result.std_pairs) / np.maximum(within, 1e-12),
+                MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
 
 
 def slot(lidar: str, camera: str) -> str:
@@ -209,6 +236,16 @@ def edges_settings(translation_prior_m: float | None = None) -> LidarCameraEdges
                    coarse=replace(defaults.coarse, max_translation_m=PRIOR_SEARCH_SIGMAS * translation_prior_m))
 
 
+def intensity_settings(translation_prior_m: float | None = None) -> LidarCameraIntensitySettings:
+    """The intensity solve's settings; ``translation_prior_m`` (m, 1-sigma per axis) holds the initial guess's
+    translation as a measurement, as for the edges (:func:`edges_settings`)."""
+    if translation_prior_m is None:
+        return LidarCameraIntensitySettings()
+    if not translation_prior_m > 0:
+        raise InputError(f"expected a translation prior above 0 m, got {translation_prior_m}", "--translation-prior")
+    return replace(LidarCameraIntensitySettings(), translation_prior_m=float(translation_prior_m))
+
+
 def edge_observation(image: np.ndarray, points: np.ndarray, intensity: np.ndarray | None, name: str
                      ) -> EdgeObservation:
     """A targetless observation; the cloud's intensities, when it has them, give reflectivity edges."""
@@ -231,41 +268,62 @@ class PairData:
     """(N,) return intensities, or None."""
 
 
-def check_method(method: str, input_name: str) -> None:
+def check_method(method: str, input_name: str, cross_check: bool = False) -> None:
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", input_name)
+    if cross_check and method not in TARGETLESS:
+        raise InputError(f"the cross-check between methods is made for the targetless methods ({', '.join(TARGETLESS)}"
+                         f"), each against the other; got method {method!r}", input_name)
 
 
-def read_pair_files(pairs: Sequence[tuple[Path, Path]], progress: ProgressCallback = no_progress) -> list[PairData]:
-    """The (image, cloud) files read; an unreadable one raises :class:`InputError` naming it."""
+def read_pair_files(pairs: Sequence[tuple[Path, Path | Sequence[Path]]],
+                    progress: ProgressCallback = no_progress) -> list[PairData]:
+    """The (image, cloud) files read; an unreadable one raises :class:`InputError` naming it. A pair's cloud may be
+    several files: scans of a static scene from a sensor at rest, merged into one denser cloud
+    (:func:`~backend.solvers.cloud_accumulation.accumulate_scans`, in the first scan's frame)."""
     read = []
-    for i, (image_path, cloud_path) in enumerate(pairs):
-        progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_path.name}")
-        image, cloud = read_image(image_path), read_cloud(cloud_path)
-        read.append(PairData(f"{image_path.name}:{cloud_path.name}", str(image_path), image, cloud.points,
-                             cloud.intensity))
+    for i, (image_path, cloud_paths) in enumerate(pairs):
+        cloud_paths = [cloud_paths] if isinstance(cloud_paths, Path | str) else list(cloud_paths)
+        cloud_name = ",".join(Path(c).name for c in cloud_paths)
+        progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_name}")
+        image, clouds = read_image(image_path), [read_cloud(c) for c in cloud_paths]
+        if len(clouds) == 1:
+            points, intensity = clouds[0].points, clouds[0].intensity
+        else:
+            merged = accumulate_scans([c.points if c.intensity is None else np.column_stack([c.points, c.intensity])
+                                       for c in clouds], names=[str(c) for c in cloud_paths])
+            points, intensity = merged[:, :3], merged[:, 3] if merged.shape[1] > 3 else None
+        read.append(PairData(f"{image_path.name}:{cloud_name}", str(image_path), image, points, intensity))
     return read
 
 
 def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
                 *, method: str = "target", plate_margin_m: float | None = None,
-                translation_prior_m: float | None = None,
-                progress: ProgressCallback = no_progress) -> LidarCameraResult | LidarCameraEdgesResult:
+                translation_prior_m: float | None = None, cross_check: bool = False,
+                progress: ProgressCallback = no_progress) -> AnyLidarCameraResult:
     """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
 
     ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
     beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
     ``method="edges"`` is targetless (:func:`~backend.solvers.lidar_camera_edges.solve_edges`): it aligns the
     edges of ordinary scenes and takes the clouds' intensities, where there are any, for reflectivity edges;
-    ``translation_prior_m``: see :func:`edges_settings`. An image whose size is not the intrinsics' is refused.
+    ``translation_prior_m``: see :func:`edges_settings`. ``method="intensity"`` is targetless too
+    (:func:`~backend.solvers.lidar_camera_intensity.solve_intensity`): it matches the clouds' intensities (which
+    it needs) with the images' grey values; ``cross_check`` (targetless methods) also solves the same pairs with
+    the other targetless method and puts the two methods' agreement into the result's verdict (:func:`cross_check_methods`). An image whose size
+    is not the intrinsics' is refused.
     """
+    check_method(method, "method", cross_check)
     for pair in pairs:
         check_image_size(pair.image, camera, pair.image_source)
-    if method == "edges":
-        observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
-        result = solve_edges(camera, observations, T_init, edges_settings(translation_prior_m),
-                             lambda fraction, message: progress(0.1 + 0.9 * fraction, message))
-        judge(result)
+    if method in TARGETLESS:
+        share = 0.45 if cross_check else 0.9
+        result = solve_targetless(method, camera, pairs, T_init, translation_prior_m,
+                                  lambda fraction, message: progress(0.1 + share * fraction, message))
+        extra = [] if not cross_check else [cross_check_methods(
+            result, camera, pairs, T_init, translation_prior_m,
+            lambda fraction, message: progress(0.55 + 0.45 * fraction, f"cross-check: {message}"))]
+        judge(result, extra)
         return result
     if board is None:
         raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
@@ -281,14 +339,50 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     return result
 
 
+def solve_targetless(method: str, camera: CameraIntrinsics, pairs: Sequence[PairData], T_init: np.ndarray,
+                     translation_prior_m: float | None = None, progress: ProgressCallback = no_progress
+                     ) -> LidarCameraEdgesResult | LidarCameraIntensityResult:
+    """One targetless solve (``method`` "edges" or "intensity") of the pairs; see :func:`solve_pairs`."""
+    if method == "edges":
+        observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
+        return solve_edges(camera, observations, T_init, edges_settings(translation_prior_m), progress)
+    observations = [IntensityObservation(p.image, p.points, p.intensity, p.name) for p in pairs]
+    return solve_intensity(camera, observations, T_init, intensity_settings(translation_prior_m), progress)
+
+
+def cross_check_methods(result: LidarCameraEdgesResult | LidarCameraIntensityResult, camera: CameraIntrinsics,
+                        pairs: Sequence[PairData], T_init: np.ndarray, translation_prior_m: float | None = None,
+                        progress: ProgressCallback = no_progress) -> CrossCheck:
+    """Solve the same pairs with the other targetless method and compare the two answers
+    (:func:`~backend.solvers.method_agreement.compare_methods`; kept on an intensity result's ``agreement``): the
+    cross-check for :func:`judge`, not made when the other method cannot answer (refused, or not one answer)."""
+    other_method = next(m for m in TARGETLESS if m != result.method)
+    name = f"against the {other_method} method"
+    try:
+        other = solve_targetless(other_method, camera, pairs, T_init, translation_prior_m, progress)
+    except InputError as refused:
+        return CrossCheck(name, False, f"the {other_method} method could not solve these pairs: {refused.message}",
+                          made=False)
+    if not other.converged:
+        return CrossCheck(name, False, f"the {other_method} method gave no usable answer: " + "; ".join(other.warnings),
+                          made=False)
+    agreement = compare_methods(result.T_camera_lidar, result.covariance, other.T_camera_lidar, other.covariance,
+                                other_method)
+    if isinstance(result, LidarCameraIntensityResult):
+        result.agreement = agreement
+    return CrossCheck(name, agreement.passed, agreement.detail())
+
+
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
                 T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
-                translation_prior_m: float | None = None,
-                progress: ProgressCallback = no_progress) -> LidarCameraResult | LidarCameraEdgesResult:
-    """:func:`solve_pairs` on (image, cloud) files of the same moments."""
-    check_method(method, "--method")
+                translation_prior_m: float | None = None, cross_check: bool = False,
+                progress: ProgressCallback = no_progress) -> AnyLidarCameraResult:
+    """:func:`solve_pairs` on (image, cloud) files of the same moments (a pair's cloud may be several scans: see
+    :func:`read_pair_files`)."""
+    check_method(method, "--method", cross_check)
     return solve_pairs(camera, board, read_pair_files(pairs, progress), T_init, method=method,
-                       plate_margin_m=plate_margin_m, translation_prior_m=translation_prior_m, progress=progress)
+                       plate_margin_m=plate_margin_m, translation_prior_m=translation_prior_m,
+                       cross_check=cross_check, progress=progress)
 
 
 OVERLAY_PAIRS = 4
@@ -338,21 +432,23 @@ def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray
 def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
                   T_init: np.ndarray | None = None, image_ids: list[str] | None = None,
                   plate_margin_m: float | None = None, translation_prior_m: float | None = None,
-                  progress: ProgressCallback = no_progress) -> tuple[str, LidarCameraResult | LidarCameraEdgesResult]:
+                  cross_check: bool = False,
+                  progress: ProgressCallback = no_progress) -> tuple[str, AnyLidarCameraResult]:
     """Solve ``T_camera_lidar`` from the session's stored pairs and keep the result (not yet accepted).
 
     ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record
     names the camera and the method, and before/after overlays are stored with it. ``plate_margin_m`` is for the
-    target method (:func:`target_settings`), ``translation_prior_m`` for the edges method (:func:`edges_settings`).
+    target method (:func:`target_settings`), ``translation_prior_m`` and ``cross_check`` for the targetless methods
+    (:func:`edges_settings`, :func:`cross_check_methods`).
     """
-    check_method(method, "method")
+    check_method(method, "method", cross_check)
     check_lidar(session, lidar)
     intrinsics = camera_intrinsics(session, camera)
     T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
     loaded = load_pairs(session, camera, lidar, image_ids)
     board = intrinsics_service.session_board(session) if method == "target" else None
     result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,
-                         translation_prior_m=translation_prior_m,
+                         translation_prior_m=translation_prior_m, cross_check=cross_check,
                          progress=lambda fraction, message: progress(0.9 * fraction, message))
     progress(0.95, "drawing the before/after overlays")
     files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_camera_lidar)

@@ -56,7 +56,7 @@ MAX_SLIDER_TRANSLATION_M = 0.5
 """The translation sliders reach this far either way from where they were centred."""
 COLOURISED_POINT_SIZE_M = 0.02
 PLACEHOLDER = np.full((90, 160, 3), 235, np.uint8)
-METHODS = {"target (board)": "target", "targetless (edges)": "edges"}
+METHODS = {"target (board)": "target", "targetless (edges)": "edges", "targetless (intensity)": "intensity"}
 HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
         "scene with plenty of straight edges). Move the sliders (increments along and about the camera's or the "
         "LiDAR's axes; keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for fine, Z/Y undo/redo) until edges, poles "
@@ -223,7 +223,7 @@ class LidarCameraStep:
 
     def _solve(self) -> None:
         session, pair, T_init, method = self.ctx.session, self.pair, self.editor.T, METHODS[self.method.value]
-        prior_m = float(self.translation_prior.value) if method == "edges" and self.translation_prior.value else None
+        prior_m = float(self.translation_prior.value) if method != "target" and self.translation_prior.value else None
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed to solve.", error=True)
             return

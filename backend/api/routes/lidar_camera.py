@@ -66,13 +66,15 @@ def capture(body: LidarCameraPairCapture, session: deps.SessionDep, jobs: deps.J
 @router.post("/lidar-camera/solve", status_code=202, response_model=JobStatus)
 def solve(body: LidarCameraSolveRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
     """Solve ``T_camera_lidar`` from the stored pairs in the background; poll ``/api/jobs/{id}`` for ``result_id``."""
-    service.load_pairs(session, body.camera, body.lidar, body.image_ids)  # fail fast, before queueing
+    service.check_method(body.method, "method", body.cross_check)  # fail fast, before queueing
+    service.load_pairs(session, body.camera, body.lidar, body.image_ids)
     T_init = None
     if body.init_xyz_m is not None or body.init_ypr_deg is not None:
         T_init = from_xyz_ypr(np.array(body.init_xyz_m or (0, 0, 0)), np.radians(body.init_ypr_deg or (0, 0, 0)))
     job = jobs.submit(f"{body.lidar} to {body.camera} ({body.method})", lambda progress: service.solve_session(
         session, body.camera, body.lidar, method=body.method, T_init=T_init, image_ids=body.image_ids,
-        plate_margin_m=body.plate_margin_m, translation_prior_m=body.translation_prior_m, progress=progress)[0])
+        plate_margin_m=body.plate_margin_m, translation_prior_m=body.translation_prior_m,
+        cross_check=body.cross_check, progress=progress)[0])
     return job.status() | {"result_id": None}
 
 
