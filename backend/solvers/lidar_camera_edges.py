@@ -22,12 +22,15 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
    distance transform, as wide as the search step is in pixels).
 4. Fine (:mod:`backend.solvers.edge_alignment`): robust least squares of the distance (px) of each
    projected LiDAR edge point to the line fitted to its nearest image edge pixels, jointly over all
-   pairs, re-matching each round with a shrinking match radius; analytic Jacobian.
+   pairs, re-matching each round with a shrinking match radius; analytic Jacobian. Its pixel lengths are
+   scaled to the camera's focal length (:func:`scaled_to`), as the coarse search's steps are
+   (:func:`~backend.solvers.edge_search.rotation_scale`): the LiDAR's errors are angles.
 5. Uncertainty: ``sigma^2 (J^T J)^-1`` at the solution
    (:func:`~backend.solvers.result.jacobian_covariance`), widened per parameter to the jackknife
    spread (:func:`~backend.solvers.result.widen_covariance`) over groups of edges (the points of
    an edge share the errors of its plane fits and of its image edge, which per-point noise cannot
-   see) and, with three pairs or more, over pairs.
+   see) and, with three pairs or more, over pairs. With two pairs or more, the pairs of even and of odd
+   place are also re-solved apart (:func:`_halves`): the verdict's cross-check between independent captures.
 6. Multi-start: the coarse search keeps its best distinct results
    (:attr:`~backend.solvers.edge_search.CoarseSearchSettings.candidates`), each is aligned finely,
    and the one with the most matched edge points at the final radius is the solution. Another
