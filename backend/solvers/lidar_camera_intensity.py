@@ -473,7 +473,8 @@ def _coarse(objective: _Objective, T_init: np.ndarray, settings: LidarCameraInte
             progress: ProgressCallback) -> list[np.ndarray]:
     """The ``candidates`` starts for the fine search (4x4 each): the ``refined`` best rotations of the grid about
     ``T_init`` on the coarse images, each turned by a compass search (:func:`_compass`) on the fine images, and of
-    those the best, each further than ``candidate_separation`` grid steps (on some axis) from a better one.
+    those the best, each further than ``candidate_separation`` grid steps (on some axis) from a better one; then, if
+    fewer, the best grid points so separated.
 
     The refinement is what finds the truth: near it the cost is a cone about a coarse step wide (at 2117 px, 1 deg is
     37 px), so the grid point beside it scores worse than the floor of a broad wrong basin; one compass search later
@@ -494,8 +495,11 @@ def _coarse(objective: _Objective, T_init: np.ndarray, settings: LidarCameraInte
                            settings.coarse_point_stride)
         refined.append((cost, T))
     refined.sort(key=lambda item: item[0])
+    # The refined ends first; when they gather in fewer basins than there are starts, the raw grid points fill in
+    # (a compass search can also slide from beside the truth's narrow cone into a broad wrong bowl).
+    raw = [apply_params(T_init, np.r_[np.zeros(3), step * grid[k]]) for k in np.argsort(costs)]
     chosen: list[np.ndarray] = []
-    for _, T in refined:
+    for T in [T for _, T in refined] + raw:
         if all(np.abs(params_between(T, other)[3:]).max() > settings.candidate_separation * step for other in chosen):
             chosen.append(T)
         if len(chosen) == settings.candidates:
