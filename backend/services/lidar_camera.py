@@ -310,8 +310,8 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     ``translation_prior_m``: see :func:`edges_settings`. ``method="intensity"`` is targetless too
     (:func:`~backend.solvers.lidar_camera_intensity.solve_intensity`): it matches the clouds' intensities (which
     it needs) with the images' grey values; ``cross_check`` (targetless methods) also solves the same pairs with
-    the other targetless method and puts the two methods' agreement into the result's verdict (:func:`cross_check_methods`). An image whose size
-    is not the intrinsics' is refused.
+    the other targetless method and puts the two methods' agreement into the result's verdict
+    (:func:`cross_check_methods`). An image whose size is not the intrinsics' is refused.
     """
     check_method(method, "method", cross_check)
     for pair in pairs:
