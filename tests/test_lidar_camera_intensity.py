@@ -5,15 +5,20 @@ accumulation."""
 from __future__ import annotations
 
 import functools
+import json
+import subprocess
+import sys
 
+import cv2
 import numpy as np
 import pytest
-from conftest import opencalib_frame
+from conftest import ROOT, opencalib_frame
 from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import invert, make_T, transform_points
+from backend.exports.ros_camera_info import write_camera_info
 from backend.services.lidar_camera import CrossCheck, PairData, cross_check_methods, judge, solve_pairs
 from backend.solvers.cloud_accumulation import accumulate_scans
 from backend.solvers.lidar_camera_intensity import (
@@ -146,6 +151,25 @@ def test_a_blank_image_is_a_flat_cost():
     with pytest.raises(InputError, match="flat cost: the grey values of the image .* nothing to match") as refused:
         solve_intensity(CAMERA, [IntensityObservation(blank, pair.points_lidar, pair.intensity, "blank")], TRUTH)
     assert refused.value.input == "blank: image"
+
+
+@pytest.mark.slow
+def test_the_cli_merges_scans_and_refuses_clouds_without_intensity(tmp_path):
+    pair = synthetic_pair()
+    cv2.imwrite(str(tmp_path / "wall.png"), pair.image)
+    half = len(pair.points_lidar) // 2
+    np.save(tmp_path / "a.npy", pair.points_lidar[:half])  # N x 3: no intensity
+    np.save(tmp_path / "b.npy", pair.points_lidar[half:])
+    write_camera_info(tmp_path / "camera.yaml", CAMERA, "cam")
+    np.savetxt(tmp_path / "init.txt", TRUTH)
+    command = [sys.executable, "-m", "studio.cli", "lidar-camera", "--camera", str(tmp_path / "camera.yaml"),
+               "--pair", f"{tmp_path / 'wall.png'}:{tmp_path / 'a.npy'},{tmp_path / 'b.npy'}",
+               "--method", "intensity", "--init", str(tmp_path / "init.txt"), "--json"]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    error = json.loads(done.stdout)["error"]
+    assert error["input"] == "wall.png:a.npy,b.npy: cloud"
+    assert error["message"].startswith("the cloud has no intensity channel; the intensity method needs one")
 
 
 def test_intensities_unrelated_to_the_image_are_a_flat_cost():
