@@ -1,5 +1,7 @@
 """The LiDAR-to-camera step of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium:
-a captured lidar_front cloud drawn onto cam_front's image, then a slider moved and the overlay redrawn."""
+a captured lidar_front cloud drawn onto cam_front's image in depth colours spread over the scene (the legend
+beneath), then an increment slider moved (8° about the camera's z), the overlay redrawn, and the hand-set transform
+accepted once its 'check' verdict is confirmed."""
 
 from __future__ import annotations
 
@@ -9,7 +11,17 @@ import time
 import cv2
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, button, choose, labelled_image, studio_page, text_input, wait_body
+from conftest import (
+    ARTIFACTS,
+    Studio,
+    button,
+    choose,
+    decoded_image,
+    labelled_image,
+    studio_page,
+    text_input,
+    wait_body,
+)
 from playwright.sync_api import Browser, expect
 
 from backend.sim.demo_rig import demo_rig
@@ -27,12 +39,41 @@ def _coloured_pixels(png: bytes) -> int:
     return int(((hsv[..., 1] > 120) & (hsv[..., 2] > 80)).sum())
 
 
+def _hues(image: np.ndarray) -> int:
+    """How many of 12 hue bins (30° each) hold at least 2 % of the strongly coloured pixels of a BGR image."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    hue = hsv[..., 0][(hsv[..., 1] > 120) & (hsv[..., 2] > 80)]
+    counts = np.bincount(hue // 15, minlength=12)
+    return int((counts > 0.02 * max(len(hue), 1)).sum())
+
+
+def _open(page, folder: str, inside) -> None:
+    """Unfold ``folder`` until ``inside`` shows; a click that lands while the page still lays out is tried again."""
+    for _ in range(3):
+        page.get_by_text(folder, exact=True).click()
+        try:
+            expect(inside).to_be_visible(timeout=10_000)
+            return
+        except AssertionError:
+            continue
+    expect(inside).to_be_visible()
+
+
+def _tick(page, label: str, on: bool) -> None:
+    """Set the checkbox ``label``; clicked through the DOM, since on a loaded machine the folder's opening animation
+    can cover it for longer than a pointer click waits."""
+    box = page.get_by_label(label, exact=True)
+    expect(box).to_be_visible()
+    if box.is_checked() != on:
+        box.evaluate("e => e.click()")
+    expect(box).to_be_checked(checked=on)
+
+
 def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
     with studio_page(browser, studio.url, VIEWPORT) as page:
-        page.get_by_text("4 · LiDARs", exact=True).click()
-        for name in ("lidar_top", "scanner_2d", "sweep_3d"):
-            page.get_by_label(name, exact=True).uncheck()
-        page.get_by_label("lidar_front", exact=True).check()
+        _open(page, "4 · LiDARs", page.get_by_label("lidar_top", exact=True))
+        for name, live in (("lidar_top", False), ("scanner_2d", False), ("sweep_3d", False), ("lidar_front", True)):
+            _tick(page, name, live)
         button(page, "Start live").click()
         wait_body(page, re.compile(r"lidar_front\s+[\d.]+ Hz, [\d,]+ pts drawn"), timeout_s=30)
         button(page, "Capture clouds").click()
@@ -40,7 +81,7 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         button(page, "Stop live").click()
         page.get_by_text("4 · LiDARs", exact=True).click()  # fold it away
 
-        page.get_by_text("6 · LiDAR to camera", exact=True).click()
+        _open(page, "6 · LiDAR to camera", page.get_by_label("Onto camera", exact=True))
         expect(page.get_by_label("Onto camera", exact=True)).to_have_value("cam_front")  # the first camera
         choose(page, "From LiDAR", "lidar_front")
         first = wait_body(page, DRAWN_RE, timeout_s=30)
@@ -50,10 +91,19 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         source_before = overlay.get_attribute("src")
         coloured = _coloured_pixels(overlay.screenshot())
         assert coloured > 500, f"the overlay shows {coloured} coloured pixels: no LiDAR points drawn"
+        shown = decoded_image(overlay)
+        hues = _hues(shown[:-40])
+        assert hues >= 4, f"depth colours cover {hues} of 12 hue bins: the scene is painted in one colour"
+        assert _hues(shown[-40:]) >= 6, "no colour bar beneath the overlay"
+        legend = wait_body(page, re.compile(r"colours: depth \(m\) ([\d.]+)–([\d.]+)"), timeout_s=5)
+        assert 0.5 <= float(legend.group(1)) < float(legend.group(2)) <= 40, legend.group(0)
+        # The read-only pose beside the sliders.
+        wait_body(page, re.compile(r"x \(m\)\s+y \(m\)\s+z \(m\)\s+yaw \(°\)\s+pitch \(°\)\s+roll \(°\)"),
+                  timeout_s=5)
 
-        yaw = text_input(page, "yaw (°)")
-        yaw.fill(str(float(yaw.input_value()) + 8.0))
-        yaw.press("Enter")
+        turn = text_input(page, "Δ about z (°)")  # about the camera's z (the parent's axes, the default)
+        turn.fill("8")
+        turn.press("Enter")
         deadline = time.monotonic() + 20
         while overlay.get_attribute("src") == source_before:
             assert time.monotonic() < deadline, "the overlay did not change after the yaw slider moved"
@@ -67,6 +117,8 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         expect_line = "--frame-id cam_front --child-frame-id lidar_front"
         assert expect_line in page.inner_text("body")
 
+        wait_body(page, re.compile(r"From where it was put: turned 8\.000°"), timeout_s=10)
+        page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()  # hand-set: "check"
         button(page, "Accept as the mounting").click()
         wait_body(page, re.compile(r"lidar_front is now mounted so that T_cam_front_lidar_front"), timeout_s=15)
     result_id = studio.get("/api/sessions/demo")["accepted"]["lidar_front/T_cam_front_lidar_front"]
