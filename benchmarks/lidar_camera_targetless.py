@@ -60,7 +60,9 @@ def solve_with(method, translation_prior_m=TRANSLATION_PRIOR_M):
     return solve
 
 
-METHODS = [("edges", solve_with("edges")), ("edges without a translation prior", solve_with("edges", None))]
+METHODS = [("edges", solve_with("edges")), ("edges without a translation prior", solve_with("edges", None)),
+           ("intensity", solve_with("intensity")),
+           ("intensity without a translation prior", solve_with("intensity", None))]
 """(name, solve) per targetless method."""
 
 
