@@ -10,9 +10,12 @@ LiDAR to LiDAR: the six sliders *are* ``T_target_source`` (m, ROS yaw/pitch/roll
 degrees). The target's latest captured cloud is drawn under ``/rig/<target>/l2l`` and
 the source's as a child node posed by the sliders, so moving a slider only re-poses
 that node (no points re-sent). "Global guess" and "Refine (GICP)" run as jobs and
-write their transform back into the sliders; refine starts from the sliders. Half a
-second after the last nudge the source cloud is recoloured by its distance to the
-target at the new pose (colours only).
+write their transform back into the sliders; refine starts from the sliders and solves
+one transform over the ticked capture pairs (*Scenes*: pairs taken in different places
+cross-check each other). Half a second after the last nudge the source cloud is
+recoloured by its distance to the target at the new pose (colours only). The result
+card shows the verdict and every scene's own solve; *Confirm the check* lets a
+``check`` be accepted.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
-from backend.core.transforms import transform_points
+from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.services import lidar_lidar as lidar_service
 from backend.services import sweep as sweep_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
@@ -36,6 +39,7 @@ from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
+from studio.verdict_view import ConfirmCheck, verdict_markdown
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
@@ -53,6 +57,8 @@ LIVE_HZ = 12.0
 POINT_SIZE_M = 0.02
 TARGET_COLOUR = (150, 150, 150)
 RECOLOUR_DELAY_S = 0.5
+SCENES_HELP = ("Tick the capture pairs to solve from (source ↔ target). Pairs from different places are scenes: one "
+               "transform is solved for all of them, and each scene's own solve cross-checks the others.")
 LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
              "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
 
@@ -90,6 +96,8 @@ class LidarStep:
         self._target_tree: cKDTree | None = None
         self._recolour_timer: threading.Timer | None = None
         self._l2l_nodes: list[viser.SceneNodeHandle] = []
+        self.pair_boxes: dict[tuple[str, str], viser.GuiCheckboxHandle] = {}
+        """One checkbox per (source capture id, target capture id) pair of the chosen LiDARs."""
         self._live_nodes: dict[str, viser.PointCloudHandle] = {}
         self._lock = threading.Lock()
         self.max_correspondence_m = LidarLidarSettings().max_correspondence_m
@@ -120,6 +128,9 @@ class LidarStep:
                                  "roll). Nudge, then refine from here.")
                 self.editor = TransformSliders(gui, self._on_slider)
                 self.reset_button = gui.add_button("Reset to rig")
+                self.scenes_folder = gui.add_folder("Scenes (capture pairs)")
+                with self.scenes_folder:
+                    gui.add_markdown(SCENES_HELP)
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
@@ -128,6 +139,7 @@ class LidarStep:
                 self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
+                self.confirm = ConfirmCheck(gui)
                 self.accept_button = gui.add_button("Accept", color="green")
 
         self.start_button.on_click(lambda _: self.start_live())
@@ -296,8 +308,9 @@ class LidarStep:
         self._on_captures()
 
     def _on_captures(self) -> None:
-        """Clouds were captured or imported: recount them and redraw the pair's latest."""
+        """Clouds were captured or imported: recount them, list the pairs and redraw the pair's latest."""
         self._show_captures()
+        self._list_pairs()
         self._load_pair_clouds()
 
     def _show_captures(self) -> None:
@@ -335,9 +348,31 @@ class LidarStep:
         self.editor.frames = None if pair is None else (pair[1], pair[0])
         self.editor.text.content = "Pick two different LiDARs." if pair is None else ""
         self.editor.set(self._rig_T(), undoable=False)
+        self._list_pairs()
         self._load_pair_clouds()
         accepted = None if pair is None else self.ctx.session.accepted(lidar_service.slot(*pair))
         self._show_history(accepted)
+
+    def _list_pairs(self) -> None:
+        """One ticked checkbox per capture pair of the chosen LiDARs (kept ticked or not when already listed)."""
+        pair, session = self.pair, self.ctx.session
+        try:
+            ids = [] if pair is None else lidar_service.pair_ids(session, *pair)
+        except InputError:  # no clouds of one of them yet
+            ids = []
+        old = self.pair_boxes
+        self.pair_boxes = {}
+        with self.scenes_folder:
+            for i, key in enumerate(ids):
+                ticked = old[key].value if key in old else True
+                self.pair_boxes[key] = self.ctx.server.gui.add_checkbox(f"pair {i}: {key[0]} ↔ {key[1]}",
+                                                                        initial_value=ticked)
+        for box in old.values():
+            box.remove()
+
+    def chosen_pairs(self) -> list[tuple[str, str]]:
+        """The ticked (source capture id, target capture id) pairs."""
+        return [key for key, box in self.pair_boxes.items() if box.value]
 
     def _pair_results(self) -> list[str]:
         """Ids of the pair's results, newest first."""
@@ -420,12 +455,12 @@ class LidarStep:
         self.jobs.run(title, work, on_done)
 
     def _global_guess(self) -> None:
-        session, pair = self.ctx.session, self.pair
+        session, pair, chosen = self.ctx.session, self.pair, self.chosen_pairs()[-1:] or None
         voxel_m = LidarLidarSettings().global_voxel_m
 
         def work(progress):
-            progress(0.05, "FPFH features + RANSAC on the latest pair")
-            source_points, target_points = lidar_service.capture_pairs(session, *pair)[-1]
+            progress(0.05, "FPFH features + RANSAC on the last ticked pair")
+            source_points, target_points = lidar_service.capture_pairs(session, *pair, chosen)[-1]
             return global_initial_guess(source_points, target_points, voxel_m=voxel_m)
 
         def done(result) -> None:
@@ -436,10 +471,14 @@ class LidarStep:
         self._submit("Global guess", work, done)
 
     def _refine(self) -> None:
-        session, pair, T_init = self.ctx.session, self.pair, self.slider_T()
+        session, pair, T_init, chosen = self.ctx.session, self.pair, self.slider_T(), self.chosen_pairs()
+        if self.pair_boxes and not chosen:
+            self.ctx.notify("No capture pair", "Tick at least one pair under Scenes.", error=True)
+            return
 
         def work(progress):
-            return lidar_service.solve_session(session, pair[0], pair[1], T_init=T_init, progress=progress)[0]
+            return lidar_service.solve_session(session, pair[0], pair[1], T_init=T_init, pairs=chosen or None,
+                                               progress=progress)[0]
 
         self._submit("Refine (GICP)", work, lambda result_id: self._show_history(result_id, move_sliders=True))
 
@@ -463,7 +502,7 @@ class LidarStep:
             self.ctx.notify("Nothing to accept", "Refine first.", error=True)
             return
         try:
-            lidar_service.accept(session, pair[0], self.result_id)
+            lidar_service.accept(session, pair[0], self.result_id, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -477,7 +516,7 @@ def _mm(values: list[float | None]) -> str:
 
 
 def result_markdown(record: dict, accepted: str | None) -> str:
-    """Fit, cloud-to-cloud statistics, 1-sigma and convergence of a LiDAR-to-LiDAR result."""
+    """Fit, cloud-to-cloud statistics, 1-sigma, convergence, verdict and scenes of a LiDAR-to-LiDAR result."""
     c2c, std = record["c2c_m"], record["std"]
     status = "✅ accepted" if record["id"] == accepted else "not accepted"
     verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
@@ -485,10 +524,34 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     rot = ", ".join("n/a" if v is None else f"{v:.3f}" for v in std["rot_deg"])
     return (
         f"**{record['id']}** ({status}) · {record['sensor']} → {record['target']} · {verdict}\n\n"
+        f"{verdict_markdown(record)}\n\n"
         f"fitness **{record['fitness']:.3f}** · RMSE **{1000 * record['rmse_m']:.1f} mm** · "
         f"{record.get('seconds', 0.0):.2f} s\n\n"
         f"c2c mean / median / p95: {1000 * c2c['mean']:.1f} / {1000 * c2c['median']:.1f} / "
         f"{1000 * c2c['p95']:.1f} mm\n\n"
         f"1σ translation (mm): {_mm(std['trans_m'])}\n\n"
-        f"1σ rotation (°): {rot}{warnings}"
+        f"1σ rotation (°): {rot}\n\n{scenes_markdown(record)}{warnings}"
     )
+
+
+def scenes_markdown(record: dict) -> str:
+    """Every scene's own solve (x y z in m, yaw pitch roll in degrees), how far it lies from the other scenes'
+    joint solve, and the spread between scenes (markdown; a list, which wraps in the narrow panel)."""
+    scenes, inputs = record.get("scenes", []), record.get("inputs", [])
+    if not scenes:
+        return ""
+    rows = []
+    for k, scene in enumerate(scenes):
+        xyz, ypr = to_xyz_ypr(np.array(scene["T_target_source"]))
+        pairs = ", ".join(inputs[i].replace(":", " ↔ ") if i < len(inputs) else str(i) for i in scene["pairs"])
+        deviation = scene.get("deviation")
+        off = "-" if deviation is None else (f"{1000 * np.linalg.norm(deviation['trans_m']):.1f} mm / "
+                                             f"{np.linalg.norm(deviation['rot_deg']):.3f}°")
+        agrees = {True: " ✅ agrees", False: " ❌ disagrees", None: ""}[scene.get("agrees")]
+        rows.append(f"- **scene {k + 1}** ({pairs}): {', '.join(f'{v:.3f}' for v in xyz)} m · "
+                    f"{', '.join(f'{v:.2f}' for v in np.degrees(ypr))}° · fitness {scene['fitness']:.3f} · "
+                    f"off the others {off}{agrees}")
+    spread = record.get("scene_spread")
+    spread_text = ("One scene: capture the rig in two more places for a cross-check." if spread is None else
+                   f"Spread between scenes: **{1000 * spread['trans_m']:.1f} mm / {spread['rot_deg']:.3f}°**.")
+    return "Scenes (x, y, z · yaw, pitch, roll):\n\n" + "\n".join(rows) + f"\n\n{spread_text}"
