@@ -49,7 +49,7 @@ import socket
 import time
 
 import numpy as np
-from bench_util import REPEATS, log, median_time, peak_rss_mb
+from bench_util import REPEATS, log, median_time, peak_rss_mb, pose_error
 from scipy.spatial.transform import Rotation
 
 from backend.core.transforms import from_xyz_ypr, invert, make_T
@@ -59,7 +59,7 @@ from backend.devices.ydlidar import YdlidarParser
 from backend.sim.lidar_scene import LidarScene
 from backend.sim.velodyne_packets import simulate_vlp16_scan
 from backend.sim.ydlidar_sim import YdlidarSimulator
-from backend.solvers.lidar_lidar import LidarLidarSettings, register_pair, transform_error
+from backend.solvers.lidar_lidar import LidarLidarSettings, register_pair
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))
@@ -79,14 +79,6 @@ UDP_BURST = 40
 """The sender paces itself in bursts of this many packets."""
 DECODER_PASSES = 5
 """The decoder-only baseline decodes all the packets this many times per repeat."""
-
-
-def pose_error(T, T_true):
-    """(translation error norm in mm, rotation error angle in deg) of ``T`` against ``T_true``."""
-    trans_m, rot_deg = transform_error(T, T_true)
-    angle_deg = np.degrees(np.linalg.norm(Rotation.from_matrix(T_true[:3, :3].T @ T[:3, :3]).as_rotvec()))
-    assert np.isclose(angle_deg, np.linalg.norm(rot_deg)), "rotation error is not a rotation vector"
-    return float(np.linalg.norm(trans_m) * 1000), float(angle_deg)
 
 
 def udp_sender(packets, port, rate_hz, seconds, ready, go, sent):
