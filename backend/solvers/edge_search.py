@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -67,21 +67,8 @@ class CoarseSearchSettings:
     """LiDAR edge points per pair scored (a random subset)."""
     min_radius_px: float = 2.0
     """Narrowest scoring kernel (px)."""
-    max_step_px: float = 20.0
-    """Widest move of an edge (px, at the image centre) for the grid's and the levels' rotation steps: on a camera
-    where a step of the settings moves edges further (1 deg is 37 px at f = 2117 px), every rotation step, and
-    the separation of starts, is scaled down to this (:func:`rotation_scale`). A kernel that wide on a real photo
-    scores clutter (foliage, fences) as well as the edges: on the OpenCalib frame, 3 deg off, the 1 deg grid
-    (37 px) ranks the cell of the reference 21st, the 0.5 deg grid (18 px) first."""
     seed: int = 0
     """Seeds the subsets, so a search is repeatable."""
-
-
-def rotation_scale(camera: CameraIntrinsics, settings: CoarseSearchSettings) -> float:
-    """The factor (<= 1) the rotation steps of ``settings`` are scaled by on ``camera``
-    (:attr:`CoarseSearchSettings.max_step_px`)."""
-    step_px = float(np.mean(np.diag(camera.K)[:2])) * np.radians(settings.rotation_step_deg)
-    return min(1.0, settings.max_step_px / step_px)
 
 
 def pivoted_moves(T: np.ndarray, steps: np.ndarray, pivot_camera: np.ndarray) -> np.ndarray:
@@ -198,10 +185,6 @@ def coarse_search(T_init: np.ndarray, edge_points: list[np.ndarray], distances: 
     when they are within a step of the finest level on every parameter.
     """
     rng = np.random.default_rng(settings.seed)
-    scale = rotation_scale(camera, settings)
-    settings = replace(settings, rotation_step_deg=scale * settings.rotation_step_deg,
-                       candidate_separation_deg=scale * settings.candidate_separation_deg,
-                       levels=tuple((scale * rotation, translation) for rotation, translation in settings.levels))
     scorer = _Scorer([p[rng.permutation(len(p))[:settings.points_per_pair]] for p in edge_points], distances,
                      camera, T_init, settings)
     turns = cube_grid(np.radians(settings.rotation_range_deg), np.radians(settings.rotation_step_deg))

@@ -23,8 +23,7 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
 4. Fine (:mod:`backend.solvers.edge_alignment`): robust least squares of the distance (px) of each
    projected LiDAR edge point to the line fitted to its nearest image edge pixels, jointly over all
    pairs, re-matching each round with a shrinking match radius; analytic Jacobian. Its pixel lengths are
-   scaled to the camera's focal length (:func:`scaled_to`), as the coarse search's steps are
-   (:func:`~backend.solvers.edge_search.rotation_scale`): the LiDAR's errors are angles.
+   scaled to the camera's focal length (:func:`scaled_to`): the LiDAR's errors are angles.
 5. Uncertainty: ``sigma^2 (J^T J)^-1`` at the solution
    (:func:`~backend.solvers.result.jacobian_covariance`), widened per parameter to the jackknife
    spread (:func:`~backend.solvers.result.widen_covariance`) over groups of edges (the points of
