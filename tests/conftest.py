@@ -261,6 +261,19 @@ def choose(page: Page, label: str, option: str) -> None:
     expect(box).to_have_value(option)
 
 
+def unfold(page: Page, folder: str, inside: Locator) -> None:
+    """Unfold the GUI folder titled ``folder`` until ``inside`` shows; a click that lands while the page is still
+    laying out the panel (slow on a loaded machine) is tried again."""
+    for _ in range(3):
+        page.get_by_text(folder, exact=True).click()
+        try:
+            expect(inside).to_be_visible(timeout=10_000)
+            return
+        except AssertionError:
+            continue
+    expect(inside).to_be_visible()
+
+
 def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s

@@ -20,6 +20,7 @@ from conftest import (
     labelled_image,
     studio_page,
     text_input,
+    unfold,
     wait_body,
 )
 from playwright.sync_api import Browser, expect
@@ -47,18 +48,6 @@ def _hues(image: np.ndarray) -> int:
     return int((counts > 0.02 * max(len(hue), 1)).sum())
 
 
-def _open(page, folder: str, inside) -> None:
-    """Unfold ``folder`` until ``inside`` shows; a click that lands while the page still lays out is tried again."""
-    for _ in range(3):
-        page.get_by_text(folder, exact=True).click()
-        try:
-            expect(inside).to_be_visible(timeout=10_000)
-            return
-        except AssertionError:
-            continue
-    expect(inside).to_be_visible()
-
-
 def _tick(page, label: str, on: bool) -> None:
     """Set the checkbox ``label``; clicked through the DOM, since on a loaded machine the folder's opening animation
     can cover it for longer than a pointer click waits."""
@@ -71,7 +60,7 @@ def _tick(page, label: str, on: bool) -> None:
 
 def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
     with studio_page(browser, studio.url, VIEWPORT) as page:
-        _open(page, "4 · LiDARs", page.get_by_label("lidar_top", exact=True))
+        unfold(page, "4 · LiDARs", page.get_by_label("lidar_top", exact=True))
         for name, live in (("lidar_top", False), ("scanner_2d", False), ("sweep_3d", False), ("lidar_front", True)):
             _tick(page, name, live)
         button(page, "Start live").click()
@@ -81,7 +70,7 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         button(page, "Stop live").click()
         page.get_by_text("4 · LiDARs", exact=True).click()  # fold it away
 
-        _open(page, "6 · LiDAR to camera", page.get_by_label("Onto camera", exact=True))
+        unfold(page, "6 · LiDAR to camera", page.get_by_label("Onto camera", exact=True))
         expect(page.get_by_label("Onto camera", exact=True)).to_have_value("cam_front")  # the first camera
         choose(page, "From LiDAR", "lidar_front")
         first = wait_body(page, DRAWN_RE, timeout_s=30)

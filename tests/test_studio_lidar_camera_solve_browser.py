@@ -28,6 +28,7 @@ from conftest import (
     labelled_image,
     studio_page,
     text_input,
+    unfold,
     wait_body,
 )
 from playwright.sync_api import Browser, Locator, Page, expect
@@ -176,26 +177,13 @@ def _press(page: Page, key: str, yaw_expected: float, overlay: Locator) -> None:
     _wait_new_source(overlay, source, f"pressing {key}")
 
 
-def _open_step(page: Page) -> None:
-    """Unfold step 6; a click that lands while the page is still laying out the panel is tried again."""
-    camera = page.get_by_label("Onto camera", exact=True)
-    for _ in range(3):
-        page.get_by_text(STEP, exact=True).click()
-        try:
-            expect(camera).to_be_visible(timeout=10_000)
-            return
-        except AssertionError:
-            continue
-    expect(camera).to_be_visible()
-
-
 def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
     truth = demo_rig().T_a_b(CAMERA, LIDAR)
     ARTIFACTS.mkdir(exist_ok=True)
     with studio_page(browser, studio.url, VIEWPORT) as page:
         for folder in ("1 · Session", "3 · Camera intrinsics"):  # fold these away: room for step 6
             page.get_by_text(folder, exact=True).click()
-        _open_step(page)
+        unfold(page, STEP, page.get_by_label("Onto camera", exact=True))
         choose(page, "Onto camera", CAMERA)
         choose(page, "From LiDAR", LIDAR)
 
