@@ -103,7 +103,7 @@ def test_intrinsics_json_contract(intrinsics_run):
     assert matrix.shape == (n, n)
     np.testing.assert_allclose(np.diag(matrix), 1.0, atol=1e-9)
     np.testing.assert_allclose(matrix, matrix.T, atol=1e-9)
-    assert 0 < out["seconds"] < 60
+    assert out["seconds"] > 0
 
 
 @pytest.mark.slow

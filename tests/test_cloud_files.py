@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import struct
-import time
 from pathlib import Path
 
 import laspy
@@ -50,9 +49,7 @@ def random_cloud(n: int = 500, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     ids=["p64", "qt", "calib"],
 )
 def test_real_pcd(path: Path, count: int, fields: list[str], range_m: tuple[float, float]) -> None:
-    start = time.perf_counter()
     cloud = read_cloud(require(path))
-    seconds = time.perf_counter() - start
     assert isinstance(cloud, CloudFile)
     assert cloud.dropped_non_finite == 0  # checked: these files hold no NaN/inf points
     assert cloud.points.shape == (count, 3) and cloud.points.dtype == np.float64
@@ -64,7 +61,6 @@ def test_real_pcd(path: Path, count: int, fields: list[str], range_m: tuple[floa
     assert range_m[0] - 0.1 <= ranges.min() < range_m[0] + 0.1
     assert range_m[1] - 1.0 < ranges.max() <= range_m[1] + 0.1
     assert guess_unit_problem(cloud.points) is None
-    assert seconds < 2.0
 
 
 def test_real_cloud_in_millimetres_is_flagged() -> None:
