@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import ARTIFACTS, Studio, button, studio_page, wait_body
+from conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
@@ -31,7 +31,7 @@ CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
 """``backend.sim.demo_rig.CAM_WIDE``: what the simulated wide camera really is."""
 MIN_VIEWS = 12
 VIEWS_RE = re.compile(r"(\d+) views ·")
-RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · pinhole-radtan 1280×720")
+RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · (pinhole-radtan|fisheye-equidistant) 1280×720")
 
 
 @pytest.fixture
@@ -118,7 +118,11 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     captures = studio.get("/api/sessions/demo/sensors/cam_wide/captures")
     assert len(captures) == after, captures
 
-    # Solve with the default settings (pinhole-radtan) and inspect the result.
+    # Before a solve the panel says what is missing for enough data.
+    assert "solve to see the projection sigma" in _body(page), _body(page)
+
+    # Solve with the model picked on held-out views (auto) and inspect the result.
+    choose(page, "Model", "auto")
     button(page, "Solve").click()
     expect(page.get_by_text(re.compile(r"^Solved in \d"))).to_be_visible(timeout=90_000)
     match = wait_body(page, RESULT_RE, timeout_s=15)  # the result lands just after the status line
@@ -126,20 +130,33 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     result_id = match.group(1)
     body = _body(page)
     assert re.search(r"RMS \d+\.\d+ px over \d+ views", body), body
-    for text in ("fx", "fy", "cx", "cy", "k1", "σ"):
+    for text in ("fx", "fy", "cx", "cy", "k1", "σ", "Verdict:", "Cross-validation (two halves):", "Model:",
+                 "held-out RMS (px)", "pinhole-rational", "Corners:"):
         assert text in body, f"{text!r} missing from the result"
+    # the enough-data line now judges the solve's projection sigma, not coverage alone (it follows the result)
+    wait_body(page, re.compile(r"Enough data|px in the [a-z ]+: add views there"), timeout_s=15)
     summaries = studio.get("/api/sessions/demo/results?sensor=cam_wide&kind=intrinsics")
     assert [r["id"] for r in summaries] == [result_id], summaries
     _scroll_to_result(page)
     page.screenshot(path=ARTIFACTS / "studio_intrinsics.png")
 
+    record = studio.get(f"/api/sessions/demo/results/{result_id}")
+    level = record["verdict"]["level"]
+    assert f"Verdict: {'🟢' if level == 'trusted' else '🟡' if level == 'check' else '🔴'}" in body, body
+    assert record["model_comparison"]["status"] == "compared", record["model_comparison"]
+    print(f"cam_wide verdict {level}: {record['verdict']['reasons']}; model {record['model_comparison']['reason']}")
+    assert level != "reject", record["verdict"]  # the wide lens gets k3 (or fisheye) from auto
+    if level == "check":  # a 'check' is refused until confirmed
+        button(page, "Accept selected result").click()
+        expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=15_000)
+        assert not studio.get("/api/sessions/demo")["accepted"].get("cam_wide/intrinsics")
+        page.get_by_label("Confirm the check").first.check()  # step 3 comes first; later steps have their own
     button(page, "Accept selected result").click()
     expect(page.get_by_text(f"{result_id} (✅ accepted)", exact=False)).to_be_visible()
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("cam_wide/intrinsics") == result_id, session
     assert session["accepted"].get("cam_front/intrinsics"), "cam_front's accepted result must survive"
 
-    record = studio.get(f"/api/sessions/demo/results/{result_id}")
     K = np.array(record["camera"]["K"])
     got = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
     print(f"cam_wide from {after} views: rms {record['rms_px']:.3f} px, "

@@ -11,12 +11,13 @@ from backend.services import intrinsics as intrinsics_service
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
 from backend.solvers.board_detection import Detection
 from backend.solvers.board_pose import board_pose, nominal_camera
-from backend.solvers.coverage import PARAM_NAMES, Coverage
+from backend.solvers.coverage import PARAM_NAMES, Coverage, enough_data
 from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.schema import CaptureRecord
 from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 NO_CAMERA = "(no camera)"
 GUIDANCE = (
@@ -46,7 +47,9 @@ class IntrinsicsStep:
                 self.bars = {name: gui.add_progress_bar(0.0, color="teal") for name in PARAM_NAMES}
                 self.coverage_text = gui.add_markdown("No views yet.")
             with gui.add_folder("Solve"):
-                self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant"])
+                self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant", "auto"],
+                                              hint="auto: compare the lens models on held-out views, solve with "
+                                                   "the recommended one")
                 self.k3 = gui.add_checkbox("Estimate k3", initial_value=False)
                 self.tangential = gui.add_checkbox("Estimate p1, p2", initial_value=True)
                 self.fix_aspect = gui.add_checkbox("Fix aspect (fx = fy)", initial_value=False)
@@ -55,10 +58,12 @@ class IntrinsicsStep:
                 self.jobs = JobPanel(ctx, [self.solve_button], cancel_label="Cancel solve")
             with gui.add_folder("Result"):
                 self.result_text = gui.add_markdown("No result yet.")
+                self.checks_text = gui.add_markdown("")
                 self.rms_plot = gui.add_image(plots.view_rms_bars([], [], []), label="Per-view RMS")
                 self.uncertainty_plot = gui.add_image(np.full((270, 480, 3), 255, np.uint8),
                                                       label="Projection σ (px, far points)")
                 self.history = gui.add_dropdown("History", options=["(none)"])
+                self.confirm = ConfirmCheck(gui)
                 self.accept_button = gui.add_button("Accept selected result", color="green")
             with gui.add_folder("Export"):
                 self.export_ros = gui.add_button("Download ROS camera_info YAML")
@@ -184,9 +189,13 @@ class IntrinsicsStep:
         coverage = coverage or (self.live.coverage if self.live else None)
         if coverage is None:
             return "No views yet."
-        state = ("✅ **Enough data** - press Solve." if coverage.enough
-                 else "Keep moving the board to fill the bars.")
-        return f"**{len(coverage.params)} views** · {coverage.cells_seen:.0%} of the image seen by corners · {state}"
+        latest = self.ctx.session.results(self.sensor, "intrinsics")[-1:] if self.sensor else []
+        enough, missing = enough_data(coverage, latest[0]["projection_uncertainty"] if latest else None)
+        state = ("✅ **Enough data** - full coverage and the last solve's projection σ is within tolerance."
+                 if enough else "Not enough data yet: " + "; ".join(missing) + ".")
+        solved = f" (last solve: {latest[0]['id']})" if latest else ""
+        return (f"**{len(coverage.params)} views** · {coverage.cells_seen:.0%} of the image seen by corners · "
+                f"{state}{solved}")
 
     def _show_coverage(self, coverage: Coverage | None) -> None:
         progress = coverage.progress if coverage else dict.fromkeys(PARAM_NAMES, 0.0)
@@ -217,18 +226,22 @@ class IntrinsicsStep:
         self.history.options = [r["id"] for r in reversed(self.ctx.session.results(self.sensor, "intrinsics"))]
         self.history.value = result_id
         self._show_result(result_id)
+        self._show_coverage(self.live.coverage if self.live else coverage_from_captures(
+            self.ctx.session, self.sensor, intrinsics_service.session_board(self.ctx.session)))
 
     def _show_result(self, result_id: str) -> None:
         session = self.ctx.session
         if session is None or result_id in (None, "(none)"):
             # Nothing solved for this camera: drop the previous camera's plots and boards too.
             self.result_text.content = "No result yet."
+            self.checks_text.content = ""
             self.rms_plot.image = plots.view_rms_bars([], [], [])
             self.uncertainty_plot.image = np.full((270, 480, 3), 255, np.uint8)
             self.ctx.scene.clear_boards()
             return
         record = session.result(result_id)
         self.result_text.content = result_markdown(record, accepted=session.accepted(f"{self.sensor}/intrinsics"))
+        self.checks_text.content = checks_markdown(record)
         views = record["views"]
         self.rms_plot.image = plots.view_rms_bars([v["image"] for v in views], [v["rms_px"] for v in views],
                                                   [v["used"] for v in views])
@@ -241,7 +254,7 @@ class IntrinsicsStep:
         if self.sensor is None or self.history.value == "(none)":
             return
         try:
-            intrinsics_service.accept(self.ctx.session, self.sensor, self.history.value)
+            intrinsics_service.accept(self.ctx.session, self.sensor, self.history.value, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -273,5 +286,28 @@ def result_markdown(record: dict, accepted: str | None) -> str:
         f"| param | value | σ |\n|---|---|---|\n{table}\n\n"
         f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
         f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
-        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
+        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px\n\n"
+        f"{verdict_markdown(record)}"
     )
+
+
+def checks_markdown(record: dict) -> str:
+    """The corner set solved with, the two-halves cross-validation and (``auto``) the model comparison."""
+    lines = []
+    corners = record.get("corners")
+    if corners and corners.get("rms_px"):
+        fits = ", ".join(f"{name} {rms:.3f} px" for name, rms in corners["rms_px"].items())
+        lines.append(f"**Corners:** {corners['chosen']} (fit on these views: {fits})")
+    cv = record.get("cross_validation")
+    if cv:
+        lines.append(f"**Cross-validation (two halves):** {cv['status']}: {cv['detail']}")
+    comparison = record.get("model_comparison")
+    if comparison:
+        lines.append(f"**Model:** {comparison['reason']}")
+        if comparison["candidates"]:
+            rows = "\n".join(
+                f"| {c['model']}{' ✅' if c.get('recommended') else ''} | {c['n_dist']} | "
+                f"{'—' if c['held_out_rms_px'] is None else format(c['held_out_rms_px'], '.3f')} |"
+                for c in comparison["candidates"])
+            lines.append(f"| model | dist coeffs | held-out RMS (px) |\n|---|---|---|\n{rows}")
+    return "\n\n".join(lines)
