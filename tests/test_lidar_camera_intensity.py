@@ -15,6 +15,7 @@ import pytest
 from conftest import ROOT, opencalib_frame
 from scipy.spatial.transform import Rotation
 
+from backend.api.schemas import LidarCameraSolveRequest
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import invert, make_T, transform_points
@@ -128,7 +129,9 @@ def test_the_service_judges_it_and_names_the_missing_cross_checks(synthetic_resu
     assert synthetic_result.summary()["verdict"]["level"] == "check"
 
 
-def test_the_cli_choices_reach_the_service():
+def test_the_method_and_the_cross_check_reach_the_service():
+    body = LidarCameraSolveRequest(camera="cam", lidar="lidar", method="intensity", cross_check=True)
+    assert body.method == "intensity" and body.cross_check
     with pytest.raises(InputError, match="cross-check between methods is made for the targetless methods"):
         solve_pairs(CAMERA, None, [], TRUTH, method="target", cross_check=True)
 
