@@ -200,7 +200,9 @@ def test_export_camera_info_from_session(left_images, tmp_path: Path):
     report = service.import_images(session, "cam_left", [(p.name, p.read_bytes()) for p in left_images])
     assert len(report.added) == 13
     result_id, result = service.solve_session(session, "cam_left", IntrinsicsSettings())
-    service.accept(session, "cam_left", result_id)
+    # 13 VGA views leave the image corners loose (projection sigma above 0.3 px there): a 'check', confirmed
+    assert result.verdict.level == "check", result.verdict
+    service.accept(session, "cam_left", result_id, confirm=True)
 
     run = cli("export", session.path, "--format", "camera_info", "--sensor", "cam_left")
     assert run.returncode == 0, run.stderr
