@@ -15,6 +15,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from backend.core.errors import InputError
+
 CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant"]
 ROS_DISTORTION_NAMES: dict[str, str] = {"pinhole-radtan": "plumb_bob", "fisheye-equidistant": "equidistant"}
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -155,3 +157,21 @@ def _horner(t: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
         value *= t
     value += coefficients[0]
     return value
+
+
+def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:
+    """Refuse an image whose size is not the one the intrinsics were calibrated at (``name``: the input to blame)."""
+    height, width = image.shape[:2]
+    if (width, height) != (camera.width, camera.height):
+        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
+                         f"{camera.width}x{camera.height}", name)
+
+
+def check_camera_image(image: np.ndarray, camera: CameraIntrinsics, name: str) -> np.ndarray:
+    """``image`` as an array, refused unless a uint8 gray (H, W) or BGR (H, W, 3) image at the intrinsics' size."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+        raise InputError(f"expected a uint8 gray (H, W) or BGR (H, W, 3) image, got {image.dtype} of shape "
+                         f"{image.shape}", name)
+    check_image_size(image, camera, name)
+    return image

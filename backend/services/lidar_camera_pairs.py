@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import check_image_size
 from backend.core.errors import InputError, NotFoundError
 from backend.devices.base import DeviceError, Sample, create_device
 from backend.devices.image_io import decode_image_bytes
@@ -56,14 +56,6 @@ class CapturePair:
 def check_camera(session: Session, camera: str) -> None:
     if session.rig.get(camera).kind != "camera":
         raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
-
-
-def check_image_size(image: np.ndarray, camera: CameraIntrinsics, name: str) -> None:
-    """Refuse an image whose size is not the one the intrinsics were calibrated at."""
-    height, width = image.shape[:2]
-    if (width, height) != (camera.width, camera.height):
-        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
-                         f"{camera.width}x{camera.height}", name)
 
 
 def stored_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[CapturePair]:

@@ -61,7 +61,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 from scipy.spatial import cKDTree
 
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.camera_inverse import visible_radius
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
@@ -376,14 +376,7 @@ def in_texture(points: np.ndarray, settings: LidarCameraEdgesSettings) -> np.nda
 def _prepare(observation: EdgeObservation, name: str, camera: CameraIntrinsics, T_init: np.ndarray,
              settings: LidarCameraEdgesSettings) -> _Pair:
     """One pair's edges, refusing a pair whose image or cloud is unusable or has too few edges."""
-    image = np.asarray(observation.image)
-    if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
-        raise InputError(f"expected a uint8 gray (H, W) or BGR (H, W, 3) image, got {image.dtype} of shape "
-                         f"{image.shape}", f"{name}: image")
-    height, width = image.shape[:2]
-    if (width, height) != camera.image_size:
-        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
-                         f"{camera.width}x{camera.height}", f"{name}: image")
+    image = check_camera_image(observation.image, camera, f"{name}: image")
     edges = find_image_edges(image, settings.image)
     if len(edges) < settings.min_image_edge_pixels:
         raise InputError(

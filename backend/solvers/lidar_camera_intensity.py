@@ -66,7 +66,7 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.transforms import transform_points
@@ -405,14 +405,7 @@ class _Objective:
 
 def _equalised_grey(image: np.ndarray, name: str, camera: CameraIntrinsics) -> np.ndarray:
     """The image as histogram-equalised grey, float32 in [0, 1); refuses a bad image."""
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
-        raise InputError(f"expected a uint8 gray (H, W) or BGR (H, W, 3) image, got {image.dtype} of shape "
-                         f"{image.shape}", f"{name}: image")
-    height, width = image.shape[:2]
-    if (width, height) != camera.image_size:
-        raise InputError(f"the image is {width}x{height} px but the camera's intrinsics are for "
-                         f"{camera.width}x{camera.height}", f"{name}: image")
+    image = check_camera_image(image, camera, f"{name}: image")
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     return cv2.equalizeHist(grey).astype(np.float32) / 256.0
 
