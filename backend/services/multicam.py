@@ -76,7 +76,9 @@ def _calibrated_from_views(name: str, views: list[View], board: BoardSpec, size:
     if len(views) < 3:
         raise InputError(f"camera {name} has no intrinsics and only {len(views)} board views to calibrate them "
                          f"from; calibrate it in its own step or give at least 3 views", name)
-    return calibrate_intrinsics(views, board, size, IntrinsicsSettings(jackknife=False), progress).camera
+    # Only the camera is kept (the rig solve refines it): no jackknife, no two-halves cross-validation.
+    settings = IntrinsicsSettings(jackknife=False, cross_validate=False)
+    return calibrate_intrinsics(views, board, size, settings, progress).camera
 
 
 def starting_cameras(known: dict[str, CameraIntrinsics | None], observations: list[Observation], board: BoardSpec,
