@@ -2,8 +2,11 @@
 
 Solving commands print exactly one JSON object on stdout with ``--json`` (the
 contract in ``../shared/conventions.md``); progress and logs go to stderr. On
-failure they exit non-zero with a one-line error on stderr and, with ``--json``,
-``{"error": {"message", "input"}}`` on stdout.
+failure (bad arguments, bad input, a file that cannot be read or written, a bug)
+they exit non-zero with a one-line error on stderr and, with ``--json``,
+``{"error": {"message", "input"}}`` on stdout. Output files are checked before the
+solve starts; if one still cannot be written after it, the result is kept in a
+folder of the system's temp dir that the error names.
 """
 
 from __future__ import annotations
@@ -12,13 +15,27 @@ import argparse
 import json
 import re
 import sys
+import tempfile
+import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
-from backend.core.errors import InputError
+from backend.core.errors import InputError, clip, shorten
+from backend.exports.text_file import check_writable, write_text
 
 EXIT_INPUT_ERROR = 2
+EXIT_INTERNAL_ERROR = 1
+EXIT_CANCELLED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose errors (a missing or unknown option) raise :class:`InputError`, so they reach the user as every
+    other error does: the usage, then the one-line error and, with ``--json``, the JSON error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        raise InputError(message, self.prog)
 
 
 def _progress_to_stderr(quiet: bool) -> Callable[[float, str], None]:
@@ -37,7 +54,7 @@ def _add_serve_args(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="calib-studio", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="calib-studio", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="open the studio on a demo session of the simulated rig")
@@ -125,12 +142,48 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_outputs(*paths: Path | None) -> None:
+    """Refuse, before any work, an output file that cannot be written (see :func:`check_writable`)."""
+    for path in paths:
+        if path is not None:
+            check_writable(path)
+
+
+def _write_outputs(command: str, outputs: list[tuple[Path, str]], summary: dict[str, Any]) -> None:
+    """Write each ``(path, text)`` of a solved ``command``. If one fails, the result is not lost: ``summary`` (what
+    ``--json`` prints) and the files not yet written are kept by :func:`_keep_result`, and the error names both."""
+    for k, (path, text) in enumerate(outputs):
+        try:
+            write_text(path, text)
+        except InputError as exc:
+            raise InputError(f"{exc.message}; {_keep_result(command, summary, outputs[k:])}", exc.input) from None
+        print(f"wrote {path}", file=sys.stderr)
+
+
+def _keep_result(command: str, summary: dict[str, Any], unwritten: list[tuple[Path, str]]) -> str:
+    """Keep a solved result whose output could not be written, in a new folder of the system's temp dir (``TMPDIR``):
+    ``result.json`` and each unwritten file under its own name. Says where, for the error message; if even that
+    fails, the result goes to stderr as one ``result: {...}`` line."""
+    try:
+        folder = Path(tempfile.mkdtemp(prefix=f"calib-studio-{command}-"))
+        files = {"result.json": json.dumps(summary, indent=1)}
+        for path, text in unwritten:
+            files.setdefault(path.name, text)
+        for name, text in files.items():
+            write_text(folder / name, text)
+    except (OSError, InputError):
+        print(f"result: {json.dumps(summary)}", file=sys.stderr)
+        return "the result could not be kept on disk either: it is the 'result:' line above on stderr"
+    return f"the result is kept in {folder} ({', '.join(files)})"
+
+
 def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     from backend.core.boards import BoardSpec
-    from backend.exports.ros_camera_info import write_camera_info
+    from backend.exports.ros_camera_info import dump_camera_info
     from backend.services.intrinsics import calibrate_folder
     from backend.solvers.intrinsics import IntrinsicsSettings
 
+    _check_outputs(args.out)
     settings = IntrinsicsSettings(model=args.model, estimate_k3=args.k3, estimate_tangential=not args.no_tangential,
                                   fix_aspect=args.fix_aspect, drop_outliers=args.drop_outliers)
     result, skipped = calibrate_folder(args.images_dir, BoardSpec.parse(args.board), settings,
@@ -139,11 +192,10 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
         print(f"warning: {item['message']}", file=sys.stderr)
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    if args.out:
-        write_camera_info(args.out, result.camera, args.camera_name)
-        print(f"wrote {args.out}", file=sys.stderr)
     summary = result.summary()
     summary["views"] += [{"image": s["input"], "rms_px": None, "used": False} for s in skipped]
+    if args.out:
+        _write_outputs(args.command, [(args.out, dump_camera_info(result.camera, args.camera_name))], summary)
     if not args.json:
         cam = result.camera
         print(f"rms {result.rms_px:.4f} px over {sum(v.used for v in result.views)} views\n"
@@ -184,7 +236,7 @@ def _read_init(args: argparse.Namespace):
             values = []
         if len(values) != 6 or not np.isfinite(values).all():
             raise InputError(f"expected six comma-separated numbers x,y,z (m),yaw,pitch,roll (deg), "
-                             f"got {args.init_xyzypr!r}", "--init-xyzypr")
+                             f"got {shorten(args.init_xyzypr)}", "--init-xyzypr")
         return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
     return None
 
@@ -266,7 +318,7 @@ def _pairs(values: list[str], form: str = "IMAGE:CLOUD") -> list[tuple[Path, Pat
     for value in values:
         first, sep, second = value.rpartition(":")
         if not sep or not first or not second:
-            raise InputError(f"expected {form}, got {value!r}", "--pair")
+            raise InputError(f"expected {form}, got {shorten(value)}", "--pair")
         pairs.append((Path(first), Path(second)))
     return pairs
 
@@ -316,6 +368,7 @@ def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
     from backend.exports.rig_transforms import dump_rig_transforms
     from backend.services.multicam import parse_named, result_rig, solve_folders
 
+    _check_outputs(args.kalibr, args.transforms)
     folders = parse_named(args.camera, "IMAGES_DIR")
     result, warnings = solve_folders(folders, BoardSpec.parse(args.board), parse_named(args.intrinsics, "camera.yaml"),
                                      refine_intrinsics=args.refine_intrinsics, progress=_progress_to_stderr(False))
@@ -325,12 +378,12 @@ def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
     if not result.converged:
         print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
         raise InputError(f"no usable calibration: {(result.warnings or ['the solve failed'])[0]}", "--camera")
+    outputs = []
     if args.kalibr:
-        args.kalibr.write_text(dump_kalibr_camchain(list(result.cameras.items()), result.T_ref_cam))
-        print(f"wrote {args.kalibr}", file=sys.stderr)
+        outputs.append((args.kalibr, dump_kalibr_camchain(list(result.cameras.items()), result.T_ref_cam)))
     if args.transforms:
-        args.transforms.write_text(dump_rig_transforms(result_rig(result)))
-        print(f"wrote {args.transforms}", file=sys.stderr)
+        outputs.append((args.transforms, dump_rig_transforms(result_rig(result))))
+    _write_outputs(args.command, outputs, summary)
     if not args.json:
         import numpy as np
 
@@ -349,10 +402,11 @@ def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
 
+    _check_outputs(args.out)
     session = Session.load(args.session_dir)
     _, text = export_text(session, args.format, args.sensor)
     if args.out:
-        args.out.write_text(text)
+        write_text(args.out, text)
         print(f"wrote {args.out}", file=sys.stderr)
     else:
         sys.stdout.write(text)
@@ -388,20 +442,20 @@ def join_negative_values(parser: argparse.ArgumentParser, argv: list[str]) -> li
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(parser, sys.argv[1:] if argv is None else argv))
-    want_json = getattr(args, "json", False)
+    """Run one command; every failure ends here as the one-line error (and the JSON error with ``--json``)."""
+    argv = sys.argv[1:] if argv is None else argv
+    want_json = "--json" in argv  # until the arguments are parsed
     try:
+        parser = build_parser()
+        args = parser.parse_args(join_negative_values(parser, argv))
+        want_json = getattr(args, "json", False)
         if args.command in ("demo", "serve"):
             from studio.server import serve
 
             return serve(args)
-        if args.command == "intrinsics":
-            summary = run_intrinsics(args)
-            if want_json:
-                print(json.dumps(summary))
-        elif args.command in ("lidar-lidar", "lidar-camera", "multicam"):
-            run = {"lidar-lidar": run_lidar_lidar, "lidar-camera": run_lidar_camera, "multicam": run_multicam}
+        run = {"intrinsics": run_intrinsics, "lidar-lidar": run_lidar_lidar, "lidar-camera": run_lidar_camera,
+               "multicam": run_multicam}
+        if args.command in run:
             summary = run[args.command](args)
             if want_json:
                 print(json.dumps(summary))
@@ -409,13 +463,27 @@ def main(argv: list[str] | None = None) -> int:
             run_export(args)
         return 0
     except InputError as exc:
-        print(exc.one_line(), file=sys.stderr)
-        if want_json:
-            print(json.dumps({"error": exc.to_dict()}))
-        return EXIT_INPUT_ERROR
+        return _fail(exc, want_json, EXIT_INPUT_ERROR)
+    except OSError as exc:  # a file or device the commands' own checks did not cover
+        name = None if exc.filename is None else str(exc.filename)
+        return _fail(InputError(exc.strerror or str(exc) or type(exc).__name__, name), want_json, EXIT_INPUT_ERROR)
     except KeyboardInterrupt:
-        print("error: cancelled", file=sys.stderr)
-        return 130
+        return _fail(InputError("cancelled"), want_json, EXIT_CANCELLED)
+    except Exception as exc:  # a bug: its traceback for the report, then the error line as for any other failure
+        traceback.print_exc()
+        message = f"internal error ({type(exc).__name__}: {clip(str(exc))}); please report it with the traceback above"
+        return _fail(InputError(message), want_json, EXIT_INTERNAL_ERROR)
+
+
+def _fail(error: InputError, want_json: bool, code: int) -> int:
+    """Print ``error`` as the contract says (the line on stderr, the JSON on stdout) and return the exit code."""
+    print(error.one_line(), file=sys.stderr, flush=True)
+    if want_json:
+        try:
+            print(json.dumps({"error": error.to_dict()}), flush=True)
+        except OSError:  # stdout itself is gone (a closed pipe): the line on stderr has said it
+            pass
+    return code
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 
 BoardKind = Literal["checkerboard", "charuco"]
 
@@ -41,40 +41,40 @@ class BoardSpec:
     def parse(cls, spec: str) -> BoardSpec:
         """Parse a board spec string, raising :class:`InputError` naming the bad field."""
         parts = spec.strip().split(":")
-        kind = parts[0]
+        kind, shown = parts[0], shorten(spec)
         expected = {
             "checkerboard": "checkerboard:COLSxROWS:SQUARE (e.g. checkerboard:9x6:0.025)",
             "charuco": "charuco:COLSxROWS:SQUARE:MARKER:DICT (e.g. charuco:11x8:0.03:0.022:DICT_5X5_100)",
         }
         if kind not in expected:
             raise InputError(
-                f"unknown board kind {kind!r} in {spec!r}; expected 'checkerboard' or 'charuco'",
+                f"unknown board kind {shorten(kind)} in {shown}; expected 'checkerboard' or 'charuco'",
                 "board",
             )
         if len(parts) != {"checkerboard": 3, "charuco": 5}[kind]:
-            raise InputError(f"board spec {spec!r} has the wrong number of fields; expected {expected[kind]}", "board")
+            raise InputError(f"board spec {shown} has the wrong number of fields; expected {expected[kind]}", "board")
         try:
             cols_text, rows_text = parts[1].lower().split("x")
             cols, rows = int(cols_text), int(rows_text)
         except ValueError:
-            raise InputError(f"board size {parts[1]!r} in {spec!r} is not COLSxROWS; expected {expected[kind]}",
+            raise InputError(f"board size {shorten(parts[1])} in {shown} is not COLSxROWS; expected {expected[kind]}",
                              "board") from None
         try:
             square_m = float(parts[2])
             marker_m = float(parts[3]) if kind == "charuco" else 0.0
         except ValueError:
-            raise InputError(f"square or marker size in {spec!r} is not a number in metres", "board") from None
+            raise InputError(f"square or marker size in {shown} is not a number in metres", "board") from None
         if cols < 3 or rows < 2:
-            raise InputError(f"board {spec!r} is too small: at least 3x2", "board")
+            raise InputError(f"board {shown} is too small: at least 3x2", "board")
         if not 0 < square_m < 2:
-            raise InputError(f"square size {square_m} m in {spec!r} must be in metres, between 0 and 2", "board")
+            raise InputError(f"square size {square_m} m in {shown} must be in metres, between 0 and 2", "board")
         board = cls(kind, cols, rows, square_m, marker_m, parts[4] if kind == "charuco" else "")
         if kind == "charuco":
             if not 0 < marker_m < square_m:
-                raise InputError(f"marker size {marker_m} m in {spec!r} must be smaller than the square {square_m} m",
+                raise InputError(f"marker size {marker_m} m in {shown} must be smaller than the square {square_m} m",
                                  "board")
             if not hasattr(cv2.aruco, board.dictionary) or not board.dictionary.startswith("DICT_"):
-                raise InputError(f"unknown ArUco dictionary {board.dictionary!r} in {spec!r}; e.g. DICT_5X5_100",
+                raise InputError(f"unknown ArUco dictionary {shorten(board.dictionary)} in {shown}; e.g. DICT_5X5_100",
                                  "board")
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
             if dictionary.bytesList.shape[0] < (cols * rows) // 2:

@@ -62,7 +62,8 @@ from typing import Any
 import numpy as np
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
+from backend.core.finite import require_finite
 from backend.core.transforms import invert
 from backend.exports.text_file import read_text
 from backend.exports.yaml_fields import YamlFields, dump_yaml, floats, parse_yaml
@@ -102,7 +103,8 @@ def dump_kalibr_camchain(
     T_ref_cam[N-1]``. ``topics`` gives the ``rostopic`` per name (default
     :func:`default_topic`); ``overlaps`` the names each camera shares views with
     (default: every other camera). Raises :class:`InputError` naming the camera
-    for a repeated name, a missing or non-rigid ``T_ref_cam``, a skewed ``K`` or a
+    for a repeated name, a missing or non-rigid ``T_ref_cam``, a NaN or infinity in ``K`` or the
+    distortion, a skewed ``K`` or a
     ``k3`` Kalibr's radtan cannot hold (see :data:`K3_TOLERANCE_PX`), and
     ``ValueError`` if a camera holds more coefficients than its model has.
     """
@@ -112,17 +114,19 @@ def dump_kalibr_camchain(
     index = {}
     for i, name in enumerate(names):
         if name in index:
-            raise InputError(f"camera {name!r} is listed twice; camera names must be unique", name)
+            raise InputError(f"camera {shorten(name)} is listed twice; camera names must be unique", name)
         index[name] = i
     topics = topics or {}
     poses = [_rigid(T_ref_cam, name) for name in names]
     document: dict[str, dict[str, Any]] = {}
     for i, (name, camera) in enumerate(cameras):
+        require_finite({"K": camera.K, "dist": camera.dist}, f"camera {shorten(name)}", name)
         others = [n for n in names if n != name] if overlaps is None else list(overlaps.get(name, []))
         for other in others:
             if other not in index or other == name:
                 raise InputError(
-                    f"overlaps of {name!r} name {other!r}; expected other cameras of the chain: {names}", name
+                    f"overlaps of {shorten(name)} name {shorten(other)}; expected other cameras of the chain: "
+                    f"{names}", name
                 )
         entry: dict[str, Any] = {}
         if i > 0:
@@ -164,14 +168,14 @@ def load_kalibr_camchain(
     document = parse_yaml(text, origin, _EXPECTED_FILE)
     fields = _Fields(origin)
     if not isinstance(document, dict) or not document:
-        found = "empty" if document is None else f"{document!r}"[:80]
+        found = "empty" if document is None else shorten(document, 80)
         raise InputError(f"{origin}: the document is {found}; expected {_EXPECTED_FILE}", origin)
     keys = [str(k) for k in document]
     count = len(keys)
     for i in range(count):
         if f"cam{i}" not in document:
             extra = sorted(set(keys) - {f"cam{j}" for j in range(count)})
-            raise fields.error(f"cam{i}", f"is missing (keys: {keys}; unexpected: {extra})",
+            raise fields.error(f"cam{i}", f"is missing (keys: {shorten(keys)}; unexpected: {shorten(extra)})",
                                f"cameras named cam0 ... cam{count - 1}, one per key")
     cameras: list[tuple[str, CameraIntrinsics]] = []
     T_ref_cam: dict[str, np.ndarray] = {}
@@ -183,8 +187,9 @@ def load_kalibr_camchain(
         camera = fields.camera(entry, key)
         name = _name(entry.get("rostopic"), i, {n for n, _ in cameras})
         if name is None:
-            raise fields.error(f"{key}.rostopic", f"is {entry.get('rostopic')!r}: its name and {key!r} are both "
-                               "taken by earlier cameras", "a rostopic naming a camera not yet in the chain")
+            raise fields.error(f"{key}.rostopic", f"is {shorten(entry.get('rostopic'))}: its name and "
+                               f"{shorten(key)} are both taken by earlier cameras",
+                               "a rostopic naming a camera not yet in the chain")
         fields.overlaps(entry, key, count, i)
         if i == 0:
             T_cam0_cam = np.eye(4)
@@ -209,7 +214,7 @@ def _name(topic: Any, index: int, taken: set[str]) -> str | None:
 
 def _rigid(T_ref_cam: Mapping[str, np.ndarray], name: str) -> np.ndarray:
     if name not in T_ref_cam:
-        raise InputError(f"no T_ref_cam for camera {name!r}; known: {sorted(T_ref_cam)}", name)
+        raise InputError(f"no T_ref_cam for camera {shorten(name)}; known: {sorted(T_ref_cam)}", name)
     T = np.asarray(T_ref_cam[name], dtype=float)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not _is_rigid(T):
         raise InputError(f"T_ref_cam of {name!r} is not a rigid 4x4 transform: {T.tolist()}", name)
@@ -261,21 +266,21 @@ class _Fields(YamlFields):
     def numbers(self, entry: dict[str, Any], key: str, field: str, count: int, expected: str) -> np.ndarray:
         values = self.get(entry, key, field, expected)
         if not isinstance(values, list) or len(values) != count:
-            found = f"has {len(values)} values" if isinstance(values, list) else f"is {values!r}"
+            found = f"has {len(values)} values" if isinstance(values, list) else f"is {shorten(values)}"
             raise self.error(field, found, expected)
         return np.array([self.number(v, f"{field}[{i}]") for i, v in enumerate(values)])
 
     def camera(self, entry: dict[str, Any], key: str) -> CameraIntrinsics:
         model = self.get(entry, "camera_model", f"{key}.camera_model", "pinhole")
         if model != "pinhole":
-            raise self.error(f"{key}.camera_model", f"is {model!r}, which is not supported",
+            raise self.error(f"{key}.camera_model", f"is {shorten(model)}, which is not supported",
                              "pinhole (omni, ds and eucm have no OpenCV counterpart here)")
         fu, fv, pu, pv = self.numbers(entry, "intrinsics", f"{key}.intrinsics", 4, "[fu, fv, pu, pv] (px)")
         if not (fu > 0 and fv > 0):
             raise self.error(f"{key}.intrinsics", f"is {[fu, fv, pu, pv]}", "[fu, fv, pu, pv] with fu, fv > 0 (px)")
         dist_model = self.get(entry, "distortion_model", f"{key}.distortion_model", "radtan or equidistant")
         if dist_model not in _MODELS_BY_KALIBR_NAME:
-            raise self.error(f"{key}.distortion_model", f"is {dist_model!r}, which is not supported",
+            raise self.error(f"{key}.distortion_model", f"is {shorten(dist_model)}, which is not supported",
                              f"one of {sorted(_MODELS_BY_KALIBR_NAME)}")
         n = _COEFF_COUNTS[dist_model]
         names = {"radtan": "[k1, k2, r1, r2]", "none": "[]", "equidistant": "[k1, k2, k3, k4]"}[dist_model]
@@ -284,7 +289,8 @@ class _Fields(YamlFields):
         resolution = self.get(entry, "resolution", f"{key}.resolution", "[width, height] (px)")
         if (not isinstance(resolution, list) or len(resolution) != 2
                 or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in resolution)):
-            raise self.error(f"{key}.resolution", f"is {resolution!r}", "[width, height]: two positive integers (px)")
+            raise self.error(f"{key}.resolution", f"is {shorten(resolution)}",
+                             "[width, height]: two positive integers (px)")
         K = np.array([[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]])
         model_name = _MODELS_BY_KALIBR_NAME[dist_model]
         dist = np.zeros(len(DIST_NAMES[model_name]))
@@ -298,10 +304,10 @@ class _Fields(YamlFields):
         values = entry["cam_overlaps"]
         expected = f"a list of other camera indices in 0..{count - 1}"
         if not isinstance(values, list):
-            raise self.error(f"{key}.cam_overlaps", f"is {values!r}", expected)
+            raise self.error(f"{key}.cam_overlaps", f"is {shorten(values)}", expected)
         for j, value in enumerate(values):
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < count or value == index:
-                raise self.error(f"{key}.cam_overlaps[{j}]", f"is {value!r}", expected)
+                raise self.error(f"{key}.cam_overlaps[{j}]", f"is {shorten(value)}", expected)
 
     def transform(self, entry: dict[str, Any], key: str) -> np.ndarray:
         """``T_cn_cnm1``: 4 rows of 4 finite numbers forming a rigid transform (translation in metres)."""
@@ -309,12 +315,12 @@ class _Fields(YamlFields):
         expected = f"4 rows of 4 numbers: the rigid transform mapping points in cam{int(key[3:]) - 1} into {key} (m)"
         rows = self.get(entry, "T_cn_cnm1", field, expected)
         if not isinstance(rows, list) or len(rows) != 4:
-            found = f"has {len(rows)} rows" if isinstance(rows, list) else f"is {rows!r}"
+            found = f"has {len(rows)} rows" if isinstance(rows, list) else f"is {shorten(rows)}"
             raise self.error(field, found, expected)
         T = np.zeros((4, 4))
         for r, row in enumerate(rows):
             if not isinstance(row, list) or len(row) != 4:
-                found = f"has {len(row)} values" if isinstance(row, list) else f"is {row!r}"
+                found = f"has {len(row)} values" if isinstance(row, list) else f"is {shorten(row)}"
                 raise self.error(f"{field}[{r}]", found, expected)
             T[r] = [self.number(v, f"{field}[{r}][{c}]") for c, v in enumerate(row)]
         if not _is_rigid(T):

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 from backend.exports.text_file import read_text
 
 CAMERA_KEYS = ("image_width", "image_height", "distortion_model", "camera_matrix", "distortion_coefficients")
@@ -101,7 +101,7 @@ def read_opencv_yaml(path: Path) -> CameraIntrinsics:
     K = nodes.matrix("camera_matrix")
     if K.shape != (3, 3) or not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0])):
         expected = "a 3x3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0"
-        raise nodes.error("camera_matrix", f"is {K.tolist()}", expected)
+        raise nodes.error("camera_matrix", f"is {shorten(K.tolist())}", expected)
     model = nodes.model()
     dist = nodes.matrix("distortion_coefficients").ravel()
     counts = (4, 5) if model == "pinhole-radtan" else (4,)
@@ -159,7 +159,8 @@ class _Nodes:
         if item is not None:
             name = item.string() if item.isString() else ""
             if name not in _MODEL_NAMES:
-                raise self.error("distortion_model", f"is {name or 'not a string'!r}", f"one of {sorted(_MODEL_NAMES)}")
+                raise self.error("distortion_model", f"is {shorten(name) if name else 'not a string'}",
+                                 f"one of {sorted(_MODEL_NAMES)}")
             return _MODEL_NAMES[name]
         flag = self._get("fisheye_model")
         if flag is not None and flag.isInt() and flag.real() != 0:

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from backend.core.errors import shorten
 from backend.core.rig import Rig
 from backend.core.transforms import (
     from_quaternion_xyzw,
@@ -109,14 +110,14 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
     fields = _Fields(origin)
     top = fields.mapping(document, "(document)", f"a {FORMAT} mapping with format, version, root and frames")
     if fields.get(top, "format", "format", repr(FORMAT)) != FORMAT:
-        raise fields.error("format", f"is {top['format']!r}", repr(FORMAT))
+        raise fields.error("format", f"is {shorten(top['format'])}", repr(FORMAT))
     version = fields.get(top, "version", "version", str(VERSION))
     if isinstance(version, bool) or version != VERSION:
-        raise fields.error("version", f"is {version!r}", f"{VERSION} (the only version this reader knows)")
+        raise fields.error("version", f"is {shorten(version)}", f"{VERSION} (the only version this reader knows)")
     root = fields.name(top, "root", "root")
     entries = fields.get(top, "frames", "frames", "a list of frames")
     if not isinstance(entries, list):
-        raise fields.error("frames", f"is {entries!r}", "a list of frames")
+        raise fields.error("frames", f"is {shorten(entries)}", "a list of frames")
     known = {root}
     result = []
     for i, entry in enumerate(entries):
@@ -125,9 +126,11 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
         parent = fields.name(entry, "parent", f"{where}.parent")
         child = fields.name(entry, "child", f"{where}.child")
         if parent not in known:
-            raise fields.error(f"{where}.parent", f"is {parent!r}", f"the root or an earlier child: {sorted(known)}")
+            raise fields.error(f"{where}.parent", f"is {shorten(parent)}",
+                               f"the root or an earlier child: {shorten(sorted(known))}")
         if child in known:
-            raise fields.error(f"{where}.child", f"is {child!r}, which is already in the rig", "a new frame name")
+            raise fields.error(f"{where}.child", f"is {shorten(child)}, which is already in the rig",
+                               "a new frame name")
         known.add(child)
         result.append(
             {
@@ -146,7 +149,7 @@ class _Fields(YamlFields):
     def name(self, mapping: dict[str, Any], key: str, field: str) -> str:
         value = self.get(mapping, key, field, "a frame name")
         if not isinstance(value, str) or not value:
-            raise self.error(field, f"is {value!r}", "a non-empty frame name")
+            raise self.error(field, f"is {shorten(value)}", "a non-empty frame name")
         return value
 
     def numbers(self, mapping: dict[str, Any], key: str, field: str, names: tuple[str, ...], unit: str) -> np.ndarray:
@@ -193,9 +196,9 @@ class _Fields(YamlFields):
             field = f"{where}.sigma.{key}"
             values = self.get(node, key, field, expected)
             if not isinstance(values, list) or len(values) != 3:
-                raise self.error(field, f"is {values!r}", "a list of 3 non-negative numbers")
+                raise self.error(field, f"is {shorten(values)}", "a list of 3 non-negative numbers")
             numbers = np.array([self.number(v, f"{field}[{i}]") for i, v in enumerate(values)])
             if np.any(numbers < 0):
-                raise self.error(field, f"is {values!r}", "a list of 3 non-negative numbers")
+                raise self.error(field, f"is {shorten(values)}", "a list of 3 non-negative numbers")
             result[key] = numbers
         return result

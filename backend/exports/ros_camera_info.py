@@ -24,8 +24,9 @@ import cv2
 import numpy as np
 
 from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
-from backend.core.errors import InputError
-from backend.exports.text_file import read_text
+from backend.core.errors import InputError, shorten
+from backend.core.finite import require_finite
+from backend.exports.text_file import read_text, write_text
 from backend.exports.yaml_fields import YamlFields, dump_yaml, parse_yaml
 
 MODELS_BY_ROS_NAME: dict[str, CameraModelName] = {
@@ -69,11 +70,12 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
 
     ``R`` is the identity (a monocular camera is not rectified against another)
     and ``P`` is :func:`projection_matrix`. Raises ``ValueError`` if ``camera``
-    holds more distortion coefficients than its model has.
+    holds more distortion coefficients than its model has, and :class:`InputError` for a NaN or infinity.
     """
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")
+    require_finite({"K": camera.K, "dist": camera.dist}, f"camera_info of {shorten(camera_name)}", camera_name)
     document = {
         "image_width": int(camera.width),
         "image_height": int(camera.height),
@@ -91,10 +93,9 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
 
 
 def write_camera_info(path: Path, camera: CameraIntrinsics, camera_name: str) -> None:
-    """Write :func:`dump_camera_info` to ``path``, creating its folder as ROS's writer does."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(dump_camera_info(camera, camera_name), encoding="utf-8")
+    """Write :func:`dump_camera_info` to ``path`` atomically (:func:`write_text`), creating its folder as ROS's
+    writer does."""
+    write_text(path, dump_camera_info(camera, camera_name))
 
 
 def load_camera_info(path: Path) -> tuple[CameraIntrinsics, str]:
@@ -152,19 +153,20 @@ class _Fields(YamlFields):
     def positive_int(self, key: str) -> int:
         value = self.get(self.document, key, key, "a positive integer (pixels)")
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise self.error(key, f"is {value!r}", "a positive integer (pixels)")
+            raise self.error(key, f"is {shorten(value)}", "a positive integer (pixels)")
         return value
 
     def name(self, key: str) -> str:
         value = self.document.get(key, "unknown")
         if isinstance(value, bool) or not isinstance(value, str | int | float):
-            raise self.error(key, f"is {value!r}", "a camera name (a string)")
+            raise self.error(key, f"is {shorten(value)}", "a camera name (a string)")
         return str(value)
 
     def distortion_model(self, key: str) -> CameraModelName:
         value = self.document.get(key, "plumb_bob")
         if value not in MODELS_BY_ROS_NAME:
-            raise self.error(key, f"is {value!r}, which is not supported", f"one of {sorted(MODELS_BY_ROS_NAME)}")
+            raise self.error(key, f"is {shorten(value)}, which is not supported",
+                             f"one of {sorted(MODELS_BY_ROS_NAME)}")
         return MODELS_BY_ROS_NAME[value]
 
     def matrix(self, key: str, rows: int | None, cols: int | None) -> np.ndarray:
@@ -173,18 +175,18 @@ class _Fields(YamlFields):
         expected = f"a mapping {{rows, cols, data}} holding a {shape} matrix, data row-major"
         node = self.get(self.document, key, key, expected)
         if not isinstance(node, dict):
-            raise self.error(key, f"is {node!r}", expected)
+            raise self.error(key, f"is {shorten(node)}", expected)
         size: dict[str, int] = {}
         for part, want in (("rows", rows), ("cols", cols)):
             value = self.get(node, part, f"{key}.{part}", expected)
             wrong_size = want is not None and value != want
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0 or wrong_size:
-                raise self.error(f"{key}.{part}", f"is {value!r}", str(want) if want else "a positive integer")
+                raise self.error(f"{key}.{part}", f"is {shorten(value)}", str(want) if want else "a positive integer")
             size[part] = value
         count = size["rows"] * size["cols"]
         data = self.get(node, "data", f"{key}.data", f"a list of {count} numbers")
         if not isinstance(data, list) or len(data) != count:
-            found = f"has {len(data)} values" if isinstance(data, list) else f"is {data!r}"
+            found = f"has {len(data)} values" if isinstance(data, list) else f"is {shorten(data)}"
             raise self.error(
                 f"{key}.data", f"{found} but rows*cols = {size['rows']}*{size['cols']}", f"a list of {count} numbers"
             )
