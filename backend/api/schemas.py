@@ -1,4 +1,9 @@
-"""Request and response models at the API edge (pydantic); the services take plain values."""
+"""Request and response models at the API edge (pydantic); the services take plain values.
+
+Every request model is a :class:`~backend.store.schema.FiniteModel`: a NaN or infinity in any number
+(JSON's ``NaN``/``Infinity`` literals, which FastAPI's parser accepts, or the strings ``"nan"``, ``"inf"``)
+is a 422 naming the field, and so is one inside a free-form ``device`` mapping.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from backend.store.schema import NAME_PATTERN
+from backend.store.schema import NAME_PATTERN, FiniteModel, FiniteTree
 
 
 class ErrorBody(BaseModel):
@@ -18,27 +23,27 @@ class ErrorResponse(BaseModel):
     error: ErrorBody
 
 
-class SessionCreate(BaseModel):
+class SessionCreate(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN, examples=["robot-2026-11-23"])
     title: str = ""
     board: str | None = Field(None, examples=["checkerboard:9x6:0.025"])
 
 
-class BoardUpdate(BaseModel):
+class BoardUpdate(FiniteModel):
     board: str = Field(examples=["charuco:11x8:0.03:0.022:DICT_5X5_100"])
 
 
-class SensorCreate(BaseModel):
+class SensorCreate(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN, examples=["cam_front"])
     parent: str = "base_link"
     kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "camera"
     xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ypr_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ROS yaw, pitch, roll in degrees")
-    device: dict[str, Any] = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
+    device: FiniteTree = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
                                                                      "height": 720}])
 
 
-class IntrinsicsSolveRequest(BaseModel):
+class IntrinsicsSolveRequest(FiniteModel):
     model: Literal["pinhole-radtan", "fisheye-equidistant", "auto"] = Field(
         "pinhole-radtan", description="'auto': compare the lens models on held-out views and solve with the best")
     estimate_k3: bool = False
@@ -49,7 +54,7 @@ class IntrinsicsSolveRequest(BaseModel):
     capture_ids: list[str] | None = None
 
 
-class AcceptRequest(BaseModel):
+class AcceptRequest(FiniteModel):
     result_id: str
     confirm: bool = Field(False, description="accept a result whose verdict is 'check' (its reasons were read)")
 
@@ -73,7 +78,7 @@ class ImportResponse(BaseModel):
     skipped: list[ErrorBody]
 
 
-class LidarLidarSolveRequest(BaseModel):
+class LidarLidarSolveRequest(FiniteModel):
     source: str = Field(examples=["lidar_front"])
     target: str = Field(examples=["lidar_top"])
     init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_target_source translation (m)")
@@ -87,34 +92,34 @@ class LidarLidarSolveRequest(BaseModel):
                           "scene's own solve cross-checks the others (the result's 'scenes' and 'verdict')")
 
 
-class LidarLidarAccept(BaseModel):
+class LidarLidarAccept(FiniteModel):
     result_id: str
     confirm: bool = Field(False, description="accept a result whose verdict is 'check' (its reasons were read)")
 
 
-class RecordingImportRequest(BaseModel):
-    device: dict[str, Any] | None = Field(
+class RecordingImportRequest(FiniteModel):
+    device: FiniteTree | None = Field(
         None, description="device settings of the recording; default the sensor's own device",
         examples=[{"driver": "rosbag", "path": "/data/run.mcap", "topic": "/points", "start_s": 5.0, "end_s": 20.0}])
     every: int = Field(1, ge=1, description="keep every n-th scan")
     limit: int = Field(200, ge=1, le=10_000, description="stop after this many scans")
 
 
-class SweepCalibrateRequest(BaseModel):
+class SweepCalibrateRequest(FiniteModel):
     capture_id: str | None = Field(None, description="the sweep to calibrate from; default the latest swept capture")
     up_mount: tuple[float, float, float] | None = Field(
         None, description="the floor's up direction in the sensor (mount) frame; default the rig root's +z")
     estimate_tilt: bool = Field(True, description="also estimate the scanner's tilt on the servo horn")
 
 
-class LidarCameraPairCapture(BaseModel):
+class LidarCameraPairCapture(FiniteModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
     require_board: bool = Field(True, description="refuse a pair whose image shows no board (off for the "
                                                   "targetless method), and wait for the board to hold still")
 
 
-class LidarCameraSolveRequest(BaseModel):
+class LidarCameraSolveRequest(FiniteModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
     method: Literal["target", "edges", "intensity"] = "target"
@@ -130,7 +135,7 @@ class LidarCameraSolveRequest(BaseModel):
                                                  "their agreement is a cross-check in the verdict")
 
 
-class LidarCameraManual(BaseModel):
+class LidarCameraManual(FiniteModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
     xyz_m: tuple[float, float, float] = Field(description="T_camera_lidar translation (m)")
@@ -138,13 +143,13 @@ class LidarCameraManual(BaseModel):
     inputs: list[str] = Field(default_factory=list, description="the captures it was judged on, as sensor:capture")
 
 
-class MulticamSetCapture(BaseModel):
+class MulticamSetCapture(FiniteModel):
     cameras: list[str] = Field(min_length=2, examples=[["cam_front", "cam_wide"]])
     tolerance_s: float = Field(0.02, ge=0, description="largest spread of the cameras' frame stamps (s)")
     require_board: bool = Field(True, description="refuse a set in which fewer than two cameras see the board")
 
 
-class MulticamBagImport(BaseModel):
+class MulticamBagImport(FiniteModel):
     path: str = Field(description="a ROS 2 bag (folder, .mcap or .db3) on the server's machine")
     topics: dict[str, str] = Field(min_length=2, description="camera -> image topic",
                                    examples=[{"cam_front": "/cam_front/image_raw", "cam_wide": "/cam_wide/image_raw"}])
@@ -155,7 +160,7 @@ class MulticamBagImport(BaseModel):
     end_s: float | None = Field(None, description="skip frames after this bag time (s)")
 
 
-class MulticamSolveRequest(BaseModel):
+class MulticamSolveRequest(FiniteModel):
     cameras: list[str] = Field(min_length=2, description="the first is the reference", examples=[["cam_front",
                                                                                                  "cam_wide"]])
     refine_intrinsics: bool = Field(False, description="refine every camera's intrinsics with the rig (cameras "

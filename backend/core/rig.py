@@ -16,6 +16,7 @@ import numpy as np
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError, NotFoundError
+from backend.core.finite import require_finite
 
 SensorKind = Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"]
 
@@ -35,9 +36,12 @@ class Frame:
     """How to capture from this sensor: ``{"driver": ..., **settings}``."""
 
     def __post_init__(self) -> None:
+        """Shape the arrays; a NaN or infinity in the transform or covariance raises :class:`InputError`."""
         self.T_parent_child = np.asarray(self.T_parent_child, dtype=float).reshape(4, 4)
         if self.covariance is not None:
             self.covariance = np.asarray(self.covariance, dtype=float).reshape(6, 6)
+        require_finite({"T_parent_child": self.T_parent_child, "covariance": self.covariance},
+                       f"frame {self.name!r}", self.name)
 
     @property
     def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -101,11 +105,14 @@ class Rig:
         ``covariance`` (6x6 over translation in ``reference`` axes, m, and rotation about the
         child's axes, rad) is carried into the parent's axes to first order: the translation
         block is rotated by ``R_parent_reference``; rotations stay about the child's axes, as the
-        rig's convention wants. A covariance that is missing or not finite leaves none.
+        rig's convention wants. A covariance that is missing or not finite leaves none; a transform that is
+        not finite raises :class:`InputError` and leaves the frame as it was.
         """
         frame = self.get(child)
         T_parent_reference = self.T_a_b(frame.parent, reference)
-        frame.T_parent_child = T_parent_reference @ np.asarray(T_reference_child, dtype=float)
+        T_parent_child = T_parent_reference @ np.asarray(T_reference_child, dtype=float)
+        require_finite({"T_parent_child": T_parent_child}, f"frame {child!r}", child)
+        frame.T_parent_child = T_parent_child
         if covariance is None or not np.all(np.isfinite(covariance)):
             frame.covariance = None
             return

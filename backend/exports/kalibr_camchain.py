@@ -63,6 +63,7 @@ import numpy as np
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError, shorten
+from backend.core.finite import require_finite
 from backend.core.transforms import invert
 from backend.exports.text_file import read_text
 from backend.exports.yaml_fields import YamlFields, dump_yaml, floats, parse_yaml
@@ -102,7 +103,8 @@ def dump_kalibr_camchain(
     T_ref_cam[N-1]``. ``topics`` gives the ``rostopic`` per name (default
     :func:`default_topic`); ``overlaps`` the names each camera shares views with
     (default: every other camera). Raises :class:`InputError` naming the camera
-    for a repeated name, a missing or non-rigid ``T_ref_cam``, a skewed ``K`` or a
+    for a repeated name, a missing or non-rigid ``T_ref_cam``, a NaN or infinity in ``K`` or the
+    distortion, a skewed ``K`` or a
     ``k3`` Kalibr's radtan cannot hold (see :data:`K3_TOLERANCE_PX`), and
     ``ValueError`` if a camera holds more coefficients than its model has.
     """
@@ -118,6 +120,7 @@ def dump_kalibr_camchain(
     poses = [_rigid(T_ref_cam, name) for name in names]
     document: dict[str, dict[str, Any]] = {}
     for i, (name, camera) in enumerate(cameras):
+        require_finite({"K": camera.K, "dist": camera.dist}, f"camera {shorten(name)}", name)
         others = [n for n in names if n != name] if overlaps is None else list(overlaps.get(name, []))
         for other in others:
             if other not in index or other == name:

@@ -23,6 +23,7 @@ import numpy as np
 
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError, shorten
+from backend.core.finite import require_finite
 from backend.exports.text_file import read_text
 
 CAMERA_KEYS = ("image_width", "image_height", "distortion_model", "camera_matrix", "distortion_coefficients")
@@ -49,11 +50,13 @@ def dump_opencv_yaml(camera: CameraIntrinsics, extra: dict[str, float | str] | N
     ``extra`` maps node names (letters, digits, ``_``) to numbers or strings, e.g.
     ``{"avg_reprojection_error": 0.21}``. Raises ``ValueError`` for an extra name
     that is not a valid node name or clashes with :data:`CAMERA_KEYS`, and if
-    ``camera`` holds more distortion coefficients than its model has.
+    ``camera`` holds more distortion coefficients than its model has; :class:`InputError` for a NaN or infinity.
     """
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")
+    require_finite({"camera_matrix": camera.K, "distortion_coefficients": camera.dist, "extra": extra},
+                   "OpenCV YAML", "camera")
     extra = extra or {}
     for key in extra:
         if key in CAMERA_KEYS or not _KEY_PATTERN.fullmatch(key):

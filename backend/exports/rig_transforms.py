@@ -22,7 +22,8 @@ Rx(roll)``). ``sigma`` holds 1-sigma translation (m, per axis) and rotation (deg
 about the child's x, y, z). Frames are listed parents first. The command uses the
 ROS 2 Humble+ flag form of tf2_ros ``static_transform_publisher`` (flags as in
 ros2/geometry2 ``tf2_ros/src/static_transform_broadcaster_program.cpp``), with
-angles in radians as tf2 expects. Floats are written at full precision.
+angles in radians as tf2 expects. Floats are written at full precision; a NaN or
+infinity is refused (:class:`InputError` naming the frame), never written.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from backend.core.errors import shorten
+from backend.core.finite import require_finite
 from backend.core.rig import Rig
 from backend.core.transforms import (
     from_quaternion_xyzw,
@@ -65,6 +67,7 @@ def dump_rig_transforms(rig: Rig) -> str:
         if q[3] < 0:
             q = -q
         sigmas = frame.sigmas
+        require_finite({"sigma": sigmas}, f"rig transforms: frame {frame.name!r}", frame.name)
         frames.append(
             {
                 "parent": frame.parent,
@@ -81,7 +84,9 @@ def dump_rig_transforms(rig: Rig) -> str:
 
 
 def static_transform_publisher(parent: str, child: str, T_parent_child: np.ndarray) -> str:
-    """The ROS 2 command publishing ``T_parent_child`` (translation m, yaw/pitch/roll rad)."""
+    """The ROS 2 command publishing ``T_parent_child`` (translation m, yaw/pitch/roll rad); a NaN or
+    infinity in it raises :class:`InputError` naming ``child``."""
+    require_finite({"T_parent_child": T_parent_child}, f"static_transform_publisher: frame {child!r}", child)
     (x, y, z), (yaw, pitch, roll) = (floats(v) for v in to_xyz_ypr(T_parent_child))
     values = {"x": x, "y": y, "z": z, "yaw": yaw, "pitch": pitch, "roll": roll}
     flags = " ".join(f"--{name} {value!r}" for name, value in values.items())

@@ -25,6 +25,7 @@ import numpy as np
 
 from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError, shorten
+from backend.core.finite import require_finite
 from backend.exports.text_file import read_text, write_text
 from backend.exports.yaml_fields import YamlFields, dump_yaml, parse_yaml
 
@@ -69,11 +70,12 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
 
     ``R`` is the identity (a monocular camera is not rectified against another)
     and ``P`` is :func:`projection_matrix`. Raises ``ValueError`` if ``camera``
-    holds more distortion coefficients than its model has.
+    holds more distortion coefficients than its model has, and :class:`InputError` for a NaN or infinity.
     """
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")
+    require_finite({"K": camera.K, "dist": camera.dist}, f"camera_info of {shorten(camera_name)}", camera_name)
     document = {
         "image_width": int(camera.width),
         "image_height": int(camera.height),

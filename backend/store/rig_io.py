@@ -6,23 +6,25 @@ import numpy as np
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
-from backend.store.schema import CameraModel, FrameModel, RigModel
+from backend.store.schema import RigModel
 
 
 def rig_to_model(rig: Rig) -> RigModel:
+    """The rig's on-disk form, validated as one document, so an error names its place
+    (``frames.2.intrinsics.K.0.0``); raises pydantic's ``ValidationError`` (e.g. for a NaN)."""
     frames = [
-        FrameModel(
-            name=f.name,
-            parent=f.parent,
-            kind=f.kind,
-            T_parent_child=f.T_parent_child.tolist(),
-            covariance=None if f.covariance is None else f.covariance.tolist(),
-            intrinsics=None if f.intrinsics is None else CameraModel(**f.intrinsics.to_dict()),
-            device=f.device,
-        )
+        {
+            "name": f.name,
+            "parent": f.parent,
+            "kind": f.kind,
+            "T_parent_child": f.T_parent_child.tolist(),
+            "covariance": None if f.covariance is None else f.covariance.tolist(),
+            "intrinsics": None if f.intrinsics is None else f.intrinsics.to_dict(),
+            "device": f.device,
+        }
         for f in rig.frames.values()
     ]
-    return RigModel(root=rig.root, frames=frames)
+    return RigModel.model_validate({"root": rig.root, "frames": frames})
 
 
 def rig_from_model(model: RigModel) -> Rig:

@@ -7,9 +7,11 @@ whenever the layout changes; loading a different version says so.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
+
+from backend.core.finite import first_non_finite
 
 SCHEMA_VERSION = 1
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$"
@@ -17,7 +19,24 @@ FILE_NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\.[a-z0-9]{1,5}"
 """A file kept in a session folder: a plain name and one extension, never a path."""
 
 
-class CameraModel(BaseModel):
+class FiniteModel(BaseModel):
+    """A model whose float fields refuse NaN and infinity (also as the strings ``"nan"``, ``"inf"``)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
+def _finite_tree(value: dict[str, Any]) -> dict[str, Any]:
+    found = first_non_finite(value)
+    if found is not None:
+        raise ValueError(f"'{found[0]}' is {found[1]!r}; expected a finite number")
+    return value
+
+
+FiniteTree = Annotated[dict[str, Any], AfterValidator(_finite_tree)]
+"""Free-form settings (a device's options) in which every number must be finite."""
+
+
+class CameraModel(FiniteModel):
     model: Literal["pinhole-radtan", "fisheye-equidistant"]
     width: int = Field(gt=0, description="image width (px)")
     height: int = Field(gt=0, description="image height (px)")
@@ -32,14 +51,14 @@ class CameraModel(BaseModel):
         return K
 
 
-class FrameModel(BaseModel):
+class FrameModel(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN)
     parent: str | None
     kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "frame"
     T_parent_child: list[list[float]] = Field(description="4x4 transform, translation in metres")
     covariance: list[list[float]] | None = Field(None, description="6x6 over [t (m), r (rad)]")
     intrinsics: CameraModel | None = None
-    device: dict[str, Any] = Field(default_factory=dict)
+    device: FiniteTree = Field(default_factory=dict)
 
     @field_validator("T_parent_child")
     @classmethod
@@ -48,13 +67,20 @@ class FrameModel(BaseModel):
             raise ValueError("T_parent_child must be 4x4")
         return T
 
+    @field_validator("covariance")
+    @classmethod
+    def _six_by_six(cls, C: list[list[float]] | None) -> list[list[float]] | None:
+        if C is not None and (len(C) != 6 or any(len(row) != 6 for row in C)):
+            raise ValueError("covariance must be 6x6")
+        return C
 
-class RigModel(BaseModel):
+
+class RigModel(FiniteModel):
     root: str = "base_link"
     frames: list[FrameModel]
 
 
-class Acceptance(BaseModel):
+class Acceptance(FiniteModel):
     """One entry of the acceptance log: which result became current for which slot, when."""
 
     slot: str = Field(description="what the result calibrates, e.g. 'cam_front/intrinsics'")
@@ -65,7 +91,7 @@ class Acceptance(BaseModel):
     confirmed: bool = Field(False, description="the user confirmed a 'check' verdict to accept it")
 
 
-class SessionFile(BaseModel):
+class SessionFile(FiniteModel):
     schema_version: int
     name: str = Field(pattern=NAME_PATTERN)
     title: str = ""

@@ -6,10 +6,18 @@ Layout::
     <root>/<name>/captures/<sensor>/<id>.png      captured image, or <id>.npy for a cloud (write-once)
     <root>/<name>/captures/<sensor>/<id>.json     capture metadata (write-once)
     <root>/<name>/results/<id>.json               one solve result each (write-once)
+    <root>/<name>/quarantine/<same path>          a broken capture or result, moved aside
+    <root>/<name>/quarantine/<folder>/<id>.why.json   why it was moved: file, moved, to, reason, at
 
 Nothing is ever overwritten but ``session.json``, and that only atomically, so
 captures and results survive crashes, and accepting an older result (revert) is
 just another entry in the acceptance log.
+
+One broken file never breaks more than itself: a capture or result that cannot be read
+is moved to ``quarantine/`` (never deleted, its id never reused), reported by name with
+a 422, and left out of listings, which list it under :meth:`Session.quarantined`. A
+session whose ``session.json`` cannot be read stays where it is and is listed as broken
+with its reason (:meth:`SessionStore.listing`) so the user can repair it.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ import contextlib
 import copy
 import io
 import json
+import os
 import re
 import threading
 import time
@@ -32,17 +41,24 @@ from backend.core.errors import InputError, NotFoundError
 from backend.core.rig import Frame, Rig
 from backend.core.verdict import Verdict
 from backend.devices.image_io import encode_png, read_image
-from backend.store.atomic import write_bytes_atomic, write_json_atomic
+from backend.store.atomic import remove_stale_temp_files, write_bytes_atomic, write_json_atomic
 from backend.store.rig_io import rig_from_model, rig_to_model
 from backend.store.schema import FILE_NAME_PATTERN, NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
 
 SESSION_FILE = "session.json"
+QUARANTINE = "quarantine"
+_NOTE_SUFFIX = ".why.json"
+
+
+def _field_problem(error: ValidationError) -> str:
+    """The first problem pydantic found, naming its field: ``field 'rig.frames.1.T_parent_child.0.3': ...``."""
+    first = error.errors()[0]
+    field = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    return f"field '{field}': {first['msg']}"
 
 
 def _validation_message(path: Path, error: ValidationError) -> str:
-    first = error.errors()[0]
-    field = ".".join(str(p) for p in first["loc"]) or "(top level)"
-    return f"{path}: field '{field}': {first['msg']}"
+    return f"{path}: {_field_problem(error)}"
 
 
 def check_file_name(name: str) -> str:
@@ -81,6 +97,8 @@ class Session:
             raise NotFoundError(f"no session at {path} (missing {SESSION_FILE})", str(path)) from None
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"{file}: not valid JSON ({exc}); the file is corrupt", str(file)) from None
+        except OSError as exc:
+            raise InputError(f"{file}: cannot read the file ({exc.strerror or exc})", str(file)) from None
         version = raw.get("schema_version") if isinstance(raw, dict) else None
         if version != SCHEMA_VERSION:
             raise InputError(f"{file}: field 'schema_version' is {version!r}, expected {SCHEMA_VERSION}", str(file))
@@ -89,6 +107,8 @@ class Session:
             return cls(path, data)
         except ValidationError as exc:
             raise InputError(_validation_message(file, exc), str(file)) from None
+        except InputError as exc:  # a rig that is valid JSON but not a tree (an unknown parent, a repeated name)
+            raise InputError(f"{file}: {exc.message}", str(file)) from None
 
     @classmethod
     def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None,
@@ -103,7 +123,11 @@ class Session:
     def save(self) -> None:
         """Write ``session.json`` atomically from the current rig and acceptance state."""
         with self.lock:
-            self._data.rig = rig_to_model(self.rig)
+            try:
+                self._data.rig = rig_to_model(self.rig)
+            except ValidationError as exc:  # e.g. intrinsics holding a NaN: refused rather than written
+                raise InputError(f"not saved: {_validation_message(self.path / SESSION_FILE, exc)}",
+                                 str(self.path / SESSION_FILE)) from None
             write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
 
     @contextlib.contextmanager
@@ -143,7 +167,66 @@ class Session:
             "sensors": [f.name for f in self.rig.sensors()],
             "accepted": dict(self._data.accepted),
             "acceptance_log": [entry.model_dump() for entry in self._data.acceptance_log],
+            "quarantined": self.quarantined(),
         }
+
+    # -- quarantine -------------------------------------------------------------------
+    def _note_path(self, file: Path) -> Path:
+        """The note of the quarantined item ``file`` belongs to: the item is the session-relative path
+        without extension (``results/r0003``, ``captures/cam/00002``), shared by its data and metadata."""
+        return self.path / QUARANTINE / f"{file.relative_to(self.path).with_suffix('')}{_NOTE_SUFFIX}"
+
+    def _quarantine(self, broken: Path, reason: str, *companions: Path) -> InputError:
+        """Move ``broken`` and its ``companions`` (the item's other files or folder) to ``quarantine/`` at
+        the same relative path, with a note saying why; return the 422 to raise. Nothing is deleted."""
+        with self.lock:
+            moves = [(f, self._quarantine_target(f)) for f in (broken, *companions) if f.exists()]
+            if moves:
+                write_json_atomic(self._note_path(broken), {
+                    "file": str(broken.relative_to(self.path)),
+                    "moved": [str(f.relative_to(self.path)) for f, _ in moves],
+                    "to": [str(target.relative_to(self.path)) for _, target in moves],
+                    "reason": reason, "at": time.time()})
+                for file, target in moves:
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(file, target)
+        return self._broken_error(broken, reason)
+
+    def _quarantine_target(self, file: Path) -> Path:
+        """Where ``file`` goes in ``quarantine/``: its own relative path, numbered if that is taken (an
+        earlier quarantined copy is never overwritten)."""
+        target = base = self.path / QUARANTINE / file.relative_to(self.path)
+        number = 1
+        while target.exists():
+            target, number = base.with_name(f"{base.name}.{number}"), number + 1
+        return target
+
+    def _broken_error(self, broken: Path, reason: str) -> InputError:
+        return InputError(f"{broken}: {reason}; the file is broken and was moved to "
+                          f"{self.path / QUARANTINE / broken.relative_to(self.path)}", str(broken))
+
+    def _quarantined_error(self, file: Path) -> InputError | None:
+        """The 422 for ``file``'s item if it was quarantined earlier, or None if it never was."""
+        note = self._note_path(file)
+        if not note.exists():
+            return None
+        try:
+            record = json.loads(note.read_text())
+            return self._broken_error(self.path / record["file"], record["reason"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return self._broken_error(file, "unreadable (its quarantine note too)")
+
+    def quarantined(self) -> list[dict[str, Any]]:
+        """The notes of every quarantined item (``file``; ``moved`` from and ``to``, session-relative; ``reason``;
+        ``at``, s since the epoch), oldest first."""
+        notes = []
+        for note in (self.path / QUARANTINE).rglob(f"*{_NOTE_SUFFIX}"):
+            try:
+                notes.append(json.loads(note.read_text()))
+            except (OSError, ValueError):
+                notes.append({"file": str(note.relative_to(self.path)), "moved": [], "to": [],
+                              "reason": "unreadable note", "at": None})
+        return sorted(notes, key=lambda n: (n.get("at") or 0.0, str(n.get("file"))))
 
     # -- sensors ----------------------------------------------------------------------
     def add_sensor(self, frame: Frame) -> Frame:
@@ -170,6 +253,9 @@ class Session:
             number = len(list(folder.glob("*.json"))) + 1
             while True:
                 capture_id = f"{number:05d}"
+                if self._note_path(folder / capture_id).exists():  # a quarantined id is never reused
+                    number += 1
+                    continue
                 try:
                     write_bytes_atomic(folder / f"{capture_id}{suffix}", data, exclusive=True)
                     break
@@ -195,22 +281,45 @@ class Session:
         return self._add_capture_file(sensor, ".npy", buffer.getvalue(), {**record, "n_points": len(points)})
 
     def captures(self, sensor: str, limit: int | None = None) -> list[CaptureRecord]:
-        """The sensor's capture records, oldest first (only the first ``limit`` are read, if given)."""
-        records = []
-        for meta in sorted(self._capture_dir(sensor).glob("*.json"))[:limit]:
+        """The sensor's capture records, oldest first (only the first ``limit`` good ones, if given).
+
+        A metadata file that cannot be read is quarantined with its data and left out.
+        """
+        records: list[CaptureRecord] = []
+        for meta in sorted(self._capture_dir(sensor).glob("*.json")):
+            if limit is not None and len(records) >= limit:
+                break
             try:
-                records.append(CaptureRecord.model_validate_json(meta.read_text()))
+                record = CaptureRecord.model_validate_json(meta.read_bytes())
+                problem = None if (record.id, record.sensor) == (meta.stem, sensor) else (
+                    f"holds capture {record.id!r} of sensor {record.sensor!r}, expected {meta.stem!r} of {sensor!r}")
             except ValidationError as exc:
-                raise InputError(_validation_message(meta, exc), str(meta)) from None
+                problem = _field_problem(exc)
+            if problem is None:
+                records.append(record)
+            else:
+                self._quarantine(meta, problem, *self._capture_data(meta))
         return records
+
+    @staticmethod
+    def _capture_data(meta: Path) -> tuple[Path, Path]:
+        """The data files a capture's metadata file may sit beside (an image or a cloud)."""
+        return meta.with_suffix(".png"), meta.with_suffix(".npy")
 
     def capture_cloud(self, sensor: str, capture_id: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Points (N, 3) float64 in the sensor frame (m) and intensity (N,) (None if never recorded)."""
         check_name(capture_id, "capture")
         path = self._capture_dir(sensor) / f"{capture_id}.npy"
         if not path.exists():
-            raise NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture")
-        data = np.load(path, allow_pickle=False)
+            raise (self._quarantined_error(path)
+                   or NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture"))
+        try:
+            data = np.load(path, allow_pickle=False)
+            if data.ndim != 2 or data.shape[1] != 4 or data.dtype.kind != "f":
+                raise ValueError(f"it holds a {data.dtype} array of shape {data.shape}")
+        except (ValueError, OSError, EOFError) as exc:
+            raise self._quarantine(path, f"not a readable N x 4 float cloud ({exc}); it may be truncated",
+                                   path.with_suffix(".json")) from None
         intensity = data[:, 3]
         return data[:, :3].astype(np.float64), None if np.all(np.isnan(intensity)) else intensity
 
@@ -218,8 +327,12 @@ class Session:
         check_name(capture_id, "capture")
         path = self._capture_dir(sensor) / f"{capture_id}.png"
         if not path.exists():
-            raise NotFoundError(f"no capture {capture_id!r} for sensor {sensor!r}", "capture")
-        return read_image(path)
+            raise self._quarantined_error(path) or NotFoundError(f"no capture {capture_id!r} for sensor {sensor!r}",
+                                                                 "capture")
+        try:
+            return read_image(path)
+        except InputError as exc:
+            raise self._quarantine(path, exc.message, path.with_suffix(".json")) from None
 
     # -- results ----------------------------------------------------------------------
     def add_result(self, sensor: str, record: dict[str, Any], inputs: list[str],
@@ -237,7 +350,8 @@ class Session:
             folder = self.path / "results"
             folder.mkdir(exist_ok=True)
             number = len(list(folder.glob("*.json"))) + 1
-            while (folder / f"r{number:04d}.json").exists() or (folder / f"r{number:04d}").exists():
+            while any(p.exists() for p in (folder / f"r{number:04d}.json", folder / f"r{number:04d}",
+                                            self._note_path(folder / f"r{number:04d}"))):  # never reuse an id
                 number += 1
             result_id = f"r{number:04d}"
             for file_name, data in files.items():
@@ -257,11 +371,14 @@ class Session:
         return self.path / "results" / result_id / file_name
 
     def results(self, sensor: str | None = None, kind: str | None = None) -> list[dict[str, Any]]:
-        """All stored results, oldest first, optionally for one sensor and kind."""
+        """All stored results, oldest first, optionally for one sensor and kind (broken ones quarantined, left out)."""
         out = []
         for path in sorted((self.path / "results").glob("r*.json")):
-            record = json.loads(path.read_text())
-            if (sensor is None or record["sensor"] == sensor) and (kind is None or record["kind"] == kind):
+            try:
+                record = self._read_result(path)
+            except InputError:
+                continue
+            if (sensor is None or record["sensor"] == sensor) and (kind is None or record.get("kind") == kind):
                 out.append(record)
         return out
 
@@ -269,8 +386,20 @@ class Session:
         check_name(result_id, "result")
         path = self.path / "results" / f"{result_id}.json"
         if not path.exists():
-            raise NotFoundError(f"no result {result_id!r} in session {self.name!r}", "result")
-        return json.loads(path.read_text())
+            raise (self._quarantined_error(path)
+                   or NotFoundError(f"no result {result_id!r} in session {self.name!r}", "result"))
+        return self._read_result(path)
+
+    def _read_result(self, path: Path) -> dict[str, Any]:
+        """One stored record; one that is not a JSON record of its own id and a sensor is quarantined (422)."""
+        try:
+            record = json.loads(path.read_bytes())
+        except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            raise self._quarantine(path, f"not valid JSON ({exc})", path.with_suffix("")) from None
+        if not isinstance(record, dict) or record.get("id") != path.stem or not isinstance(record.get("sensor"), str):
+            raise self._quarantine(path, f"not a result record (expected a JSON object with 'id': {path.stem!r} "
+                                         "and a 'sensor')", path.with_suffix(""))
+        return record
 
     def accepted(self, slot: str) -> str | None:
         return self._data.accepted.get(slot)
@@ -308,13 +437,26 @@ class SessionStore:
     """All sessions under one root folder, opened once and shared."""
 
     def __init__(self, root: Path):
+        """Open the store at ``root`` (created if missing), clearing temp files that killed writes left."""
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
+        remove_stale_temp_files(self.root)
         self._open: dict[str, Session] = {}
         self._lock = threading.Lock()
 
     def names(self) -> list[str]:
         return sorted(p.name for p in self.root.iterdir() if (p / SESSION_FILE).exists())
+
+    def listing(self) -> list[dict[str, Any]]:
+        """Every session: its :meth:`Session.info` with ``"broken": None``, or, for one that cannot be opened,
+        ``{"name", "broken": {"message", "input"}}``. One broken session never hides the others."""
+        entries = []
+        for name in self.names():
+            try:
+                entries.append({**self.get(name).info(), "broken": None})
+            except InputError as exc:
+                entries.append({"name": name, "broken": exc.to_dict()})
+        return entries
 
     def get(self, name: str) -> Session:
         check_name(name, "session")

@@ -14,7 +14,7 @@ class SessionStep:
         self.ctx = ctx
         gui = ctx.server.gui
         with gui.add_folder("1 · Session"):
-            self.choice = gui.add_dropdown("Session", options=self._options(), initial_value=NEW_SESSION)
+            self.choice = gui.add_dropdown("Session", options=[NEW_SESSION], initial_value=NEW_SESSION)
             self.open_button = gui.add_button("Open session")
             self.new_name = gui.add_text("New name", initial_value="")
             self.new_board = gui.add_text("Board", initial_value="checkerboard:9x6:0.025",
@@ -22,12 +22,19 @@ class SessionStep:
                                                "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT")
             self.create_button = gui.add_button("Create session")
             self.summary = gui.add_markdown("No session open.")
+            self.broken = gui.add_markdown("")
+        self._refresh()
         self.open_button.on_click(lambda _: self._open())
         self.create_button.on_click(lambda _: self._create())
         ctx.on_session_changed(self._show)
 
-    def _options(self) -> list[str]:
-        return [NEW_SESSION, *self.ctx.store.names()]
+    def _refresh(self) -> None:
+        """List the sessions that open in the dropdown, and those that cannot below it with their reason."""
+        listing = self.ctx.store.listing()
+        self.choice.options = [NEW_SESSION, *(entry["name"] for entry in listing if not entry["broken"])]
+        broken = [f"- `{entry['name']}`: {entry['broken']['message']}" for entry in listing if entry["broken"]]
+        self.broken.content = "\n".join(["**Broken sessions** (repair their session.json):", "", *broken] if broken
+                                         else [])
 
     def _open(self) -> None:
         if self.choice.value == NEW_SESSION:
@@ -45,11 +52,11 @@ class SessionStep:
         except InputError as exc:
             self.ctx.notify("Cannot create session", exc.message, error=True)
             return
-        self.choice.options = self._options()
+        self._refresh()
         self.ctx.open_session(session)
 
     def _show(self, session) -> None:
-        self.choice.options = self._options()
+        self._refresh()
         if self.choice.value != session.name:
             self.choice.value = session.name
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"

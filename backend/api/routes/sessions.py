@@ -19,7 +19,8 @@ router = APIRouter(tags=["sessions"])
 
 @router.get("/sessions")
 def list_sessions(store: deps.StoreDep) -> list[dict[str, Any]]:
-    return [store.get(name).info() for name in store.names()]
+    """Every session; one that cannot be opened is listed with ``broken``: its reason (the others still load)."""
+    return store.listing()
 
 
 @router.post("/sessions", status_code=201)
