@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
 import sys
 
 import uvicorn
-import viser
 
 from backend.api.app import create_app
 from backend.api.auth import is_loopback, new_token
+from backend.api.origin import OriginPolicy
+from backend.api.viewer_guard import new_secret, origin_check, secret_check, start_viewer
 from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
 from backend.services.demo import ensure_demo_session
 from backend.services.jobs import JobRunner
@@ -32,19 +32,21 @@ def serve(args: argparse.Namespace) -> int:
         session = ensure_demo_session(store, fresh=args.fresh, progress=lambda f, m: None)
     loopback = is_loopback(args.host)
     token = args.token or (None if loopback else new_token())
-    # Beyond loopback the viewer stays on 127.0.0.1 and is reached through the API's token-checked proxy.
-    with contextlib.redirect_stdout(sys.stderr):  # viser's banner; stdout's first line is our URL
-        viewer = viser.ViserServer(host=args.host if token is None else "127.0.0.1", port=args.viewer_port,
-                                   verbose=False)
+    # With a token the viewer stays on 127.0.0.1 and answers only the API's token-checked proxy (its secret);
+    # without one it answers only its own pages (Host and Origin checks).
+    viewer_secret = new_secret()
+    check = origin_check(args.host) if token is None else secret_check(viewer_secret)
+    viewer = start_viewer(args.host if token is None else "127.0.0.1", args.viewer_port, check)
     viewer_port = viewer.get_port()
     if token is None:
         studio_url = f"http://{args.host}:{viewer_port}/"
     else:
         studio_url = f"http://{args.host}:{args.port}/studio/?token={token}"
     jobs = JobRunner()
-    app = create_app(store, jobs, token=token, studio_url=studio_url if token is None else "/studio/")
+    app = create_app(store, jobs, token=token, studio_url=studio_url if token is None else "/studio/",
+                     origins=OriginPolicy.for_server(args.host, (args.port, viewer_port)))
     if token is not None:
-        mount_viewer_proxy(app, viewer_port, token)
+        mount_viewer_proxy(app, viewer_port, token, viewer_secret)
     host = f"[{args.host}]" if ":" in args.host else args.host
     studio = StudioApp(viewer, store, jobs, session, api_url=f"http://{host}:{args.port}" if token is None else "")
     print(studio_url, flush=True)

@@ -40,8 +40,8 @@ def test_serve_with_token_guards_api_and_studio(tmp_path: Path, free_port: Calla
         assert httpx.get(f"{base}/studio/").status_code == 401
         page = httpx.get(url)
         assert page.status_code == 200 and "<html" in page.text.lower()
-        # the viewer itself answers on loopback only; other machines reach it through the guarded proxy
-        assert httpx.get(f"http://127.0.0.1:{viewer_port}/").status_code == 200
+        # the viewer's own port answers only the proxy (its per-process secret), not any local process
+        assert httpx.get(f"http://127.0.0.1:{viewer_port}/").status_code == 403
         missing = httpx.get(f"{base}/api/no-such-route", headers={"Authorization": "Bearer t0ken"})
         assert missing.status_code == 404 and missing.json()["error"]["input"] == "/api/no-such-route"
     finally:

@@ -1,4 +1,5 @@
-"""The viser studio reverse-proxied at ``/studio/`` behind the API token (real servers on 127.0.0.1)."""
+"""The viser studio reverse-proxied at ``/studio/`` behind the API token (real servers on 127.0.0.1); the viewer's
+own port refuses whoever lacks the proxy's secret."""
 
 from __future__ import annotations
 
@@ -19,9 +20,11 @@ from viser import _messages
 from websockets.sync.client import connect
 
 from backend.api.app import create_app
+from backend.api.viewer_guard import SECRET_HEADER, secret_check, start_viewer
 from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
 
 TOKEN = "secret"
+VIEWER_SECRET = "proxy-only"
 SUBPROTOCOL = "viser-v" + viser.__version__
 """What the viser client offers (``WebsocketClientWorker.ts``); viser's server picks any ``viser-v*``."""
 CAMERA = msgspec.msgpack.encode(_messages.ViewerCameraMessage(
@@ -43,16 +46,21 @@ class Servers:
     def ws(self) -> str:
         return f"ws://127.0.0.1:{self.api_port}/studio"
 
+    @property
+    def direct(self) -> str:
+        """The viewer's own port, which only the proxy may use."""
+        return f"127.0.0.1:{self.viewer.get_port()}"
+
 
 @pytest.fixture(scope="module")
 def servers(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Servers]:
     viewer_port = free_port()
-    viewer = viser.ViserServer(host="127.0.0.1", port=viewer_port, verbose=False)
+    viewer = start_viewer("127.0.0.1", viewer_port, secret_check(VIEWER_SECRET))
     viewer.scene.add_frame("/probe")
     viewer.gui.add_markdown("proxy-ok")
 
     app = create_app(tmp_path_factory.mktemp("sessions"), token=TOKEN)
-    mount_viewer_proxy(app, viewer_port, TOKEN)
+    mount_viewer_proxy(app, viewer_port, TOKEN, VIEWER_SECRET)
     api_port = free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=api_port, log_level="warning",
                             ws_max_size=MAX_MESSAGE_BYTES, ws_per_message_deflate=False)
@@ -90,6 +98,28 @@ def test_page_with_token_is_viser(servers: Servers) -> None:
     assert plain.status_code == 200
     assert plain.headers.get("content-encoding", "identity") == "identity"
     assert plain.content == response.content
+
+
+@pytest.mark.parametrize("headers", [{}, {SECRET_HEADER: "guess"}, {"Authorization": f"Bearer {TOKEN}"}])
+def test_viewer_port_refuses_http_without_secret(servers: Servers, headers: dict[str, str]) -> None:
+    for path in ("/", "/index.html"):
+        response = httpx.get(f"http://{servers.direct}{path}", headers=headers)
+        assert response.status_code == 403
+        assert "/studio/" in response.text and '<div id="root">' not in response.text
+    # the same request with the proxy's secret is viser's page: the secret is the only difference
+    page = httpx.get(f"http://{servers.direct}/", headers={SECRET_HEADER: VIEWER_SECRET})
+    assert page.status_code == 200 and '<div id="root">' in page.text
+
+
+@pytest.mark.parametrize("headers", [None, {SECRET_HEADER: "guess"}, {"Cookie": f"calib_token={TOKEN}"}])
+def test_viewer_port_refuses_websocket_without_secret(servers: Servers, headers: dict[str, str] | None) -> None:
+    with pytest.raises(websockets.exceptions.InvalidStatus) as refused:
+        connect(f"ws://{servers.direct}/", subprotocols=[SUBPROTOCOL], additional_headers=headers, open_timeout=5)
+    assert refused.value.response.status_code == 403
+    assert not servers.viewer.get_clients()
+    with connect(f"ws://{servers.direct}/", subprotocols=[SUBPROTOCOL], additional_headers={
+            SECRET_HEADER: VIEWER_SECRET}, open_timeout=5, max_size=MAX_MESSAGE_BYTES) as ws:
+        assert isinstance(ws.recv(timeout=5), bytes)
 
 
 def test_redirect_keeps_query(servers: Servers) -> None:

@@ -12,9 +12,13 @@ from pathlib import Path
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse
+from fastapi_offline import FastAPIOffline
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.websockets import WebSocket
 
-from backend.api import auth
+from backend.api import auth, origin
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, sessions, sweep
 from backend.api.routes import jobs as job_routes
 from backend.core.errors import InputError
@@ -37,13 +41,44 @@ def error_response(status: int, message: str, input: str | None = None) -> JSONR
     return JSONResponse(status_code=status, content={"error": {"message": message, "input": input}})
 
 
+class OriginGuard:
+    """ASGI middleware: :func:`backend.api.origin.refusal` on every HTTP request and websocket handshake.
+
+    A refused request gets a 403 ``{"error": {"message", "input": "Host" | "Origin"}}``; a refused websocket is
+    closed before its handshake completes (an HTTP 403 to the client). Runs before the token check.
+    """
+
+    def __init__(self, app: ASGIApp, policy: origin.OriginPolicy | None) -> None:
+        self.app = app
+        self.policy = policy
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            websocket = scope["type"] == "websocket"
+            refused = origin.refusal(self.policy, scope.get("method", "GET"), Headers(scope=scope), websocket)
+            if refused is not None:
+                if websocket:
+                    await WebSocket(scope, receive, send).close(code=1008)
+                else:
+                    await error_response(403, *refused)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token: str | None = None,
-               studio_url: str | None = None) -> FastAPI:
-    """Build the app over a session store. ``token`` set means every call must present it."""
+               studio_url: str | None = None, origins: origin.OriginPolicy | None = None) -> FastAPI:
+    """Build the app over a session store. ``token`` set means every call must present it.
+
+    ``origins`` are the hosts and ports the served app answers to (:class:`~backend.api.origin.OriginPolicy`);
+    None, for an app used in process (a test client), checks only that a state-changing request's ``Origin``
+    is its own ``Host``.
+    """
     if not isinstance(store, SessionStore):
         store = SessionStore(Path(store))
-    app = FastAPI(title="Calibration Studio API", version="0.1.0",
-                  description="Sessions, captures, solves and exports of Calibration Studio.")
+    # Swagger UI and ReDoc from the package's own copies: /docs works offline (no CDN).
+    app = FastAPIOffline(title="Calibration Studio API", version="0.1.0",
+                         description="Sessions, captures, solves and exports of Calibration Studio.",
+                         swagger_ui_parameters={"validatorUrl": None})
     app.state.studio = AppState(store, jobs or JobRunner(), token, studio_url)
 
     @app.middleware("http")
@@ -56,6 +91,8 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
         if token and request.query_params.get("token"):
             response.set_cookie(auth.COOKIE, token, httponly=True, samesite="strict")
         return response
+
+    app.add_middleware(OriginGuard, policy=origins)  # added last: runs first
 
     @app.exception_handler(InputError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:

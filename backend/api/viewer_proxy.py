@@ -13,6 +13,9 @@ browser reaches it through the FastAPI app:
   websockets. The HTTP middleware does not run for websockets, so the token (the
   cookie, ``?token=`` or a bearer header) is checked here; a wrong one is refused
   before the handshake completes (close code 1008, an HTTP 403 to the client).
+* Every request to the viewer carries the per-process secret in
+  :data:`backend.api.viewer_guard.SECRET_HEADER`: the viewer (started by
+  :func:`backend.api.viewer_guard.start_viewer` with ``secret_check``) refuses anyone else.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from starlette.websockets import WebSocketState
 from websockets.typing import Subprotocol
 
 from backend.api import auth
+from backend.api.viewer_guard import SECRET_HEADER
 
 MAX_MESSAGE_BYTES = 50 * 1024 * 1024
 """Same limit as viser's own websocket server."""
@@ -47,14 +51,16 @@ def _presented_token(conn: HTTPConnection) -> str | None:
     return conn.query_params.get("token") or conn.cookies.get(auth.COOKIE)
 
 
-def mount_viewer_proxy(app: FastAPI, viewer_port: int, token: str | None) -> None:
+def mount_viewer_proxy(app: FastAPI, viewer_port: int, token: str | None, viewer_secret: str) -> None:
     """Serve the viser studio on ``viewer_port`` (127.0.0.1) at ``/studio/`` of ``app``.
 
     ``token`` must be the one given to :func:`backend.api.app.create_app`: the HTTP
     routes rely on its middleware, the websocket routes check it themselves.
+    ``viewer_secret`` is the one the viewer was started with, sent on every request to it.
     """
     upstream_http = f"http://127.0.0.1:{viewer_port}"
     upstream_ws = f"ws://127.0.0.1:{viewer_port}/"
+    secret = {SECRET_HEADER: viewer_secret}
 
     @app.get("/studio", include_in_schema=False)
     def studio_redirect(request: Request) -> RedirectResponse:
@@ -64,6 +70,7 @@ def mount_viewer_proxy(app: FastAPI, viewer_port: int, token: str | None) -> Non
     @app.get("/studio/{path:path}", include_in_schema=False)
     async def studio_asset(path: str, request: Request) -> Response:
         headers = {name: request.headers[name] for name in _FORWARDED_REQUEST_HEADERS if name in request.headers}
+        headers |= secret
         async with httpx.AsyncClient(timeout=30.0) as client:
             upstream = client.build_request("GET", f"{upstream_http}/{quote(path)}", headers=headers)
             try:
@@ -85,7 +92,8 @@ def mount_viewer_proxy(app: FastAPI, viewer_port: int, token: str | None) -> Non
         offered = [Subprotocol(p) for p in websocket.scope.get("subprotocols", []) if p.startswith("viser-v")]
         try:
             viewer = await websockets.asyncio.client.connect(
-                upstream_ws, subprotocols=offered or None, max_size=MAX_MESSAGE_BYTES, compression=None)
+                upstream_ws, subprotocols=offered or None, additional_headers=secret, max_size=MAX_MESSAGE_BYTES,
+                compression=None)
         except (OSError, websockets.exceptions.WebSocketException):
             await websocket.close(code=1011)
             return
