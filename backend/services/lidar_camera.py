@@ -205,6 +205,8 @@ def apply_lidar_camera(rig: Rig, record: dict[str, Any]) -> None:
 def accept(session: Session, lidar: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored LiDAR-to-camera result the LiDAR's mounting (also how a user reverts)."""
     record = session.result(result_id)
+    if record.get("kind") != KIND:  # before its 'camera' names a slot: another kind's 'camera' is something else
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
     if record["sensor"] != lidar:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
     session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera, confirm)

@@ -139,6 +139,8 @@ def apply_lidar_lidar(rig: Rig, record: dict[str, Any]) -> None:
 def accept(session: Session, source: str, result_id: str, confirm: bool = False) -> None:
     """Make a stored LiDAR-to-LiDAR result the source LiDAR's mounting (also how a user reverts)."""
     record = session.result(result_id)
+    if record.get("kind") != "lidar_lidar":  # before its 'target' is read: another kind has none
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not lidar_lidar", "result")
     if record["sensor"] != source:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
     session.accept(slot(source, record["target"]), result_id, apply_lidar_lidar, confirm)

@@ -162,10 +162,11 @@ def overlay(
 
 
 @router.get("/lidar-camera/view", response_class=HTMLResponse)
-def overlay_view(name: str) -> HTMLResponse:
-    """The full-size overlay page (zoom with the wheel, pan by dragging). Its query is the overlay's
-    (``camera``, ``lidar``, ``xyz_m``, ``ypr_deg``, ``colour_by``, ``range_m``, ``occlusion_px``, ``radius_px``) and
-    ``scene``: an image capture id (with ``cloud_id`` for two captures that are not a stored pair) or ``all``."""
+def overlay_view(session: deps.SessionDep) -> HTMLResponse:
+    """The full-size overlay page of an existing session (zoom with the wheel, pan by dragging). Its query is the
+    overlay's (``camera``, ``lidar``, ``xyz_m``, ``ypr_deg``, ``colour_by``, ``range_m``, ``occlusion_px``,
+    ``radius_px``) and ``scene``: an image capture id (with ``cloud_id`` for two captures that are not a stored pair)
+    or ``all``."""
     return HTMLResponse(VIEW_PAGE.read_text(), headers={"Cache-Control": "no-store"})
 
 
