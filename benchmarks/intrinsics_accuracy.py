@@ -10,7 +10,7 @@ Sets:
 
 Pipelines, each followed by ``cv2.calibrateCamera`` with the set's flags:
 
-- ``ours``: ``detect_board`` + ``calibrate_intrinsics`` (it picks SB's corners or their refinement);
+- ``ours``: ``detect_board`` + ``calibrate_intrinsics`` (it picks SB's corners or one of their refinements);
 - ``opencv_sb``: ``findChessboardCornersSB(flags=CALIB_CB_ACCURACY | CALIB_CB_EXHAUSTIVE)``;
 - ``opencv_classic_5`` / ``opencv_classic_11``: ``findChessboardCorners`` + ``cornerSubPix`` with a 5x5
   and (OpenCV's tutorial) 11x11 half-window.
@@ -82,8 +82,7 @@ def evaluate(images, board, size, settings, flags, truth=None, true_corners=None
     views = [View(f"view{i:02d}", d) for i, d in enumerate(detect_board(g, board) for g in images) if d is not None]
     ours = calibrate_intrinsics(views, board, size, settings)
     used = [int(v.name[4:]) for v in views]
-    chosen = [v.detection.refined_px if ours.corners["chosen"] == "refined" else v.detection.corners_px
-              for v in views]
+    chosen = [v.detection.refined.get(ours.corners["chosen"], v.detection.corners_px) for v in views]
     figures["ours"] = {"rms_px": ours.rms_px, "views": len(views), "corners": ours.corners["chosen"]}
     found = {"ours": (used, chosen, [v.detection.ids for v in views], ours.camera)}
     for pipeline in ("opencv_sb", "opencv_classic_5", "opencv_classic_11"):

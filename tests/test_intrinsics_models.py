@@ -78,7 +78,8 @@ def test_outlier_view_is_flagged_and_can_be_dropped():
     views = rendered_views(PINHOLE, CHECKERBOARD, 12, seed=5)
     bad = views[4]
     noisy = bad.detection.corners_px + np.random.default_rng(0).normal(0, 1.5, bad.detection.corners_px.shape)
-    views[4] = View(bad.name, Detection(noisy, bad.detection.ids, bad.detection.image_size, refined_px=noisy))
+    views[4] = View(bad.name, Detection(noisy, bad.detection.ids, bad.detection.image_size,
+                                              refined={name: noisy for name in bad.detection.refined}))
 
     kept = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size)
     flagged = [v.name for v in kept.views if v.outlier]

@@ -13,7 +13,7 @@ from backend.core.transforms import transform_points
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import _agrees_with_neighbours, detect_board
+from backend.solvers.board_detection import Detection, _agrees_with_neighbours, detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.solvers.intrinsics_crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
 from backend.solvers.intrinsics_models import SIMPLE, compare_models, solve_auto
@@ -51,11 +51,12 @@ def truth_error_px(camera: CameraIntrinsics, truth: CameraIntrinsics) -> float:
     return float(np.linalg.norm(camera.project(truth.rays(pixels)) - pixels, axis=1).max())
 
 
-def corner_error_rms(views: list[View], true_corners: list[np.ndarray], refined: bool) -> float:
+def corner_error_rms(views: list[View], true_corners: list[np.ndarray], corner_set: str) -> float:
+    """RMS (px) of ``corner_set``'s corners (``sb`` or a refinement's name) against the true projections."""
     errors = []
     for view, truth in zip(views, true_corners, strict=True):
         d = view.detection
-        corners = d.refined_px if refined else d.corners_px
+        corners = d.corners_px if corner_set == "sb" else d.refined[corner_set]
         forward, backward = corners - truth[d.ids], corners - truth[::-1][d.ids]
         errors.append(forward if np.abs(forward).mean() < np.abs(backward).mean() else backward)
     return float(np.sqrt(np.mean(np.sum(np.concatenate(errors) ** 2, axis=1))))
@@ -65,8 +66,29 @@ def corner_error_rms(views: list[View], true_corners: list[np.ndarray], refined:
 @pytest.mark.parametrize("lens", ["mild", "wide"])
 def test_refined_corners_are_closer_to_the_truth_than_sb(lens, request):
     _, views, true_corners = request.getfixturevalue(lens)
-    sb, refined = corner_error_rms(views, true_corners, False), corner_error_rms(views, true_corners, True)
-    assert refined < 0.8 * sb and refined < 0.05, (sb, refined)
+    sb = corner_error_rms(views, true_corners, "sb")
+    refined = {name: corner_error_rms(views, true_corners, name) for name in views[0].detection.refined}
+    assert min(refined.values()) < 0.8 * sb and min(refined.values()) < 0.05, (sb, refined)
+
+
+def test_each_window_refinement_round_trips_and_an_old_single_refinement_reads_as_the_first(mild):
+    _, views, _ = mild
+    detection = views[0].detection
+    assert set(detection.refined) == {"refined-0.3", "refined-0.4", "refined-0.5"}
+    again = Detection.from_dict(detection.to_dict())
+    for name, corners in detection.refined.items():
+        np.testing.assert_array_equal(again.refined[name], corners)
+    stored_before = detection.to_dict() | {"refined_px": detection.refined["refined-0.3"].tolist()}
+    del stored_before["refined"]
+    assert list(Detection.from_dict(stored_before).refined) == ["refined-0.3"]
+
+
+def test_the_solve_takes_the_best_fitting_corner_set(mild):
+    truth, views, _ = mild
+    result = calibrate_intrinsics(views, BOARD, truth.image_size, replace(FAST, cross_validate=False))
+    fits = result.corners["rms_px"]
+    assert set(fits) == {"sb", "refined-0.3", "refined-0.4", "refined-0.5"}
+    assert result.corners["chosen"] == min(fits, key=fits.get) != "sb"
 
 
 def test_a_misplaced_corner_disagrees_with_its_neighbours():

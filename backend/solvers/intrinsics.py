@@ -10,9 +10,10 @@ standard deviations, the correlation matrix (e.g. k1-k2) and the projection
 uncertainty across the image, all from one documented noise model:
 independent, isotropic Gaussian corner noise.
 
-Checkerboard views come with two corner sets (``findChessboardCornersSB``'s and the
-same refined by :func:`~backend.solvers.board_detection.refine_corners`); the solve
-uses the set that fits the model better on these views (``corners`` in the result).
+Checkerboard views come with several corner sets (``findChessboardCornersSB``'s and the
+same refined by :func:`~backend.solvers.board_detection.refine_corners` with a few window
+sizes); the solve uses the set that fits the model best on these views (``corners`` in
+the result).
 Every result carries a :class:`~backend.core.verdict.Verdict`: the worst projection
 sigma across the image against :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`,
 and, as the independent cross-check, two calibrations from the two halves of the
@@ -120,7 +121,7 @@ class IntrinsicsResult(SolveResult):
     projection_uncertainty: dict[str, Any]
     seconds: float
     corners: dict[str, Any]
-    """Which corner set was solved with (``sb`` or ``refined``) and each set's RMS (px) on these views."""
+    """Which corner set was solved with (``sb`` or a refinement, ``refined-0.3``) and each set's RMS (px) on these views."""
     cross_validation: dict[str, Any]
     """:func:`_cross_validate`'s outcome: ``status`` ``consistent``, ``inconsistent`` or ``not made`` (and why)."""
     verdict: Verdict
@@ -334,11 +335,11 @@ def worst_projection_sigma_px(camera: CameraIntrinsics, cov_intrinsics: np.ndarr
     return float(_projection_uncertainty(camera, cov_intrinsics)["max_px"])
 
 
-def _with_corners(views: list[View], refined: bool) -> list[View]:
-    """``views`` whose ``corners_px`` are the refined corners (``refined``) or the detector's own."""
-    if not refined:
+def _with_corners(views: list[View], corner_set: str) -> list[View]:
+    """``views`` whose ``corners_px`` are the detector's own (``corner_set`` ``sb``) or one of its refinements."""
+    if corner_set == "sb":
         return views
-    return [View(v.name, replace(v.detection, corners_px=v.detection.refined_px)) for v in views]
+    return [View(v.name, replace(v.detection, corners_px=v.detection.refined[corner_set])) for v in views]
 
 
 def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
@@ -352,18 +353,18 @@ def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], setting
 
 def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
                   settings: IntrinsicsSettings) -> tuple[list[View], dict[str, Any]]:
-    """The views with the corner set (detector's ``sb`` or ``refined``) that fits ``settings``' model better.
+    """The views with the corner set (the detector's ``sb`` or a refinement) that fits ``settings``' model best.
 
     On rendered boards each set's RMS tracked its error against the true corners within 5 %, so the better
     fit is the more accurate set; a set only counts when every view has it.
     """
-    if not views or any(v.detection.refined_px is None for v in views):
+    shared = set.intersection(*(set(v.detection.refined) for v in views)) if views else set()
+    if not shared:
         return views, {"chosen": "sb", "rms_px": {}, "why": "no refined corners (ChArUco, or detected live)"}
-    rms = {"sb": _fit_rms(views, board, size, settings),
-           "refined": _fit_rms(_with_corners(views, True), board, size, settings)}
+    rms = {name: _fit_rms(_with_corners(views, name), board, size, settings) for name in ["sb", *sorted(shared)]}
     chosen = min(rms, key=rms.get)
-    return _with_corners(views, chosen == "refined"), {"chosen": chosen, "rms_px": rms,
-                                                       "why": "the set whose corners fit the model better"}
+    return _with_corners(views, chosen), {"chosen": chosen, "rms_px": rms,
+                                          "why": "the set whose corners fit the model best"}
 
 
 def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
