@@ -12,6 +12,10 @@ empty, truncated or corrupt files and files without finite points all raise
 expected. Points with NaN/inf coordinates are dropped and counted
 (:attr:`CloudFile.dropped_non_finite`), never silently.
 
+Clouds with more points than :data:`~backend.core.limits.MAX_CLOUD_POINTS` are refused, naming the file:
+on the count the header declares (PCD ``POINTS``, the PLY vertex count, the LAS/LAZ header, the NPY
+shape) before the points are read, and on the count read as a backstop.
+
 Units are not guessed silently either: :func:`guess_unit_problem` returns a
 warning for clouds that look like millimetres; :func:`read_cloud` never rescales.
 
@@ -32,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.core.errors import InputError
+from backend.core.limits import MAX_CLOUD_POINTS
 from backend.devices.base import Sample, register_driver
 from backend.devices.file_sequence import FileSequence
 
@@ -118,10 +123,18 @@ def guess_unit_problem(points: np.ndarray) -> str | None:
 # --- helpers -------------------------------------------------------------------------------------
 
 
+def check_point_count(path: Path, count: int) -> None:
+    """Refuse (422, naming the file) a cloud of more than :data:`MAX_CLOUD_POINTS` points."""
+    if count > MAX_CLOUD_POINTS.value():
+        raise InputError(f"{path.name}: the cloud holds {count:,} points, more than {MAX_CLOUD_POINTS.describe()}",
+                         input=str(path))
+
+
 def _finish(path: Path, xyz: np.ndarray, intensity: np.ndarray | None, fields: list[str]) -> CloudFile:
-    """Drop non-finite points, convert dtypes and refuse clouds with no finite point."""
+    """Drop non-finite points, convert dtypes and refuse clouds with no finite point or too many points."""
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     total = len(xyz)
+    check_point_count(path, total)
     finite = np.isfinite(xyz).all(axis=1)
     kept = int(finite.sum())
     if kept == 0:
@@ -169,14 +182,19 @@ def _corrupt(path: Path, expected: str, exc: BaseException | str) -> InputError:
 # --- PCD -----------------------------------------------------------------------------------------
 
 _PCD_EXPECTED = "a PCD file (ascii, binary or binary_compressed) with x, y, z fields"
+_PCD_POINTS = re.compile(rb"^POINTS[ \t]+(\d+)", re.MULTILINE)
 
 
 def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
     from pypcd4 import PointCloud
 
     with path.open("rb") as fh:
-        if not fh.read(256).lstrip().startswith((b"#", b"VERSION", b"FIELDS")):
-            raise _corrupt(path, _PCD_EXPECTED, "no PCD header")
+        head = fh.read(1 << 16)
+    if not head[:256].lstrip().startswith((b"#", b"VERSION", b"FIELDS")):
+        raise _corrupt(path, _PCD_EXPECTED, "no PCD header")
+    header_points = _PCD_POINTS.search(head.split(b"\nDATA", 1)[0])
+    if header_points:
+        check_point_count(path, int(header_points[1]))
     try:
         pc = PointCloud.from_path(path)
         data = pc.pc_data
@@ -261,6 +279,7 @@ def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
     if vertex_index is None:
         raise _corrupt(path, _PLY_EXPECTED, "no 'vertex' element")
     vertex = elements[vertex_index]
+    check_point_count(path, vertex.count)
     names = [n for n, _ in vertex.props]
     _need_xyz(path, names, "the PLY vertex element")
     before = elements[:vertex_index]
@@ -321,6 +340,12 @@ def _read_las(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
 
     expected = f"a {path.suffix.lower().lstrip('.').upper()} point-cloud file"
     try:
+        with laspy.open(path) as reader:
+            declared = int(reader.header.point_count)
+    except Exception as exc:  # laspy's LaspyException, a header cut short...
+        raise _corrupt(path, expected, exc) from None
+    check_point_count(path, declared)
+    try:
         las = laspy.read(path)
         declared = int(las.header.point_count)
         held = len(las.points)
@@ -340,7 +365,22 @@ def _read_las(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
 _NPY_EXPECTED = "a numeric .npy array of shape (N, 3) or (N, 4) (x, y, z[, intensity]) or with x, y, z fields"
 
 
+def _npy_points(path: Path) -> int | None:
+    """Points an .npy file declares (its rows, or its elements when structured), from the header alone;
+    None when the header cannot be read (``np.load`` then says why)."""
+    readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    try:
+        with path.open("rb") as fh:
+            shape, _, dtype = readers[np.lib.format.read_magic(fh)](fh)
+    except Exception:  # not an .npy, an unknown version, a header cut short...
+        return None
+    return int(np.prod(shape if dtype.names or len(shape) != 2 else shape[:1]))
+
+
 def _read_npy(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+    declared = _npy_points(path)
+    if declared is not None:
+        check_point_count(path, declared)
     try:
         array = np.load(path, allow_pickle=False)
     except ValueError as exc:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from backend.core.boards import BoardSpec
@@ -56,14 +57,25 @@ def _no_board_message(name: str, board: BoardSpec) -> str:
             "and that the whole board is sharp and inside the image")
 
 
+def detect_upload(image: np.ndarray, board: BoardSpec, name: str) -> Detection | None:
+    """:func:`detect_board` on an uploaded image; OpenCV failing on an odd image is an :class:`InputError`
+    naming the file, not a server error."""
+    try:
+        return detect_board(image, board)
+    except cv2.error as exc:
+        reason = " ".join(str(exc.err or exc).split())[:200]
+        raise InputError(f"{name}: the board search failed on this {image.shape[1]}x{image.shape[0]} px image "
+                         f"(OpenCV: {reason}); expected an ordinary photo of the board", name) from None
+
+
 def detect_uploads(files: list[tuple[str, bytes]], board: BoardSpec,
                    progress: ProgressCallback = no_progress) -> list[DetectedImage]:
-    """Decode and detect every file; a corrupt file raises :class:`InputError` naming it."""
+    """Decode and detect every file; a corrupt or too large file raises :class:`InputError` naming it."""
     out = []
     for i, (name, data) in enumerate(files):
         progress(i / max(len(files), 1), f"detecting the board in {name}")
         image = decode_image_bytes(data, name, grayscale=False)
-        out.append(DetectedImage(name, image, detect_board(image, board)))
+        out.append(DetectedImage(name, image, detect_upload(image, board, name)))
     return out
 
 

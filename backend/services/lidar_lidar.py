@@ -55,9 +55,10 @@ def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, s
         "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": sample.storable_meta()})
 
 
-def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
+def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes | Path]],
                   progress: ProgressCallback = no_progress) -> list[CaptureRecord]:
-    """Add uploaded cloud files as captures; any unreadable file rejects the whole batch, naming it."""
+    """Add uploaded cloud files (their bytes, or where they were saved) as captures; any unreadable file rejects
+    the whole batch, naming it, and nothing of the batch is stored."""
     check_lidar(session, sensor)
     clouds = []
     for i, (name, data) in enumerate(files):
@@ -66,16 +67,24 @@ def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes]],
     return [store_cloud(session, sensor, sample, device="upload", source=sample.meta["source"]) for sample in clouds]
 
 
-def read_uploaded_cloud(name: str, data: bytes) -> Sample:
+def read_uploaded_cloud(name: str, data: bytes | Path) -> Sample:
     """An uploaded cloud file's points as a sample (``meta``: the base ``source`` name kept and the points
-    dropped as non-finite); raises :class:`InputError` naming the file when it cannot be read."""
+    dropped as non-finite); ``data`` is the file's bytes or the path it was saved to (an upload streamed to
+    disk). Raises :class:`InputError` naming the file when it cannot be read."""
     safe_name = Path(name).name
     if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
         raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})", safe_name)
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / safe_name
-        path.write_bytes(data)
-        cloud = read_cloud(path)
+    try:
+        if isinstance(data, Path):
+            cloud = read_cloud(data)
+        else:
+            with tempfile.TemporaryDirectory() as folder:
+                path = Path(folder) / safe_name
+                path.write_bytes(data)
+                cloud = read_cloud(path)
+    except InputError as exc:  # name the upload, not the server's temporary path
+        exc.input = safe_name
+        raise
     return Sample(0.0, points=cloud.points, intensity=cloud.intensity,
                   meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
 

@@ -8,11 +8,13 @@ from fastapi import APIRouter, File, Query, Response, UploadFile
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, ImportResponse, IntrinsicsSolveRequest, JobStatus
+from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
+from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.image_io import encode_jpeg
 from backend.services import intrinsics as service
 from backend.solvers.intrinsics import IntrinsicsSettings
 
-router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}", tags=["intrinsics"])
+router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}", tags=["intrinsics"], route_class=UploadRoute)
 
 
 @router.get("/captures")
@@ -22,15 +24,18 @@ def list_captures(sensor: str, session: deps.SessionDep) -> list[dict[str, Any]]
 
 
 @router.post("/captures", status_code=201, response_model=ImportResponse)
-async def upload_captures(
+@upload_limit(MAX_IMAGE_UPLOAD_MB, "files")
+def upload_captures(
     sensor: str,
     files: Annotated[list[UploadFile], File()],
     session: deps.SessionDep,
     skip_unusable: Annotated[bool, Query(description="store the images with a board and report the others, "
                                                      "instead of rejecting the batch")] = False,
 ) -> dict[str, Any]:
-    """Add images of the board. Only the base name of an upload is kept; files are stored under new ids."""
-    payload = [(f.filename or "upload", await f.read()) for f in files]
+    """Add images of the board (all or nothing, unless ``skip_unusable``). Only the base name of an upload is
+    kept; files are stored under new ids. Runs in the threadpool: decoding and detection never hold up the
+    server's other requests."""
+    payload = [read_image_upload(f, "files") for f in files]
     report = service.import_images(session, sensor, payload, skip_unusable=skip_unusable)
     return {"added": [c.model_dump(exclude={"detection"}) for c in report.added], "skipped": report.skipped}
 

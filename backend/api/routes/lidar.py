@@ -10,19 +10,25 @@ from fastapi import APIRouter, File, UploadFile
 
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus, LidarLidarAccept, LidarLidarSolveRequest
+from backend.api.uploads import UploadRoute, save_uploads, upload_folder, upload_limit
+from backend.core.limits import MAX_CLOUD_UPLOAD_MB
 from backend.core.transforms import from_xyz_ypr
 from backend.services import lidar_lidar as service
 from backend.solvers.lidar_lidar import LidarLidarSettings
 
-router = APIRouter(prefix="/sessions/{name}", tags=["lidar"])
+router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=UploadRoute)
 
 
 @router.post("/sensors/{sensor}/clouds", status_code=201)
-async def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
-                        session: deps.SessionDep) -> dict[str, Any]:
-    """Add cloud files (.pcd, .ply, .las, .laz, .npy); an unreadable file rejects the batch, naming it."""
-    payload = [(f.filename or "upload", await f.read()) for f in files]
-    return {"added": [c.model_dump() for c in service.import_clouds(session, sensor, payload)]}
+@upload_limit(MAX_CLOUD_UPLOAD_MB, "files")
+def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
+                  session: deps.SessionDep) -> dict[str, Any]:
+    """Add cloud files (.pcd, .ply, .las, .laz, .npy); an unreadable file rejects the batch, naming it, and
+    nothing of it is stored. The files are copied in chunks to the session's folder and read from there, in
+    the threadpool."""
+    with upload_folder(session) as folder:
+        added = service.import_clouds(session, sensor, save_uploads(files, "files", folder))
+    return {"added": [c.model_dump() for c in added]}
 
 
 @router.get("/lidar-lidar/pairs")

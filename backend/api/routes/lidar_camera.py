@@ -17,14 +17,16 @@ from backend.api.schemas import (
     LidarCameraPairCapture,
     LidarCameraSolveRequest,
 )
+from backend.api.uploads import UploadRoute, file_name, read_image_upload, save_upload, upload_folder, upload_limit
 from backend.core.errors import InputError
+from backend.core.limits import MAX_CLOUD_UPLOAD_MB
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, render_overlays, with_legend
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
 from backend.services import lidar_camera as service
 from backend.services import lidar_camera_pairs as pairs_service
 
-router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"])
+router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"], route_class=UploadRoute)
 
 VIEW_PAGE = Path(__file__).resolve().parents[3] / "frontend_assets" / "overlay_view.html"
 """The full-size overlay page: zoom and pan over one pair's or every pair's overlay at the image's resolution."""
@@ -44,12 +46,17 @@ def list_pairs(camera: str, lidar: str, session: deps.SessionDep) -> list[dict[s
 
 
 @router.post("/lidar-camera/pairs", status_code=201)
-async def upload_pair(camera: Annotated[str, Form()], lidar: Annotated[str, Form()],
-                      image: Annotated[UploadFile, File()], cloud: Annotated[UploadFile, File()],
-                      session: deps.SessionDep) -> dict[str, Any]:
-    """Add an image and a cloud of the same moment; an unreadable file or a wrong image size stores nothing."""
-    pair = pairs_service.import_pair(session, camera, lidar, (image.filename or "image", await image.read()),
-                                     (cloud.filename or "cloud", await cloud.read()))
+@upload_limit(MAX_CLOUD_UPLOAD_MB, "cloud")
+def upload_pair(camera: Annotated[str, Form()], lidar: Annotated[str, Form()],
+                image: Annotated[UploadFile, File()], cloud: Annotated[UploadFile, File()],
+                session: deps.SessionDep) -> dict[str, Any]:
+    """Add an image and a cloud of the same moment; an unreadable file or a wrong image size stores nothing.
+    The cloud is copied in chunks to the session's folder and read from there, in the threadpool."""
+    image_file = read_image_upload(image, "image", "image")
+    cloud_name = file_name(cloud, "cloud", "cloud")
+    with upload_folder(session) as folder:
+        pair = pairs_service.import_pair(session, camera, lidar, image_file,
+                                         (cloud_name, save_upload(cloud, cloud_name, folder)))
     return _pair_dict(pair)
 
 
