@@ -14,6 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 import viser
+import websockets.asyncio.server
 import websockets.exceptions
 from conftest import ARTIFACTS, ROOT, stop_process
 from fastapi.testclient import TestClient
@@ -145,7 +146,9 @@ def test_studio_websocket_from_a_foreign_page_is_refused(tmp_path: Path) -> None
 @pytest.fixture(scope="module")
 def guarded_viewer(free_port: Callable[[], int]) -> Iterator[viser.ViserServer]:
     """A viewer served on loopback without a token: it answers only its own pages."""
+    serve = websockets.asyncio.server.serve
     viewer = start_viewer("127.0.0.1", free_port(), origin_check("127.0.0.1"))
+    assert websockets.asyncio.server.serve is serve  # the check was put in front of viser's server only
     try:
         yield viewer
     finally:

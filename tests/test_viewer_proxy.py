@@ -139,6 +139,15 @@ def test_websocket_refused_without_token(servers: Servers, query: str) -> None:
     assert refused.value.response.status_code == 403
 
 
+def test_websocket_from_a_foreign_page_is_refused_with_the_token(servers: Servers) -> None:
+    """The cookie rides along with a cross-site websocket in some browsers: the Origin check refuses it anyway."""
+    with pytest.raises(websockets.exceptions.InvalidStatus) as refused:
+        connect(f"{servers.ws}?token={TOKEN}", subprotocols=[SUBPROTOCOL], open_timeout=5,
+                additional_headers={"Origin": "http://evil.example"})
+    assert refused.value.response.status_code == 403
+    assert not servers.viewer.get_clients()
+
+
 @pytest.mark.parametrize("path, auth", [
     ("/studio", {"query": True}),
     ("/studio/", {"cookie": True}),
