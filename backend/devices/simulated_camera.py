@@ -5,7 +5,7 @@ intrinsics and mounting from :func:`backend.sim.demo_rig.demo_rig`, and the boar
 either waved in front of the camera for an intrinsic calibration
 (:func:`backend.sim.board_motion.board_poses`) or carried about the simulated yard,
 where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_board_poses`) and
-the camera photographs the whole yard (:func:`backend.sim.scene_camera.render_scene_image`), so
+the camera photographs the whole yard (:func:`backend.sim.scene_camera.clean_yard_image`), so
 its edges line up with the LiDARs' points. Every sample carries the true ``T_camera_board``
 in its metadata.
 """
@@ -24,8 +24,8 @@ from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from backend.sim.scene_camera import render_scene_image
+from backend.sim.lidar_scene import moving_board_poses
+from backend.sim.scene_camera import clean_yard_image
 
 BOARD_MOTIONS = ("wave", "scene")
 SCENE_NOISE_SIGMA = 1.5
@@ -88,8 +88,6 @@ class SimulatedCamera(CaptureDevice):
         self._poses: list[np.ndarray] = []
         self._T_base_boards: list[np.ndarray] | None = None
         self._T_base_camera: np.ndarray | None = None
-        self._yard_images: dict[int, np.ndarray] = {}
-        """Noise-free photographs of the yard per board pose (rendering one takes about a second)."""
 
     def open(self) -> None:
         """Look the camera up in the demo rig and plan the board motion."""
@@ -114,7 +112,6 @@ class SimulatedCamera(CaptureDevice):
             self._T_base_camera = demo_rig().T_root_frame(self.camera)
             self._T_base_boards = moving_board_poses(self.n_poses, self.seed, board=self.board)
             self._poses = [np.linalg.inv(self._T_base_camera) @ T_base_board for T_base_board in self._T_base_boards]
-            self._yard_images = {}
         self._timing.restart()
 
     def read(self) -> Sample:
@@ -138,11 +135,8 @@ class SimulatedCamera(CaptureDevice):
 
     def _yard_image(self, pose_index: int, rng: np.random.Generator) -> np.ndarray:
         """The yard with the board at pose ``pose_index``, with fresh sensor noise from ``rng``."""
-        clean = self._yard_images.get(pose_index)
-        if clean is None:
-            scene = LidarScene(self._T_base_boards[pose_index], board=self.board)
-            clean = self._yard_images[pose_index] = render_scene_image(
-                scene, self._intrinsics, self._T_base_camera, self.seed, supersample=1, noise_sigma=0.0)
+        clean = clean_yard_image(self._T_base_boards[pose_index], self.board, self._intrinsics, self._T_base_camera,
+                                 self.seed)
         noisy = clean + SCENE_NOISE_SIGMA * rng.standard_normal(clean.shape, dtype=np.float32)
         return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
@@ -152,7 +146,6 @@ class SimulatedCamera(CaptureDevice):
         self._board_spec = None
         self._poses = []
         self._T_base_boards = None
-        self._yard_images = {}
 
     def describe(self) -> str:
         if self._intrinsics is None:

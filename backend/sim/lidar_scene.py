@@ -208,14 +208,15 @@ def _concat(parts: list[tuple[np.ndarray, np.ndarray, str | np.ndarray]]
 
 
 def scene_mesh(board_pose: np.ndarray | None = None, *, include_board: bool = True,
-               board: str = DEMO_BOARD) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               board: str = DEMO_BOARD, include_yard: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scene as ``(vertices (V, 3) float64 m in base_link, triangles (T, 3) int64, labels (T,) int8)``.
 
     ``board_pose`` is ``T_base_board`` (default :func:`default_board_pose`); the board
     is a plate of ``board``'s printed size plus its white margin, on a post standing
     on the floor behind the plate's centre. Labels are values of :data:`LABELS`.
+    Without ``include_yard`` the mesh is the board and its post alone.
     """
-    parts: list[tuple[np.ndarray, np.ndarray, str | np.ndarray]] = [_static_mesh()]
+    parts: list[tuple[np.ndarray, np.ndarray, str | np.ndarray]] = [_static_mesh()] if include_yard else []
     if include_board:
         T = default_board_pose() if board_pose is None else np.asarray(board_pose, dtype=float)
         corners = plate_corners_m(BoardSpec.parse(board))
@@ -258,14 +259,15 @@ class LidarScan:
 class LidarScene:
     """The scene of :func:`scene_mesh` in an Open3D ``RaycastingScene``, scanned by simulated LiDARs."""
 
-    def __init__(self, board_pose: np.ndarray | None = None, *, include_board: bool = True, board: str = DEMO_BOARD):
+    def __init__(self, board_pose: np.ndarray | None = None, *, include_board: bool = True, board: str = DEMO_BOARD,
+                 include_yard: bool = True):
         import open3d as o3d
 
         self.board = BoardSpec.parse(board)
         self.T_base_board = default_board_pose() if board_pose is None else np.asarray(board_pose, float).copy()
         self.include_board = include_board
         self.vertices, self.triangles, self.labels = scene_mesh(self.T_base_board, include_board=include_board,
-                                                                board=board)
+                                                                board=board, include_yard=include_yard)
         self._o3c = o3d.core
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
