@@ -105,3 +105,24 @@ def test_hand_set_transform_and_errors(client):
     not_a_camera = client.post("/api/sessions/l2c/lidar-camera/capture", json={"camera": "lidar_top",
                                                                              "lidar": "lidar_front"})
     assert not_a_camera.status_code == 422 and "not a camera" in not_a_camera.json()["error"]["message"]
+
+
+def test_a_rejected_pair_upload_stores_nothing(client):
+    # A camera without intrinsics: an image's size is checked against the camera's earlier captures, and a pair
+    # refused for it keeps neither its image nor its cloud.
+    rig = demo_rig()
+    rig.get("cam_front").intrinsics = None
+    client.app.state.studio.store.create("bare", rig=rig, board=DEMO_BOARD)
+    url, form = "/api/sessions/bare/lidar-camera/pairs", {"camera": "cam_front", "lidar": "lidar_front"}
+    files = _pair_files(0, moving_board_poses(2)[1], np.random.default_rng(3))
+    assert client.post(url, data=form, files=files).status_code == 201
+
+    small = cv2.imencode(".png", np.zeros((480, 640), np.uint8))[1].tobytes()
+    refused = client.post(url, data=form, files={**files, "image": ("small.png", small, "image/png")})
+    assert refused.status_code == 422, refused.text
+    assert refused.json()["error"]["input"] == "small.png"
+    assert "640x480 px but earlier captures of cam_front are 1280x720 px" in refused.json()["error"]["message"]
+    for sensor in ("cam_front", "lidar_front"):
+        captures = client.get(f"/api/sessions/bare/sensors/{sensor}/captures").json()
+        assert [c["id"] for c in captures] == ["00001"], (sensor, captures)
+    assert len(client.get(url, params=form).json()) == 1

@@ -2,8 +2,9 @@
 
 A pair is one moment seen by both sensors: the camera's image and the LiDAR's cloud,
 each stored as an ordinary capture of its sensor, the image carrying the link
-(``meta["paired_cloud"] = "<lidar>:<capture id>"``). The cloud is stored first, so a
-failure in between leaves a plain cloud capture and nothing half-linked.
+(``meta["paired_cloud"] = "<lidar>:<capture id>"``). A pair is all or nothing: both are
+checked (the image's size against the intrinsics and the camera's earlier captures, the
+cloud's points) before either is written, under the session's lock.
 
 Capturing from live devices waits for a still board: the camera is read before and
 after the LiDAR scan, and the pair is kept only when the board's corners moved less
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,14 +81,17 @@ def store_pair(session: Session, camera: str, lidar: str, image: Sample, cloud: 
                detection: Detection | None, source: tuple[str, str] | None = None) -> CapturePair:
     """Keep one image sample and one cloud sample as a linked pair (``source``: their original file names)."""
     check_camera(session, camera)
-    intrinsics = session.rig.get(camera).intrinsics
-    if intrinsics is not None:
-        check_image_size(image.image, intrinsics, source[0] if source else camera)
-    cloud_record = store_cloud(session, lidar, cloud, device=device, source=source[1] if source else None)
-    image_record = intrinsics_service.store_capture(
-        session, camera, image.image, detection, device=device, timestamp_s=image.timestamp_s,
-        source=source[0] if source else None,
-        meta={**image.storable_meta(), "paired_cloud": f"{lidar}:{cloud_record.id}"})
+    image_name = source[0] if source else camera
+    with session.lock:  # checked and stored as one: no capture in between changes what was checked
+        intrinsics = session.rig.get(camera).intrinsics
+        if intrinsics is not None:
+            check_image_size(image.image, intrinsics, image_name)
+        intrinsics_service.check_size(session, camera, image_name, image.image)
+        cloud_record = store_cloud(session, lidar, cloud, device=device, source=source[1] if source else None)
+        image_record = intrinsics_service.store_capture(
+            session, camera, image.image, detection, device=device, timestamp_s=image.timestamp_s,
+            source=source[0] if source else None,
+            meta={**image.storable_meta(), "paired_cloud": f"{lidar}:{cloud_record.id}"})
     return CapturePair(camera, image_record, lidar, cloud_record)
 
 
@@ -128,19 +133,26 @@ def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable
     if require_board and board is None:
         raise InputError("the session has no calibration board set; set one in the session step", "board")
     motion = float("inf")
-    for attempt in range(attempts):
-        progress(attempt / attempts, "reading the camera and the LiDAR" if attempt == 0
-                 else f"the board moved {motion:.1f} px during the scan: hold it still (try {attempt + 1})")
-        before, cloud, after = read_image(), read_cloud(), read_image()
-        detections = [None, None] if board is None else [detect_board(s.image, board) for s in (before, after)]
-        if detections[0] is None or detections[1] is None:
-            if require_board:
-                raise InputError(f"the board {board} was not found in {camera}'s image; bring it into view of "
-                                 f"both {camera} and {lidar}", camera)
-            return store_pair(session, camera, lidar, before, cloud, device=device, detection=detections[0])
-        motion = _corner_motion_px(*detections)
-        if motion <= still_px:
-            return store_pair(session, camera, lidar, before, cloud, device=device, detection=detections[0])
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for attempt in range(attempts):
+            progress(attempt / attempts, "reading the camera and the LiDAR" if attempt == 0
+                     else f"the board moved {motion:.1f} px during the scan: hold it still (try {attempt + 1})")
+            before = read_image()
+            # The first frame's board is searched while the LiDAR scans and the second frame is read and searched
+            # (OpenCV releases the GIL while detecting): a click waits for one detection, not two in a row.
+            found_before = pool.submit(detect_board, before.image, board) if board is not None else None
+            cloud, after = read_cloud(), read_image()
+            detection_before = detection_after = None
+            if found_before is not None:
+                detection_after, detection_before = detect_board(after.image, board), found_before.result()
+            if detection_before is None or detection_after is None:
+                if require_board:
+                    raise InputError(f"the board {board} was not found in {camera}'s image; bring it into view of "
+                                     f"both {camera} and {lidar}", camera)
+                return store_pair(session, camera, lidar, before, cloud, device=device, detection=detection_before)
+            motion = _corner_motion_px(detection_before, detection_after)
+            if motion <= still_px:
+                return store_pair(session, camera, lidar, before, cloud, device=device, detection=detection_before)
     raise InputError(f"the board kept moving ({motion:.1f} px between the frames before and after the scan, more "
                      f"than {still_px} px) in {attempts} tries; hold it still while the pair is captured", camera)
 
