@@ -127,6 +127,8 @@ def browser_figures():
                 page.set_default_timeout(60_000)
                 page.goto(url)
                 expect(page.get_by_text("Connected", exact=True)).to_be_visible()
+                # a fresh sessions folder: the demo is built in the background and opened when ready
+                expect(page.get_by_text("Simulated rig (known ground truth)")).to_be_visible(timeout=900_000)
                 time.sleep(3)
                 page.get_by_text("4 · LiDARs", exact=True).click()
                 for name, live in (("lidar_top", True), ("lidar_front", True), ("scanner_2d", False),

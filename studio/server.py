@@ -13,7 +13,7 @@ from backend.api.auth import is_loopback, new_token
 from backend.api.origin import OriginPolicy
 from backend.api.viewer_guard import new_secret, origin_check, secret_check, start_viewer
 from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
-from backend.services.demo import ensure_demo_session
+from backend.services.demo import start_demo_build
 from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
 from studio.app import StudioApp
@@ -26,10 +26,6 @@ def _log(message: str) -> None:
 def serve(args: argparse.Namespace) -> int:
     """Run until interrupted. The first stdout line is the URL to open."""
     store = SessionStore(args.sessions)
-    session = None
-    if args.command == "demo":
-        _log(f"preparing the demo session in {store.root}/demo ...")
-        session = ensure_demo_session(store, fresh=args.fresh, progress=lambda f, m: None)
     loopback = is_loopback(args.host)
     token = args.token or (None if loopback else new_token())
     # With a token the viewer stays on 127.0.0.1 and answers only the API's token-checked proxy (its secret);
@@ -48,7 +44,10 @@ def serve(args: argparse.Namespace) -> int:
     if token is not None:
         mount_viewer_proxy(app, viewer_port, token, viewer_secret)
     host = f"[{args.host}]" if ":" in args.host else args.host
-    studio = StudioApp(viewer, store, jobs, session, api_url=f"http://{host}:{args.port}" if token is None else "")
+    studio = StudioApp(viewer, store, jobs, api_url=f"http://{host}:{args.port}" if token is None else "")
+    if args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
+        _log(f"preparing the demo session in {store.root}/demo ...")
+        studio.session_step.open_when_built(start_demo_build(store, jobs, fresh=args.fresh))
     print(studio_url, flush=True)
     _log(f"API and docs: http://{args.host}:{args.port}/docs")
     logging.getLogger("uvicorn.error").setLevel(logging.WARNING)

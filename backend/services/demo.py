@@ -14,16 +14,23 @@ For the multi-camera rig, ``cam_front`` and its stereo partner ``cam_right`` pho
 same board poses: the session holds :data:`DEMO_SETS` synchronised sets of them, and both stay
 on the shared hold clock so more sets can be captured live. ``cam_right`` has no intrinsics:
 the joint solve estimates them with the rig.
+
+Building it takes the better part of a minute (rendering and detecting about sixty frames, a solve), so the
+session is built in a staging folder (:data:`STAGING_DIR`) and moved into place whole: a build that is
+interrupted never leaves a half-built ``demo`` behind. :func:`start_demo_build` runs the build as a job, so a
+server can serve its page at once and open the demo when it is ready.
 """
 
 from __future__ import annotations
 
 import contextlib
+import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 from backend.devices.base import create_device
 from backend.services import intrinsics as intrinsics_service
+from backend.services.jobs import Job, JobRunner
 from backend.services.lidar_camera_pairs import store_pair
 from backend.services.multicam_capture import capture_set
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
@@ -42,6 +49,9 @@ PAIR_HOLD_S = 3.0
 DEMO_SET_CAMERAS = ["cam_front", "cam_right"]
 DEMO_SETS = 10
 DEMO_SET_TOLERANCE_S = 5.0
+STAGING_DIR = ".demo-building"
+"""Folder under the sessions root where the demo is built before it is moved into place (not a session)."""
+BUILD_TITLE = "preparing the demo session"
 
 
 def _retire(store: SessionStore, name: str) -> None:
@@ -55,34 +65,57 @@ def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int 
                         progress: ProgressCallback = no_progress) -> Session:
     """Open the demo session, building it from the simulator if missing (or ``fresh``).
 
-    The simulator's board poses are already spread over the image, so the first
-    ``views`` frames are kept as they come; detection runs on both cores.
+    ``progress`` hears the whole build's fraction (0..1) and what it is doing. The build runs in
+    :data:`STAGING_DIR` and the finished session is renamed into ``store.root``.
     """
     if fresh:
         _retire(store, DEMO_NAME)
     if (store.root / DEMO_NAME).exists():
         return store.get(DEMO_NAME)
+    staging = store.root / STAGING_DIR
+    if staging.exists():  # left by an interrupted build: only the simulator's frames, nothing of a user's
+        shutil.rmtree(staging)
+    _build(SessionStore(staging), views, progress)
+    (staging / DEMO_NAME).rename(store.root / DEMO_NAME)
+    staging.rmdir()
+    return store.get(DEMO_NAME)
+
+
+def start_demo_build(store: SessionStore, jobs: JobRunner, *, fresh: bool = False) -> Job:
+    """:func:`ensure_demo_session` as a job titled :data:`BUILD_TITLE` (its result: the demo :class:`Session`)."""
+    return jobs.submit(BUILD_TITLE, lambda progress: ensure_demo_session(store, fresh=fresh, progress=progress))
+
+
+def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Session:
+    """Create the demo session in ``store``: ``views`` views of :data:`DEMO_CAMERA` and their accepted solve,
+    then the pairs and the sets. The simulator's board poses are already spread over the image, so the first
+    ``views`` frames are kept as they come; detection runs on both cores."""
     rig = demo_rig()
     for camera in rig.sensors("camera"):
         camera.intrinsics = None
     session = store.create(DEMO_NAME, rig=rig, board=DEMO_BOARD, title="Simulated rig (known ground truth)")
     board = intrinsics_service.session_board(session)
+    samples, detections = [], []
     with create_device(session.rig.get(DEMO_CAMERA).device) as device:
-        samples = [device.read() for _ in range(views)]
+        for i in range(views):
+            progress(0.1 * i / views, f"rendering simulated views of {DEMO_CAMERA}")
+            samples.append(device.read())
         name = device.describe()
     with ThreadPoolExecutor(max_workers=2) as pool:  # OpenCV releases the GIL while detecting
-        detections = list(pool.map(lambda sample: detect_board(sample.image, board), samples))
+        for i, detection in enumerate(pool.map(lambda sample: detect_board(sample.image, board), samples)):
+            progress(0.1 + 0.1 * i / views, f"detecting the board in the views of {DEMO_CAMERA}")
+            detections.append(detection)
     for i, (sample, detection) in enumerate(zip(samples, detections, strict=True)):
-        progress(i / views, f"storing simulated views of {DEMO_CAMERA}")
         if detection is not None:
             intrinsics_service.store_capture(session, DEMO_CAMERA, sample.image, detection, device=name,
                                              timestamp_s=sample.timestamp_s, meta={"frame_index": i})
-    result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(), progress=progress)
+    result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(),
+                                                    progress=lambda f, m: progress(0.2 + 0.1 * f, m))
     # The demo stands in for a user who read the verdict: a 'check' (e.g. too few views in the image corners) is
     # taken as it is and the confirmation recorded; a 'reject' is still refused.
     intrinsics_service.accept(session, DEMO_CAMERA, result_id, confirm=True)
-    _add_board_pairs(session, progress)
-    _add_camera_sets(session, progress)
+    _add_board_pairs(session, lambda f, m: progress(0.3 + 0.3 * f, m))
+    _add_camera_sets(session, lambda f, m: progress(0.6 + 0.4 * f, m))
     return session
 
 

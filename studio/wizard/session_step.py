@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import threading
+
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
+from backend.services.jobs import Job
 from studio.context import StudioContext
 
 NEW_SESSION = "(new session)"
+BUILD_POLL_S = 0.5
+"""How often the progress line of a session being built is refreshed (s)."""
 
 
 class SessionStep:
@@ -62,3 +67,29 @@ class SessionStep:
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
         self.summary.content = (f"**{session.name}** {session.title}\n\n"
                                 f"Board: `{session.board}`  \nSensors: {sensors}")
+
+    def open_when_built(self, job: Job) -> None:
+        """Open the session ``job`` builds (e.g. the demo) once it is done, showing its progress meanwhile.
+
+        A job done within one poll (a session already built) opens before this returns. The session opens only if
+        the user has not opened another in the meantime; a failed build is shown with its reason.
+        """
+        if not job.wait(BUILD_POLL_S):
+            threading.Thread(target=self._follow_build, args=(job,), name="session-build", daemon=True).start()
+            return
+        self._built(job)
+
+    def _follow_build(self, job: Job) -> None:
+        while not job.wait(BUILD_POLL_S):
+            if self.ctx.session is None:
+                self.summary.content = f"{job.title.capitalize()} … {100 * job.fraction:.0f} %  \n{job.message}"
+        self._built(job)
+
+    def _built(self, job: Job) -> None:
+        if job.state != "done":
+            self.summary.content = f"⚠️ {job.title.capitalize()} failed: {job.message}"
+            self.ctx.notify(f"{job.title} failed", job.message, error=True)
+        elif self.ctx.session is None:
+            self.ctx.open_session(job.result)
+        else:
+            self.choice.options = self._options()
