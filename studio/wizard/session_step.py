@@ -92,4 +92,4 @@ class SessionStep:
         elif self.ctx.session is None:
             self.ctx.open_session(job.result)
         else:
-            self.choice.options = self._options()
+            self._refresh()
