@@ -1,7 +1,7 @@
 """Live camera capture with guidance: detect on every frame, keep frames that add coverage.
 
 Runs the device in its own thread so the UI never waits on a camera. Every frame
-is detected quickly for the preview; a frame that adds coverage (see
+is detected quickly for the preview (:mod:`backend.solvers.live_detection`); a frame that adds coverage (see
 :mod:`backend.solvers.coverage`) is re-detected at full accuracy and stored as a
 capture, immediately and atomically, so an unplugged camera loses nothing.
 """
@@ -21,6 +21,7 @@ from backend.services import intrinsics as intrinsics_service
 from backend.services.sensor_stream import SensorStream
 from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.coverage import Coverage
+from backend.solvers.live_detection import LiveDetector
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 
@@ -59,6 +60,7 @@ class LiveCapture(SensorStream):
         self.auto_capture = auto_capture
         self.coverage = coverage_from_captures(session, sensor, self.board)
         self._capture_next = threading.Event()
+        self._detector = LiveDetector(self.board)
 
     def capture_now(self) -> None:
         """Keep the next frame with a board, whether or not it adds coverage."""
@@ -66,7 +68,7 @@ class LiveCapture(SensorStream):
 
     def handle(self, sample: Sample) -> None:
         image = sample.image
-        detection = detect_board(image, self.board, live=True)
+        detection = self._detector.detect(image)  # fast, for the preview
         wanted = self._capture_next.is_set() or (
             self.auto_capture and detection is not None
             and (self.coverage is None or self.coverage.adds_coverage(detection)))
