@@ -80,8 +80,8 @@ def health_ms(client: httpx.Client) -> float:
 
 def summary(latencies: list[float], idle_p50: float | None = None) -> dict:
     figures = {"p50_ms": round(statistics.median(latencies), 2),
-               "p95_ms": round(statistics.quantiles(latencies, n=20)[-1], 2), "max_ms": round(max(latencies), 2),
-               "requests": len(latencies)}
+               "p95_ms": round(statistics.quantiles(latencies, n=20, method="inclusive")[-1], 2),
+               "max_ms": round(max(latencies), 2), "requests": len(latencies)}
     if idle_p50 is not None:
         figures |= {"p50_ratio_to_idle": round(figures["p50_ms"] / idle_p50, 2),
                     "max_ratio_to_idle": round(figures["max_ms"] / idle_p50, 2)}
