@@ -10,7 +10,10 @@ What it measures, in one run on the same data:
   guide to what the median loses to other processes on a shared machine;
 - ``overlays_per_s_float64``: the same with ``project_cloud(..., dtype=np.float64)``;
 - ``redraw_100k_ms``: the same for an even stride of 100k of those points: what the server
-  spends to redraw after a slider moves;
+  spends to redraw after a slider moves (target: within 20 ms); ``redraw_baseline_ms``: the in-run
+  baseline for it, the same projection and colours drawn as before ``draw_points`` vectorised the
+  drawing, one ``cv2.rectangle`` per point in a Python loop (the same squares, later points on top);
+  ``redraw_ratio`` = baseline / redraw_100k_ms;
 - ``full_resolution_ms``: what the full-size overlay page's route spends on one image:
   ``render_overlays`` (the same projection, colours over the 2nd-98th percentile of the drawn
   depths, drawing), ``with_legend`` and ``encode_jpeg`` at the image's full size;
@@ -24,7 +27,9 @@ What it measures, in one run on the same data:
   points alone (no culling, colouring or drawing); ``ratio`` = overlays_per_s / baseline.
   From Python it always computes the 2N x 15 Jacobian too, which is most of its time;
 - ``kept_points``: how many points the overlay draws (in view and not hidden);
-- ``peak_rss_mb``: peak resident memory of the process at the end (ru_maxrss).
+- ``peak_rss_mb``: peak resident memory of the process at the end (ru_maxrss);
+- ``load_average``: the 1-minute load average at the start and the end (other processes skew every
+  absolute figure on a shared machine; the ratios much less).
 
 Cloud: the simulated yard (``LidarScene``, with the board) ray-cast from the demo rig's
 ``lidar_front`` with a dense solid-state-like pattern (azimuth -45..45 deg, elevation
@@ -80,6 +85,14 @@ def dense_cloud(scene: LidarScene, T_base_lidar: np.ndarray) -> np.ndarray:
     return (dirs[hit] * t[hit, None])[:POINTS]
 
 
+def drawn_point_by_point(image, uv, colours, radius_px=1):
+    """The overlay's drawing as it was before it was vectorised: one filled square per point, in order."""
+    canvas = image.copy()
+    for (u, v), (r, g, b) in zip(np.rint(uv).astype(int).tolist(), colours.tolist(), strict=True):
+        cv2.rectangle(canvas, (u - radius_px, v - radius_px), (u + radius_px, v + radius_px), (b, g, r), -1)
+    return canvas
+
+
 def call_times(function, repeats):
     """Wall times (s) of ``repeats`` calls of ``function()``."""
     times = []
@@ -92,7 +105,8 @@ def call_times(function, repeats):
 
 def main():
     started = time.perf_counter()
-    log(f"load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (other processes skew timings)")
+    load_start = os.getloadavg()[0]
+    log(f"load average at start: {load_start:.2f} on {os.cpu_count()} cores (other processes skew timings)")
     rig = demo_rig()
     camera = rig.get("cam_front").intrinsics
     T_camera_lidar = rig.T_a_b("cam_front", "lidar_front")
@@ -116,6 +130,15 @@ def main():
     overlay_s = statistics.median(overlay_times)
     redraw_s = median_time(lambda: overlay(subset), REPEATS_FAST)
     overlay_float64_s = median_time(lambda: overlay(points, np.float64), REPEATS_FAST)
+
+    def redraw_baseline():
+        projection = project_cloud(subset, T_camera_lidar, camera, occlusion_px=OCCLUSION_PX)
+        colours = depth_colours(projection.depth_m, *DEPTH_RANGE_M)
+        return drawn_point_by_point(image, projection.uv, colours)
+
+    log("timing the 100k redraw's baseline (point by point) ...")
+    redraw_baseline_s = median_time(redraw_baseline, 5)
+    same_redraw = bool(np.array_equal(redraw_baseline(), overlay(subset)))
 
     def full_resolution():
         (drawn,), _, scale = render_overlays([(image, points, None)], T_camera_lidar, camera, full_style)
@@ -162,6 +185,9 @@ def main():
         "overlay_ms_best": round(min(overlay_times) * 1000, 1),
         "overlays_per_s_float64": round(1.0 / overlay_float64_s, 2),
         "redraw_100k_ms": round(redraw_s * 1000, 1),
+        "redraw_baseline_ms": round(redraw_baseline_s * 1000, 1),
+        "redraw_ratio": round(redraw_baseline_s / redraw_s, 2),
+        "redraw_same_as_baseline": same_redraw,
         "full_resolution_ms": round(full_resolution_s * 1000, 1),
         "stages_ms": {
             "project": round(project_s * 1000, 1),
@@ -177,6 +203,7 @@ def main():
         "ratio": round(baseline_s / overlay_s, 2),
         "full_resolution_ratio": round(baseline_s / full_resolution_s, 2),
         "peak_rss_mb": round(peak_memory_mb, 1),
+        "load_average": [round(load_start, 2), round(os.getloadavg()[0], 2)],
         "cpu_count": os.cpu_count(),
     }
     print(json.dumps(result))
