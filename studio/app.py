@@ -36,5 +36,5 @@ class StudioApp:
             self.ctx.open_session(session)
 
     def close(self) -> None:
-        self.intrinsics_step.stop_live()
-        self.lidar_step.stop_live()
+        """Stop what the open session streams (every step's closing hook)."""
+        self.ctx.close_session()

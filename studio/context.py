@@ -1,7 +1,15 @@
-"""What the wizard steps share: the viser server, the backend services and the open session."""
+"""What the wizard steps share: the viser server, the backend services and the open session.
+
+A session change runs in two phases, so that nothing of one session leaks into the next:
+every step's *closing* hook first lets go of what it holds of the open session (live
+streams, scene handles, timers), the scene is then redrawn for the new rig, and every
+step's *changed* listener fills its panel from the new session. One step that fails in
+either phase is logged and reported; the others are told all the same.
+"""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -13,6 +21,8 @@ from backend.services.jobs import JobRunner
 from backend.store.session import Session, SessionStore
 from studio.scene import RigScene
 
+log = logging.getLogger(__name__)
+
 
 @dataclass
 class StudioContext:
@@ -23,17 +33,38 @@ class StudioContext:
     session: Session | None = None
     api_url: str = ""
     """Where the browser reaches the REST API (``http://host:port``; empty when the studio page is served by it)."""
+    _closing: list[Callable[[], None]] = field(default_factory=list)
     _listeners: list[Callable[[Session], None]] = field(default_factory=list)
 
+    def on_session_closing(self, hook: Callable[[], None]) -> None:
+        """``hook()`` runs before the open session is left (another opens, or the studio stops): stop what streams
+        and drop the scene handles held for it (the scene is redrawn right after)."""
+        self._closing.append(hook)
+
     def on_session_changed(self, listener: Callable[[Session], None]) -> None:
+        """``listener(session)`` runs once ``session`` is current and the scene shows its rig."""
         self._listeners.append(listener)
 
     def open_session(self, session: Session) -> None:
-        """Make ``session`` current and tell every step."""
+        """Leave the open session, make ``session`` current, draw its rig and tell every step."""
+        self.close_session()
         self.session = session
         self.scene.show_rig(session.rig)
         for listener in self._listeners:
-            listener(session)
+            self._call(listener, session)
+
+    def close_session(self) -> None:
+        """Run every step's closing hook (the session stays current until another is opened)."""
+        for hook in self._closing:
+            self._call(hook)
+
+    def _call(self, callback: Callable, *args) -> None:
+        """Run one step's hook; a failure is logged with its traceback and shown, and never stops the next step."""
+        try:
+            callback(*args)
+        except Exception as exc:  # noqa: BLE001 - one broken step must not leave the others on the old session
+            log.exception("a studio step failed on a session change")
+            self.notify("Session change", f"a step could not follow the session change: {exc}", error=True)
 
     def download(self, event: viser.GuiEvent, fmt: ExportFormat, sensor: str | None = None) -> None:
         """Send one export of the open session to the page that clicked (a toast says why when there is none)."""

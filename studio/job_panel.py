@@ -8,13 +8,16 @@ from typing import Any
 
 from backend.services.jobs import Job
 from backend.solvers.result import ProgressCallback
+from backend.store.session import Session
 from studio.context import StudioContext
 
 
 class JobPanel:
     """Runs work through the studio's job runner and mirrors it in the panel, off the GUI thread.
 
-    ``buttons`` are disabled while a job runs, so the same work cannot be started twice.
+    ``buttons`` are disabled while a job runs, so the same work cannot be started twice. A job runs on in the
+    session it was started in; if another session has been opened by the time it ends, its ``on_done`` is not run
+    (it would show one session's result in another's panel). A session change clears an idle panel.
     """
 
     def __init__(self, ctx: StudioContext, buttons: list, cancel_label: str = "Cancel"):
@@ -26,6 +29,11 @@ class JobPanel:
         self.text = gui.add_markdown("")
         self.job: Job | None = None
         self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
+        ctx.on_session_changed(lambda _: None if self.busy else self._clear())
+
+    def _clear(self) -> None:
+        self.progress.value = 0.0
+        self.text.content = ""
 
     @property
     def busy(self) -> bool:
@@ -40,9 +48,10 @@ class JobPanel:
         for button in self.buttons:
             button.disabled = True
         self.cancel_button.visible = True
-        threading.Thread(target=self._watch, args=(self.job, on_done, done_message), daemon=True).start()
+        threading.Thread(target=self._watch, args=(self.job, on_done, done_message, self.ctx.session),
+                         daemon=True).start()
 
-    def _watch(self, job: Job, on_done: Callable[[Any], None], done_message: str) -> None:
+    def _watch(self, job: Job, on_done: Callable[[Any], None], done_message: str, session: Session | None) -> None:
         while not job.wait(0.1):
             self.progress.value = 100.0 * job.fraction
             self.text.content = job.message
@@ -50,7 +59,9 @@ class JobPanel:
         for button in self.buttons:
             button.disabled = False
         self.cancel_button.visible = False
-        if job.state == "done":
+        if job.state == "done" and self.ctx.session is not session:
+            self.text.content = f"{job.title}: done in session {session.name}, which is no longer open."
+        elif job.state == "done":
             self.text.content = done_message.format(title=job.title, seconds=job.finished - job.started)
             on_done(job.result)
         elif job.state == "cancelled":

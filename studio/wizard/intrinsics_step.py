@@ -17,6 +17,7 @@ from backend.store.schema import CaptureRecord
 from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.live_toggle import LiveToggle
 from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 NO_CAMERA = "(no camera)"
@@ -39,6 +40,7 @@ class IntrinsicsStep:
             with gui.add_folder("Capture"):
                 self.start_button = gui.add_button("Start live capture", color="green")
                 self.stop_button = gui.add_button("Stop", color="red", visible=False)
+                self.toggle = LiveToggle(self.start_button, self.stop_button, on_ended=self._on_ended)
                 self.auto = gui.add_checkbox("Auto-capture when it adds coverage", initial_value=True)
                 self.capture_button = gui.add_button("Capture this frame")
                 self.import_button = gui.add_upload_button("Import an image file", mime_type="image/*",
@@ -82,11 +84,11 @@ class IntrinsicsStep:
         self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
         self.export_opencv.on_click(lambda event: self.ctx.download(event, "opencv", self.sensor))
         self.export_rig.on_click(lambda event: self.ctx.download(event, "rig", self.sensor))
+        ctx.on_session_closing(self.stop_live)
         ctx.on_session_changed(self._on_session)
 
     # -- session and camera -------------------------------------------------------------
     def _on_session(self, session) -> None:
-        self.stop_live()
         cameras = [f.name for f in session.rig.sensors("camera")] or [NO_CAMERA]
         self.camera.options = cameras
         if self.camera.value not in cameras:
@@ -100,23 +102,21 @@ class IntrinsicsStep:
     def _select_camera(self) -> None:
         self.stop_live()
         session, sensor = self.ctx.session, self.sensor
-        if sensor is None:
-            return
-        board = intrinsics_service.session_board(session)
-        coverage = coverage_from_captures(session, sensor, board)
+        board = None if sensor is None else intrinsics_service.session_board(session)
+        coverage = None if sensor is None else coverage_from_captures(session, sensor, board)
         self._show_coverage(coverage)
-        captures = session.captures(sensor)
+        captures = [] if sensor is None else session.captures(sensor)
         if captures:
             last = captures[-1]
             image = session.capture_image(sensor, last.id)
             detection = Detection.from_dict(last.detection) if last.detection else None
             self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
             self.ctx.scene.show_camera_image(sensor, image)
-        else:  # not the previous camera's last frame
+        else:  # not the previous camera's (or session's) last frame
             self.preview.image = np.full((270, 480, 3), 40, np.uint8)
-        results = session.results(sensor, "intrinsics")
+        results = [] if sensor is None else session.results(sensor, "intrinsics")
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
-        accepted = session.accepted(f"{sensor}/intrinsics")
+        accepted = None if sensor is None else session.accepted(f"{sensor}/intrinsics")
         self.history.value = accepted or self.history.options[0]
         self._show_result(self.history.value)
 
@@ -127,21 +127,29 @@ class IntrinsicsStep:
             return
         self.stop_live()
         try:
-            self.live = LiveCapture(self.ctx.session, self.sensor, LiveCallbacks(
+            live = LiveCapture(self.ctx.session, self.sensor, LiveCallbacks(
                 frame=self._on_frame, captured=self._on_captured, status=self._on_status),
                 auto_capture=self.auto.value)
         except InputError as exc:
             self.ctx.notify("Cannot start", exc.message, error=True)
             return
-        self.live.start()
-        self.start_button.visible, self.stop_button.visible = False, True
+        self.live = live
+        live.start()
+        self.toggle.started([live])
 
     def stop_live(self) -> None:
-        if self.live is not None:
-            self.live.stop()
+        """Stop the live capture, if any, and show Start."""
+        live, self.live = self.live, None
+        self.toggle.stopped()
+        if live is not None:
+            live.stop()
+            self.ctx.scene.clear_boards(live=True)
+
+    def _on_ended(self, run: tuple) -> None:
+        """The live capture ended by itself (it failed to open, or its device went away): it is no longer live."""
+        if self.live in run:
             self.live = None
             self.ctx.scene.clear_boards(live=True)
-        self.start_button.visible, self.stop_button.visible = True, False
 
     def _capture_now(self) -> None:
         if self.live is None:
@@ -183,7 +191,6 @@ class IntrinsicsStep:
         self.coverage_text.content = f"{'⚠️ ' if error else ''}{message}\n\n" + self._coverage_summary()
         if error:
             self.ctx.notify("Capture", message, error=True)
-            self.start_button.visible, self.stop_button.visible = True, False
 
     def _coverage_summary(self, coverage: Coverage | None = None) -> str:
         coverage = coverage or (self.live.coverage if self.live else None)

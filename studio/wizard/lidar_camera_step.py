@@ -76,6 +76,8 @@ class LidarCameraStep:
         self._page_scene: dict[str, str] = {}
         """The scene on screen in the full-size page's terms: ``scene`` (an image id, or ``all``) and ``cloud_id``."""
         self._wake = threading.Event()
+        self._draw_lock = threading.Lock()
+        """Held by each redraw, so that leaving a session waits for the one in flight."""
         self._colourised = None
         self.result_id: str | None = None
         self.redraws = 0
@@ -130,11 +132,17 @@ class LidarCameraStep:
         self.solve_button.on_click(lambda _: self._solve())
         self.accept_button.on_click(lambda _: self._accept())
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
+        ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
 
     # -- session, sensors and data ------------------------------------------------------------
+    def _close(self) -> None:
+        """Leave the open session: nothing of its scenes stays on screen or in the 3D view."""
+        with self._draw_lock:  # after a redraw in flight, before the next
+            self._scenes, self._inputs, self._page_scene = [], [], {}
+            self._remove_colourised()
+
     def _on_session(self, session) -> None:
-        self._colourised = None  # the scene was redrawn
         cameras = [f.name for f in session.rig.sensors("camera")]
         lidars = lidar_service.lidar_names(session.rig)
         self.camera.options, self.lidar.options = cameras or [NONE], lidars or [NONE]
@@ -143,9 +151,10 @@ class LidarCameraStep:
 
     @property
     def pair(self) -> tuple[str, str] | None:
-        if self.ctx.session is None or NONE in (self.camera.value, self.lidar.value):
-            return None
-        return self.camera.value, self.lidar.value
+        session, camera, lidar = self.ctx.session, self.camera.value, self.lidar.value
+        if session is None or camera not in session.rig.frames or lidar not in session.rig.frames:
+            return None  # also while a session fills the lists
+        return camera, lidar
 
     def _rig_T(self) -> np.ndarray:
         pair = self.pair
@@ -156,6 +165,8 @@ class LidarCameraStep:
         pair = self.pair
         self.editor.frames = pair
         self.editor.set(self._rig_T(), undoable=False)
+        if pair is None:  # not the previous pair's static_transform_publisher line
+            self.editor.text.content = "Pick a camera and a LiDAR."
         self._list_scenes()
         accepted = None if pair is None else self.ctx.session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
         self._show_result(self.history.fill(self._pair_results(), accepted), move_sliders=False)
@@ -180,7 +191,9 @@ class LidarCameraStep:
         """Read the chosen scene(s) from the session and redraw."""
         session, pair, choice = self.ctx.session, self.pair, self.scene_choice.value
         self._scenes, self._inputs, self._page_scene = [], [], {}
-        if pair is not None:
+        if pair is None:
+            self.data_text.content = "Pick a camera and a LiDAR (step 2, *Sensors*, adds them)."
+        else:
             camera, lidar = pair
             if choice == LATEST:
                 self._load_latest(camera, lidar)
@@ -248,6 +261,7 @@ class LidarCameraStep:
         self.result_id = result_id
         if session is None or pair is None or result_id is None:
             self.stats_text.content = "No LiDAR-to-camera result yet."
+            self.before_image.image = self.after_image.image = PLACEHOLDER
             return
         record = session.result(result_id)
         if move_sliders:
@@ -289,7 +303,8 @@ class LidarCameraStep:
             self._wake.wait()
             self._wake.clear()  # changes from now on wake the next pass; this one draws the newest state
             try:
-                self._redraw()
+                with self._draw_lock:
+                    self._redraw()
             except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
                 self.status.content = f"⚠️ overlay failed: {exc}"
 
@@ -305,6 +320,7 @@ class LidarCameraStep:
         if pair is None or not scenes or intrinsics is None:
             self.status.content = "Nothing to draw yet."
             self.full_size.content = ""
+            self.overlay.image = PLACEHOLDER
             return
         camera, lidar = pair
         for scene in scenes:
@@ -340,11 +356,14 @@ class LidarCameraStep:
         return (f"{self.ctx.api_url}/api/sessions/{quote(self.ctx.session.name)}/lidar-camera/view?"
                 f"{urlencode(query)}")
 
-    def _paint_cloud(self, scene: PairData, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
-        """The reverse view: the cloud in 3D in the image's colours (points the camera does not see left out)."""
+    def _remove_colourised(self) -> None:
         if self._colourised is not None:
             self._colourised.remove()
             self._colourised = None
+
+    def _paint_cloud(self, scene: PairData, T_camera_lidar: np.ndarray, intrinsics, lidar: str) -> None:
+        """The reverse view: the cloud in 3D in the image's colours (points the camera does not see left out)."""
+        self._remove_colourised()
         if not self.paint_cloud.value:
             return
         colours, seen = colourise_cloud(scene.points, T_camera_lidar, intrinsics, scene.image,

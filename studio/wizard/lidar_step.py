@@ -37,6 +37,7 @@ from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.live_toggle import LiveToggle
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
 from studio.verdict_view import ConfirmCheck, verdict_markdown
@@ -107,6 +108,7 @@ class LidarStep:
             self.sensor_folder = gui.add_folder("Show live")
             self.start_button = gui.add_button("Start live", color="green")
             self.stop_button = gui.add_button("Stop live", color="red", visible=False)
+            self.toggle = LiveToggle(self.start_button, self.stop_button)
             self.colour_by = gui.add_dropdown("Colour by", options=cc.COLOUR_MODES, initial_value="sensor")
             self.accumulate = gui.add_number("Accumulate frames", initial_value=1, min=1, max=50, step=1,
                                              hint="merge the last N scans into a 3 cm voxel map")
@@ -152,6 +154,7 @@ class LidarStep:
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
         self.accept_button.on_click(lambda _: self._accept())
+        ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
 
     # -- session ------------------------------------------------------------------------------
@@ -161,8 +164,14 @@ class LidarStep:
             return []
         return lidar_service.lidar_names(session.rig)
 
-    def _on_session(self, session) -> None:
+    def _close(self) -> None:
+        """Leave the open session: stop its live clouds and let go of its LiDAR-to-LiDAR clouds."""
         self.stop_live()
+        self._drop_pair_clouds()
+        self.live_text.content = "Not live."
+        self.histogram.image = cc.distance_histogram(np.zeros(0), self.max_correspondence_m)
+
+    def _on_session(self, session) -> None:
         for box in self.show.values():
             box.remove()
         lidars = self._lidars()
@@ -193,8 +202,8 @@ class LidarStep:
         self.live = live
         for thread in live.values():
             thread.start()
+        self.toggle.started(list(live.values()))
         threading.Thread(target=self._show_rates, args=(live,), name="live-rates", daemon=True).start()
-        self.start_button.visible, self.stop_button.visible = False, True
 
     def _show_rates(self, live: dict[str, LiveClouds]) -> None:
         """Refresh the live line while these streams are the live ones, also while a device reconnects (no frames)."""
@@ -204,15 +213,12 @@ class LidarStep:
 
     def stop_live(self) -> None:
         live, self.live = self.live, {}
+        self.toggle.stopped()
         for thread in live.values():
             thread.stop()
         for node in self._live_nodes.values():  # leave the view to the captured clouds
-            try:
-                node.remove()
-            except RuntimeError:  # already gone with a redrawn rig
-                pass
+            node.remove()
         self._live_nodes = {}
-        self.start_button.visible, self.stop_button.visible = True, False
         if live:
             self.live_text.content = "Not live. " + self._rates(live)
 
@@ -284,9 +290,6 @@ class LidarStep:
             self._errors[sensor] = reason  # stays on the live line; a notification also says it
             self.ctx.notify("LiDAR", message, error=True)
             self.live_text.content = f"⚠️ {message}"
-            others = [t for t in self.live.values() if t.running and t.sensor != sensor]
-            if not others:
-                self.start_button.visible, self.stop_button.visible = True, False
 
     def _capture(self) -> None:
         session = self.ctx.session
@@ -318,13 +321,14 @@ class LidarStep:
         if session is None:
             return
         counts = [f"{name}: {len([c for c in session.captures(name) if c.n_points])}" for name in self._lidars()]
-        self.captures_text.content = "Captured clouds · " + " · ".join(counts)
+        self.captures_text.content = ("Captured clouds · " + " · ".join(counts) if counts else
+                                      "No LiDAR in this session: add one in step 2, *Sensors*.")
 
     # -- LiDAR to LiDAR: pair, sliders and the source node -------------------------------------
     @property
     def pair(self) -> tuple[str, str] | None:
-        source, target = self.source.value, self.target.value
-        if self.ctx.session is None or NONE in (source, target) or source == target:
+        source, target, lidars = self.source.value, self.target.value, self._lidars()
+        if source == target or source not in lidars or target not in lidars:  # also while a session fills the lists
             return None
         return source, target
 
@@ -386,14 +390,20 @@ class LidarStep:
         """Fill the result dropdown and show ``result_id`` (or the newest)."""
         self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders)
 
-    def _load_pair_clouds(self) -> None:
-        """Draw the latest captured cloud of the target, and of the source posed by the sliders."""
-        scene, session, pair = self.ctx.server.scene, self.ctx.session, self.pair
+    def _drop_pair_clouds(self) -> None:
+        """Remove the pair's clouds from the scene and forget them (a pending recolour finds nothing to do)."""
+        if self._recolour_timer is not None:
+            self._recolour_timer.cancel()
         with self._lock:
             self._source_node, self._source_points, self._target_tree = None, None, None
         for node in self._l2l_nodes:
             node.remove()
         self._l2l_nodes = []
+
+    def _load_pair_clouds(self) -> None:
+        """Draw the latest captured cloud of the target, and of the source posed by the sliders."""
+        scene, session, pair = self.ctx.server.scene, self.ctx.session, self.pair
+        self._drop_pair_clouds()
         if pair is None:
             return
         source, target = pair

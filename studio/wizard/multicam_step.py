@@ -147,13 +147,14 @@ class MulticamStep:
         self.stereo_set.on_update(lambda _: None if self._filling else self._show_stereo())
         self.export_rig.on_click(lambda event: self.ctx.download(event, "rig"))
         self.export_kalibr.on_click(lambda event: self.ctx.download(event, "kalibr"))
+        ctx.on_session_closing(self.ctx.scene.clear_solved_cameras)
         ctx.on_session_changed(self._on_session)
 
     # -- session and cameras -------------------------------------------------------------------
     def _on_session(self, session) -> None:
         for handle in [*self._boxes.values(), *self._topics.values()]:
             handle.remove()
-        self.ctx.scene.clear_solved_cameras()
+        self.import_text.content = ""
         names = [f.name for f in session.rig.sensors("camera")]
         in_sets = {c for s in capture_service.stored_sets(session) for c in s.cameras} if len(names) >= 2 else set()
         ticked = [n for n in names if n in in_sets] if len(in_sets) >= 2 else names

@@ -58,6 +58,7 @@ class SweepStep:
         self.calibrate_button.on_click(lambda _: self._calibrate())
         self.image_mode.on_update(lambda _: self._show())
         self.accept_button.on_click(lambda _: self._accept())
+        ctx.on_session_closing(self._drop_cloud)
         ctx.on_session_changed(self._on_session)
 
     # -- session and sensor --------------------------------------------------------------------
@@ -69,8 +70,13 @@ class SweepStep:
     def result_id(self) -> str | None:
         return self.history.selected
 
+    def _drop_cloud(self) -> None:
+        """Remove the sweep drawn in 3D, if any."""
+        if self._cloud is not None:
+            self._cloud.remove()
+            self._cloud = None
+
     def _on_session(self, session) -> None:
-        self._cloud = None  # the scene was redrawn
         swept = [f.name for f in session.rig.sensors() if sweep_service.is_swept(session, f.name)]
         self.sensor.options = swept or [NONE]
         self.sensor.value = self.sensor.options[0]
@@ -131,9 +137,7 @@ class SweepStep:
         session, sensor, result_id = self.ctx.session, self.current, self.result_id
         self.result_text.content = "No sweep calibration yet." if result_id is None else result_markdown(
             session.result(result_id), session.accepted(sweep_service.slot(sensor)))
-        if self._cloud is not None:
-            self._cloud.remove()
-            self._cloud = None
+        self._drop_cloud()
         if sensor is None or not sweep_service.swept_captures(session, sensor):
             self.image.image = BLANK_IMAGE
             return
