@@ -1,4 +1,4 @@
-"""Fast board detection for live preview frames: search a downscaled frame, refine at full resolution.
+"""Fast board detection for live preview frames: quick searches (a shrunk frame's too), refined at full resolution.
 
 The accurate detector (:func:`backend.solvers.board_detection.detect_board`) runs OpenCV's
 sector-based search with ``CALIB_CB_ACCURACY | CALIB_CB_EXHAUSTIVE`` on the full frame: 0.4 to
@@ -52,9 +52,9 @@ found the same boards on the simulated and real sets but took 3x as long on fram
 FULL_RESOLUTION_FLAGS = cv2.CALIB_CB_FAST_CHECK | cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 """Flags of the first search, ``findChessboardCorners`` on the full frame (its defaults and the quick check)."""
 FALLBACK_EVERY = 4
-"""A :class:`LiveDetector` tries the contrast treatments on every 4th frame without a board only: on a
-textured background the treated search costs about twice the plain one, and a camera whose board needs a
-treatment is told so by the treatment found, which it then tries first."""
+"""A :class:`LiveDetector` tries the contrast treatments on every 4th frame without a board only: on the
+simulated textured background the treated search cost about 3.5x the plain one, and a camera whose board needs
+a treatment learns so from the treatment that found it, which it then tries first."""
 
 
 def detect_board_live(image: np.ndarray, board: BoardSpec, *, search_side_px: int = SEARCH_SIDE_PX
@@ -63,9 +63,9 @@ def detect_board_live(image: np.ndarray, board: BoardSpec, *, search_side_px: in
 
     Checkerboard corners are in full-frame pixels (OpenCV convention), refined at full resolution, numbered
     from the end the accurate detector numbers from (boards of odd ``cols + rows``; see
-    :func:`_numbered_like_sb`); the
-    detection's :attr:`~Detection.preprocessing` names the treatment the board was found after. Every
-    treatment is tried; :class:`LiveDetector` does the same over a stream of frames for less.
+    :func:`_numbered_like_sb`); the detection's :attr:`~Detection.preprocessing` names the treatment the
+    board was found after. Every treatment is tried; :class:`LiveDetector` does the same over a stream of
+    frames for less.
     ``search_side_px`` is the longest side (px) of the shrunk frame of the second search.
     """
     return LiveDetector(board, search_side_px=search_side_px, fallback_every=1).detect(image)
