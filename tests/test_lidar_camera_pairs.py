@@ -169,3 +169,17 @@ def test_the_demo_session_holds_pairs_ready_to_solve(tmp_path, demo_template):
     assert result.converged and np.linalg.norm(error[:3, 3]) < 0.012 and _angle_deg(error) < 0.25
     assert np.linalg.norm(error[:3, 3]) < 3 * np.linalg.norm(sigma_t)
     assert _angle_deg(error) < 3 * np.linalg.norm(sigma_r)
+
+
+def test_the_hold_still_check_takes_either_numbering_of_a_whole_board():
+    # The stored frame's board comes from the accurate detector, the second frame's from the fast preview one,
+    # which may number a whole checkerboard from the other end: the same corners are still, a shift is not.
+    from backend.solvers.board_detection import Detection
+
+    grid = np.stack(np.meshgrid(np.arange(9) * 30.0 + 200, np.arange(6) * 30.0 + 100), axis=-1).reshape(-1, 2)
+    before = Detection(grid, np.arange(54), (1280, 720), "none")
+    assert pairs_service._corner_motion_px(before, Detection(grid[::-1].copy(), np.arange(54), (1280, 720),
+                                                             "none")) < 1e-9
+    shifted = Detection(grid[::-1] + [3.0, 4.0], np.arange(54), (1280, 720), "none")
+    assert pairs_service._corner_motion_px(before, shifted) == pytest.approx(5.0)
+    assert pairs_service._corner_motion_px(before, Detection(grid[:0], np.arange(0), (1280, 720), "none")) == np.inf

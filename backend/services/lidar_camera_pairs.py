@@ -30,6 +30,7 @@ from backend.devices.image_io import decode_image_bytes
 from backend.services import intrinsics as intrinsics_service
 from backend.services.lidar_lidar import check_lidar, read_uploaded_cloud, store_cloud
 from backend.solvers.board_detection import Detection, common_corners, detect_board
+from backend.solvers.live_detection import detect_board_live
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
@@ -109,11 +110,19 @@ def import_pair(session: Session, camera: str, lidar: str, image_file: tuple[str
 
 
 def _corner_motion_px(before: Detection, after: Detection) -> float:
-    """Largest motion (px) of a corner detected in both frames; inf when they share none."""
+    """Largest motion (px) of a corner detected in both frames; inf when they share none.
+
+    Two detectors may number a whole checkerboard from opposite ends (a half turn of the numbering), so for two
+    whole grids the smaller motion of the two numberings counts: only a board given a half turn in the plane
+    during the scan would look still that way.
+    """
     then_px, now_px = common_corners(before, after)
     if not len(then_px):
         return float("inf")
-    return float(np.max(np.linalg.norm(then_px - now_px, axis=1)))
+    motion = np.max(np.linalg.norm(then_px - now_px, axis=1))
+    if len(before.ids) == len(after.ids) == len(then_px):
+        motion = min(motion, np.max(np.linalg.norm(then_px - now_px[::-1], axis=1)))
+    return float(motion)
 
 
 def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable[[], Sample],
@@ -138,13 +147,18 @@ def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable
             progress(attempt / attempts, "reading the camera and the LiDAR" if attempt == 0
                      else f"the board moved {motion:.1f} px during the scan: hold it still (try {attempt + 1})")
             before = read_image()
-            # The first frame's board is searched while the LiDAR scans and the second frame is read and searched
-            # (OpenCV releases the GIL while detecting): a click waits for one detection, not two in a row.
+            # The first frame's board (the one stored) is searched while the LiDAR scans and the second frame is
+            # read and searched by the fast preview detector, which only has to say whether the board moved; the
+            # accurate one looks again where that finds nothing (squares too small for it). A click waits for one
+            # accurate detection, not two in a row.
             found_before = pool.submit(detect_board, before.image, board) if board is not None else None
             cloud, after = read_cloud(), read_image()
             detection_before = detection_after = None
             if found_before is not None:
-                detection_after, detection_before = detect_board(after.image, board), found_before.result()
+                detection_after = detect_board_live(after.image, board)
+                detection_before = found_before.result()
+                if detection_after is None and detection_before is not None:
+                    detection_after = detect_board(after.image, board)
             if detection_before is None or detection_after is None:
                 if require_board:
                     raise InputError(f"the board {board} was not found in {camera}'s image; bring it into view of "
