@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -263,6 +265,17 @@ def test_compressed_checkerboard_decodes_and_bad_data_names_topic_and_stamp(bag:
     msg = compressed_msg(0, np.zeros(0, np.uint8))
     with pytest.raises(InputError):
         compressed_image_to_array(msg, "/c")
+
+
+def test_a_compressed_image_bomb_is_refused_from_its_header() -> None:
+    """A PNG whose header claims 16000x16000 px is refused before cv2 decodes (and allocates) anything."""
+    ihdr = struct.pack(">IIBBBBB", 16000, 16000, 8, 0, 0, 0, 0)
+    crc = struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    header = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr + crc
+    with pytest.raises(InputError) as info:
+        compressed_image_to_array(compressed_msg(0, np.frombuffer(header, np.uint8), "png"), "/cam/compressed")
+    assert info.value.status_code == 413 and info.value.input == "/cam/compressed"
+    assert "16000x16000 px" in info.value.message and "CALIB_MAX_IMAGE_PIXELS" in info.value.message
 
 
 def test_camera_info_to_intrinsics(bag: Path) -> None:

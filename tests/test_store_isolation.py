@@ -24,7 +24,7 @@ from backend.core.rig import Frame, Rig
 from backend.exports.opencv_yaml import dump_opencv_yaml, read_opencv_yaml
 from backend.exports.rig_transforms import dump_rig_transforms, load_rig_transforms, static_transform_publisher
 from backend.exports.ros_camera_info import dump_camera_info, load_camera_info
-from backend.store.atomic import TEMP_NAME
+from backend.store.atomic import TEMP_NAME, UPLOAD_FOLDER_PREFIX
 from backend.store.session import SESSION_FILE, Session, SessionStore
 
 BOARD = "checkerboard:9x6:0.025"
@@ -394,6 +394,17 @@ def test_temp_files_of_killed_writes_are_cleaned_at_start(tmp_path: Path):
     assert not left.exists() and not stale_session_file.exists()
     assert fresh.exists() and all(path.exists() for path in keep)
     assert SessionStore(tmp_path).get("rig").captures("cam") == []
+
+
+def test_upload_folders_of_killed_requests_are_cleaned_at_start(tmp_path: Path):
+    session = SessionStore(tmp_path).create("rig")
+    stale, fresh = session.path / f"{UPLOAD_FOLDER_PREFIX}a1b2c3", session.path / f"{UPLOAD_FOLDER_PREFIX}d4e5f6"
+    for folder in (stale, fresh):
+        folder.mkdir()
+        (folder / "scan.pcd").write_bytes(b"x" * 100)
+    os.utime(stale, (time.time() - 3600,) * 2)
+    SessionStore(tmp_path)
+    assert not stale.exists() and (fresh / "scan.pcd").exists()  # a request still being read keeps its folder
 
 
 # -- the studio's session step --------------------------------------------------------------

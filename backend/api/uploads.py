@@ -27,12 +27,11 @@ from starlette.types import Message, Receive, Scope, Send
 
 from backend.core.errors import InputError
 from backend.core.limits import BYTES_PER_MB, MAX_IMAGE_UPLOAD_MB, Limit
+from backend.store.atomic import UPLOAD_FOLDER_PREFIX
 from backend.store.session import Session
 
 COPY_CHUNK_BYTES = 1 << 20
 """Bytes copied at a time from an upload's spool file to the session folder."""
-UPLOAD_FOLDER_PREFIX = ".upload-"
-"""Uploads being read live in ``<session>/.upload-*/`` for the request's lifetime (removed after it)."""
 MAX_NAME_BYTES = 255
 """Longest file name (UTF-8 bytes) a file system takes."""
 

@@ -46,6 +46,7 @@ import numpy as np
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.image_io import check_pixels, image_size
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -366,12 +367,18 @@ def compressed_image_to_array(msg: Any, source: str | None = None) -> np.ndarray
 
     A gray JPEG stays HxW, an alpha channel is dropped, a 16-bit PNG is scaled so its
     maximum becomes 255. Undecodable data (including ``compressedDepth`` payloads)
-    raises :class:`~backend.core.errors.InputError` naming ``source`` and the stamp.
+    raises :class:`~backend.core.errors.InputError` naming ``source`` and the stamp, as does an image of more
+    pixels than :data:`~backend.core.limits.MAX_IMAGE_PIXELS` (read from its header, before decoding).
     """
     where = _where(msg, source, "CompressedImage")
     label = source or "CompressedImage"
     data = np.asarray(msg.data, dtype=np.uint8).ravel()
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    encoded = data.tobytes()
+    if image_size(encoded) is not None:  # its pixels are counted from the header before anything is decoded
+        check_pixels(encoded, f"{where}: compressed image", label)
+        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    else:
+        image = None
     if image is None:
         raise InputError(
             f"{where}: compressed image (format {str(msg.format)!r}, {data.size} bytes) could not be decoded; "

@@ -7,9 +7,11 @@ which is renamed over the target. A write killed before the rename leaves that t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -17,6 +19,9 @@ from typing import Any
 
 TEMP_NAME = re.compile(r"\..+\.[a-z0-9_]{8}\.tmp")
 """The names :func:`write_bytes_atomic` gives its temp files (``mkstemp`` draws 8 of ``a-z0-9_``)."""
+UPLOAD_FOLDER_PREFIX = ".upload-"
+"""Folders inside a session that hold an upload while its request is read (``backend.api.uploads``); a server
+killed meanwhile leaves one behind."""
 STALE_TEMP_S = 600.0
 """A temp file untouched this long (s) belongs to a write that died: no live write takes that long."""
 
@@ -55,10 +60,17 @@ def write_json_atomic(path: Path, data: Any, *, exclusive: bool = False) -> None
 
 
 def remove_stale_temp_files(root: Path, older_than_s: float = STALE_TEMP_S) -> None:
-    """Delete the temp files of killed writes under ``root``: only names matching :data:`TEMP_NAME`, last
-    modified more than ``older_than_s`` seconds ago (a write still running elsewhere keeps its file)."""
+    """Delete the temp files of killed writes and the upload folders of killed requests under ``root``: only
+    names matching :data:`TEMP_NAME` or starting with :data:`UPLOAD_FOLDER_PREFIX`, last modified more than
+    ``older_than_s`` seconds ago (a write or upload still running elsewhere keeps its file)."""
     now = time.time()
-    for folder, _, names in os.walk(root):
+    for folder, subfolders, names in os.walk(root):
+        for name in [n for n in subfolders if n.startswith(UPLOAD_FOLDER_PREFIX)]:
+            subfolders.remove(name)
+            path = Path(folder) / name
+            with contextlib.suppress(FileNotFoundError):
+                if now - path.stat().st_mtime > older_than_s:
+                    shutil.rmtree(path, ignore_errors=True)
         for name in names:
             if not TEMP_NAME.fullmatch(name):
                 continue

@@ -19,7 +19,7 @@ from backend.api.schemas import (
 )
 from backend.api.uploads import UploadRoute, file_name, read_image_upload, save_upload, upload_folder, upload_limit
 from backend.core.errors import InputError
-from backend.core.limits import MAX_CLOUD_UPLOAD_MB
+from backend.core.limits import MAX_CLOUD_UPLOAD_MB, MAX_IMAGE_PIXELS
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, render_overlays, with_legend
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
@@ -30,8 +30,6 @@ router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"], route_class
 
 VIEW_PAGE = Path(__file__).resolve().parents[3] / "frontend_assets" / "overlay_view.html"
 """The full-size overlay page: zoom and pan over one pair's or every pair's overlay at the image's resolution."""
-MAX_OVERLAY_PIXELS = 50_000_000
-"""Largest image (width x height, px) an overlay is drawn on; checked on the intrinsics, before anything is decoded."""
 
 
 def _pair_dict(pair: pairs_service.CapturePair) -> dict[str, Any]:
@@ -145,9 +143,9 @@ def overlay(
     what was drawn.
     """
     intrinsics = service.camera_intrinsics(session, camera)
-    if intrinsics.width * intrinsics.height > MAX_OVERLAY_PIXELS:
-        raise InputError(f"{camera}'s images are {intrinsics.width}x{intrinsics.height} px, more than the "
-                         f"{MAX_OVERLAY_PIXELS:,} px an overlay is drawn on", camera, status_code=413)
+    if intrinsics.width * intrinsics.height > MAX_IMAGE_PIXELS.value():
+        raise InputError(f"{camera}'s images are {intrinsics.width}x{intrinsics.height} px, more than "
+                         f"{MAX_IMAGE_PIXELS.describe()}", camera, status_code=413)
     T_camera_lidar = _overlay_transform(session, camera, lidar, result_id, xyz_m, ypr_deg)
     window = OverlayStyle.range_m if range_m is None else tuple(_numbers(range_m, 2, "range_m", "m"))
     if not 0 <= window[0] < window[1]:
