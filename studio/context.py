@@ -10,6 +10,7 @@ either phase is logged and reported; the others are told all the same.
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -35,6 +36,8 @@ class StudioContext:
     """Where the browser reaches the REST API (``http://host:port``; empty when the studio page is served by it)."""
     _closing: list[Callable[[], None]] = field(default_factory=list)
     _listeners: list[Callable[[Session], None]] = field(default_factory=list)
+    _switching: threading.RLock = field(default_factory=threading.RLock)
+    """Held through a session change: two clicks on *Open session* change it one after the other."""
 
     def on_session_closing(self, hook: Callable[[], None]) -> None:
         """``hook()`` runs before the open session is left (another opens, or the studio stops): stop what streams
@@ -47,16 +50,18 @@ class StudioContext:
 
     def open_session(self, session: Session) -> None:
         """Leave the open session, make ``session`` current, draw its rig and tell every step."""
-        self.close_session()
-        self.session = session
-        self.scene.show_rig(session.rig)
-        for listener in self._listeners:
-            self._call(listener, session)
+        with self._switching:
+            self.close_session()
+            self.session = session
+            self.scene.show_rig(session.rig)
+            for listener in self._listeners:
+                self._call(listener, session)
 
     def close_session(self) -> None:
         """Run every step's closing hook (the session stays current until another is opened)."""
-        for hook in self._closing:
-            self._call(hook)
+        with self._switching:
+            for hook in self._closing:
+                self._call(hook)
 
     def _call(self, callback: Callable, *args) -> None:
         """Run one step's hook; a failure is logged with its traceback and shown, and never stops the next step."""

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import re
-import time
 
 import httpx
 import numpy as np
@@ -59,7 +58,6 @@ def _cloud_npy(seed: int) -> bytes:
 
 
 def _open_session(page: Page, name: str) -> None:
-    print(f"{time.monotonic() - T0:.1f} s: open {name}")
     choose(page, "Session", name)
     button(page, "Open session").click()
     expect(page.get_by_text(re.compile(f"^{re.escape(name)}\\s*$")).first).to_be_visible()
@@ -90,8 +88,6 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
     _post(studio, "/api/sessions/demo/sensors/lidar_front/clouds",
           files=[("files", ("front.npy", _cloud_npy(0), "application/octet-stream"))])
 
-    global T0
-    T0 = time.monotonic()
     with studio_page(browser, studio.url, VIEWPORT) as page:
         # -- opening sessions after the LiDAR-to-LiDAR step drew its clouds ---------------------------------
         _open_session(page, "demo")  # draws the pair's clouds (lidar_front onto lidar_top) and lists "wedge"
@@ -146,11 +142,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         assert bad not in log, f"{bad!r} in the studio's log:\n{studio.log_tail(60)}"
 
 
-T0 = 0.0
-
-
 def _check_blank(page: Page) -> None:
-    print(f"{time.monotonic() - T0:.1f} s: check blank")
     """Every step shows the empty session "blank", nothing of the demo."""
     expect(page.get_by_label("Session", exact=True)).to_have_value("blank")
     expect(page.get_by_label("Camera", exact=True)).to_have_value("(no camera)")

@@ -126,9 +126,16 @@ class IntrinsicsStep:
             self.ctx.notify("No camera", "Add a camera in step 2 first.", error=True)
             return
         self.stop_live()
+        live: LiveCapture | None = None
+
+        def current(callback):
+            """``callback`` for this capture while it is the live one: a stopped capture's last frame (its thread can
+            outlive ``stop``'s wait on a loaded machine) never lands in another camera's or session's panel."""
+            return lambda *args: callback(*args) if live is not None and self.live is live else None
+
         try:
             live = LiveCapture(self.ctx.session, self.sensor, LiveCallbacks(
-                frame=self._on_frame, captured=self._on_captured, status=self._on_status),
+                frame=current(self._on_frame), captured=current(self._on_captured), status=current(self._on_status)),
                 auto_capture=self.auto.value)
         except InputError as exc:
             self.ctx.notify("Cannot start", exc.message, error=True)
