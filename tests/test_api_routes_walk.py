@@ -315,3 +315,23 @@ def test_every_route_is_walked() -> None:
     walk = Walk.__new__(Walk)
     walk.sensors, walk.capture_ids, walk.result_ids = ["a", "b"], ["c1", "c2"], ["r1"]
     assert all(walk.candidates(name)[1] for op in operations for name in op.path_params)
+
+
+@pytest.mark.parametrize(("path", "body", "input"), [
+    ("/api/sessions/demo/sensors/cam_wide/intrinsics/solve", {"capture_ids": ["nope"]}, "capture_ids"),
+    ("/api/sessions/demo/multicam/capture", {"cameras": ["cam_front", "nope"]}, "sensor"),
+    ("/api/sessions/demo/lidar-camera/capture", {"camera": "cam_front", "lidar": "nope"}, "sensor"),
+    ("/api/sessions/demo/sensors/lidar_top/import", {"device": {"driver": "rosbag", "topic": "/points"}}, "path"),
+    ("/api/sessions/demo/sensors/lidar_top/import", {"device": {"driver": "rosbag", "path": "/no/such.mcap"}},
+     "/no/such.mcap"),
+])
+def test_a_job_route_refuses_a_wrong_value_before_queueing(walk: Walk, path: str, body: dict, input: str,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A wrong id or a missing recording is a 4xx naming it at once, not a 202 and a job that fails later."""
+    def no_job(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError(f"a job was queued for {path}")
+
+    monkeypatch.setattr(walk.client.app.state.studio.jobs, "submit", no_job)
+    response = walk.client.post(path, json=body)
+    assert 400 <= response.status_code < 500, response.text
+    assert response.json()["error"]["input"] == input, response.text

@@ -135,8 +135,13 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
 
 
 def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
-    """Views (captures with a detection) of one camera, and its image size."""
-    captures = [c for c in session.captures(sensor) if capture_ids is None or c.id in capture_ids]
+    """Views (captures with a detection) of one camera (those of ``capture_ids`` if given), and its image size."""
+    captures = session.captures(sensor)
+    unknown = sorted(set(capture_ids or ()) - {c.id for c in captures})
+    if unknown:
+        raise InputError(f"{sensor} has no capture {', '.join(map(repr, unknown[:5]))}"
+                         f"{' (and more)' if len(unknown) > 5 else ''}", "capture_ids", status_code=404)
+    captures = [c for c in captures if capture_ids is None or c.id in capture_ids]
     views = [View(c.id, Detection.from_dict(c.detection)) for c in captures if c.detection]
     if not captures:
         raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)

@@ -388,13 +388,18 @@ def _guarded_read(camera: str, device: CaptureDevice) -> Callable[[], Sample]:
     return read
 
 
-def capture_set_from_devices(session: Session, cameras: list[str], *, tolerance_s: float = DEFAULT_TOLERANCE_S,
-                             require_board: bool = False, progress: ProgressCallback = no_progress) -> MulticamSet:
-    """:func:`capture_set` from each camera's device as set in the rig (opened for this capture)."""
+def check_capture_devices(session: Session, cameras: list[str]) -> None:
+    """Refuse ``cameras`` unless each is a camera of the rig with a capture device set (before any is opened)."""
     _check_cameras(session, cameras)
     for camera in cameras:
         if not session.rig.get(camera).device:
             raise InputError("no capture device configured for this camera; set one in the sensors step", camera)
+
+
+def capture_set_from_devices(session: Session, cameras: list[str], *, tolerance_s: float = DEFAULT_TOLERANCE_S,
+                             require_board: bool = False, progress: ProgressCallback = no_progress) -> MulticamSet:
+    """:func:`capture_set` from each camera's device as set in the rig (opened for this capture)."""
+    check_capture_devices(session, cameras)
     with contextlib.ExitStack() as stack:
         devices = {}
         for camera in cameras:

@@ -12,9 +12,10 @@ whole and valid) and saying where it stopped.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
 from backend.devices.rosbag_source import COMPRESSED_IMAGE, IMAGE, LASERSCAN, POINTCLOUD2, TopicInfo, list_topics
 from backend.services.lidar_lidar import check_lidar, store_cloud
@@ -59,8 +60,12 @@ def recording_settings(session: Session, sensor: str, settings: dict[str, Any] |
     """``settings``, or the sensor's own device when it replays a recording; refused unless importable."""
     chosen = dict(settings if settings is not None else session.rig.get(sensor).device)
     if chosen.get("driver") not in RECORDING_DRIVERS:
-        raise InputError(f"{chosen.get('driver')!r} is not a recording; import from one of "
+        raise InputError(f"{shorten(chosen.get('driver'))} is not a recording; import from one of "
                          f"{', '.join(RECORDING_DRIVERS)}", "driver")
+    if not chosen.get("path"):
+        raise InputError(f"a {chosen['driver']} import needs the recording's 'path' on the server's disk", "path")
+    if not Path(str(chosen["path"])).expanduser().exists():
+        raise InputError("does not exist on the server", str(chosen["path"]), status_code=404)
     return chosen
 
 

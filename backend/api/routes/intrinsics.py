@@ -50,7 +50,7 @@ def solve(sensor: str, body: IntrinsicsSolveRequest, session: deps.SessionDep,
           jobs: deps.JobsDep) -> dict[str, Any]:
     """Start a solve in the background; poll ``/api/jobs/{id}``, whose ``result_id`` names the stored result."""
     settings = IntrinsicsSettings(**body.model_dump(exclude={"capture_ids"}))
-    session.rig.get(sensor)
+    service.session_views(session, sensor, body.capture_ids)  # fail fast, before queueing
     job = jobs.submit(f"intrinsics of {sensor}",
                       lambda progress: service.solve_session(session, sensor, settings, body.capture_ids, progress)[0])
     return job.status() | {"result_id": None}

@@ -30,6 +30,7 @@ def list_sets(session: deps.SessionDep, cameras: str | None = None) -> list[dict
 def capture(body: MulticamSetCapture, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
     """Read every camera at once and keep the set; the job's ``summary`` is the set."""
     service.check_cameras(body.cameras)
+    capture_service.check_capture_devices(session, body.cameras)  # fail fast, before queueing
     job = jobs.submit(f"set of {', '.join(body.cameras)}", lambda progress: _set_dict(
         capture_service.capture_set_from_devices(session, body.cameras, tolerance_s=body.tolerance_s,
                                                  require_board=body.require_board, progress=progress)))
