@@ -329,6 +329,21 @@ def test_chunks_give_the_one_pass_result(monkeypatch: pytest.MonkeyPatch) -> Non
         np.testing.assert_array_equal(getattr(chunked, name), getattr(one_pass, name))
 
 
+@pytest.mark.parametrize("occlusion_px", [0, 5])
+def test_two_threads_give_the_one_thread_result(monkeypatch: pytest.MonkeyPatch, occlusion_px: int) -> None:
+    points = cloud_around(40_000, seed=9)
+    monkeypatch.setattr(projection_module, "CHUNK_POINTS", 3_001)  # 14 chunks, split over the two threads
+    results = []
+    for parallel_from in (10**9, 1):
+        monkeypatch.setattr(projection_module, "PARALLEL_MIN_POINTS", parallel_from)
+        results.append(project_cloud(points, T_CAMERA_SENSOR, CAM_WIDE, range_m=(1.0, 30.0),
+                                     occlusion_px=occlusion_px))
+    one_thread, two_threads = results
+    assert len(one_thread) > 5_000
+    for name in ("uv", "depth_m", "index"):
+        np.testing.assert_array_equal(getattr(two_threads, name), getattr(one_thread, name))
+
+
 def test_occlusion_keeps_what_a_block_z_buffer_keeps_in_order() -> None:
     camera = CAMERAS[0]
     points = cloud_around(100_000, seed=8)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -45,6 +46,9 @@ CHUNK_POINTS = 65_536
 the CPU's cache; one pass over a 1M-point cloud is about 1.5x slower."""
 ZBUFFER_LANES = 4
 """Copies of the occlusion filter's block z-buffer that consecutive points take turns in (see project_cloud)."""
+PARALLEL_MIN_POINTS = 262_144
+"""Clouds of at least this many points are projected by two threads, the caller's and a helper, each taking
+half of the chunks (numpy's and OpenCV's loops release the GIL); the kept points are then gathered in order."""
 
 
 class _Scratch:
@@ -137,36 +141,96 @@ def project_cloud(
     # Room for every point; the chunks' kept points are appended. Only the rows written are ever
     # touched (memory is mapped on first touch), and the arrays returned are views of the first rows.
     out = Projection(np.empty((len(points), 2), dtype), np.empty(len(points), dtype), np.empty(len(points), np.int64))
-    count = 0
+    occlusion = None
     if occlusion_px > 0:
         blocks_across = -(-camera.width // occlusion_px)
         off_image = blocks_across * -(-camera.height // occlusion_px)  # one more block, for the points off the image
+        occlusion = (occlusion_px, blocks_across, off_image,
+                     (np.arange(min(CHUNK_POINTS, len(points))) % ZBUFFER_LANES * (off_image + 1)).astype(np.int32))
+    starts = list(range(0, len(points), CHUNK_POINTS))
+    job = (points, T, camera, r2_max, r2_window, dtype, occlusion)
+    halves = [starts]
+    if len(points) >= PARALLEL_MIN_POINTS and len(starts) > 1:
+        halves = [starts[:len(starts) // 2], starts[len(starts) // 2:]]
+        helper = _POOL.submit(_project_chunks_on_helper, halves[1], *job)
+    with _scratch() as scratch:
+        passes = [_project_chunks(halves[0], *job, scratch)]
+    if len(halves) > 1:
+        passes.append(helper.result())
+    nearest = None
+    if occlusion is not None:
+        nearest = passes[0][1] if len(passes) == 1 else np.minimum(passes[0][1], passes[1][1])
+        nearest = nearest.min(axis=0)
+        nearest *= 1.0 + occlusion_margin  # the farthest depth each block keeps
+        nearest[off_image] = -np.inf  # keeps nothing
+    if len(passes) == 1:
+        count = _gather(out, passes[0][0], nearest)
+    else:
+        # Each thread gathers its half's kept points; the second half's go after the first's, whose count
+        # the caller's thread passes on as soon as it knows it (before it writes them).
+        first_count: Future = Future()
+        helper = _POOL.submit(_gather, out, passes[1][0], nearest, first_count)
+        _gather(out, passes[0][0], nearest, count=first_count)
+        count = helper.result()
+    return Projection(out.uv[:count], out.depth_m[:count], out.index[:count])
+
+
+_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="project_cloud")
+_HELPER = threading.local()
+"""The helper thread's own :class:`_Scratch`, kept from call to call like the process's."""
+
+
+def _project_chunks_on_helper(starts: list[int], *job) -> tuple[list[tuple], np.ndarray | None]:
+    """:func:`_project_chunks` on the helper thread, with its own work arrays."""
+    if not hasattr(_HELPER, "scratch"):
+        _HELPER.scratch = _Scratch()
+    return _project_chunks(starts, *job, _HELPER.scratch)
+
+
+def _project_chunks(starts: list[int], points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics, r2_max: float,
+                    r2_window: tuple[float, float] | None, dtype: np.dtype, occlusion: tuple | None,
+                    scratch: _Scratch) -> tuple[list[tuple], np.ndarray | None]:
+    """The chunks of ``points`` that begin at rows ``starts``, projected (see :func:`_project_chunk`): per chunk
+    ``(start, row, u, v, z, seen)``, ``seen`` being with ``occlusion`` each point's block (the one after the
+    last for points off the image or range), and the lanes' z-buffer over blocks (or None without occlusion).
+
+    ``occlusion`` is (block size px, blocks across, the off-image block, each chunk row's lane offset).
+    """
+    chunks, nearest = [], None
+    if occlusion is not None:
+        occlusion_px, blocks_across, off_image, lanes = occlusion
         # Consecutive points mostly share a block, and each np.minimum.at update then waits for the one
         # before; spread over ZBUFFER_LANES copies of the z-buffer (point i into copy i % lanes) they do
         # not (2x faster). The copies are merged once all chunks are in.
         nearest = np.full((ZBUFFER_LANES, off_image + 1), np.inf, dtype)
-        lanes = (np.arange(min(CHUNK_POINTS, len(points))) % ZBUFFER_LANES * (off_image + 1)).astype(np.int32)
-        pending: list[tuple] = []  # (start, row, u, v, z, block) of each chunk, until every block's nearest is known
-    with _scratch() as scratch:
-        for start in range(0, len(points), CHUNK_POINTS):
-            row, u, v, z, seen = _project_chunk(points[start:start + CHUNK_POINTS], T, camera, r2_max, r2_window,
-                                                dtype, scratch)
-            if occlusion_px > 0:
-                # Blocks of all the chunk's points, those off the image (or range) put into their own
-                # block: a cheaper way to leave them out than compacting the arrays once more.
-                block = np.where(seen, _blocks(u, v, occlusion_px, blocks_across), off_image)
-                # A z-buffer over blocks (unbuffered, so repeated blocks all count), one lane per point.
-                np.minimum.at(nearest.reshape(-1), block + lanes[:len(block)], z)
-                pending.append((start, row, u, v, z, block))
-            else:
-                count = _append(out, count, start, np.flatnonzero(seen), row, u, v, z)
-    if occlusion_px > 0:
-        nearest = nearest.min(axis=0)
-        nearest *= 1.0 + occlusion_margin  # the farthest depth each block keeps
-        nearest[off_image] = -np.inf  # keeps nothing
-        for start, row, u, v, z, block in pending:
-            count = _append(out, count, start, np.flatnonzero(z <= np.take(nearest, block)), row, u, v, z)
-    return Projection(out.uv[:count], out.depth_m[:count], out.index[:count])
+    for start in starts:
+        row, u, v, z, seen = _project_chunk(points[start:start + CHUNK_POINTS], T, camera, r2_max, r2_window, dtype,
+                                            scratch)
+        if occlusion is not None:
+            # Blocks of all the chunk's points, those off the image (or range) put into their own
+            # block: a cheaper way to leave them out than compacting the arrays once more.
+            seen = np.where(seen, _blocks(u, v, occlusion_px, blocks_across), off_image)
+            # A z-buffer over blocks (unbuffered, so repeated blocks all count), one lane per point.
+            np.minimum.at(nearest.reshape(-1), seen + lanes[:len(seen)], z)
+        chunks.append((start, row, u, v, z, seen))
+    return chunks, nearest
+
+
+def _gather(out: Projection, chunks: list[tuple], nearest: np.ndarray | None, offset: Future | None = None,
+            count: Future | None = None) -> int:
+    """Append the kept points of ``chunks`` (as :func:`_project_chunks` gives them; kept: seen, and with the
+    blocks' farthest kept depths ``nearest``, not hidden) to ``out`` after the row ``offset`` gives (else
+    0); sets ``count`` to the rows ``out`` holds after them as soon as that is known, and returns it.
+    """
+    keeps = [np.flatnonzero(seen if nearest is None else z <= np.take(nearest, seen)) for _, _, _, _, z, seen in chunks]
+    start_row = 0 if offset is None else offset.result()
+    end_row = start_row + sum(len(keep) for keep in keeps)
+    if count is not None:
+        count.set_result(end_row)
+    row_count = start_row
+    for (start, row, u, v, z, _), keep in zip(chunks, keeps, strict=True):
+        row_count = _append(out, row_count, start, keep, row, u, v, z)
+    return end_row
 
 
 def _append(out: Projection, count: int, start: int, keep: np.ndarray, row: np.ndarray, u: np.ndarray, v: np.ndarray,
