@@ -144,7 +144,7 @@ def browser_figures():
                 for count in range(1, REPEATS + 1):
                     started = time.monotonic()
                     page.get_by_role("button", name="Capture clouds", exact=True).click()
-                    page.wait_for_function(f"() => document.body.innerText.includes('lidar_top: {count} ·')")
+                    page.wait_for_function(f"() => document.body.innerText.includes('lidar_front: {count} ·')")
                     clicks.append(time.monotonic() - started)
                 page.get_by_role("button", name="Stop live", exact=True).click()
                 time.sleep(3)  # the captured pair (as many points as the live clouds) is now drawn, still
