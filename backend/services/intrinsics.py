@@ -134,8 +134,15 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     return report
 
 
+def check_camera(session: Session, camera: str) -> None:
+    """Refuse ``camera`` unless the rig holds it as a camera (a LiDAR has no intrinsics, images or board views)."""
+    if session.rig.get(camera).kind != "camera":
+        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+
+
 def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
     """Views (captures with a detection) of one camera (those of ``capture_ids`` if given), and its image size."""
+    check_camera(session, sensor)
     captures = session.captures(sensor)
     unknown = sorted(set(capture_ids or ()) - {c.id for c in captures})
     if unknown:

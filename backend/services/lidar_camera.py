@@ -30,7 +30,8 @@ from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
 from backend.services import intrinsics as intrinsics_service
-from backend.services.lidar_camera_pairs import check_camera, check_image_size, stored_pairs
+from backend.services.intrinsics import check_camera
+from backend.services.lidar_camera_pairs import check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
 from backend.solvers.cloud_accumulation import accumulate_scans
 from backend.solvers.lidar_camera_edges import (

@@ -28,6 +28,7 @@ from backend.core.errors import InputError, NotFoundError
 from backend.devices.base import DeviceError, Sample, create_device
 from backend.devices.image_io import decode_image_bytes
 from backend.services import intrinsics as intrinsics_service
+from backend.services.intrinsics import check_camera
 from backend.services.lidar_lidar import check_lidar, read_uploaded_cloud, store_cloud
 from backend.solvers.board_detection import Detection, common_corners, detect_board
 from backend.solvers.live_detection import detect_board_live
@@ -54,11 +55,6 @@ class CapturePair:
     def name(self) -> str:
         """How results and errors name the pair: ``cam_front:00003+lidar_top:00007``."""
         return f"{self.camera}:{self.image.id}+{self.lidar}:{self.cloud.id}"
-
-
-def check_camera(session: Session, camera: str) -> None:
-    if session.rig.get(camera).kind != "camera":
-        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
 
 
 def stored_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[CapturePair]:

@@ -32,7 +32,8 @@ from backend.devices.image_folder import image_files
 from backend.devices.image_io import read_image
 from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as intrinsics_service
-from backend.services.lidar_camera_pairs import check_camera, check_image_size
+from backend.services.intrinsics import check_camera
+from backend.services.lidar_camera_pairs import check_image_size
 from backend.services.multicam_capture import stored_sets
 from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics

@@ -46,7 +46,8 @@ from backend.core.errors import CancelledError, InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, create_device
 from backend.devices.rosbag_source import COMPRESSED_IMAGE, IMAGE, RosbagError, RosbagSource
 from backend.services import intrinsics as intrinsics_service
-from backend.services.lidar_camera_pairs import check_camera, check_image_size
+from backend.services.intrinsics import check_camera
+from backend.services.lidar_camera_pairs import check_image_size
 from backend.solvers.board_detection import Detection, detect_board
 from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord

@@ -25,6 +25,7 @@ from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
 from backend.services import lidar_camera as service
 from backend.services import lidar_camera_pairs as pairs_service
+from backend.services.intrinsics import check_camera
 from backend.services.lidar_lidar import check_lidar
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"], route_class=UploadRoute)
@@ -62,7 +63,7 @@ def upload_pair(camera: Annotated[str, Form()], lidar: Annotated[str, Form()],
 @router.post("/lidar-camera/capture", status_code=202, response_model=JobStatus)
 def capture(body: LidarCameraPairCapture, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
     """Capture a pair from both devices once the board holds still; the job's ``summary`` is the pair."""
-    pairs_service.check_camera(session, body.camera)  # fail fast, before queueing
+    check_camera(session, body.camera)  # fail fast, before queueing
     check_lidar(session, body.lidar)
     job = jobs.submit(f"pair {body.camera}+{body.lidar}", lambda progress: _pair_dict(
         pairs_service.capture_pair_from_devices(session, body.camera, body.lidar, require_board=body.require_board,
