@@ -197,19 +197,24 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
             pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
         studio.url = first.strip()
         assert studio.url == f"http://127.0.0.1:{viewer_port}/", studio.url
-        deadline = time.monotonic() + 30
-        while True:
-            assert process.poll() is None, f"the studio exited with {process.returncode}:\n{studio.log_tail()}"
-            try:
-                if httpx.get(f"{studio.api}/api/health", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert time.monotonic() < deadline, f"/api/health never answered 200:\n{studio.log_tail()}"
-            time.sleep(0.2)
+        wait_health(studio.api, process, studio.log_tail)
         yield studio
     finally:
         stop_process(process)
+
+
+def wait_health(api: str, process: subprocess.Popen, log_tail: Callable[[], str], timeout_s: float = 60.0) -> None:
+    """Wait until ``api``'s ``/api/health`` answers 200; fail with the studio's log if it exits or never answers."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        assert process.poll() is None, f"the studio exited with {process.returncode}:\n{log_tail()}"
+        try:
+            if httpx.get(f"{api}/api/health", timeout=5).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        assert time.monotonic() < deadline, f"/api/health never answered 200:\n{log_tail()}"
+        time.sleep(0.2)
 
 
 def dismiss_webgl_warning(page: Page) -> None:

@@ -7,13 +7,12 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
-from conftest import ARTIFACTS, stop_process, studio_page
+from conftest import ARTIFACTS, stop_process, studio_page, wait_health
 from playwright.sync_api import Browser, expect
 
 from backend.services.demo import DEMO_NAME, DEMO_PAIRS, STAGING_DIR
@@ -22,19 +21,6 @@ ROOT = Path(__file__).resolve().parents[1]
 VIEWPORT = {"width": 1400, "height": 1000}
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-
-def _wait_health(base: str, process: subprocess.Popen, log: Path) -> None:
-    deadline = time.monotonic() + 120
-    while True:
-        assert process.poll() is None, f"the studio exited:\n{log.read_text()[-2000:]}"
-        try:
-            if httpx.get(f"{base}/api/health", timeout=5).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        assert time.monotonic() < deadline, f"/api/health never answered:\n{log.read_text()[-2000:]}"
-        time.sleep(0.2)
 
 
 def _names(base: str) -> list[str]:
@@ -59,7 +45,7 @@ def test_the_page_serves_while_the_demo_is_built_then_opens_it(browser: Browser,
     try:
         url = process.stdout.readline().strip()
         assert url == f"http://127.0.0.1:{viewer_port}/"  # still the first line, before the demo exists
-        _wait_health(base, process, log)
+        wait_health(base, process, lambda: log.read_text()[-2000:], timeout_s=120)
         assert DEMO_NAME not in _names(base)  # serving already; the demo is still being built
         with studio_page(browser, url, VIEWPORT) as page:
             progress = page.get_by_text(re.compile(r"Preparing the demo session … \d+ %"))
