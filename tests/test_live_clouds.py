@@ -121,8 +121,21 @@ def test_bad_device_settings_are_reported(tmp_path):
     assert "no_such_lidar" in recorder.statuses[-1][0] and recorder.sizes == []
 
 
-def test_colouring_100k_points_fits_a_10hz_budget():
-    """Range window, display subset and every colour mode for 100k points well inside 100 ms."""
+def test_a_device_that_breaks_as_it_opens_is_reported(tmp_path, monkeypatch):
+    """Not only a DeviceError: any failure to open ends the stream with a message (and the live buttons come back)."""
+    session = make_session(tmp_path)
+    recorder = Recorder()
+    live = LiveClouds(session, "lidar_top", recorder.callbacks())
+    monkeypatch.setattr(live, "_open", lambda: {}["no such setting"])
+    live.start()
+    assert recorder.failed.wait(10)
+    live.stop()
+    assert not live.running and recorder.sizes == []
+    assert recorder.statuses[-1][0] == "lidar_top: the device could not be opened: KeyError('no such setting')"
+
+
+def test_colour_modes_range_window_and_distance_colours_of_100k_points():
+    """Range window, display subset and every colour mode for 100k points (their speed: benchmarks/live_clouds.py)."""
     rng = np.random.default_rng(1)
     points = rng.normal(0.0, 6.0, (100_000, 3))
     intensity = rng.uniform(0, 255, 100_000).astype(np.float32)
@@ -134,14 +147,9 @@ def test_colouring_100k_points_fits_a_10hz_budget():
     assert tuple(cc.colour_points("sensor", points, intensity, T, 1)) == cc.sensor_colour(1)
     assert tuple(cc.colour_points("intensity", points, None, T, 2)) == cc.sensor_colour(2)  # no intensity
     assert len(np.unique(cc.colour_points("height", points, intensity, T, 0), axis=0)) > 50
-    started = time.perf_counter()
-    for _ in range(10):
-        kept, kept_intensity = cc.range_window(points, intensity, 1.0, 15.0)
-        kept, kept_intensity = cc.display_subset(kept, kept_intensity, 100_000)
-        cc.colour_points("intensity", kept, kept_intensity, T, 0)
-    per_frame_ms = 100 * (time.perf_counter() - started)
-    print(f"range window + colour of 100k points: {per_frame_ms:.1f} ms")
-    assert per_frame_ms < 40.0
+    kept, kept_intensity = cc.range_window(points, intensity, 1.0, 15.0)
+    kept, kept_intensity = cc.display_subset(kept, kept_intensity, 100_000)
+    assert len(kept) == len(kept_intensity) > 0
     r = np.linalg.norm(kept, axis=1)
     assert r.min() >= 1.0 and r.max() <= 15.0
     d = np.array([0.0, 0.1, 0.2, 0.5, np.inf])

@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from backend.core.errors import CancelledError, InputError, NotFoundError
+from backend.core.errors import CancelledError, InputError, NotFoundError, shorten
 from backend.solvers.result import ProgressCallback
 
 JobState = Literal["running", "done", "failed", "cancelled"]
@@ -74,7 +74,7 @@ class JobRunner:
             except InputError as exc:
                 job.state, job.error, job.message = "failed", exc.to_dict(), exc.message
             except Exception as exc:  # noqa: BLE001 - a job must always end with a status the user can read
-                job.state, job.message = "failed", f"internal error: {exc!r}"
+                job.state, job.message = "failed", f"internal error: {shorten(exc)}"
                 job.error = {"message": job.message, "input": None}
             finally:
                 job.finished = time.time()

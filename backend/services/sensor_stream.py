@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from typing import ClassVar
 
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, create_device
 from backend.store.session import Session
 
@@ -90,6 +90,9 @@ class SensorStream(abc.ABC):
         except DeviceError as exc:
             self.status(f"{self.sensor}: {exc}", True)
             return
+        except Exception as exc:  # noqa: BLE001 - a device that fails to open in any way must say why
+            self.status(f"{self.sensor}: the device could not be opened: {shorten(exc)}", True)
+            return
         self._device = device
         self.device_name = device.describe()
         self.status(f"{self.sensor}: live from {self.device_name}", False)
@@ -113,7 +116,7 @@ class SensorStream(abc.ABC):
             kept = len(self.session.captures(self.sensor))
             self.status(f"{self.sensor}: {exc} - the {kept} {self.kept_phrase} so far are kept", True)
         except Exception as exc:  # noqa: BLE001 - a live thread must end with a message, never silently
-            self.status(f"{self.sensor}: live stopped: {exc!r}", True)
+            self.status(f"{self.sensor}: live stopped: {shorten(exc)}", True)
         finally:
             self._device = None
             device.close()
