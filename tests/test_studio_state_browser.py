@@ -125,6 +125,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         name.press("Enter")
         button(page, "Create session").click()
         expect(page.get_by_text(re.compile(r"^blank\s*$")).first).to_be_visible()
+        expect(text_input(page, "New name")).to_have_value("")  # the name is taken now
         page.reload()  # the page shows the server's state: the buttons too
         expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
         dismiss_webgl_warning(page)

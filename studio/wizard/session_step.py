@@ -57,6 +57,7 @@ class SessionStep:
         except InputError as exc:
             self.ctx.notify("Cannot create session", exc.message, error=True)
             return
+        self.new_name.value = ""  # the name is taken now; the board stays for the next session
         self._refresh()
         self.ctx.open_session(session)
 
