@@ -167,21 +167,27 @@ def fresh_demo(template: Path, sessions: Path) -> Path:
     return sessions
 
 
+def start_demo(sessions: Path, free_port: Callable[[], int], log: Path) -> tuple[subprocess.Popen, int, int]:
+    """``calib-studio demo`` on ``sessions`` in a subprocess (stdout piped, stderr into ``log``), on two free
+    ports: the process, the API's port and the viewer's."""
+    api_port, viewer_port = free_port(), free_port()
+    while viewer_port == api_port:
+        viewer_port = free_port()
+    with log.open("wb") as stderr:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(sessions), "--port", str(api_port),
+             "--viewer-port", str(viewer_port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    return process, api_port, viewer_port
+
+
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int], demo_template: Path
            ) -> Iterator[Studio]:
     """``calib-studio demo`` in a subprocess, on a copy of the run's demo session (so it starts in seconds)."""
     tmp = tmp_path_factory.mktemp("studio")
     fresh_demo(demo_template, tmp / "sessions")
-    api_port, viewer_port = free_port(), free_port()
-    while viewer_port == api_port:
-        viewer_port = free_port()
     log = tmp / "studio.log"
-    with log.open("wb") as stderr:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(tmp / "sessions"), "--port", str(api_port),
-             "--viewer-port", str(viewer_port)],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    process, api_port, viewer_port = start_demo(tmp / "sessions", free_port, log)
     lines: queue.Queue[str] = queue.Queue()
 
     def drain() -> None:  # keep reading so the studio never blocks on a full pipe

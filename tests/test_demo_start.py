@@ -5,19 +5,16 @@ in the staging folder is cleared, and no half-built demo is ever listed."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
-from conftest import ARTIFACTS, stop_process, studio_page, wait_health
+from conftest import ARTIFACTS, start_demo, stop_process, studio_page, wait_health
 from playwright.sync_api import Browser, expect
 
 from backend.services.demo import DEMO_NAME, DEMO_PAIRS, STAGING_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
 VIEWPORT = {"width": 1400, "height": 1000}
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -33,14 +30,8 @@ def test_the_page_serves_while_the_demo_is_built_then_opens_it(browser: Browser,
     leftover = sessions / STAGING_DIR / DEMO_NAME  # a build killed half-way through an earlier start
     leftover.mkdir(parents=True)
     (leftover / "session.json").write_text('{"half": ')
-    api_port, viewer_port = free_port(), free_port()
-    while viewer_port == api_port:
-        viewer_port = free_port()
     log = tmp_path / "studio.log"
-    with log.open("wb") as stderr:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(sessions), "--port", str(api_port),
-             "--viewer-port", str(viewer_port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    process, api_port, viewer_port = start_demo(sessions, free_port, log)
     base = f"http://127.0.0.1:{api_port}"
     try:
         url = process.stdout.readline().strip()

@@ -121,7 +121,8 @@ class IntrinsicsResult(SolveResult):
     projection_uncertainty: dict[str, Any]
     seconds: float
     corners: dict[str, Any]
-    """Which corner set was solved with (``sb`` or a refinement, ``refined-0.3``) and each set's RMS (px) on these views."""
+    """Which corner set was solved with (``sb`` or a refinement such as ``refined-0.3``) and each set's RMS (px)
+    on these views."""
     cross_validation: dict[str, Any]
     """:func:`_cross_validate`'s outcome: ``status`` ``consistent``, ``inconsistent`` or ``not made`` (and why)."""
     verdict: Verdict
