@@ -57,6 +57,18 @@ def _wait_views(page: Page, at_least: int, timeout_s: float) -> int:
     return views
 
 
+def _settled_views(page: Page, quiet_s: float = 4.0, timeout_s: float = 60.0) -> int:
+    """The view count once it has not changed for ``quiet_s`` (an auto-capture in flight has landed)."""
+    deadline = time.monotonic() + timeout_s
+    views, since = _views(page), time.monotonic()
+    while time.monotonic() - since < quiet_s:
+        assert time.monotonic() < deadline, f"the view count kept changing for {timeout_s:.0f} s"
+        time.sleep(0.5)
+        if (now := _views(page)) != views:
+            views, since = now, time.monotonic()
+    return views
+
+
 def _scroll_to_result(page: Page) -> None:
     page.get_by_text("Per-view RMS", exact=True).scroll_into_view_if_needed()
     page.get_by_text(re.compile(r"^RMS \d")).scroll_into_view_if_needed()
@@ -106,12 +118,11 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
 
     # Manual capture: with auto-capture off, one click keeps exactly one more frame.
     page.get_by_label("Auto-capture when it adds coverage").uncheck()
-    time.sleep(1.5)  # let an auto-capture already in flight land first
-    before = _views(page)
+    before = _settled_views(page)  # an auto-capture already in flight lands first, however loaded the machine
     button(page, "Capture this frame").click()
-    after = _wait_views(page, before + 1, timeout_s=20)
-    time.sleep(1.5)
-    assert _views(page) == after == before + 1, "a manual capture must keep exactly one frame"
+    _wait_views(page, before + 1, timeout_s=60)
+    after = _settled_views(page)
+    assert after == before + 1, "a manual capture must keep exactly one frame"
 
     button(page, "Stop").click()
     expect(button(page, "Start live capture")).to_be_visible()

@@ -105,7 +105,7 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
         page.get_by_text("5 · Swept scanner", exact=True).click()
         expect(page.get_by_label("Swept scanner", exact=True)).to_have_value("sweep_3d")
         button(page, "Capture sweep").click()
-        wait_body(page, re.compile(r"1 sweep\(s\) captured"), timeout_s=60)
+        wait_body(page, re.compile(r"1 sweep\(s\) captured"), timeout_s=240)  # a whole servo sweep, on a loaded machine
         button(page, "Calibrate").click()
         match = wait_body(page, SWEEP_RESULT_RE, timeout_s=120)
         result_id = match.group(1)
