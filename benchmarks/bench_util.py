@@ -31,7 +31,7 @@ def peak_rss_mb():
 
 def pose_error(T, T_true):
     """(translation error norm in mm, rotation error angle in deg) of the 4x4 ``T`` against ``T_true``."""
-    from backend.solvers.lidar_lidar import transform_error
+    from backend.core.transforms import transform_error
 
     trans_m, rot_deg = transform_error(T, T_true)
     return float(np.linalg.norm(trans_m) * 1000), float(np.linalg.norm(rot_deg))

@@ -45,16 +45,10 @@ import numpy as np
 from bench_util import REPEATS, log, median_time, peak_rss_mb, pose_error
 from scipy.spatial.transform import Rotation
 
-from backend.core.transforms import from_xyz_ypr, invert, make_T
+from backend.core.transforms import check_transform, from_xyz_ypr, invert, make_T, transform_error
 from backend.devices.cloud_files import read_cloud
 from backend.sim.lidar_scene import LidarScene
-from backend.solvers.lidar_lidar import (
-    LidarLidarSettings,
-    check_transform,
-    evaluate_alignment,
-    register_pair,
-    transform_error,
-)
+from backend.solvers.lidar_lidar import LidarLidarSettings, evaluate_alignment, register_pair
 from backend.solvers.lidar_lidar_scenes import register_pairs
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))

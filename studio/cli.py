@@ -255,8 +255,9 @@ def _lidar_pairs(args: argparse.Namespace) -> list[tuple[Path, Path]]:
 
 
 def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.core.transforms import check_transform
     from backend.devices.cloud_files import read_cloud
-    from backend.solvers.lidar_lidar import LidarLidarSettings, check_transform
+    from backend.solvers.lidar_lidar import LidarLidarSettings
     from backend.solvers.lidar_lidar_scenes import register_pairs
 
     progress = _progress_to_stderr(False)
@@ -325,9 +326,9 @@ def _pairs(values: list[str], form: str = "IMAGE:CLOUD") -> list[tuple[Path, Pat
 
 def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     from backend.core.boards import BoardSpec
+    from backend.core.transforms import check_transform
     from backend.exports.ros_camera_info import load_camera_info
     from backend.services.lidar_camera import solve_files
-    from backend.solvers.lidar_lidar import check_transform
 
     pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in _pairs(args.pair)]
     camera, _ = load_camera_info(args.camera)

@@ -17,12 +17,11 @@ from test_lidar_camera_edges import initial_guess, simulated_pairs
 from test_lidar_camera_target import _initial_guess
 
 from backend.core.boards import BoardSpec
-from backend.core.transforms import invert
+from backend.core.transforms import invert, transform_error
 from backend.exports.ros_camera_info import write_camera_info
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from backend.solvers.lidar_lidar import transform_error
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = demo_rig()

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import CancelledError, InputError
 from backend.core.projection import project_cloud
-from backend.core.transforms import from_xyz_ypr, make_T, transform_points
+from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
 from backend.services.lidar_camera import TOLERANCES, edges_settings, judge
 from backend.sim.demo_rig import CAM_FRONT, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
@@ -30,7 +30,6 @@ from backend.solvers.lidar_camera_edges import (
     in_view,
     solve_edges,
 )
-from backend.solvers.lidar_lidar import transform_error
 from backend.solvers.plane_edges import find_plane_edges
 from backend.solvers.result import TRANSFORM_PARAMETERS
 

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from backend.api.schemas import LidarCameraSolveRequest
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.transforms import invert, make_T, transform_points
+from backend.core.transforms import apply_params, invert, make_T, params_between, transform_points
 from backend.exports.ros_camera_info import write_camera_info
 from backend.services.lidar_camera import CrossCheck, PairData, cross_check_methods, judge, solve_pairs
 from backend.solvers.cloud_accumulation import accumulate_scans
@@ -28,7 +28,6 @@ from backend.solvers.lidar_camera_intensity import (
     nid_and_mi,
     solve_intensity,
 )
-from backend.solvers.lidar_lidar import apply_params, params_between
 from backend.solvers.method_agreement import compare_methods
 
 CAMERA = CameraIntrinsics("pinhole-radtan", 640, 480, np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]))

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
-from backend.core.transforms import invert, make_T
+from backend.core.transforms import invert, make_T, transform_error
 from backend.services.lidar_camera import TOLERANCES, judge
 from backend.sim.board_renderer import PLATE_MARGIN_SQUARES, render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
@@ -23,7 +23,6 @@ from backend.solvers.lidar_camera_target import (
     scan_line_edges,
     solve_target,
 )
-from backend.solvers.lidar_lidar import transform_error
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 SETTINGS = LidarCameraTargetSettings(plate_margin_m=PLATE_MARGIN_SQUARES * BOARD.square_m)

@@ -12,15 +12,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
-from backend.core.transforms import from_xyz_ypr, invert, make_T, rotation_angle_deg, to_xyz_ypr, transform_points
-from backend.solvers.lidar_lidar import (
-    LidarLidarSettings,
-    check_cloud,
+from backend.core.transforms import (
     check_transform,
-    evaluate_alignment,
-    register_pair,
+    from_xyz_ypr,
+    invert,
+    make_T,
+    rotation_angle_deg,
+    to_xyz_ypr,
     transform_error,
+    transform_points,
 )
+from backend.solvers.lidar_lidar import LidarLidarSettings, check_cloud, evaluate_alignment, register_pair
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2lidar_pair"

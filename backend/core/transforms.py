@@ -5,15 +5,27 @@
 name ends in ``_deg``. Euler angles follow ROS ``static_transform_publisher``:
 ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``. Quaternions are ``(x, y, z, w)``.
 
+A small perturbation of a transform is the 6-vector every solver, covariance and export
+uses (``TRANSFORM_PARAMETERS`` of :mod:`backend.solvers.result`): ``[dt (m, parent axes),
+dr (rad, rotation vector about the child's axes)]``, so ``T = (R Exp(dr), t + dt)``
+(:func:`params_between`, :func:`apply_params`).
+
 All rotation maths goes through :mod:`scipy.spatial.transform`; nothing here is
-hand-rolled beyond assembling the 4x4 matrix and :func:`right_jacobian`, which scipy lacks
-(the solvers' analytic Jacobians need it).
+hand-rolled beyond assembling the 4x4 matrix, :func:`skew` and :func:`right_jacobian`,
+which scipy lacks (the solvers' analytic Jacobians need them).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from backend.core.errors import InputError
+
+MAX_ROTATION_DEVIATION = 0.05
+"""How far (max ``|R^T R - I|``) a given 3x3 may be from a rotation and still be projected onto one."""
 
 
 def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -95,3 +107,61 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Magnitude of the rotation ``R`` in degrees."""
     return float(np.degrees(np.linalg.norm(Rotation.from_matrix(R).as_rotvec())))
+
+
+def params_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``[t - t_ref (m, parent axes), rotvec(R_ref^T R) (rad, child axes)]`` of ``T`` about ``T_ref``."""
+    return np.r_[T[:3, 3] - T_ref[:3, 3], Rotation.from_matrix(T_ref[:3, :3].T @ T[:3, :3]).as_rotvec()]
+
+
+def apply_params(T_ref: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`params_between`: ``T_ref`` moved by ``p`` (6,) (m, rad)."""
+    return make_T(T_ref[:3, :3] @ Rotation.from_rotvec(p[3:]).as_matrix(), T_ref[:3, 3] + p[:3])
+
+
+def apply_params_many(T: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """:func:`apply_params` over stacks: poses (n, 4, 4) moved by steps (n, 6)."""
+    moved = T.copy()
+    moved[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(steps[:, 3:]).as_matrix()
+    moved[:, :3, 3] += steps[:, :3]
+    return moved
+
+
+def transform_error(T_estimate: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis error of an estimate in the reported parameters: translation (m, parent axes)
+    and rotation (deg, about the child's axes), as ``params_between(T_true, T_estimate)``."""
+    p = params_between(T_true, T_estimate)
+    return p[:3], np.degrees(p[3:])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices ``[v]x`` of (N, 3) vectors."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    return S - S.transpose(0, 2, 1)
+
+
+def check_transform(T: Any, name: str) -> tuple[np.ndarray, float]:
+    """A rigid 4x4 transform and how far its 3x3 was from a rotation (max ``|R^T R - I|``).
+
+    A 3x3 within :data:`MAX_ROTATION_DEVIATION` of a rotation (e.g. a rounded or slightly scaled
+    matrix from a manual tool) is projected onto the nearest rotation; anything else raises
+    :class:`InputError` naming ``name``.
+    """
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(f"expected a finite 4x4 transform, got shape {T.shape}", name)
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+        raise InputError(f"the last row of the 4x4 must be 0 0 0 1, got {T[3].tolist()}", name)
+    R = T[:3, :3]
+    deviation = float(np.abs(R.T @ R - np.eye(3)).max())
+    if deviation > MAX_ROTATION_DEVIATION or np.linalg.det(R) <= 0:
+        raise InputError(f"the upper-left 3x3 is not a rotation (max |R^T R - I| = {deviation:.3g}, "
+                         f"det {np.linalg.det(R):.3g}); expected an orthonormal matrix with det +1", name)
+    return make_T(Rotation.from_matrix(R).as_matrix(), T[:3, 3]), deviation
+
+
+def rotate_about_axis(axis: np.ndarray, angles_rad: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Rotate each row of ``vectors`` (N, 3) about the unit ``axis`` by its own angle (N,) (rad)."""
+    rotvecs = np.outer(np.asarray(angles_rad, dtype=float), np.asarray(axis, dtype=float))
+    return Rotation.from_rotvec(rotvecs).apply(np.asarray(vectors, dtype=float))

@@ -26,6 +26,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
 from backend.core.rig import Rig
+from backend.core.transforms import check_transform
 from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
@@ -53,7 +54,6 @@ from backend.solvers.lidar_camera_target import (
     camera_board_pose,
     solve_target,
 )
-from backend.solvers.lidar_lidar import check_transform
 from backend.solvers.method_agreement import compare_methods
 from backend.solvers.result import TRANSFORM_PARAMETERS, ProgressCallback, no_progress
 from backend.store.session import Session

@@ -21,9 +21,8 @@ from scipy.optimize import OptimizeResult, least_squares
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.projection import project_cloud
-from backend.core.transforms import right_jacobian, transform_points
+from backend.core.transforms import apply_params, right_jacobian, transform_points
 from backend.solvers.image_edges import ImageEdges
-from backend.solvers.lidar_lidar import apply_params
 
 
 @dataclass

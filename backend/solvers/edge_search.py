@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.projection import project_cloud
-from backend.solvers.lidar_lidar import params_between
+from backend.core.transforms import params_between
 
 BATCH_POINTS = 1_000_000
 """Candidate points projected per call (memory: about 100 bytes each)."""

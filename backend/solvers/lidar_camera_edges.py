@@ -65,12 +65,12 @@ from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.camera_inverse import visible_radius
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
-from backend.core.transforms import transform_points
+from backend.core.transforms import apply_params, check_transform, params_between, transform_points
 from backend.core.verdict import Verdict
 from backend.solvers.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.solvers.edge_search import CoarseSearchSettings, coarse_search
 from backend.solvers.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
-from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform, params_between
+from backend.solvers.lidar_lidar import check_cloud
 from backend.solvers.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.solvers.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
 from backend.solvers.result import (

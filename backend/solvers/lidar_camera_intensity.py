@@ -69,10 +69,10 @@ from scipy.optimize import minimize
 from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
-from backend.core.transforms import transform_points
+from backend.core.transforms import apply_params, check_transform, params_between, transform_points
 from backend.core.verdict import Verdict
 from backend.solvers.lidar_camera_edges import in_view
-from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform, params_between
+from backend.solvers.lidar_lidar import check_cloud
 from backend.solvers.method_agreement import MethodAgreement
 from backend.solvers.result import (
     LidarCameraSummary,

@@ -41,11 +41,11 @@ from scipy.optimize import least_squares
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.transforms import invert, right_jacobian, transform_points
+from backend.core.transforms import apply_params, check_transform, invert, right_jacobian, transform_points
 from backend.core.verdict import Verdict
 from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
-from backend.solvers.lidar_lidar import apply_params, check_cloud, check_transform
+from backend.solvers.lidar_lidar import check_cloud
 from backend.solvers.result import (
     LidarCameraSummary,
     ProgressCallback,

@@ -44,10 +44,9 @@ from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
-from backend.core.transforms import make_T, transform_points
+from backend.core.transforms import check_transform, params_between, transform_points
 from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.solvers.result import (
     ProgressCallback,
@@ -75,8 +74,6 @@ CYCLE_TOLERANCE = (1e-3, np.radians(0.01))
 """A fine stage that ran out of iterations still counts as converged when one more Gauss-Newton
 step moves less than this (m, rad): it is alternating between two correspondence sets
 (seen on the real OpenCalib pair: a 0.5 mm / 0.004 deg two-cycle), not diverging."""
-MAX_ROTATION_DEVIATION = 0.05
-"""Largest ``|R^T R - I|`` of a given transform still taken as a (rounded or scaled) rotation."""
 GLOBAL_VOXEL_FACTORS = (0.6, 1.0, 1.6)
 GLOBAL_SEEDS = 3
 """Global registration tries these multiples of ``global_voxel_m``, each with this many RANSAC seeds."""
@@ -280,29 +277,6 @@ def check_cloud(points: Any, name: str) -> tuple[np.ndarray, int]:
     return arr, dropped
 
 
-def check_transform(T: Any, name: str) -> tuple[np.ndarray, float]:
-    """A rigid 4x4 transform and how far its 3x3 was from a rotation (max ``|R^T R - I|``).
-
-    A 3x3 within :data:`MAX_ROTATION_DEVIATION` of a rotation (e.g. a rounded or slightly scaled
-    matrix from a manual tool) is projected onto the nearest rotation; anything else raises
-    :class:`InputError` naming ``name``.
-    """
-    T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise InputError(f"expected a finite 4x4 transform, got shape {T.shape}", name)
-    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
-        raise InputError(f"the last row of the 4x4 must be 0 0 0 1, got {T[3].tolist()}", name)
-    R = T[:3, :3]
-    deviation = float(np.abs(R.T @ R - np.eye(3)).max())
-    if deviation > MAX_ROTATION_DEVIATION or np.linalg.det(R) <= 0:
-        raise InputError(f"the upper-left 3x3 is not a rotation (max |R^T R - I| = {deviation:.3g}, "
-                         f"det {np.linalg.det(R):.3g}); expected an orthonormal matrix with det +1", name)
-    return make_T(Rotation.from_matrix(R).as_matrix(), T[:3, 3]), deviation
-
-
-# ---------------------------------------------------------------- evaluation
-
-
 def evaluate_alignment(source_points: np.ndarray, target_points: np.ndarray, T_target_source: np.ndarray,
                        max_distance_m: float, target_tree: cKDTree | None = None,
                        num_threads: int = 2) -> dict[str, Any]:
@@ -421,16 +395,6 @@ def hessian_covariance(result, T: np.ndarray) -> np.ndarray:
     A = _delta_to_params(T)
     cov = A @ cov_delta @ A.T
     return 0.5 * (cov + cov.T)
-
-
-def params_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """``[t - t_ref (m, target axes), rotvec(R_ref^T R) (rad, source axes)]`` of ``T`` about ``T_ref``."""
-    return np.r_[T[:3, 3] - T_ref[:3, 3], Rotation.from_matrix(T_ref[:3, :3].T @ T[:3, :3]).as_rotvec()]
-
-
-def apply_params(T_ref: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`params_between`."""
-    return make_T(T_ref[:3, :3] @ Rotation.from_rotvec(p[3:]).as_matrix(), T_ref[:3, 3] + p[:3])
 
 
 def sector_jackknife(sources: list[np.ndarray], solve: Callable[[list[Any]], np.ndarray], T: np.ndarray,
@@ -637,11 +601,3 @@ def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: 
     return assemble_result(T, quality, covariance, cov_h, std_spread, "sectors", settings, ok, started,
                            (T_init, init_method), result, judge.verdict(),
                            [SceneResult([0], T, quality["fitness"], quality["rmse_m"], ok, covariance)], warnings)
-
-
-def transform_error(T_estimate: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis error of an estimate in the reported parameters: translation (m, target axes)
-    and rotation (deg, about the source axes), as ``params_between(T_true, T_estimate)``."""
-    p = params_between(T_true, T_estimate)
-    return p[:3], np.degrees(p[3:])
-

@@ -30,6 +30,7 @@ import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
+from backend.core.transforms import params_between
 from backend.core.verdict import ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M, VerdictBuilder
 from backend.solvers.lidar_lidar import (
     CYCLE_TOLERANCE,
@@ -47,7 +48,6 @@ from backend.solvers.lidar_lidar import (
     initial_guess,
     judge_fit,
     judge_one_scene,
-    params_between,
     preprocess,
     register_pair,
     sector_jackknife,

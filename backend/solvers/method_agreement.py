@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.solvers.lidar_lidar import params_between
+from backend.core.transforms import params_between
 from backend.solvers.result import finite_or_none
 
 AGREEMENT_SIGMAS = 3.0

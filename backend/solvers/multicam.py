@@ -36,11 +36,11 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
-from scipy.spatial.transform import Rotation
 
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.transforms import apply_params_many, skew
 from backend.core.verdict import Verdict
 from backend.solvers.multicam_checks import camera_verdicts, intrinsics_projection_sigma_px, pair_checks
 from backend.solvers.multicam_graph import (
@@ -176,13 +176,6 @@ def _with_vector(camera: CameraIntrinsics, vector: np.ndarray) -> CameraIntrinsi
                             np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), vector[4:])
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) cross-product matrices ``[v]x`` of (N, 3) vectors."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    return S - S.transpose(0, 2, 1)
-
-
 def _pixel_jacobians(camera: CameraIntrinsics, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels (N, 2), d pixel / d point (N, 2, 3) and d pixel / d [fx, fy, cx, cy, dist...] (N, 2, 4 + len(dist))
     of points (N, 3) in the optical frame (m), from OpenCV's analytic projection Jacobians (at rvec = tvec = 0 the
@@ -277,8 +270,8 @@ class _Problem:
         R_cam_t = self.T_cam[self.corner_camera, :3, :3].transpose(0, 2, 1)
         R_board = self.T_board[self.corner_frame, :3, :3]
         d_translation = d_point @ R_cam_t  # d pixel / d t (reference axes), for the board (+) and the camera (-)
-        d_board_rotation = -(d_point @ (R_cam_t @ R_board)) @ _skew(self.X)
-        d_camera_rotation = d_point @ _skew(p)
+        d_board_rotation = -(d_point @ (R_cam_t @ R_board)) @ skew(self.X)
+        d_camera_rotation = d_point @ skew(p)
         all_corners = np.arange(len(p))
         blocks.append((all_corners, self.n_camera_params + 6 * self.corner_frame,
                        np.concatenate([d_translation, d_board_rotation], axis=2)))
@@ -304,7 +297,7 @@ class _Problem:
             vector = _intrinsics_vector(cameras[name])
             vector[self.free_columns[name]] += step[where]
             cameras[name] = _with_vector(cameras[name], vector)
-        return _moved(self.T_cam, camera_step), _moved(self.T_board, board_step), cameras
+        return apply_params_many(self.T_cam, camera_step), apply_params_many(self.T_board, board_step), cameras
 
     def take(self, state: tuple[np.ndarray, np.ndarray, dict[str, CameraIntrinsics]]) -> None:
         self.T_cam, self.T_board, self.cameras = state[0], state[1], dict(state[2])
@@ -312,14 +305,6 @@ class _Problem:
     def answer(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, CameraIntrinsics]]:
         return (dict(zip(self.names, self.T_cam, strict=True)), dict(zip(self.frames, self.T_board, strict=True)),
                 dict(self.cameras))
-
-
-def _moved(T: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """Poses (n, 4, 4) moved by steps (n, 6) ``[dt (m, parent axes), phi (rad, own axes)]``."""
-    moved = T.copy()
-    moved[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(step[:, 3:]).as_matrix()
-    moved[:, :3, 3] += step[:, :3]
-    return moved
 
 
 def _soft_l1(residuals: np.ndarray, scale_px: float) -> tuple[float, np.ndarray]:

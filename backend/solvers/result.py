@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -72,6 +72,90 @@ def transform_std(covariance: np.ndarray) -> dict[str, list[float | None]]:
     return {"trans_m": finite_or_none(std[:3]), "rot_deg": finite_or_none(np.degrees(std[3:]))}
 
 
+@dataclass
+class TransformResult(SolveResult):
+    """What every transform solver returns, as Open3D's registration returns one ``RegistrationResult``.
+
+    ``T_parent_child`` (4x4, m) maps points in ``child`` into ``parent`` (``../shared/conventions.md``);
+    ``covariance`` is 6x6 over :data:`TRANSFORM_PARAMETERS` (translation in m along the parent's axes,
+    rotation in rad about the child's axes; NaN where the data do not determine it). The session
+    store, the accept service, the rig graph, the studio's result card, the report and the CLI all
+    read this one shape.
+    """
+
+    kind: str
+    """The solver family: ``lidar_lidar``, ``lidar_camera``, ``multicam``, ``sweep``, ``depth_node``."""
+    method: str
+    """How it was solved within the family (``gicp``, ``target``, ``edges``, ``intensity``, ``bundle``,
+    ``manual``, ...)."""
+    parent: str
+    child: str
+    T_parent_child: np.ndarray
+    covariance: np.ndarray
+    residuals: dict[str, Any] = field(default_factory=dict)
+    """Residual statistics, with their units in the key names (``rmse_m``, ``rms_px``, ``fitness``, ...)."""
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    """JSON-ready detail behind the numbers: per-view or per-scene solves, the initial guess, spreads."""
+    settings: dict[str, Any] = field(default_factory=dict)
+    """The solver's settings as used (a dataclass's ``asdict``)."""
+    converged: bool = True
+    """False when the solver did not reach a good fit: such a result is kept but cannot be accepted."""
+    verdict: Verdict | None = None
+    """How far it can be trusted; None until judged (some services judge after the solver)."""
+    warnings: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    """Wall-clock seconds of the solve."""
+
+    def __post_init__(self) -> None:
+        self.T_parent_child = np.asarray(self.T_parent_child, dtype=float).reshape(4, 4)
+        self.covariance = np.asarray(self.covariance, dtype=float).reshape(6, 6)
+
+    @property
+    def std(self) -> dict[str, list[float | None]]:
+        """Reported 1-sigma: ``trans_m`` (m, parent axes) and ``rot_deg`` (deg, about the child's axes)."""
+        return transform_std(self.covariance)
+
+    @property
+    def std_vector(self) -> np.ndarray:
+        """(6,) 1-sigma in :data:`TRANSFORM_PARAMETERS` order (m, rad); NaN where undetermined."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+
+    def summary(self) -> dict[str, Any]:
+        """``{"kind", "method", "parent", "child", "T_parent_child", "std", "residuals", "converged", "verdict",
+        "warnings", "seconds"}``; each CLI command names the transform as its contract says (``T_target_source``,
+        ``T_camera_lidar``, ...) from this."""
+        return {"kind": self.kind, "method": self.method, "parent": self.parent, "child": self.child,
+                "T_parent_child": self.T_parent_child.tolist(), "std": self.std, "residuals": dict(self.residuals),
+                "converged": self.converged, "verdict": None if self.verdict is None else self.verdict.to_dict(),
+                "warnings": list(self.warnings), "seconds": self.seconds}
+
+    def to_record(self) -> dict[str, Any]:
+        """The summary with the covariance (and its order), the diagnostics and the settings."""
+        return self.summary() | {"covariance": [finite_or_none(row) for row in self.covariance],
+                                 "covariance_order": TRANSFORM_PARAMETERS,
+                                 "diagnostics": dict(self.diagnostics), "settings": dict(self.settings)}
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> TransformResult:
+        """Read back :meth:`to_record` (a covariance entry stored as None is NaN: undetermined)."""
+        covariance = record.get("covariance")
+        return cls(
+            kind=record["kind"], method=record.get("method", ""), parent=record["parent"], child=record["child"],
+            T_parent_child=np.array(record["T_parent_child"], dtype=float),
+            covariance=np.full((6, 6), np.nan) if covariance is None else
+            np.array([[np.nan if v is None else v for v in row] for row in covariance], dtype=float),
+            residuals=dict(record.get("residuals", {})), diagnostics=dict(record.get("diagnostics", {})),
+            settings=dict(record.get("settings", {})), converged=bool(record.get("converged", False)),
+            verdict=Verdict.from_record(record) if record.get("verdict") else None,
+            warnings=list(record.get("warnings", [])), seconds=float(record.get("seconds", 0.0)))
+
+    def named(self, parent: str, child: str) -> TransformResult:
+        """The same result between frames called ``parent`` and ``child`` (a solver names them by role, the
+        service by the rig's sensors)."""
+        return TransformResult(**{**self.__dict__, "parent": parent, "child": child})
+
+
+# TODO(issue 13): removed once the LiDAR-camera solvers return TransformResult
 class LidarCameraSummary:
     """The CLI's JSON and the reported sigmas of every LiDAR-to-camera solver's result (a dataclass holding
     ``T_camera_lidar`` (4x4, m), ``covariance`` (6x6, :data:`TRANSFORM_PARAMETERS`), ``residuals`` and ``seconds``)."""
