@@ -57,6 +57,17 @@ class IntrinsicsSolveRequest(FiniteModel):
 class AcceptRequest(FiniteModel):
     result_id: str
     confirm: bool = Field(False, description="accept a result whose verdict is 'check' (its reasons were read)")
+    revert: list[str] = Field(default_factory=list, description="accepted slots to empty in the same change (keep "
+                              "this result over the ones it disagrees with)")
+
+
+class PreviewRequest(FiniteModel):
+    result_id: str
+    revert: list[str] = Field(default_factory=list, description="accepted slots the accept would empty")
+
+
+class RevertRequest(FiniteModel):
+    slot: str = Field(description="the accepted slot to empty, e.g. 'lidar_front/T_lidar_top_lidar_front'")
 
 
 class JobStatus(BaseModel):

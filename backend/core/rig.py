@@ -20,6 +20,9 @@ from backend.core.finite import require_finite
 
 SensorKind = Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"]
 
+DEFAULT_MOUNT_SIGMA = (0.05, 5.0)
+"""1-sigma (m, deg) of a mounting guess (tape, CAD) when none is given: a weak prior the calibrations override."""
+
 
 @dataclass
 class Frame:
@@ -34,14 +37,33 @@ class Frame:
     intrinsics: CameraIntrinsics | None = None
     device: dict = field(default_factory=dict)
     """How to capture from this sensor: ``{"driver": ..., **settings}``."""
+    T_mount: np.ndarray | None = None
+    """The mounting guess (tape, CAD) of ``T_parent_child`` (4x4, m): a prior edge of the rig graph. It stays
+    as given while calibrations move ``T_parent_child``; None takes the ``T_parent_child`` the frame is made with."""
+    mount_sigma: tuple[float, float] | None = DEFAULT_MOUNT_SIGMA
+    """1-sigma of the mounting guess: translation (m, per axis), rotation (deg, per axis); None when the mounting
+    is unknown (then only calibrations place the frame)."""
 
     def __post_init__(self) -> None:
         """Shape the arrays; a NaN or infinity in the transform or covariance raises :class:`InputError`."""
         self.T_parent_child = np.asarray(self.T_parent_child, dtype=float).reshape(4, 4)
+        mount = self.T_parent_child if self.T_mount is None else self.T_mount
+        self.T_mount = np.array(mount, dtype=float).reshape(4, 4)
         if self.covariance is not None:
             self.covariance = np.asarray(self.covariance, dtype=float).reshape(6, 6)
-        require_finite({"T_parent_child": self.T_parent_child, "covariance": self.covariance},
-                       f"frame {self.name!r}", self.name)
+        require_finite({"T_parent_child": self.T_parent_child, "covariance": self.covariance, "T_mount": self.T_mount,
+                        "mount_sigma": self.mount_sigma}, f"frame {self.name!r}", self.name)
+        if self.mount_sigma is not None and not all(s > 0 for s in self.mount_sigma):
+            raise InputError(f"frame {self.name!r}: mounting sigma must be above 0 m and 0 deg, got "
+                             f"{list(self.mount_sigma)}", "mount_sigma")
+
+    @property
+    def mount_covariance(self) -> np.ndarray | None:
+        """6x6 of the mounting guess (``TRANSFORM_PARAMETERS``: m, rad), or None when the mounting is unknown."""
+        if self.mount_sigma is None:
+            return None
+        sigma_m, sigma_deg = self.mount_sigma
+        return np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3)
 
     @property
     def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:

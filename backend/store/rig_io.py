@@ -21,6 +21,8 @@ def rig_to_model(rig: Rig) -> RigModel:
             "covariance": None if f.covariance is None else f.covariance.tolist(),
             "intrinsics": None if f.intrinsics is None else f.intrinsics.to_dict(),
             "device": f.device,
+            "T_mount": f.T_mount.tolist(),
+            "mount_sigma": f.mount_sigma,
         }
         for f in rig.frames.values()
     ]
@@ -39,6 +41,8 @@ def rig_from_model(model: RigModel) -> Rig:
             covariance=None if f.covariance is None else np.array(f.covariance),
             intrinsics=None if f.intrinsics is None else CameraIntrinsics.from_dict(f.intrinsics.model_dump()),
             device=f.device,
+            T_mount=None if f.T_mount is None else np.array(f.T_mount),
+            mount_sigma=f.mount_sigma,
         )
         if f.parent is None:
             rig.frames[f.name] = frame

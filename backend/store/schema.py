@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
 from backend.core.finite import first_non_finite
+from backend.core.rig import DEFAULT_MOUNT_SIGMA
 
 SCHEMA_VERSION = 1
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$"
@@ -59,12 +60,16 @@ class FrameModel(FiniteModel):
     covariance: list[list[float]] | None = Field(None, description="6x6 over [t (m), r (rad)]")
     intrinsics: CameraModel | None = None
     device: FiniteTree = Field(default_factory=dict)
+    T_mount: list[list[float]] | None = Field(None, description="4x4 mounting guess (tape, CAD), m; None: "
+                                               "the T_parent_child the frame was made with")
+    mount_sigma: tuple[float, float] | None = Field(DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting "
+                                                     "guess: m, deg; null when the mounting is unknown")
 
-    @field_validator("T_parent_child")
+    @field_validator("T_parent_child", "T_mount")
     @classmethod
-    def _four_by_four(cls, T: list[list[float]]) -> list[list[float]]:
-        if len(T) != 4 or any(len(row) != 4 for row in T):
-            raise ValueError("T_parent_child must be 4x4")
+    def _four_by_four(cls, T: list[list[float]] | None) -> list[list[float]] | None:
+        if T is not None and (len(T) != 4 or any(len(row) != 4 for row in T)):
+            raise ValueError("must be 4x4")
         return T
 
     @field_validator("covariance")
@@ -84,7 +89,7 @@ class Acceptance(FiniteModel):
     """One entry of the acceptance log: which result became current for which slot, when."""
 
     slot: str = Field(description="what the result calibrates, e.g. 'cam_front/intrinsics'")
-    result_id: str
+    result_id: str | None = Field(description="the result made current; None: the slot was reverted (emptied)")
     at: float = Field(description="seconds since the epoch")
     verdict: Literal["trusted", "check", "reject"] | None = Field(
         None, description="the result's verdict when accepted (None in logs from before verdicts)")

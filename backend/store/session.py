@@ -30,7 +30,7 @@ import os
 import re
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -404,13 +404,23 @@ class Session:
     def accepted(self, slot: str) -> str | None:
         return self._data.accepted.get(slot)
 
+    def accepted_slots(self) -> dict[str, str]:
+        """Every slot's current result id, the longest-standing acceptance first."""
+        return dict(sorted(self._data.accepted.items(), key=lambda item: self.accepted_at(item[0])))
+
+    def accepted_at(self, slot: str) -> float:
+        """When the slot's current result was accepted (s since the epoch; 0 when the log does not say)."""
+        times = [entry.at for entry in self._data.acceptance_log if entry.slot == slot and entry.result_id is not None]
+        return times[-1] if times else 0.0
+
     @property
     def acceptance_log(self) -> list[Acceptance]:
         return list(self._data.acceptance_log)
 
     def accept(self, slot: str, result_id: str, apply: Callable[[Rig, dict[str, Any]], None],
-               confirm: bool = False) -> None:
-        """Make ``result_id`` current for ``slot``; ``apply(rig, record)`` writes it into the rig.
+               confirm: bool = False, revert: Sequence[str] = ()) -> None:
+        """Make ``result_id`` current for ``slot`` and empty the slots in ``revert`` in one change; then
+        ``apply(rig, record)`` writes it into the rig (it sees the slots as they now are).
 
         The result's verdict decides (:mod:`backend.core.verdict`): a ``reject`` is refused, a ``check``
         is taken only with ``confirm`` (the user saw its reasons), and the log records the verdict and the
@@ -426,11 +436,26 @@ class Session:
             raise InputError(f"result {result_id} was judged 'check' ({reasons}); confirm to accept it as it is",
                              "confirm", 409)
         with self._change():
-            apply(self.rig, record)
+            now = time.time()
+            for other in revert:
+                self._empty(other, now)
             self._data.accepted[slot] = result_id
-            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=time.time(),
+            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=now,
                                                         verdict=verdict.level,
                                                         confirmed=verdict.level == "check"))
+            apply(self.rig, record)
+
+    def revert(self, slot: str, apply: Callable[[Rig], None]) -> None:
+        """Empty ``slot`` (its result stays in the history) and let ``apply(rig)`` bring the rig up to date."""
+        with self._change():
+            self._empty(slot, time.time())
+            apply(self.rig)
+
+    def _empty(self, slot: str, at: float) -> None:
+        if slot not in self._data.accepted:
+            raise NotFoundError(f"nothing is accepted for {slot!r}; accepted: {sorted(self._data.accepted)}", "slot")
+        del self._data.accepted[slot]
+        self._data.acceptance_log.append(Acceptance(slot=slot, result_id=None, at=at))
 
 
 class SessionStore:
