@@ -1,0 +1,152 @@
+"""One result card for every step: what a result says, how far to trust it, and *Accept* with the rig preview.
+
+Every kind of result (intrinsics, LiDAR-LiDAR, LiDAR-camera, multi-camera, a sweep geometry)
+is shown the same way: its transforms with their 1-sigma, its residual statistics, the verdict
+with every reason, and its warnings. *Accept* first shows what accepting would do to the whole
+rig (:func:`backend.services.rig.preview`: which frames move, by how many sigma, which edges
+would disagree with the rest) and applies on the second click, optionally reverting an edge the
+new result disagrees with (the user chooses which to keep).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from backend.core.errors import InputError
+from backend.core.transforms import to_xyz_ypr
+from backend.services import rig as rig_service
+from backend.solvers.result import TransformResult
+from studio.context import StudioContext
+from studio.verdict_view import ConfirmCheck, verdict_markdown
+
+KEEP_BOTH = "(revert nothing)"
+
+
+def _values(values: list[float | None], scale: float, digits: int) -> str:
+    return ", ".join("n/a" if v is None else f"{scale * v:.{digits}f}" for v in values)
+
+
+def transform_markdown(transform: TransformResult) -> str:
+    """``parent → child``: x, y, z (m), yaw, pitch, roll (deg) and the 1-sigma (mm, deg)."""
+    xyz, ypr = to_xyz_ypr(transform.T_parent_child)
+    std = transform.std
+    return (f"**{transform.parent} → {transform.child}**: {', '.join(f'{v:.4f}' for v in xyz)} m · "
+            f"{', '.join(f'{v:.3f}' for v in np.degrees(ypr))}° (yaw, pitch, roll)\n\n"
+            f"1σ: {_values(std['trans_m'], 1000, 2)} mm · {_values(std['rot_deg'], 1, 3)}°")
+
+
+def _statistic(key: str, value: Any) -> str | None:
+    """One residual statistic as a person reads it (lengths in mm), or None for what is not a number."""
+    if isinstance(value, bool) or value is None:
+        return None
+    if isinstance(value, int | float):
+        if key.endswith("_m"):
+            return f"{key[:-2]} {1000 * value:.2f} mm"
+        unit = {"_px": " px", "_deg": "°", "_s": " s"}.get(key[key.rfind("_"):], "")
+        return f"{key.removesuffix(key[key.rfind('_'):]) if unit else key} {value:.3g}{unit}"
+    if isinstance(value, dict) and key.endswith("_m"):  # e.g. c2c_m: mean, median, p95, std
+        parts = [f"{name} {1000 * v:.1f}" for name, v in value.items() if isinstance(v, int | float)]
+        return f"{key[:-2]} {' / '.join(parts)} mm" if parts else None
+    return None
+
+
+def residuals_markdown(residuals: dict[str, Any]) -> str:
+    return " · ".join(text for key, value in residuals.items() if (text := _statistic(key, value)) is not None)
+
+
+def _intrinsics_markdown(record: dict[str, Any]) -> str:
+    camera = record["camera"]
+    K = np.array(camera["K"])
+    dist = ", ".join(f"{d:.4g}" for d in camera["dist"])
+    return (f"{camera['model']} {camera['width']}×{camera['height']} · fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f}, "
+            f"cx {K[0, 2]:.1f}, cy {K[1, 2]:.1f} px · dist [{dist}]")
+
+
+def card_markdown(record: dict[str, Any], accepted_id: str | None) -> str:
+    """The card of any stored result (markdown)."""
+    status = "✅ accepted" if record["id"] == accepted_id else "not accepted"
+    converged = "" if record.get("converged", True) else " · ⚠️ **not converged**: it cannot be accepted"
+    method = f" · {record['method']}" if record.get("method") else ""
+    lines = [f"**{record['id']}** ({status}) · {record.get('kind')}{method} · {record.get('seconds', 0.0):.2f} s"
+             f"{converged}", verdict_markdown(record)]
+    if record.get("kind") == "intrinsics":
+        lines.append(_intrinsics_markdown(record))
+    if isinstance(record.get("rms_px"), int | float):
+        lines.append(f"reprojection RMS **{record['rms_px']:.3f} px**")
+    transforms = rig_service.record_transforms(record)
+    if "transform" in record:  # a swept scanner's geometry, inside its sensor
+        transforms.append(TransformResult.from_record(record["transform"]))
+    for transform in transforms:
+        lines.append(transform_markdown(transform))
+        if statistics := residuals_markdown(transform.residuals):
+            lines.append(statistics)
+    if not transforms and (statistics := residuals_markdown(record.get("residuals", {}))):
+        lines.append(statistics)
+    lines += [f"⚠️ {warning}" for warning in record.get("warnings", [])]
+    return "\n\n".join(lines)
+
+
+class ResultCard:
+    """The card, its confirmation box and *Accept*; built inside the step's gui folder."""
+
+    def __init__(self, ctx: StudioContext, on_accepted: Callable[[str], None] | None = None,
+                 empty_text: str = "No result yet."):
+        gui = ctx.server.gui
+        self.ctx = ctx
+        self.on_accepted = on_accepted
+        self.empty_text = empty_text
+        self.text = gui.add_markdown(empty_text)
+        self.confirm = ConfirmCheck(gui)
+        self.revert_choice = gui.add_dropdown(
+            "If it disagrees", options=[KEEP_BOTH], visible=False,
+            hint="keep this result over an accepted one it disagrees with: that one is reverted in the same step")
+        self.accept_button = gui.add_button("Accept", hint="first shows what moves in the rig; click again to apply")
+        self.preview_text = gui.add_markdown("")
+        self.accept_button.on_click(lambda _: self.accept())
+        self.record: dict[str, Any] | None = None
+        self._previewed: str | None = None
+
+    def show(self, record: dict[str, Any] | None, accepted_id: str | None) -> None:
+        """Show ``record`` (None: nothing yet); ``accepted_id`` is the result its slot holds now."""
+        self.record = record
+        self._previewed = None
+        self.accept_button.label = "Accept"
+        self.preview_text.content = ""
+        self.revert_choice.visible = False
+        self.text.content = self.empty_text if record is None else card_markdown(record, accepted_id)
+
+    def accept(self) -> None:
+        """First click: the preview. Second click (on the same result): accept it, with the chosen revert."""
+        session, record = self.ctx.session, self.record
+        if session is None or record is None:
+            self.ctx.notify("Nothing to accept", "Solve first, or pick a result.", error=True)
+            return
+        try:
+            if self._previewed != record["id"]:
+                self._preview(record["id"])
+                return
+            revert = [] if self.revert_choice.value == KEEP_BOTH else [self.revert_choice.value]
+            update = rig_service.accept(session, record["id"], confirm=self.confirm.take(), revert=revert)
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        self.ctx.notify("Accepted", f"{record['id']} is accepted; the rig was re-fitted.")
+        self.ctx.scene.update_rig(session.rig)
+        self.ctx.rig_changed()
+        self.show(record, record["id"])
+        self.preview_text.content = "**Accepted.**\n\n" + update.markdown()
+        if self.on_accepted is not None:
+            self.on_accepted(record["id"])
+
+    def _preview(self, result_id: str) -> None:
+        update = rig_service.preview(self.ctx.session, result_id)
+        others = [c.edge.slot for c in update.conflicts if c.edge.slot is not None and c.edge.result_id != result_id]
+        self.revert_choice.options = [KEEP_BOTH, *dict.fromkeys(others)]
+        self.revert_choice.value = KEEP_BOTH
+        self.revert_choice.visible = bool(others)
+        self._previewed = result_id
+        self.accept_button.label = "Apply accept"
+        self.preview_text.content = f"**Accepting {result_id} would:**\n\n{update.markdown()}\n\nClick *Apply accept*."
