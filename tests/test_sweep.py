@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.sweep import SweepGeometry, intensity_image
-from backend.core.transforms import from_xyz_ypr, make_T, transform_points
+from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
 from backend.devices.base import DeviceError, create_device
 from backend.devices.dynamixel_servo import (
     DEFAULT_SIM_GEOMETRY,
@@ -24,6 +24,7 @@ from backend.devices.dynamixel_servo import (
 )
 from backend.sim import dynamixel_sim as dsim
 from backend.sim.dynamixel_sim import DynamixelSimulator
+from backend.solvers.result import TransformResult
 from backend.solvers.sweep_calibration import SweepCalibrationSettings, calibrate_sweep
 
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
@@ -192,7 +193,7 @@ def test_sweep_calibration_recovers_truth_from_a_wrong_start(full_sweep):
     assert abs(math.degrees(error_zero)) < 0.1
     assert np.degrees(np.abs(error_tilt)).max() < 0.1
     # the sigmas cover the errors (u, v = mount y, z for an axis along x)
-    std = result.std
+    std = result.parameter_std
     assert set(std) == {"offset_u_m", "offset_v_m", "zero_offset_rad", "tilt_u_rad", "tilt_v_rad"}
     assert abs(error_t[1]) < 3 * std["offset_u_m"] and abs(error_t[2]) < 3 * std["offset_v_m"]
     assert abs(error_zero) < 3 * std["zero_offset_rad"]
@@ -200,10 +201,29 @@ def test_sweep_calibration_recovers_truth_from_a_wrong_start(full_sweep):
     assert all(0 < s < 0.003 for s in std.values())
     assert result.rms_after_m < 0.6 * result.rms_before_m and result.rms_after_m < 0.012
     assert result.planes >= 4 and result.floor_found and result.converged
+    # the one transform result: the scanner's pose at servo zero, its sigmas covering its error, the offset
+    # along the axis (mount x) undetermined, every other parameter propagated from the geometry's sigmas
+    transform = result.transform
+    assert (transform.kind, transform.method, transform.parent, transform.child) == ("sweep", "planes", "mount",
+                                                                                     "scanner")
+    error_m, error_deg = transform_error(transform.T_parent_child, TRUTH.T_mount_scanner(0.0))
+    assert abs(error_m[0]) < 1e-12  # kept as given, and the truth's is the same
+    assert result.std == transform.std and transform.std["trans_m"][0] is None
+    trans_m, rot_deg = np.array(transform.std["trans_m"][1:]), np.array(transform.std["rot_deg"])
+    assert np.all((trans_m > 0) & (trans_m < 0.003)) and np.all((rot_deg > 0) & (rot_deg < 0.2))
+    assert np.all(np.abs(error_m[1:]) <= 3 * trans_m) and np.all(np.abs(error_deg) <= 3 * rot_deg + 0.006)
+    # with the axis along mount x: y, z are the offsets, the rotation about x the servo zero
+    assert transform.std["trans_m"][1] == pytest.approx(std["offset_u_m"], rel=0.05)
+    assert transform.std["rot_deg"][0] == pytest.approx(math.degrees(std["zero_offset_rad"]), rel=0.05)
+    assert transform.residuals["rms_after_m"] == result.rms_after_m and transform.converged
+    assert transform.verdict is not None and transform.warnings is result.warnings
     summary = result.summary()
-    assert summary["std"]["offset_m"][0] == 0.0 and len(summary["std"]["tilt_deg"]) == 3
-    assert summary["geometry"]["axis"] == [1.0, 0.0, 0.0]
-    assert result.to_record()["kind"] == "sweep_geometry"
+    assert summary["geometry"]["axis"] == [1.0, 0.0, 0.0] and summary["std"] == transform.std
+    assert summary["verdict"] == transform.verdict.to_dict()
+    assert set(summary["parameter_std"]) == set(std)
+    record = result.to_record()
+    assert record["kind"] == "sweep_geometry" and record["converged"]
+    assert TransformResult.from_record(record["transform"]).std == transform.std
 
 
 def test_sweep_calibration_rejects_short_or_empty_sweeps(full_sweep):
@@ -214,8 +234,11 @@ def test_sweep_calibration_rejects_short_or_empty_sweeps(full_sweep):
         calibrate_sweep([(a, p[:5], i[:5]) for a, p, i in scans[:20]])
     # without a floor reference the zero offset is kept, and said so
     result = calibrate_sweep(scans[::4], TRUTH, SweepCalibrationSettings(estimate_tilt=False, jackknife_groups=0))
-    assert "zero_offset_rad" not in result.std and result.geometry.zero_offset_rad == TRUTH.zero_offset_rad
+    assert "zero_offset_rad" not in result.parameter_std and result.geometry.zero_offset_rad == TRUTH.zero_offset_rad
     assert any("zero offset" in w for w in result.warnings)
+    # only the offset perpendicular to the axis is estimated: the transform's rotation is undetermined
+    assert result.std["rot_deg"] == [None, None, None] and result.std["trans_m"][0] is None
+    assert all(s is not None and s > 0 for s in result.std["trans_m"][1:])
 
 
 def test_intensity_image_of_the_sweep(full_sweep):

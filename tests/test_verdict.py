@@ -102,7 +102,8 @@ def test_a_trusted_result_is_accepted_without_confirmation(tmp_path):
 def _sweep(**changes) -> SimpleNamespace:
     result = SimpleNamespace(converged=True, rms_before_m=0.02, rms_after_m=0.004,
                              estimated=["offset_u_m", "tilt_u_rad"],
-                             std={"offset_u_m": 0.0005, "tilt_u_rad": np.radians(0.02)}, covariance=np.eye(2) * 1e-8,
+                             parameter_std={"offset_u_m": 0.0005, "tilt_u_rad": np.radians(0.02)},
+                             covariance=np.eye(2) * 1e-8,
                              halves_difference=np.array([0.0004, np.radians(0.01)]),
                              halves_std=np.array([0.0007, np.radians(0.03)]))
     return SimpleNamespace(**(vars(result) | changes))
@@ -113,6 +114,6 @@ def test_sweep_verdict_weighs_sigmas_and_the_halves():
     disagree = sweep_verdict(_sweep(halves_difference=np.array([0.004, 0.0])))
     assert disagree.level == "check" and "differ by at most 5.7 sigma (offset u)" in disagree.reasons[-1]
     assert sweep_verdict(_sweep(halves_difference=None)).reasons[-1].startswith("no cross-check of the sweep's halves")
-    assert sweep_verdict(_sweep(std={"offset_u_m": 0.003, "tilt_u_rad": 0.0})).level == "check"
+    assert sweep_verdict(_sweep(parameter_std={"offset_u_m": 0.003, "tilt_u_rad": 0.0})).level == "check"
     assert sweep_verdict(_sweep(converged=False)).level == "reject"
     assert sweep_verdict(_sweep(rms_after_m=0.03)).level == "reject"

@@ -32,35 +32,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from backend.core.transforms import make_T
+from backend.core.transforms import make_T, rotate_about_axis
 
 ScanAtAngle = tuple[float, np.ndarray, np.ndarray | None]
 """One step of a sweep: (servo angle as read (rad), points (N, 3) in the scanner frame (m),
 intensity (N,) or None)."""
 
 
-def rotate_about_axis(axis: np.ndarray, angles_rad: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotate each row of ``vectors`` (N, 3) about the unit ``axis`` by its own angle (N,) (rad)."""
-    a = np.asarray(axis, dtype=float)
-    v = np.asarray(vectors, dtype=float)
-    c = np.cos(angles_rad)[:, None]
-    s = np.sin(angles_rad)[:, None]
-    return v * c + np.cross(a, v) * s + np.outer(v @ a, a) * (1.0 - c)
-
-
 def axis_rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """3x3 rotation about the unit ``axis`` by ``angle_rad`` (rad)."""
-    return rotate_about_axis(axis, np.full(3, float(angle_rad)), np.eye(3)).T
-
-
-def perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``u, v`` with ``(u, v, axis)`` right-handed and orthonormal (deterministic)."""
-    a = np.asarray(axis, dtype=float)
-    helper = np.eye(3)[int(np.argmin(np.abs(a)))]
-    u = np.cross(helper, a)
-    u /= np.linalg.norm(u)
-    return u, np.cross(a, u)
+    return Rotation.from_rotvec(float(angle_rad) * np.asarray(axis, dtype=float)).as_matrix()
 
 
 @dataclass
@@ -94,12 +77,6 @@ class SweepGeometry:
     def T_mount_scanner(self, angle_rad: float) -> np.ndarray:
         """4x4 pose of the scanner in mount at servo reading ``angle_rad`` (rad)."""
         return self.T_mount_servo(angle_rad) @ self.T_servo_scanner
-
-    @property
-    def offset_perpendicular_m(self) -> np.ndarray:
-        """(3,) part of the axis-to-optical-centre offset perpendicular to the axis (m, mount/servo frame)."""
-        t = self.T_servo_scanner[:3, 3]
-        return t - self.axis * (t @ self.axis)
 
     # ------------------------------------------------------------------ assembly
     def transform(self, points_scanner: np.ndarray, servo_angles_rad: np.ndarray) -> np.ndarray:

@@ -31,7 +31,9 @@ until the points in the cost stop changing. Parameters, relative to the initial 
 Uncertainty (1-sigma): from the Jacobian at the solution, ``s^2 (J^T J)^-1`` with
 ``s^2 = SSR / (m - n - 3 planes)``, and from a delete-a-group jackknife over contiguous blocks of
 servo steps (what one part of the sweep says against the rest); the larger is reported per
-parameter, as elsewhere in the studio.
+parameter, as elsewhere in the studio. The result also carries the scanner's pose in the mount frame at
+servo reading zero as the studio's one transform result (:class:`~backend.solvers.result.TransformResult`,
+kind ``sweep``), its covariance propagated from the parameters' and NaN where the sweep cannot see it.
 """
 
 from __future__ import annotations
@@ -49,9 +51,11 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 from backend.core.sweep import ScanAtAngle, SweepGeometry, stack_scans
+from backend.core.transforms import params_between
 from backend.solvers.result import (
     ProgressCallback,
     SolveResult,
+    TransformResult,
     finite_or_none,
     jackknife_std,
     no_progress,
@@ -67,6 +71,11 @@ MIN_PLANES = 3
 """Planes needed to pin the offset and tilts."""
 
 PARAM_NAMES = ("offset_u_m", "offset_v_m", "zero_offset_rad", "tilt_u_rad", "tilt_v_rad")
+JACOBIAN_STEP = 1e-6
+"""Central-difference step (m or rad) of the parameters-to-transform Jacobian."""
+DETERMINED_TOLERANCE = 1e-6
+"""A transform parameter farther than this (unit vector's distance) from the span the estimated parameters move
+the pose in is undetermined (NaN)."""
 
 
 def axis_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -119,6 +128,9 @@ class SweepCalibrationSettings:
 
 @dataclass
 class SweepCalibrationResult(SolveResult):
+    """The calibrated geometry, its parameters' uncertainty, and the scanner's pose at servo zero as the one
+    transform result (:attr:`transform`). Not a rig-graph edge: accepting it rewrites the sensor's sweep geometry."""
+
     kind = "sweep_geometry"
 
     geometry: SweepGeometry
@@ -142,13 +154,14 @@ class SweepCalibrationResult(SolveResult):
     points_used: int
     steps: int
     iterations: int
-    converged: bool
-    seconds: float
     u: np.ndarray
     """Unit direction (mount frame) of ``offset_u_m`` and ``tilt_u_rad``."""
     v: np.ndarray
     settings: SweepCalibrationSettings
-    warnings: list[str] = field(default_factory=list)
+    transform: TransformResult
+    """Kind ``sweep``, method ``planes``: ``T_mount_scanner`` at servo reading zero (m), its 6x6 covariance from
+    the parameters' (NaN where the sweep cannot see it: the offset along the axis, and whatever was kept), the
+    plane residuals, convergence, verdict, warnings and seconds. Parent ``mount``, child ``scanner``."""
     halves_difference: np.ndarray | None = None
     """The parameters (``estimated`` order, m or rad) solved from the even servo steps minus those from the odd
     ones, on the same planes: the independent cross-check; None when a half has too few points."""
@@ -156,47 +169,45 @@ class SweepCalibrationResult(SolveResult):
     """1-sigma of ``halves_difference`` (the two halves' Jacobian sigmas combined)."""
 
     @property
-    def std(self) -> dict[str, float]:
-        """1-sigma of each estimated parameter (m or rad)."""
+    def converged(self) -> bool:
+        return self.transform.converged
+
+    @property
+    def warnings(self) -> list[str]:
+        return self.transform.warnings
+
+    @property
+    def seconds(self) -> float:
+        return self.transform.seconds
+
+    @property
+    def std(self) -> dict[str, list[float | None]]:
+        """The transform's 1-sigma: ``trans_m`` (m, mount axes), ``rot_deg`` (deg, about the scanner's axes)."""
+        return self.transform.std
+
+    @property
+    def parameter_std(self) -> dict[str, float]:
+        """1-sigma of each estimated parameter, by its name in :data:`PARAM_NAMES` (m or rad)."""
         s = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
         return {name: float(x) for name, x in zip(self.estimated, s, strict=True)}
 
-    def _offset_std_m(self) -> list[float | None]:
-        """1-sigma of the optical centre along mount x, y, z (m); 0 along the axis (not estimated), None
-        where undetermined."""
-        idx = [self.estimated.index(n) for n in ("offset_u_m", "offset_v_m")]
-        B = np.column_stack([self.u, self.v])
-        cov = B @ self.covariance[np.ix_(idx, idx)] @ B.T
-        return finite_or_none(np.sqrt(np.clip(np.diag(cov), 0, None)))
-
-    def _tilt_std_deg(self) -> list[float | None] | None:
-        if "tilt_u_rad" not in self.estimated:
-            return None
-        idx = [self.estimated.index(n) for n in ("tilt_u_rad", "tilt_v_rad")]
-        B = np.column_stack([self.u, self.v])
-        cov = B @ self.covariance[np.ix_(idx, idx)] @ B.T
-        return finite_or_none(np.degrees(np.sqrt(np.clip(np.diag(cov), 0, None))))
-
     def summary(self) -> dict[str, Any]:
-        std = self.std
+        """The geometry, the transform's ``std`` (m, deg), each parameter's sigma, flatness, verdict and
+        ``transform`` (the :class:`TransformResult` record, parent ``mount``, child ``scanner``)."""
         return {
             "geometry": self.geometry.to_dict(),
-            "std": {
-                "offset_m": self._offset_std_m(),
-                "zero_offset_deg": (finite_or_none([math.degrees(std["zero_offset_rad"])])[0]
-                                    if "zero_offset_rad" in std else None),
-                "tilt_deg": self._tilt_std_deg(),
-            },
+            "std": self.std,
+            "parameter_std": {name: finite_or_none([x])[0] for name, x in self.parameter_std.items()},
             "rms_before_m": self.rms_before_m,
             "rms_after_m": self.rms_after_m,
             "planes": self.planes,
             "seconds": self.seconds,
-            "verdict": sweep_verdict(self).to_dict(),
+            "verdict": None if self.transform.verdict is None else self.transform.verdict.to_dict(),
+            "transform": self.transform.to_record(),
         }
 
     def to_record(self) -> dict[str, Any]:
         record = self.summary()
-        settings = asdict(self.settings)
         record.update(
             kind=self.kind,
             initial=self.initial.to_dict(),
@@ -214,7 +225,7 @@ class SweepCalibrationResult(SolveResult):
             steps=self.steps,
             iterations=self.iterations,
             converged=self.converged,
-            settings=settings,
+            settings=asdict(self.settings),
             warnings=list(self.warnings),
         )
         return record
@@ -240,6 +251,30 @@ class _Model:
         T[:3, :3] = tilt @ T[:3, :3]
         g.zero_offset_rad = self.initial.zero_offset_rad + full["zero_offset_rad"]
         return g
+
+    def T_mount_scanner(self, x: np.ndarray) -> np.ndarray:
+        """4x4 pose of the scanner in mount at servo reading zero (m) with the parameters ``x``."""
+        return self.geometry(x).T_mount_scanner(0.0)
+
+
+def _transform_covariance(model: _Model, x: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """6x6 covariance (:data:`TRANSFORM_PARAMETERS`: m along mount axes, rad about the scanner's axes) of the
+    scanner's pose at servo zero, the parameters' ``covariance`` propagated through a central-difference
+    Jacobian. NaN in the row and column of every transform parameter that is no combination of the estimated
+    ones: the offset along the servo axis always, a rotation when the servo zero or the tilts were kept."""
+    T_hat = model.T_mount_scanner(x)
+    J = np.column_stack([(params_between(T_hat, model.T_mount_scanner(x + d))
+                          - params_between(T_hat, model.T_mount_scanner(x - d))) / (2 * JACOBIAN_STEP)
+                         for d in JACOBIAN_STEP * np.eye(len(x))])
+    with np.errstate(invalid="ignore"):  # an undetermined parameter's inf times a zero derivative
+        cov = J @ covariance @ J.T
+    U, singular, _ = np.linalg.svd(J, full_matrices=False)
+    seen = U[:, singular > 1e-9 * singular.max()]
+    unseen = np.linalg.norm(np.eye(6) - seen @ seen.T, axis=0) > DETERMINED_TOLERANCE
+    cov = np.where(np.isfinite(cov), cov, np.nan)
+    cov[unseen, :] = np.nan
+    cov[:, unseen] = np.nan
+    return cov
 
 
 def _plane_residuals(points: np.ndarray, plane_of: np.ndarray, n_planes: int, fixed_normal: dict[int, np.ndarray]
@@ -560,11 +595,21 @@ def calibrate_sweep(scans: Sequence[ScanAtAngle], initial: SweepGeometry | None 
         halves_std = np.hypot(halves[0][1], halves[1][1])
 
     r0 = residuals(np.zeros(len(x)), planes)
-    progress(1.0, "done")
-    return SweepCalibrationResult(
+    rms_before_m, rms_after_m = float(np.sqrt(np.mean(r0 ** 2))), float(np.sqrt(np.mean(r ** 2)))
+    transform = TransformResult(
+        kind="sweep", method="planes", parent="mount", child="scanner", T_parent_child=model.T_mount_scanner(x),
+        covariance=_transform_covariance(model, x, covariance),
+        residuals={"rms_before_m": rms_before_m, "rms_after_m": rms_after_m, "planes": planes.count,
+                   "points_used": len(planes.index)},
+        diagnostics={"T_init": model.T_mount_scanner(np.zeros(len(x))).tolist(), "servo_axis": initial.axis.tolist(),
+                     "estimated": list(estimated)},
+        settings=asdict(settings), converged=converged, warnings=warnings, seconds=time.monotonic() - started)
+    result = SweepCalibrationResult(
         geometry=model.geometry(x), initial=initial, estimated=estimated, values=x, covariance=covariance,
-        std_jacobian=std_j, std_spread=std_spread, rms_before_m=float(np.sqrt(np.mean(r0 ** 2))),
-        rms_after_m=float(np.sqrt(np.mean(r ** 2))), planes=planes.count, floor_found=planes.floor is not None,
-        points_used=len(planes.index), steps=n_steps, iterations=iterations, converged=converged,
-        seconds=time.monotonic() - started, u=model.u, v=model.v, settings=settings, warnings=warnings,
+        std_jacobian=std_j, std_spread=std_spread, rms_before_m=rms_before_m, rms_after_m=rms_after_m,
+        planes=planes.count, floor_found=planes.floor is not None, points_used=len(planes.index), steps=n_steps,
+        iterations=iterations, u=model.u, v=model.v, settings=settings, transform=transform,
         halves_difference=halves_difference, halves_std=halves_std)
+    transform.verdict = sweep_verdict(result)
+    progress(1.0, "done")
+    return result

@@ -38,7 +38,7 @@ def sweep_verdict(result: SweepCalibrationResult) -> Verdict:
     if result.rms_after_m > result.rms_before_m:
         judge.reject(f"the planes got less flat ({1e3 * result.rms_before_m:.1f} mm before, "
                      f"{1e3 * result.rms_after_m:.1f} mm after)")
-    for name, sigma in result.std.items():
+    for name, sigma in result.parameter_std.items():
         if name.endswith("_m"):
             judge.sigma(LABELS[name], 1e3 * sigma, 1e3 * OFFSET_TOLERANCE_M, "mm")
         else:

@@ -19,11 +19,12 @@ from backend.core.sweep import SweepGeometry
 from backend.core.transforms import to_xyz_ypr
 from backend.services import sweep as sweep_service
 from backend.solvers.sweep_calibration import SweepCalibrationSettings
+from backend.solvers.sweep_checks import LABELS
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_history import ResultHistory
-from studio.verdict_view import ConfirmCheck, verdict_markdown
+from studio.verdict_view import ConfirmCheck
 
 NONE = "(no swept scanner)"
 POINT_SIZE_M = 0.02
@@ -135,8 +136,8 @@ class SweepStep:
     def _show(self) -> None:
         """Redraw the latest sweep (cloud and image) with the picked result's geometry, and its numbers."""
         session, sensor, result_id = self.ctx.session, self.current, self.result_id
-        self.result_text.content = "No sweep calibration yet." if result_id is None else result_markdown(
-            session.result(result_id), session.accepted(sweep_service.slot(sensor)))
+        self.result_text.content = "No sweep calibration yet." if result_id is None else geometry_markdown(
+            session.result(result_id))
         self._drop_cloud()
         if sensor is None or not sweep_service.swept_captures(session, sensor):
             self.image.image = BLANK_IMAGE
@@ -153,33 +154,23 @@ class SweepStep:
             f"/rig/{sensor}/sweep", points.astype(np.float32), colours, point_size=POINT_SIZE_M, precision="float32")
 
 
-def _pm(value: float, sigma: float | None, digits: int) -> str:
-    """``value ± sigma``; a sigma of None (undetermined) or 0 (not estimated, e.g. along the axis) is named."""
-    if sigma is None:
-        return f"{value:.{digits}f} (undetermined)"
-    return f"{value:.{digits}f} " + ("(kept)" if sigma == 0 else f"± {sigma:.{digits}f}")
-
-
-def result_markdown(record: dict, accepted: str | None) -> str:
-    """The calibrated geometry with its 1-sigma, the flatness before and after, and the verdict."""
+def geometry_markdown(record: dict) -> str:
+    """The sweep's own numbers beside the result card: the geometry found (optical centre in the servo frame,
+    the scanner's tilt, the servo's zero) with each estimated parameter's 1-sigma, the planes, the flatness."""
     geometry = SweepGeometry.from_dict(record["geometry"])
-    offset_mm, ypr = to_xyz_ypr(geometry.T_servo_scanner)
-    std = record["std"]
-    offset_std = [None if s is None else 1000 * s for s in std["offset_m"]]
-    tilt_std = std.get("tilt_deg") or [None, None, None]
-    status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    converged = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
-    offsets = " · ".join(f"{axis} {_pm(1000 * v, s, 1)}" for axis, v, s in zip("xyz", offset_mm, offset_std,
-                                                                                 strict=True))
-    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
+    centre_m, ypr = to_xyz_ypr(geometry.T_servo_scanner)
+    sigmas = " · ".join(
+        f"{LABELS[name]} ± " + ("undetermined" if sigma is None else
+                                f"{1000 * sigma:.2f} mm" if name.endswith("_m") else f"{np.degrees(sigma):.3f}°")
+        for name, sigma in record["parameter_std"].items())
+    u, v = (", ".join(f"{c:.2f}" for c in record[k]) for k in ("u", "v"))
     return (
-        f"**{record['id']}** ({status}) · {converged} · {record['planes']} planes"
-        f"{'' if record.get('floor_found') else ' (no floor found)'} · {record['seconds']:.1f} s\n\n"
-        f"{verdict_markdown(record)}\n\n"
-        f"Optical centre from the servo axis (mm): {offsets}\n\n"
-        f"Tilt yaw / pitch / roll (°): {', '.join(f'{np.degrees(a):.3f}' for a in ypr)}"
-        f" (1σ about mount x, y, z: {', '.join('n/a' if s is None else f'{s:.3f}' for s in tilt_std)})\n\n"
-        f"Servo zero offset (°): {_pm(np.degrees(geometry.zero_offset_rad), std.get('zero_offset_deg'), 3)}\n\n"
-        f"Plane RMS: {1000 * record['rms_before_m']:.1f} mm before → **{1000 * record['rms_after_m']:.1f} mm** "
-        f"after{warnings}"
+        f"**Sweep geometry** · {record['planes']} planes{'' if record.get('floor_found') else ' (no floor found)'}"
+        f" · plane RMS {1000 * record['rms_before_m']:.1f} mm before → **{1000 * record['rms_after_m']:.1f} mm** "
+        f"after\n\n"
+        f"Optical centre in the servo frame (mm): {', '.join(f'{1000 * c:.1f}' for c in centre_m)} · "
+        f"tilt yaw / pitch / roll (°): {', '.join(f'{np.degrees(a):.3f}' for a in ypr)} · "
+        f"servo zero offset (°): {np.degrees(geometry.zero_offset_rad):.3f}\n\n"
+        f"Estimated (1σ): {sigmas}; the offset along the servo axis and anything else not named is kept "
+        f"(u = [{u}], v = [{v}] in the mount frame)"
     )
