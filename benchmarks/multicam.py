@@ -103,7 +103,7 @@ def main():
     within = True
     for name in names[1:]:
         error = invert(truth[name]) @ ours.T_ref_cam[name]
-        std = ours.std(name)
+        std = ours.transforms[name].std
         within &= bool(np.all(np.abs(ours.T_ref_cam[name][:3, 3] - truth[name][:3, 3]) < 3 * np.array(std["trans_m"])))
         within &= bool(np.all(np.abs(np.degrees(Rotation.from_matrix(error[:3, :3]).as_rotvec()))
                               < 3 * np.array(std["rot_deg"])))

@@ -21,6 +21,7 @@ from backend.sim.multicam_rig import SimulatedMulticam, simulated_ring
 from backend.solvers.board_detection import detect_board
 from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.solvers.multicam_graph import Observation, observation_graph, spanning_tree
+from backend.solvers.result import TransformResult
 
 NOISE_PX = 0.3
 STEREO_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
@@ -79,7 +80,7 @@ def test_errors_stay_within_three_sigma_of_the_truth(ring, ring_result):
         error = invert(truth[name]) @ ring_result.T_ref_cam[name]
         translation_error_m = ring_result.T_ref_cam[name][:3, 3] - truth[name][:3, 3]  # reference axes
         rotation_error_deg = np.degrees(Rotation.from_matrix(error[:3, :3]).as_rotvec())  # about the camera's axes
-        std = ring_result.std(name)
+        std = ring_result.transforms[name].std
         z = np.concatenate([translation_error_m / std["trans_m"], rotation_error_deg / std["rot_deg"]])
         assert np.all(np.abs(z) < 3), (name, z)
         z_scores.append(z)
@@ -92,9 +93,36 @@ def test_errors_stay_within_three_sigma_of_the_truth(ring, ring_result):
     assert correlation.shape == (30, 30) and np.allclose(np.diag(correlation), 1.0)
 
 
+def test_each_camera_is_one_transform_result(ring, ring_result):
+    """Every camera but the reference is one TransformResult from the reference, its record read back alike; the
+    CLI's summary still holds every camera (the reference's identity and zero sigmas)."""
+    names = list(ring.cameras)
+    assert list(ring_result.transforms) == names[1:]
+    record = ring_result.to_record()
+    assert "T_ref_cam" not in record and list(record["verdict"]) == names
+    for name in names[1:]:
+        transform = ring_result.transforms[name]
+        assert (transform.kind, transform.method, transform.parent, transform.child) == ("multicam", "bundle",
+                                                                                         "cam0", name)
+        assert transform.residuals["rms_px"] == ring_result.rms_px[name] and transform.converged
+        assert transform.verdict is not None and transform.verdict == ring_result.verdicts[name]
+        assert transform.diagnostics["pairs"] and all(name in (p["a"], p["b"]) for p in transform.diagnostics["pairs"])
+        back = TransformResult.from_record(record["transforms"][name])
+        np.testing.assert_array_equal(back.T_parent_child, transform.T_parent_child)
+        np.testing.assert_allclose(back.covariance, transform.covariance, rtol=0, atol=0)
+        assert back.std == transform.std and back.verdict == transform.verdict
+    summary = ring_result.summary()
+    assert set(summary) == {"cameras", "T_ref_cam", "std", "rms_px", "seconds", "verdict"}
+    assert list(summary["T_ref_cam"]) == list(summary["std"]) == list(summary["verdict"]) == names
+    assert summary["T_ref_cam"]["cam0"] == np.eye(4).tolist()
+    assert summary["std"]["cam0"] == {"trans_m": [0.0] * 3, "rot_deg": [0.0] * 3}
+    assert summary["std"]["cam3"] == ring_result.transforms["cam3"].std
+
+
 def test_sigmas_grow_along_the_chain(ring_result):
     """cam5 is related to cam0 only through four other cameras, so it is less certain than cam1."""
-    assert np.linalg.norm(ring_result.std("cam5")["trans_m"]) > 2 * np.linalg.norm(ring_result.std("cam1")["trans_m"])
+    std = {name: np.linalg.norm(ring_result.transforms[name].std["trans_m"]) for name in ("cam1", "cam5")}
+    assert std["cam5"] > 2 * std["cam1"]
 
 
 def test_outlier_views_and_corners_are_flagged_and_do_not_pull(ring, ring_observations, ring_result):
@@ -117,7 +145,8 @@ def test_outlier_views_and_corners_are_flagged_and_do_not_pull(ring, ring_observ
     assert any("left out as outliers" in w for w in result.warnings)
     for name in ring.cameras:  # the rig is as without the damage, well within its sigmas
         difference = invert(ring_result.T_ref_cam[name]) @ result.T_ref_cam[name]
-        assert np.linalg.norm(difference[:3, 3]) < 0.3 * np.linalg.norm(ring_result.std(name)["trans_m"]) + 1e-9
+        std_m = np.linalg.norm(ring_result.transforms[name].std["trans_m"]) if name != "cam0" else 0.0
+        assert np.linalg.norm(difference[:3, 3]) < 0.3 * std_m + 1e-9
 
 
 def test_intrinsics_are_refined_with_the_rig(ring, ring_observations):
@@ -211,7 +240,7 @@ def test_agrees_with_opencv_stereo_calibrate_on_real_pairs(stereo_views):
     difference = T_right_left @ T_left_right
     baseline_m = np.linalg.norm(T_left_right[:3, 3])
     print(f"baseline ours {baseline_m * 1e3:.4f} mm, OpenCV {np.linalg.norm(T) * 1e3:.4f} mm; "
-          f"rms ours {result.rms_px}, OpenCV {rms_cv:.4f} px; std {result.std('right')}")
+          f"rms ours {result.rms_px}, OpenCV {rms_cv:.4f} px; std {result.transforms['right'].std}")
     assert baseline_m == pytest.approx(np.linalg.norm(T), abs=1e-6)  # 1 um of 83 mm
     assert np.linalg.norm(difference[:3, 3]) < 1e-6
     assert _rotation_deg(difference[:3, :3]) < 1e-4
@@ -219,9 +248,9 @@ def test_agrees_with_opencv_stereo_calibrate_on_real_pairs(stereo_views):
     assert combined_rms == pytest.approx(rms_cv, rel=1e-4)
     # The robust defaults (soft-L1, far corners dropped) see slightly different data: within 2 sigma of OpenCV's.
     default = calibrate_multicam(cameras, STEREO_BOARD, observations)
-    assert np.linalg.norm(default.T_ref_cam["right"][:3, 3]) == pytest.approx(baseline_m, abs=2 * default.std("right")[
-        "trans_m"][0])
+    assert np.linalg.norm(default.T_ref_cam["right"][:3, 3]) == pytest.approx(
+        baseline_m, abs=2 * default.transforms["right"].std["trans_m"][0])
     # OpenCV's stereo sample's rough expectation: about 3.3 squares, mostly along -x of the right camera.
     assert 0.08 < baseline_m < 0.087 and T_left_right[0, 3] > 0.08
-    std = result.std("right")
+    std = result.transforms["right"].std
     assert max(std["trans_m"]) < 1e-3 and max(std["rot_deg"]) < 0.2

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import fresh_demo, wait_job
@@ -27,6 +28,7 @@ from backend.exports.kalibr_camchain import load_kalibr_camchain
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.exports.ros_camera_info import load_camera_info, write_camera_info
 from backend.services import multicam as service
+from backend.services import rig as rig_service
 from backend.services.intrinsics import calibrate_folder
 from backend.services.multicam_capture import capture_set
 from backend.sim.demo_rig import demo_rig
@@ -180,26 +182,51 @@ def test_sets_are_solved_accepted_and_reverted_through_the_api(client):
 
     # neither camera had intrinsics: the verdict is 'check', and accepting it needs the confirmation
     assert record["verdict"]["left"]["level"] == record["verdict"]["right"]["level"] == "check", record["verdict"]
+    (transform,) = record["transforms"].values()
+    assert (transform["kind"], transform["method"], transform["parent"], transform["child"]) == (
+        "multicam", "bundle", "left", "right")
+    assert transform["verdict"] == record["verdict"]["right"] and len(transform["covariance"]) == 6
+    T_left_right = np.array(transform["T_parent_child"])
     response = client.post("/api/sessions/stereo/multicam/accept", json={"result_id": record["id"]})
     assert response.status_code == 409 and response.json()["error"]["input"] == "confirm", response.text
     response = client.post("/api/sessions/stereo/multicam/accept", json={"result_id": record["id"], "confirm": True})
     assert response.status_code == 200, response.text
     assert response.json()["accepted"][service.slot(["right", "left"])] == record["id"]
+    (edge,) = [e for e in response.json()["rig_update"]["rig"]["edges"] if e["kind"] == "multicam"]
+    assert (edge["parent"], edge["child"], edge["result_id"]) == ("left", "right", record["id"])
     session = client.app.state.studio.store.get("stereo")
-    assert np.allclose(session.rig.T_a_b("left", "right"), record["T_ref_cam"]["right"], atol=1e-12)
+    assert np.allclose(session.rig.T_a_b("left", "right"), T_left_right, atol=1e-5)
     assert session.rig.get("right").intrinsics.K.tolist() == record["cameras"]["right"]["K"]
-    assert session.rig.get("right").covariance is not None
+    assert session.rig.get("left").intrinsics.K.tolist() == record["cameras"]["left"]["K"]
 
     # A second solve from fewer sets, the other way round, is kept but not accepted: the rig keeps the first.
     other = _solve(client, cameras=["right", "left"], set_names=[s["name"] for s in sets[:8]])
     assert other["reference"] == "right" and other["inputs"] == [s["name"] for s in sets[:8]]
-    assert np.allclose(session.rig.T_a_b("left", "right"), record["T_ref_cam"]["right"], atol=1e-12)
-    T_other = invert(np.array(other["T_ref_cam"]["left"]))  # left -> right from the right's reference
-    assert np.linalg.norm(T_other[:3, 3] - np.array(record["T_ref_cam"]["right"])[:3, 3]) < 1e-3
+    assert list(other["transforms"]) == ["left"]
+    assert np.allclose(session.rig.T_a_b("left", "right"), T_left_right, atol=1e-5)
+    T_other = invert(service.record_T_ref_cam(other)["left"])  # left -> right from the right's reference
+    assert np.linalg.norm(T_other[:3, 3] - T_left_right[:3, 3]) < 1e-3
     client.post("/api/sessions/stereo/multicam/accept", json={"result_id": other["id"], "confirm": True})
-    assert np.allclose(session.rig.T_a_b("left", "right"), T_other, atol=1e-9)
+    assert np.allclose(session.rig.T_a_b("left", "right"), T_other, atol=1e-5)
     client.post("/api/sessions/stereo/multicam/accept", json={"result_id": record["id"], "confirm": True})  # revert
-    assert np.allclose(session.rig.T_a_b("left", "right"), record["T_ref_cam"]["right"], atol=1e-12)
+    assert np.allclose(session.rig.T_a_b("left", "right"), T_left_right, atol=1e-5)
+
+    # The stereo check of the pair on one set, as the studio shows it, from the API: the solved rig puts the
+    # corners on each other's epipolar lines and on the same rectified rows.
+    query = {"left": "left", "right": "right", "set": sets[3]["name"]}
+    check = client.get(f"/api/sessions/stereo/multicam/results/{record['id']}/stereo", params=query).json()
+    assert check["corners"] == 54 and check["epipolar_rms_px"] < 0.5 and check["row_offset_rms_px"] < 0.5, check
+    assert check["vertical"] is False and 0.080 < check["baseline_m"] < 0.087 and check["no_preview"] is None
+    preview = client.get(f"/api/sessions/stereo/multicam/results/{record['id']}/stereo.png", params=query)
+    assert preview.status_code == 200 and preview.headers["content-type"] == "image/png"
+    assert cv2.imdecode(np.frombuffer(preview.content, np.uint8), cv2.IMREAD_COLOR).shape == (480, 1280, 3)
+    # A wrong camera in the pair is named; so is a set the pair did not share.
+    response = client.get(f"/api/sessions/stereo/multicam/results/{record['id']}/stereo",
+                          params=query | {"right": "middle"})
+    assert response.status_code == 422 and response.json()["error"]["input"] == "middle"
+    response = client.get(f"/api/sessions/stereo/multicam/results/{other['id']}/stereo",
+                          params=query | {"set": sets[12]["name"]})
+    assert response.status_code == 422 and response.json()["error"]["input"] == sets[12]["name"]
 
 
 def test_api_refusals_name_the_input(client):
@@ -226,23 +253,24 @@ def test_the_demo_sets_solve_the_stereo_partner_near_the_truth(tmp_path, demo_te
     assert session.rig.get("cam_right").intrinsics is None
     result_id, result = service.solve_session(session, ["cam_front", "cam_right"])
     truth = demo_rig().T_a_b("cam_front", "cam_right")
-    error = invert(truth) @ result.T_ref_cam["cam_right"]
-    std = result.std("cam_right")
+    transform = result.transforms["cam_right"]
+    error = invert(truth) @ transform.T_parent_child
+    std = transform.std
     print(f"demo cam_right: {np.linalg.norm(error[:3, 3]) * 1e3:.2f} mm, "
           f"{np.degrees(Rotation.from_matrix(error[:3, :3]).magnitude()):.3f} deg off; sigma {std}")
     assert result.converged and result.settings.estimate_intrinsics == ["cam_right"]
-    assert np.all(np.abs(result.T_ref_cam["cam_right"][:3, 3] - truth[:3, 3]) < 3 * np.array(std["trans_m"]) + 1e-4)
+    assert np.all(np.abs(transform.T_parent_child[:3, 3] - truth[:3, 3]) < 3 * np.array(std["trans_m"]) + 1e-4)
     assert np.all(np.abs(np.degrees(Rotation.from_matrix(error[:3, :3]).as_rotvec())) < 3 * np.array(std["rot_deg"]))
     assert np.linalg.norm(error[:3, 3]) < 0.005 and np.degrees(Rotation.from_matrix(error[:3, :3]).magnitude()) < 0.5
     K_true = demo_rig().get("cam_right").intrinsics.K
     assert np.abs(result.cameras["cam_right"].K - K_true).max() < 10.0  # px, from 10 views of the yard
     # cam_right's lens came from the 10 sets alone: never trusted, and step 3 is named as the remedy.
-    verdict = result.verdicts["cam_right"]
+    verdict = transform.verdict
     print("demo cam_right verdict:", verdict, result.intrinsics_projection_sigma_px)
     # Its projection sigma in the image corners is tens of pixels (the lens is that far off there): reject.
     assert result.intrinsics_projection_sigma_px["cam_right"] > 10.0
     assert verdict.level == "reject" and any("step 3" in reason for reason in verdict.reasons), verdict
     assert result.summary()["verdict"]["cam_right"] == verdict.to_dict()
     with pytest.raises(InputError, match="judged 'reject' and cannot be accepted"):
-        service.accept(session, result_id, confirm=True)
+        rig_service.accept(session, result_id, confirm=True)
     assert session.accepted(service.slot(["cam_front", "cam_right"])) is None

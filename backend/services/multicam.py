@@ -9,8 +9,13 @@ Two sources of board views seen together:
 A camera with intrinsics (accepted in its own step, or a ``camera.yaml``) keeps them
 unless asked to refine; a camera without any is first calibrated from its own views
 and then refined with the rig. Results are kept under the reference camera (the first
-named) with kind ``multicam``; accepting one mounts every other camera relative to the
-reference, and a later or earlier result of the same cameras replaces or reverts it.
+named) with kind ``multicam``: ``"transforms": {CAMERA: TransformResult record}`` (parent the
+reference) beside every camera's intrinsics. The rig service (:mod:`backend.services.rig`)
+accepts one as an edge per camera and calls :func:`apply_refined_intrinsics` for the lenses
+refined with the rig.
+
+The stereo check of a result (:func:`stereo_check`: epipolar error, rectification, row offsets
+and a rectified preview of one pair on one set) is here too, so the studio and the API make it alike.
 """
 
 from __future__ import annotations
@@ -28,18 +33,20 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
+from backend.core.transforms import invert
 from backend.devices.image_folder import image_files
 from backend.devices.image_io import read_image
 from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as intrinsics_service
 from backend.services.intrinsics import check_camera
 from backend.services.lidar_camera_pairs import check_image_size
-from backend.services.multicam_capture import stored_sets
-from backend.solvers.board_detection import Detection, detect_board
+from backend.services.multicam_capture import MulticamSet, stored_sets
+from backend.solvers.board_detection import Detection, common_corners, detect_board
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.solvers.multicam_graph import Observation
-from backend.solvers.result import ProgressCallback, no_progress
+from backend.solvers.result import ProgressCallback, TransformResult, no_progress
+from backend.solvers.stereo import Rectification, epipolar_errors, rectified_preview, rectified_row_errors, rectify
 from backend.store.session import Session
 
 KIND = "multicam"
@@ -104,11 +111,10 @@ def result_rig(result: MulticamResult) -> Rig:
     """The result as a rig rooted at the reference camera: each camera's ``T_ref_cam`` with its covariance."""
     rig = Rig(root=result.reference)
     rig.get(result.reference).kind, rig.get(result.reference).intrinsics = "camera", result.cameras[result.reference]
-    for name, T in result.T_ref_cam.items():
-        if name != result.reference:
-            covariance = result.covariance[name]
-            rig.add(Frame(name, result.reference, T, kind="camera", intrinsics=result.cameras[name],
-                          covariance=covariance if np.isfinite(covariance).all() else None))
+    for name, transform in result.transforms.items():
+        covariance = transform.covariance if np.isfinite(transform.covariance).all() else None
+        rig.add(Frame(name, result.reference, transform.T_parent_child, kind="camera",
+                      intrinsics=result.cameras[name], covariance=covariance))
     return rig
 
 
@@ -152,31 +158,115 @@ def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bo
     return session.add_result(cameras[0], record, inputs=used), result
 
 
-def apply_multicam(rig: Rig, record: dict[str, Any]) -> None:
-    """Mount every camera of a multicam result relative to its reference, and give the refined ones their
-    refined intrinsics."""
+def apply_refined_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
+    """Give the cameras whose intrinsics a multicam result refined (``settings.estimate_intrinsics``) those
+    intrinsics; the rig service calls it when it accepts the result (the poses are its edges)."""
     if record.get("kind") != KIND:
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
-    if not record.get("converged", False):
-        raise InputError(f"result {record['id']} did not converge and cannot be accepted: "
-                         + "; ".join(record.get("warnings", [])), "result")
-    reference = record["reference"]
-    for name, T in record["T_ref_cam"].items():
-        if name == reference:
-            continue
-        covariance = record["covariance"][name]
-        rig.set_relative(name, reference, np.array(T, dtype=float),
-                         None if any(v is None for row in covariance for v in row) else np.array(covariance))
+        raise InputError(f"result {record.get('id')} is a {record.get('kind')} result, not {KIND}", "result")
     for name in record["settings"]["estimate_intrinsics"]:
         rig.get(name).intrinsics = CameraIntrinsics.from_dict(record["cameras"][name])
 
 
-def accept(session: Session, result_id: str, confirm: bool = False) -> None:
-    """Make a stored multicam result the rig's (also how a user reverts to an earlier one)."""
+def record_transforms(record: dict[str, Any]) -> dict[str, TransformResult]:
+    """A stored multicam result's per-camera transforms (parent the reference camera), in camera order."""
+    return {name: TransformResult.from_record(t) for name, t in record["transforms"].items()}
+
+
+def record_T_ref_cam(record: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Every camera's ``T_ref_cam`` (4x4, m) of a stored result, the reference's identity included."""
+    reference = record["reference"]
+    return {name: np.eye(4) if name == reference else np.array(record["transforms"][name]["T_parent_child"])
+            for name in record["cameras"]}
+
+
+# --------------------------------------------------------------------------------------------
+# The stereo check of one pair
+
+
+@dataclass
+class StereoCheck:
+    """One pair of a multicam result on one of its sets: how well the solved rig and lenses explain the corners
+    both cameras saw (``left`` is the first camera of the pair, ``right`` the second)."""
+
+    result_id: str
+    set_name: str
+    left: str
+    right: str
+    corners: int
+    """Corners seen by both cameras in the set."""
+    epipolar_rms_px: float
+    epipolar_max_px: float
+    """Distance (px) of each right corner from the epipolar line of its left corner, under the solved rig."""
+    rectification: Rectification | None
+    """None when the pair cannot be rectified together (``no_preview`` says why)."""
+    row_offset_rms_px: float | None
+    """RMS (px) of the corners' offset across the rectified images (rows, or columns for a vertical pair)."""
+    preview_bgr: np.ndarray | None
+    """Both rectified images side by side (or stacked) with lines every ``line_spacing_px`` (BGR)."""
+    no_preview: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form (without the images): numbers in px and m."""
+        rect = self.rectification
+        return {"result_id": self.result_id, "set": self.set_name, "left": self.left, "right": self.right,
+                "corners": self.corners, "epipolar_rms_px": self.epipolar_rms_px,
+                "epipolar_max_px": self.epipolar_max_px, "row_offset_rms_px": self.row_offset_rms_px,
+                "vertical": None if rect is None else rect.vertical,
+                "baseline_m": None if rect is None else rect.baseline_m, "no_preview": self.no_preview}
+
+
+def _result_pair(record: dict[str, Any], left: str, right: str) -> None:
+    """Refuse a pair that is not two cameras of the result that saw the board together."""
+    for name in (left, right):
+        if name not in record["cameras"]:
+            raise InputError(f"camera {name} is not in result {record['id']} (cameras "
+                             f"{', '.join(record['cameras'])})", name)
+    if not any({p["a"], p["b"]} == {left, right} for p in record.get("pairs", [])):
+        raise InputError(f"cameras {left} and {right} never saw the board together in result {record['id']}", right)
+
+
+def stereo_sets(session: Session, record: dict[str, Any], left: str, right: str) -> dict[str, MulticamSet]:
+    """The result's sets (those it used) in which both cameras of the pair saw the board, by name."""
+    _result_pair(record, left, right)
+    used = set(record["T_ref_board"])
+    return {s.name: s for s in stored_sets(session, [left, right])
+            if s.name in used and {left, right} <= set(s.cameras_with_board)}
+
+
+def stereo_check(session: Session, result_id: str, left: str, right: str, set_name: str,
+                 line_spacing_px: int = 64) -> StereoCheck:
+    """The stereo check of cameras ``left`` and ``right`` of a stored multicam result on its set ``set_name``.
+
+    The epipolar errors need only the rig and the lenses; the rectification also needs both cameras to share
+    one model and image size, and 8-bit images (else ``no_preview`` says why and only the errors are given)."""
     record = session.result(result_id)
     if record.get("kind") != KIND:
         raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    session.accept(slot(record["camera_order"]), result_id, apply_multicam, confirm)
+    found = stereo_sets(session, record, left, right).get(set_name)
+    if found is None:
+        raise InputError(f"set {set_name} is not one of result {result_id}'s sets in which {left} and {right} both "
+                         "saw the board", set_name)
+    cameras = {n: CameraIntrinsics.from_dict(record["cameras"][n]) for n in (left, right)}
+    T_ref_cam = record_T_ref_cam(record)
+    T_left_right = invert(T_ref_cam[left]) @ T_ref_cam[right]
+    left_px, right_px = common_corners(*(Detection.from_dict(found.captures[n].detection) for n in (left, right)))
+    errors = epipolar_errors(cameras[left], cameras[right], T_left_right, left_px, right_px)
+    check = StereoCheck(result_id, set_name, left, right, len(left_px), _rms(errors), float(errors.max(initial=0.0)),
+                        None, None, None)
+    try:
+        rect = rectify(cameras[left], cameras[right], T_left_right)
+        images = [session.capture_image(n, found.captures[n].id) for n in (left, right)]
+        check.preview_bgr = rectified_preview(rect, *images, line_spacing_px)
+    except InputError as exc:
+        check.no_preview = exc.message
+        return check
+    check.rectification = rect
+    check.row_offset_rms_px = _rms(rectified_row_errors(rect, left_px, right_px))
+    return check
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else 0.0
 
 
 # --------------------------------------------------------------------------------------------

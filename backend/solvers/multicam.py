@@ -24,6 +24,11 @@ the problem is solved again. A last solve re-linearised at the answer gives the
 covariance ``sigma^2 (J^T J)^-1`` (``sigma^2`` from the residuals; the noise model:
 independent isotropic Gaussian corner noise), from which each camera's 1-sigma and the
 correlations come.
+
+Result. :class:`MulticamResult` holds one :class:`~backend.solvers.result.TransformResult` per camera but the
+reference (``kind`` ``multicam``, ``method`` ``bundle``, parent the reference, child the camera), so the rig
+graph, the result card and the report read a camera's pose as they read any other solver's; the intrinsics, the
+per-view residuals, the observation graph and the pair checks stay with the rig.
 """
 
 from __future__ import annotations
@@ -50,7 +55,14 @@ from backend.solvers.multicam_graph import (
     initial_rig,
     observation_graph,
 )
-from backend.solvers.result import ProgressCallback, SolveResult, finite_or_none, no_progress, transform_std
+from backend.solvers.result import (
+    ProgressCallback,
+    SolveResult,
+    TransformResult,
+    finite_or_none,
+    no_progress,
+    transform_std,
+)
 
 MIN_CORNERS = 4
 """Fewest corners for an observation to be used (PnP needs 4)."""
@@ -99,16 +111,16 @@ class FrameResidual:
 
 @dataclass
 class MulticamResult(SolveResult):
-    """The rig of cameras, each relative to the reference (the first camera named)."""
+    """The rig of cameras, each relative to the reference (the first camera named): one
+    :class:`~backend.solvers.result.TransformResult` per other camera (kind ``multicam``, method ``bundle``,
+    parent the reference, child the camera), with every camera's intrinsics and the joint solve's diagnostics."""
 
     kind = "multicam"
 
     reference: str
     cameras: dict[str, CameraIntrinsics]
-    T_ref_cam: dict[str, np.ndarray]
-    """4x4 (m): maps points in each camera's optical frame into the reference camera's optical frame."""
-    covariance: dict[str, np.ndarray]
-    """6x6 per camera over [t (m, reference axes), r (rad, about the camera's axes)]; zeros for the reference."""
+    transforms: dict[str, TransformResult]
+    """Every non-reference camera's pose in the reference camera's optical frame, with its 6x6 covariance."""
     intrinsics_std: dict[str, dict[str, float | None]]
     """1-sigma of the refined intrinsics (px, or unitless for distortion terms) of cameras that were estimated."""
     intrinsics_projection_sigma_px: dict[str, float]
@@ -127,34 +139,57 @@ class MulticamResult(SolveResult):
     warnings: list[str] = field(default_factory=list)
     pairs: list[dict[str, Any]] = field(default_factory=list)
     """:func:`~backend.solvers.multicam_checks.pair_checks`: baseline and epipolar RMS of each pair that shared sets."""
-    verdicts: dict[str, Verdict] = field(default_factory=dict)
-    """:func:`~backend.solvers.multicam_checks.camera_verdicts`: how far each camera can be trusted."""
+    reference_verdict: Verdict | None = None
+    """The reference camera's verdict (its pose fixes the gauge: convergence and its pair checks); the other
+    cameras' verdicts are their transforms'."""
 
-    def std(self, camera: str) -> dict[str, list[float | None]]:
-        """1-sigma of ``T_ref_cam[camera]``: ``trans_m`` (m, reference axes), ``rot_deg`` (deg, camera axes)."""
-        return transform_std(self.covariance[camera])
+    @property
+    def T_ref_cam(self) -> dict[str, np.ndarray]:
+        """4x4 (m) per camera, in camera order: maps points in its optical frame into the reference camera's
+        (the identity for the reference)."""
+        return {name: np.eye(4) if name == self.reference else self.transforms[name].T_parent_child
+                for name in self.cameras}
+
+    @property
+    def verdicts(self) -> dict[str, Verdict]:
+        """How far each camera can be trusted (:func:`~backend.solvers.multicam_checks.camera_verdicts`), in camera
+        order; empty until judged."""
+        verdicts = {name: self.reference_verdict if name == self.reference else self.transforms[name].verdict
+                    for name in self.cameras}
+        return {name: v for name, v in verdicts.items() if v is not None}
+
+    def set_verdicts(self, verdicts: dict[str, Verdict]) -> None:
+        """Give the reference and every transform its verdict (one per camera)."""
+        self.reference_verdict = verdicts[self.reference]
+        for name, transform in self.transforms.items():
+            transform.verdict = verdicts[name]
 
     def summary(self) -> dict[str, Any]:
-        """The ``multicam`` CLI JSON of ``conventions.md``."""
+        """The ``multicam`` CLI JSON of ``conventions.md``: every camera, the reference's identity and zero sigmas
+        included."""
+        zero = transform_std(np.zeros((6, 6)))
         return {"cameras": {name: camera.to_dict() for name, camera in self.cameras.items()},
                 "T_ref_cam": {name: T.tolist() for name, T in self.T_ref_cam.items()},
-                "std": {name: self.std(name) for name in self.cameras},
+                "std": {name: zero if name == self.reference else self.transforms[name].std for name in self.cameras},
                 "rms_px": dict(self.rms_px),
                 "seconds": self.seconds,
                 "verdict": {name: verdict.to_dict() for name, verdict in self.verdicts.items()}}
 
     def to_record(self) -> dict[str, Any]:
-        record = self.summary()
-        record.update(kind=self.kind, reference=self.reference, board=str(self.board), settings=asdict(self.settings),
-                      covariance={name: [finite_or_none(row) for row in cov] for name, cov in self.covariance.items()},
-                      intrinsics_std=self.intrinsics_std, pairs=self.pairs,
-                      intrinsics_projection_sigma_px={name: finite_or_none([sigma])[0] for name, sigma
-                                                      in self.intrinsics_projection_sigma_px.items()},
-                      frames=[f.to_record() for f in self.frames],
-                      T_ref_board={name: T.tolist() for name, T in self.T_ref_board.items()},
-                      graph=self.graph.to_record(), correlation=self.correlation, converged=self.converged,
-                      warnings=list(self.warnings))
-        return record
+        """``"transforms": {CAMERA: TransformResult record}`` with every camera's intrinsics, RMS and verdict (the
+        reference's too) and the joint solve's diagnostics (frames, board poses, graph, pair checks, correlation)."""
+        return {"kind": self.kind, "reference": self.reference,
+                "cameras": {name: camera.to_dict() for name, camera in self.cameras.items()},
+                "transforms": {name: t.to_record() for name, t in self.transforms.items()},
+                "rms_px": dict(self.rms_px), "seconds": self.seconds,
+                "verdict": {name: verdict.to_dict() for name, verdict in self.verdicts.items()},
+                "board": str(self.board), "settings": asdict(self.settings), "intrinsics_std": self.intrinsics_std,
+                "intrinsics_projection_sigma_px": {name: finite_or_none([sigma])[0] for name, sigma
+                                                   in self.intrinsics_projection_sigma_px.items()},
+                "pairs": self.pairs, "frames": [f.to_record() for f in self.frames],
+                "T_ref_board": {name: T.tolist() for name, T in self.T_ref_board.items()},
+                "graph": self.graph.to_record(), "correlation": self.correlation, "converged": self.converged,
+                "warnings": list(self.warnings)}
 
 
 def _free_intrinsics(camera: CameraIntrinsics) -> list[str]:
@@ -566,7 +601,9 @@ def calibrate_multicam(cameras: dict[str, CameraIntrinsics], board: BoardSpec, o
     progress(0.9, "uncertainty at the answer")
     result = _result(problem, solve, outcomes, board, settings, time.perf_counter() - started)
     result.pairs = pair_checks(result, observations)
-    result.verdicts = camera_verdicts(result)
+    for name, transform in result.transforms.items():
+        transform.diagnostics["pairs"] = [p for p in result.pairs if name in (p["a"], p["b"])]
+    result.set_verdicts(camera_verdicts(result))
     return result
 
 
@@ -576,9 +613,6 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
     T_ref_cam, T_ref_board, cameras = problem.answer()
     # The rig covariance is over [camera poses | free intrinsics]: the step layout without the board poses.
     cov = solve.normal.rig_covariance(solve.residuals.size)
-    covariance = {problem.names[0]: np.zeros((6, 6))}
-    for i, name in enumerate(problem.names[1:]):
-        covariance[name] = cov[6 * i:6 * i + 6, 6 * i:6 * i + 6]
     board_params = 6 * len(problem.frames)
     intrinsics_std, projection_sigma_px = {}, {}
     for name, where in problem.intrinsics_offsets().items():
@@ -608,7 +642,17 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
     if flagged:
         warnings.append(f"{len(flagged)} views left out as outliers: "
                         + ", ".join(f"{f.camera}@{f.frame}" for f in flagged[:8]) + ("..." if len(flagged) > 8 else ""))
+    reference = problem.names[0]
+    transforms = {}
+    for i, name in enumerate(problem.names[1:]):
+        views = [f for f in frames if f.camera == name]
+        transforms[name] = TransformResult(
+            kind="multicam", method="bundle", parent=reference, child=name, T_parent_child=T_ref_cam[name],
+            covariance=cov[6 * i:6 * i + 6, 6 * i:6 * i + 6].copy(),
+            residuals={"rms_px": rms_px[name], "reference_rms_px": rms_px[reference]},
+            diagnostics={"views_used": sum(not f.flagged for f in views),
+                         "views_flagged": sum(f.flagged for f in views), "intrinsics_estimated": name in problem.free},
+            settings=asdict(settings), converged=converged, warnings=list(warnings), seconds=seconds)
     graph = observation_graph(problem.names, [(o.camera, o.frame) for o in problem.observations])
-    return MulticamResult(problem.names[0], cameras, T_ref_cam, covariance, intrinsics_std, projection_sigma_px,
-                          rms_px, frames,
+    return MulticamResult(reference, cameras, transforms, intrinsics_std, projection_sigma_px, rms_px, frames,
                           T_ref_board, graph, _correlation(problem, cov), board, settings, converged, seconds, warnings)

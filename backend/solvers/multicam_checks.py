@@ -81,7 +81,8 @@ def camera_verdicts(result: MulticamResult) -> dict[str, Verdict]:
         if name == result.reference:
             judge.note("the reference camera: its pose fixes the rig's frame")
         else:
-            judge_transform_sigmas(judge, result.std(name), TRANSLATION_TOLERANCE_M, ROTATION_TOLERANCE_DEG)
+            judge_transform_sigmas(judge, result.transforms[name].std, TRANSLATION_TOLERANCE_M,
+                                   ROTATION_TOLERANCE_DEG)
         if name in result.intrinsics_projection_sigma_px:
             sigma_px = result.intrinsics_projection_sigma_px[name]
             judge.sigma(f"{name}'s lens (projection across the image, estimated in the rig)", sigma_px,

@@ -1,15 +1,19 @@
-"""Multi-camera rigs: synchronised sets (captured or imported from a bag), joint solves and acceptance."""
+"""Multi-camera rigs: synchronised sets (captured or imported from a bag), joint solves, the stereo check of a pair
+and acceptance (through the one rig service)."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Query, Response
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, MulticamBagImport, MulticamSetCapture, MulticamSolveRequest
+from backend.core.errors import InputError
+from backend.devices.image_io import encode_png
 from backend.services import multicam as service
 from backend.services import multicam_capture as capture_service
+from backend.services import rig as rig_service
 
 router = APIRouter(prefix="/sessions/{name}/multicam", tags=["multicam"])
 
@@ -60,6 +64,33 @@ def solve(body: MulticamSolveRequest, session: deps.SessionDep, jobs: deps.JobsD
 
 @router.post("/accept")
 def accept(body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    """Mount the result's cameras relative to its reference (an older result reverts)."""
-    service.accept(session, body.result_id, body.confirm)
-    return session.info()
+    """Accept a multicam result: each camera becomes an edge from the reference in the rig graph, refined lenses
+    become the cameras' (an older result reverts); the answer is the session with the rig update."""
+    record = session.result(body.result_id)
+    if record.get("kind") != service.KIND:
+        raise InputError(f"result {body.result_id} is a {record.get('kind')} result, not {service.KIND}", "result")
+    update = rig_service.accept(session, body.result_id, confirm=body.confirm, revert=body.revert)
+    return session.info() | {"rig_update": update.to_dict()}
+
+
+Camera = Annotated[str, Query(description="a camera of the result")]
+SetName = Annotated[str, Query(alias="set", description="a set of the result in which both cameras saw the board")]
+
+
+@router.get("/results/{result_id}/stereo")
+def stereo(result_id: str, left: Camera, right: Camera, set_name: SetName, session: deps.SessionDep
+           ) -> dict[str, Any]:
+    """The stereo check of two cameras of a result on one set: epipolar error (px), rectified row offset (px),
+    baseline (m)."""
+    return service.stereo_check(session, result_id, left, right, set_name).to_dict()
+
+
+@router.get("/results/{result_id}/stereo.png", responses={200: {"content": {"image/png": {}}}})
+def stereo_preview(result_id: str, left: Camera, right: Camera, set_name: SetName, session: deps.SessionDep
+                   ) -> Response:
+    """The pair's rectified images side by side (stacked for a vertical pair) with lines that corners should
+    share; a 422 says why when the pair cannot be rectified together."""
+    check = service.stereo_check(session, result_id, left, right, set_name)
+    if check.preview_bgr is None:
+        raise InputError(f"no rectified preview of {left} and {right}: {check.no_preview}", right)
+    return Response(encode_png(check.preview_bgr), media_type="image/png")
