@@ -27,17 +27,13 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.transforms import invert, to_xyz_ypr
+from backend.core.transforms import to_xyz_ypr
 from backend.services import multicam as multicam_service
 from backend.services import multicam_capture as capture_service
-from backend.solvers.board_detection import Detection, common_corners
+from backend.services import rig as rig_service
 from backend.solvers.stereo import (
     LINE_COLOUR_BGR,
     Rectification,
-    epipolar_errors,
-    rectified_preview,
-    rectified_row_errors,
-    rectify,
 )
 from studio import plots
 from studio.context import StudioContext
@@ -300,7 +296,7 @@ class MulticamStep:
             return
         self.ctx.scene.clear_boards()  # another step's boards would mix with this result's
         self.ctx.scene.show_solved_cameras(
-            session.rig, record["reference"], {n: np.array(T) for n, T in record["T_ref_cam"].items()},
+            session.rig, record["reference"], multicam_service.record_T_ref_cam(record),
             {n: CameraIntrinsics.from_dict(c) for n, c in record["cameras"].items()}, BoardSpec.parse(record["board"]),
             {n: np.array(T) for n, T in record["T_ref_board"].items()}, tag=record["id"])
 
@@ -310,7 +306,7 @@ class MulticamStep:
             self.ctx.notify("Nothing to accept", "Solve the rig first.", error=True)
             return
         try:
-            multicam_service.accept(session, result_id, confirm=self.confirm.take())
+            rig_service.accept(session, result_id, confirm=self.confirm.take())
         except InputError as exc:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
@@ -333,46 +329,23 @@ class MulticamStep:
         a, b = self.stereo_pair.value.split(" + ")
         return a, b
 
-    def _shared_sets(self) -> dict[str, capture_service.MulticamSet]:
-        """The result's sets in which both cameras of the pair saw the board."""
-        pair, record = self.pair, self._record
-        if pair is None:
-            return {}
-        used = set(record["T_ref_board"])
-        return {s.name: s for s in capture_service.stored_sets(self.ctx.session, list(pair))
-                if s.name in used and set(pair) <= set(s.cameras_with_board)}
-
     def _pair_sets(self) -> None:
-        self._offer(self.stereo_set, list(self._shared_sets()))
+        pair, record = self.pair, self._record
+        sets = [] if pair is None else list(multicam_service.stereo_sets(self.ctx.session, record, *pair))
+        self._offer(self.stereo_set, sets)
         self._show_stereo()
 
     def _show_stereo(self) -> None:
-        pair, record, found = self.pair, self._record, self._shared_sets().get(self.stereo_set.value)
-        if pair is None or found is None:
+        pair, record = self.pair, self._record
+        if pair is None or self.stereo_set.value == NONE:
             self.stereo_text.content = "Solve a rig whose cameras saw the board together."
             self.stereo_image.image = PLACEHOLDER
             return
-        a, b = pair
-        cameras = {n: CameraIntrinsics.from_dict(record["cameras"][n]) for n in pair}
-        T_a_b = invert(np.array(record["T_ref_cam"][a])) @ np.array(record["T_ref_cam"][b])
-        left_px, right_px = common_corners(*(Detection.from_dict(found.captures[n].detection) for n in pair))
-        epipolar = epipolar_errors(cameras[a], cameras[b], T_a_b, left_px, right_px)
-        line = (f"**{found.name}**, {a} left, {b} right: {len(left_px)} corners seen by both · epipolar error RMS "
-                f"{_rms(epipolar):.2f} px, max {epipolar.max(initial=0.0):.2f} px")
-        session = self.ctx.session
-        try:  # both cameras need one model and image size, and 8-bit images
-            rect = rectify(cameras[a], cameras[b], T_a_b)
-            images = [session.capture_image(n, found.captures[n].id) for n in pair]
-            preview = rectified_preview(rect, *images, LINE_SPACING_PX)
-        except InputError as exc:
-            self.stereo_text.content = f"{line}\n\n⚠️ no rectified preview: {exc.message}"
-            self.stereo_image.image = PLACEHOLDER
-            return
-        rows = rectified_row_errors(rect, left_px, right_px)
-        self.stereo_image.image = _panel_preview(rect, preview)[..., ::-1]
-        across = "column" if rect.vertical else "row"
-        self.stereo_text.content = (f"{line} · rectified {across} offset RMS {_rms(rows):.2f} px · baseline "
-                                    f"{1e3 * rect.baseline_m:.1f} mm")
+        check = multicam_service.stereo_check(self.ctx.session, record["id"], *pair, self.stereo_set.value,
+                                              LINE_SPACING_PX)
+        self.stereo_text.content = stereo_markdown(check)
+        rect = check.rectification
+        self.stereo_image.image = PLACEHOLDER if rect is None else _panel_preview(rect, check.preview_bgr)[..., ::-1]
 
 
 def _panel_preview(rect: Rectification, preview: np.ndarray) -> np.ndarray:
@@ -390,8 +363,16 @@ def _panel_preview(rect: Rectification, preview: np.ndarray) -> np.ndarray:
     return small
 
 
-def _rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else 0.0
+def stereo_markdown(check: multicam_service.StereoCheck) -> str:
+    """One pair's stereo check on one set: corners, epipolar error, rectified offset and baseline."""
+    line = (f"**{check.set_name}**, {check.left} left, {check.right} right: {check.corners} corners seen by both · "
+            f"epipolar error RMS {check.epipolar_rms_px:.2f} px, max {check.epipolar_max_px:.2f} px")
+    rect = check.rectification
+    if rect is None:
+        return f"{line}\n\n⚠️ no rectified preview: {check.no_preview}"
+    across = "column" if rect.vertical else "row"
+    return (f"{line} · rectified {across} offset RMS {check.row_offset_rms_px:.2f} px · baseline "
+            f"{1e3 * rect.baseline_m:.1f} mm")
 
 
 def _sigmas(values: list[float | None], scale: float) -> str:
@@ -451,15 +432,15 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     verdicts = record.get("verdict", {})
     flagged = sum(f["flagged"] for f in record["frames"])
     rows, poses = [], []
+    transforms = multicam_service.record_transforms(record)
     for name in record["camera_order"]:
-        std = record["std"][name]
-        sigmas = ("reference", "reference") if name == reference else (_sigmas(std["trans_m"], 1e3),
-                                                                      _sigmas(std["rot_deg"], 1.0))
+        sigmas = ("reference", "reference") if name == reference else (
+            _sigmas(transforms[name].std["trans_m"], 1e3), _sigmas(transforms[name].std["rot_deg"], 1.0))
         level = verdicts.get(name, {}).get("level", "none")
         rows.append(f"| {name} | {level} | {record['rms_px'][name]:.3f} | {sigmas[0]} | {sigmas[1]} | "
                     f"{_estimated(record, name) if name in estimated else 'no'} |")
         if name != reference:
-            xyz, ypr = to_xyz_ypr(np.array(record["T_ref_cam"][name]))
+            xyz, ypr = to_xyz_ypr(transforms[name].T_parent_child)
             poses.append(f"- **{name}**: x, y, z {', '.join(f'{v:.4f}' for v in xyz)} m · yaw, pitch, roll "
                          f"{', '.join(f'{np.degrees(v):.2f}' for v in ypr)}°")
     pairs = "\n".join(f"| {p['a']} + {p['b']} | {p['frames']} | {1e3 * p['baseline_m']:.1f} | "
