@@ -146,12 +146,14 @@ def main():
     ours = register_pair(source, target, T_init, no_spread)
     ours_sigma = register_pair(source, target, T_init, default)
     baseline = baseline_icp()
-    error_mm, error_deg = pose_error(ours.T_target_source, T_true)
-    sigma_mm, sigma_deg = pose_error(ours_sigma.T_target_source, T_true)
+    error_mm, error_deg = pose_error(ours.T_parent_child, T_true)
+    sigma_mm, sigma_deg = pose_error(ours_sigma.T_parent_child, T_true)
     baseline_error_mm, baseline_error_deg = pose_error(np.asarray(baseline.transformation), T_true)
-    log(f"  ours:     {error_mm:.3f} mm {error_deg:.4f} deg, fitness {ours.fitness:.3f}, converged {ours.converged}, "
-        f"{ours.iterations} fine iterations; with spread {sigma_mm:.3f} mm {sigma_deg:.4f} deg, 1-sigma "
-        f"{np.linalg.norm(ours_sigma.std[:3]) * 1000:.3f} mm {np.degrees(np.linalg.norm(ours_sigma.std[3:])):.4f} deg")
+    sigma = ours_sigma.std_vector
+    log(f"  ours:     {error_mm:.3f} mm {error_deg:.4f} deg, fitness {ours.residuals['fitness']:.3f}, converged "
+        f"{ours.converged}, {ours.diagnostics['iterations']} fine iterations; with spread {sigma_mm:.3f} mm "
+        f"{sigma_deg:.4f} deg, 1-sigma {np.linalg.norm(sigma[:3]) * 1000:.3f} mm "
+        f"{np.degrees(np.linalg.norm(sigma[3:])):.4f} deg")
     log(f"  baseline: {baseline_error_mm:.3f} mm {baseline_error_deg:.4f} deg, fitness {baseline.fitness:.3f}")
 
     # 3a. YDLiDAR parser on an in-memory byte stream.

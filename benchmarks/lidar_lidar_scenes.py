@@ -125,19 +125,19 @@ def real_pair():
     def fitness(T):
         return round(evaluate_alignment(source, target, T, 0.2)["fitness"], 4)
 
-    ours_mm, ours_deg = pose_error(ours.T_target_source, T_ref)
+    ours_mm, ours_deg = pose_error(ours.T_parent_child, T_ref)
     base_mm, base_deg = pose_error(baseline, T_ref)
-    apart_mm, apart_deg = pose_error(ours.T_target_source, baseline)
+    apart_mm, apart_deg = pose_error(ours.T_parent_child, baseline)
     return {
         "ours_s": round(ours_s, 3), "ours_with_sigma_s": round(ours_with_sigma_s, 3),
         "baseline_s": round(baseline_s, 3), "time_ratio": round(ours_s / baseline_s, 2),
-        "fitness": fitness(ours.T_target_source), "baseline_fitness": fitness(baseline),
+        "fitness": fitness(ours.T_parent_child), "baseline_fitness": fitness(baseline),
         "reference_fitness": fitness(T_ref),
         "from_reference_mm": round(ours_mm, 1), "from_reference_deg": round(ours_deg, 3),
         "baseline_from_reference_mm": round(base_mm, 1), "baseline_from_reference_deg": round(base_deg, 3),
         "ours_to_baseline_mm": round(apart_mm, 1), "ours_to_baseline_deg": round(apart_deg, 3),
-        "std_trans_mm": [round(1000 * s, 1) for s in ours.std[:3]],
-        "std_rot_deg": [round(float(np.degrees(s)), 3) for s in ours.std[3:]],
+        "std_trans_mm": [round(1000 * s, 1) for s in ours.std_vector[:3]],
+        "std_rot_deg": [round(float(np.degrees(s)), 3) for s in ours.std_vector[3:]],
         "verdict": ours.verdict.level,
     }
 
@@ -165,12 +165,12 @@ def main():
 
     joint = register_pairs(pairs, T_init, no_spread)
     per_scene = [open3d_gicp(s, t, T_init, BASELINE_STAGES) for s, t in pairs]
-    joint_mm, joint_deg = pose_error(joint.T_target_source, T_true)
+    joint_mm, joint_deg = pose_error(joint.T_parent_child, T_true)
     base_mm, base_deg = pose_error(averaged(per_scene), T_true)
-    scene_errors = [pose_error(s.T_target_source, T_true) for s in joint.scenes]
+    scene_errors = [pose_error(np.array(s["T_target_source"]), T_true) for s in joint.diagnostics["scenes"]]
     base_scene_errors = [pose_error(T, T_true) for T in per_scene]
-    err_t, err_r = transform_error(with_sigma.T_target_source, T_true)
-    normalised = np.abs(np.r_[err_t, np.radians(err_r)]) / with_sigma.std
+    err_t, err_r = transform_error(with_sigma.T_parent_child, T_true)
+    normalised = np.abs(np.r_[err_t, np.radians(err_r)]) / with_sigma.std_vector
     log(f"  joint: {joint_mm:.3f} mm {joint_deg:.4f} deg; its scenes alone: "
         f"{[f'{e[0]:.2f} mm' for e in scene_errors]}; verdict {with_sigma.verdict.level}")
     log(f"  Open3D per scene: {[f'{e[0]:.2f} mm' for e in base_scene_errors]}; averaged {base_mm:.3f} mm "
@@ -197,7 +197,7 @@ def main():
         "baseline_scene_error_mm": round(float(np.mean([e[0] for e in base_scene_errors])), 3),
         "error_over_sigma_max": round(float(normalised.max()), 2),
         "verdict": with_sigma.verdict.level,
-        "scene_spread": {k: round(v, 4) for k, v in with_sigma.scene_spread.items()},
+        "scene_spread": {k: round(v, 4) for k, v in with_sigma.diagnostics["scene_spread"].items()},
         "real_pair": real,
         "peak_rss_mb": round(peak_rss_mb(), 1),
         "cpu_count": os.cpu_count(),

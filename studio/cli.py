@@ -285,7 +285,11 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
                             names=[(str(s), str(t)) for s, t in files])
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    summary = result.summary()
+    residuals, diagnostics = result.residuals, result.diagnostics
+    summary = {"T_target_source": result.T_parent_child.tolist(), "fitness": residuals["fitness"],
+               "rmse_m": residuals["rmse_m"], "c2c_m": residuals["c2c_m"], "std": result.std,
+               "seconds": result.seconds, "verdict": result.verdict.to_dict(), "scenes": diagnostics["scenes"],
+               "scene_spread": diagnostics["scene_spread"]}
     if not result.converged:
         # Not an answer to use: say so the contract's way (non-zero exit, {"error": ...}), the numbers to stderr.
         print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
@@ -297,12 +301,12 @@ def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
 
         from backend.core.transforms import to_xyz_ypr
 
-        xyz, ypr = to_xyz_ypr(result.T_target_source)
+        xyz, ypr = to_xyz_ypr(result.T_parent_child)
         trans, rot = summary["std"]["trans_m"], summary["std"]["rot_deg"]
         print(f"T_target_source (x y z m, yaw pitch roll deg): {' '.join(f'{v:.4f}' for v in xyz)}  "
               f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}\n"
-              f"{np.array2string(result.T_target_source, precision=6, suppress_small=True)}\n"
-              f"fitness {result.fitness:.3f}  rmse {result.rmse_m:.4f} m  converged {result.converged}\n"
+              f"{np.array2string(result.T_parent_child, precision=6, suppress_small=True)}\n"
+              f"fitness {residuals['fitness']:.3f}  rmse {residuals['rmse_m']:.4f} m  converged {result.converged}\n"
               f"1-sigma trans (m) {trans}  rot (deg, source axes) {rot}")
         for k, scene in enumerate(summary["scenes"]):
             xyz, ypr = to_xyz_ypr(np.array(scene["T_target_source"]))

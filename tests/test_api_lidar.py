@@ -42,13 +42,18 @@ def test_real_pair_through_the_api(client, stereo_chessboard):
     status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()
-    assert record["kind"] == "lidar_lidar" and record["target"] == "qt" and record["converged"]
-    assert record["fitness"] > 0.13
-    assert record["verdict"]["level"] == "check" and len(record["scenes"]) == 1  # one real scene: no cross-check
+    assert (record["kind"], record["parent"], record["child"]) == ("lidar_lidar", "qt", "p64") and record["converged"]
+    assert record["residuals"]["fitness"] > 0.13
+    # one real scene: no cross-check
+    assert record["verdict"]["level"] == "check" and len(record["diagnostics"]["scenes"]) == 1
     assert client.get("/api/sessions/car/lidar-lidar/pairs", params={"source": "p64", "target": "qt"}).json() == [
         list(p) for p in [record["inputs"][0].split(":")]]
     refused = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
     assert refused.status_code == 409 and refused.json()["error"]["input"] == "confirm"
+    other = client.post("/api/sessions/car/sensors/qt/lidar-lidar/accept",
+                        json={"result_id": status["result_id"], "confirm": True})
+    assert other.status_code == 422 and f"result {status['result_id']} belongs to p64, not qt" in \
+        other.json()["error"]["message"]
     accepted = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept",
                            json={"result_id": status["result_id"], "confirm": True})
     assert accepted.status_code == 200
@@ -94,10 +99,12 @@ def test_three_scenes_through_the_api_are_trusted_and_accepted(client, tmp_path)
     status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()
-    assert [s["pairs"] for s in record["scenes"]] == [[0], [1], [2]] and all(s["agrees"] for s in record["scenes"])
+    scenes = record["diagnostics"]["scenes"]
+    assert [s["pairs"] for s in scenes] == [[0], [1], [2]] and all(s["agrees"] for s in scenes)
     assert record["verdict"]["level"] == "trusted", record["verdict"]
-    assert record["scene_spread"]["trans_m"] < 0.01
-    error = np.linalg.inv(T_TRUE) @ np.array(record["T_target_source"])
+    assert record["diagnostics"]["scene_spread"]["trans_m"] < 0.01
+    error = np.linalg.inv(T_TRUE) @ np.array(record["T_parent_child"])
     assert np.linalg.norm(error[:3, 3]) < 0.003
     accepted = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
     assert accepted.status_code == 200, accepted.text
+    assert accepted.json()["accepted"] == {"p64/T_qt_p64": status["result_id"]}

@@ -23,10 +23,14 @@ from backend.core.transforms import (
     transform_points,
 )
 from backend.solvers.lidar_lidar import LidarLidarSettings, check_cloud, evaluate_alignment, register_pair
+from backend.solvers.result import TransformResult
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2lidar_pair"
 SUMMARY_KEYS = {"T_target_source", "fitness", "rmse_m", "c2c_m", "std", "seconds", "verdict", "scenes", "scene_spread"}
+"""The CLI's JSON (conventions.md)."""
+SCENE_KEYS = {"pairs", "T_target_source", "fitness", "rmse_m", "converged", "std", "deviation", "agrees"}
+"""One scene's own solve, in the CLI's ``scenes`` and the record's ``diagnostics["scenes"]``."""
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 """Source LiDAR on the simulated robot (m, rad)."""
@@ -65,11 +69,11 @@ def perturbed(T: np.ndarray, seed: int, trans_m: float, rot_deg: float) -> np.nd
 def assert_recovered(result, T_true: np.ndarray) -> None:
     """Within 5 mm and 0.1 deg of the truth, and every axis's error below 3 reported sigmas."""
     assert result.converged, result.warnings
-    err_t, err_r_deg = transform_error(result.T_target_source, T_true)
+    err_t, err_r_deg = transform_error(result.T_parent_child, T_true)
     assert np.linalg.norm(err_t) < 0.005, err_t
-    assert rotation_angle_deg(invert(T_true)[:3, :3] @ result.T_target_source[:3, :3]) < 0.1, err_r_deg
+    assert rotation_angle_deg(invert(T_true)[:3, :3] @ result.T_parent_child[:3, :3]) < 0.1, err_r_deg
     error = np.r_[err_t, np.radians(err_r_deg)]
-    assert np.all(np.abs(error) < 3 * result.std), (error, result.std)
+    assert np.all(np.abs(error) < 3 * result.std_vector), (error, result.std_vector)
 
 
 # --- simulated pairs --------------------------------------------------------------------------------------------
@@ -82,39 +86,55 @@ def test_recovers_simulated_pair_from_20cm_10deg(scene, seed: int) -> None:
     T_init = perturbed(T_TRUE, seed, 0.20, 10.0)
     result = register_pair(source, target, T_init)
     assert_recovered(result, T_TRUE)
-    assert result.spread_source == "sectors" and result.init_method == "given"
-    assert result.fitness > 0.5 and 0 < result.rmse_m < result.settings.max_correspondence_m
-    c2c = result.c2c_m
-    assert 0 < c2c["median"] <= c2c["p95"] <= result.settings.max_correspondence_m and c2c["std"] > 0
+    diagnostics, residuals = result.diagnostics, result.residuals
+    assert diagnostics["spread_source"] == "sectors" and diagnostics["init_method"] == "given"
+    max_m = result.settings["max_correspondence_m"]
+    assert residuals["fitness"] > 0.5 and 0 < residuals["rmse_m"] < max_m
+    c2c = residuals["c2c_m"]
+    assert 0 < c2c["median"] <= c2c["p95"] <= max_m and c2c["std"] > 0
+    # the reported sigma is the larger of the Hessian's and the sector spread's, per axis
+    np.testing.assert_allclose(result.std_vector, np.fmax(diagnostics["std_hessian"], diagnostics["std_spread"]))
 
 
-def test_summary_is_the_cli_contract_and_record_is_json(scene) -> None:
+def test_result_is_a_transform_result_whose_record_is_json(scene) -> None:
     source, target = scan_pair(scene, 3)
     result = register_pair(source, target, perturbed(T_TRUE, 3, 0.05, 2.0), LidarLidarSettings(spread=False))
-    summary = result.summary()
-    assert set(summary) == SUMMARY_KEYS
-    assert set(summary["c2c_m"]) == {"mean", "median", "p95", "std"}
-    assert set(summary["std"]) == {"trans_m", "rot_deg"}
-    assert len(summary["std"]["trans_m"]) == 3 and len(summary["std"]["rot_deg"]) == 3
-    assert np.array(summary["T_target_source"]).shape == (4, 4)
-    record = json.loads(json.dumps(result.to_record()))
+    assert isinstance(result, TransformResult)
+    assert (result.kind, result.method, result.parent, result.child) == ("lidar_lidar", "gicp", "target", "source")
+    assert set(result.residuals) == {"fitness", "rmse_m", "c2c_m"}
+    assert set(result.residuals["c2c_m"]) == {"mean", "median", "p95", "std"}
+    assert set(result.diagnostics) == {"scenes", "scene_spread", "std_hessian", "std_spread", "spread_source",
+                                       "T_init", "init_method", "iterations", "num_inliers"}
+    assert result.diagnostics["std_spread"] is None and result.diagnostics["spread_source"] is None
+    assert result.diagnostics["num_inliers"] > 6 and result.diagnostics["iterations"] >= 1
+    np.testing.assert_allclose(result.diagnostics["T_init"], perturbed(T_TRUE, 3, 0.05, 2.0))
+    record = json.loads(json.dumps(result.to_record(), allow_nan=False))
     assert record["kind"] == "lidar_lidar" and record["converged"] is True
-    assert np.array(record["covariance"]).shape == (6, 6)
-    assert record["settings"]["num_threads"] == 2 and record["std_spread"] is None
+    assert np.array(record["covariance"]).shape == (6, 6) and record["settings"]["num_threads"] == 2
     # sigma reported in degrees about the source axes = sqrt of the rotation block of the covariance (rad)
-    assert np.allclose(np.degrees(np.sqrt(np.diag(result.covariance)[3:])), summary["std"]["rot_deg"])
+    assert np.allclose(np.degrees(np.sqrt(np.diag(result.covariance)[3:])), record["std"]["rot_deg"])
+    # without the spread, the sigma is the Hessian's
+    np.testing.assert_allclose(result.std_vector, result.diagnostics["std_hessian"])
+    back = TransformResult.from_record(record)
+    np.testing.assert_allclose(back.T_parent_child, result.T_parent_child)
+    np.testing.assert_allclose(back.covariance, result.covariance)
+    assert back.verdict.to_dict() == result.verdict.to_dict()
     # one scene: no cross-check, so never more than 'check', whatever the sigmas
-    assert summary["verdict"]["level"] == "check" and record["verdict"] == summary["verdict"]
+    assert record["verdict"]["level"] == "check"
     assert "no cross-check across scenes: only one scene: capture the rig in two more places" in \
-        summary["verdict"]["reasons"]
-    assert len(summary["scenes"]) == 1 and summary["scenes"][0]["agrees"] is None and summary["scene_spread"] is None
+        record["verdict"]["reasons"]
+    scenes = record["diagnostics"]["scenes"]
+    assert len(scenes) == 1 and scenes[0]["agrees"] is None and record["diagnostics"]["scene_spread"] is None
+    np.testing.assert_allclose(scenes[0]["T_target_source"], result.T_parent_child)
+    named = result.named("lidar_top", "lidar_front")
+    assert (named.parent, named.child) == ("lidar_top", "lidar_front") and named.residuals == result.residuals
 
 
 @pytest.mark.slow
 def test_global_initial_guess_when_none_is_given(scene) -> None:
     source, target = scan_pair(scene, 4)
     result = register_pair(source, target, None)
-    assert result.init_method == "global" and any("global registration" in w for w in result.warnings)
+    assert result.diagnostics["init_method"] == "global" and any("global registration" in w for w in result.warnings)
     assert_recovered(result, T_TRUE)
 
 
@@ -158,11 +178,10 @@ def test_no_overlap_is_not_converged_and_says_so(scene) -> None:
     far = make_T(np.eye(3), [200.0, 0.0, 0.0]) @ T_TRUE  # the source lands 200 m away from anything
     result = register_pair(source, target, far)
     assert not result.converged
-    assert result.fitness < 0.01
+    assert result.residuals["fitness"] < 0.01
     assert any("do not overlap" in w for w in result.warnings)
-    assert set(result.summary()) == SUMMARY_KEYS
     assert result.verdict.level == "reject" and "do not overlap" in result.verdict.reasons[0]
-    json.dumps(result.summary(), allow_nan=False)  # undetermined sigmas are null, not NaN
+    json.dumps(result.to_record(), allow_nan=False)  # undetermined sigmas are null, not NaN
 
 
 def test_poor_fit_below_min_fitness_is_not_converged(scene) -> None:
@@ -216,15 +235,15 @@ def test_real_pair_p64_to_qt() -> None:
                for seed in range(2)]
     for result in results:
         assert result.converged, result.warnings
-        err_t, _ = transform_error(result.T_target_source, T_ref)
-        assert rotation_angle_deg(T_ref[:3, :3].T @ result.T_target_source[:3, :3]) < 1.0
+        err_t, _ = transform_error(result.T_parent_child, T_ref)
+        assert rotation_angle_deg(T_ref[:3, :3].T @ result.T_parent_child[:3, :3]) < 1.0
         assert np.all(np.abs(err_t[:2]) < 0.05) and abs(err_t[2]) < 0.2, err_t
-        assert evaluate_alignment(source, target, result.T_target_source, 0.2)["fitness"] >= fitness_ref + 0.01
+        assert evaluate_alignment(source, target, result.T_parent_child, 0.2)["fitness"] >= fitness_ref + 0.01
     # the same answer from different starts
-    spread_t, spread_r = transform_error(results[1].T_target_source, results[0].T_target_source)
+    spread_t, spread_r = transform_error(results[1].T_parent_child, results[0].T_parent_child)
     assert np.all(np.abs(spread_t) < 0.01) and np.all(np.abs(spread_r) < 0.05)
-    T = results[0].T_target_source
-    assert results[0].std[:3].max() < 0.1  # a few cm: the honest spread on this hard pair
+    T = results[0].T_parent_child
+    assert results[0].std_vector[:3].max() < 0.1  # a few cm: the honest spread on this hard pair
     # its verdict: one scene and sigmas of a few cm / 0.4 deg, so 'check', saying both
     verdict = results[0].verdict
     assert verdict.level == "check", verdict.reasons
@@ -294,6 +313,25 @@ def test_cli_json_with_init_xyzypr(cloud_files: tuple[Path, Path]) -> None:
     assert "fine GICP" in run.stderr
 
 
+def test_cli_json_is_the_contract(cloud_files: tuple[Path, Path], tmp_path: Path, capsys) -> None:
+    """In process: exactly the keys of conventions.md, each from the solver's TransformResult, on one line."""
+    from studio.cli import main
+
+    init = tmp_path / "T.txt"
+    np.savetxt(init, perturbed(T_TRUE, 9, 0.02, 1.0))
+    assert main(["lidar-lidar", str(cloud_files[0]), str(cloud_files[1]), "--init", str(init), "--json"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().count("\n") == 0
+    body = json.loads(out)
+    assert set(body) == SUMMARY_KEYS and set(body["c2c_m"]) == {"mean", "median", "p95", "std"}
+    assert set(body["std"]) == {"trans_m", "rot_deg"} and all(len(body["std"][k]) == 3 for k in body["std"])
+    assert 0 < body["fitness"] <= 1 and 0 < body["c2c_m"]["median"] <= body["c2c_m"]["p95"] <= 0.2
+    err_t, err_r = transform_error(np.array(body["T_target_source"]), T_TRUE)
+    assert np.linalg.norm(err_t) < 0.005 and np.abs(err_r).max() < 0.1
+    assert [set(scene) for scene in body["scenes"]] == [SCENE_KEYS] and body["scene_spread"] is None
+    assert body["verdict"]["level"] == "check" and body["seconds"] > 0
+
+
 def test_cli_bad_init_file_and_mm_cloud(cloud_files: tuple[Path, Path], tmp_path: Path) -> None:
     bad = tmp_path / "T.txt"
     bad.write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n")
@@ -336,7 +374,7 @@ def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_p
     run = cli("lidar-lidar", *args, "--init-xyzypr", init, "--json")
     assert run.returncode == 0, run.stderr
     body = json.loads(run.stdout)
-    assert set(body) == SUMMARY_KEYS and len(body["scenes"]) == 2
+    assert set(body) == SUMMARY_KEYS and len(body["scenes"]) == 2 and set(body["scenes"][0]) == SCENE_KEYS
     assert [scene["pairs"] for scene in body["scenes"]] == [[0], [1]]
     err_t, err_r = transform_error(np.array(body["T_target_source"]), T_true)
     assert np.linalg.norm(err_t) < 0.005 and np.abs(err_r).max() < 0.1

@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from test_lidar_lidar import SUMMARY_KEYS, T_TRUE, perturbed, scan_pair
+from test_lidar_lidar import SCENE_KEYS, T_TRUE, perturbed, scan_pair
 
 from backend.core.transforms import from_xyz_ypr, transform_error, transform_points
 from backend.solvers.lidar_lidar import LidarLidarSettings
@@ -40,24 +40,23 @@ def scene():
 def test_three_scenes_joint_solve_is_within_3_sigma_and_trusted(scenes) -> None:
     result = register_pairs(scenes, perturbed(T_TRUE, 7, 0.20, 10.0))
     assert result.converged, result.warnings
-    err_t, err_r_deg = transform_error(result.T_target_source, T_TRUE)
+    err_t, err_r_deg = transform_error(result.T_parent_child, T_TRUE)
     error = np.r_[err_t, np.radians(err_r_deg)]
-    assert np.all(np.abs(error) < 3 * result.std), (error, result.std)
+    assert np.all(np.abs(error) < 3 * result.std_vector), (error, result.std_vector)
     assert np.linalg.norm(err_t) < 0.002 and np.abs(err_r_deg).max() < 0.05
+    scenes = result.diagnostics["scenes"]
     # the joint solve is at least as close to the truth as the scenes' own solves, on average
-    scene_errors = [np.linalg.norm(transform_error(s.T_target_source, T_TRUE)[0]) for s in result.scenes]
+    scene_errors = [np.linalg.norm(transform_error(np.array(s["T_target_source"]), T_TRUE)[0]) for s in scenes]
     assert np.linalg.norm(err_t) <= np.mean(scene_errors)
-    assert [s.pairs for s in result.scenes] == [[0], [1], [2]] and all(s.agrees for s in result.scenes)
-    assert result.spread_source == "scenes"
+    assert [s["pairs"] for s in scenes] == [[0], [1], [2]] and all(s["agrees"] for s in scenes)
+    assert result.diagnostics["spread_source"] == "scenes"
     assert result.verdict.level == "trusted", result.verdict.reasons
     assert any("cross-check across scenes: all 3 scenes agree" in r for r in result.verdict.reasons)
-    summary = json.loads(json.dumps(result.summary(), allow_nan=False))
-    assert set(summary) == SUMMARY_KEYS
-    assert summary["verdict"]["level"] == "trusted" and len(summary["scenes"]) == 3
-    assert 0 < summary["scene_spread"]["trans_m"] < 0.01 and 0 < summary["scene_spread"]["rot_deg"] < 0.2
-    assert set(summary["scenes"][0]) == {"pairs", "T_target_source", "fitness", "rmse_m", "converged", "std",
-                                         "deviation", "agrees"}
-    assert result.to_record()["verdict"] == summary["verdict"]
+    record = json.loads(json.dumps(result.to_record(), allow_nan=False))
+    assert record["verdict"]["level"] == "trusted" and len(record["diagnostics"]["scenes"]) == 3
+    spread = record["diagnostics"]["scene_spread"]
+    assert 0 < spread["trans_m"] < 0.01 and 0 < spread["rot_deg"] < 0.2
+    assert set(scenes[0]) == SCENE_KEYS
 
 
 def test_a_knocked_lidar_in_one_scene_fails_the_cross_check(scenes) -> None:
@@ -66,23 +65,25 @@ def test_a_knocked_lidar_in_one_scene_fails_the_cross_check(scenes) -> None:
     assert result.converged  # every scene fits on its own: only the cross-check sees it
     # compared with the joint solve of the others, the knocked scene stands out (the others, each compared
     # with a joint solve that holds it, are pulled by half as much)
-    offsets = [np.linalg.norm(s.deviation[:3]) for s in result.scenes]
-    assert not result.scenes[2].agrees and offsets[2] > 0.04 and offsets[2] > 1.5 * max(offsets[:2]), offsets
+    scenes = result.diagnostics["scenes"]
+    offsets = [np.linalg.norm(s["deviation"]["trans_m"]) for s in scenes]
+    assert not scenes[2]["agrees"] and offsets[2] > 0.04 and offsets[2] > 1.5 * max(offsets[:2]), offsets
     assert result.verdict.level == "reject"
     failed = [r for r in result.verdict.reasons if "cross-check across scenes failed" in r]
     assert failed and "scene 3 (pairs 2)" in failed[0], result.verdict.reasons
-    assert result.scene_spread["trans_m"] > 0.04 and result.scene_spread["rot_deg"] > 0.9
+    spread = result.diagnostics["scene_spread"]
+    assert spread["trans_m"] > 0.04 and spread["rot_deg"] > 0.9
 
 
 def test_frames_of_a_rig_standing_still_are_one_scene(scene, scenes) -> None:
     """Two frames in one place are not independent scenes: no cross-check, so at best 'check'."""
     result = register_pairs([scenes[0], scan_pair(scene, 20)], perturbed(T_TRUE, 7, 0.05, 2.0), NO_SPREAD)
     assert result.converged
-    assert [s.pairs for s in result.scenes] == [[0, 1]] and result.scene_spread is None
+    assert [s["pairs"] for s in result.diagnostics["scenes"]] == [[0, 1]] and result.diagnostics["scene_spread"] is None
     assert result.verdict.level == "check"
     assert any("no cross-check across scenes: only one scene" in r and "2 frame pairs" in r
                for r in result.verdict.reasons), result.verdict.reasons
-    err_t, err_r_deg = transform_error(result.T_target_source, T_TRUE)
+    err_t, err_r_deg = transform_error(result.T_parent_child, T_TRUE)
     assert np.linalg.norm(err_t) < 0.005 and np.abs(err_r_deg).max() < 0.1
 
 

@@ -1,4 +1,4 @@
-"""LiDAR-to-LiDAR through the session: capture simulated clouds, solve, accept into the rig, export."""
+"""LiDAR-to-LiDAR through the session: capture simulated clouds, solve, accept into the rig's tree, export."""
 
 from __future__ import annotations
 
@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from backend.core.errors import InputError
-from backend.core.transforms import from_xyz_ypr, invert, rotation_angle_deg
+from backend.core.transforms import from_xyz_ypr, invert, params_between, rotation_angle_deg
 from backend.devices.base import create_device
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.services import exports as export_service
 from backend.services import lidar_lidar as service
+from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
 
@@ -36,26 +37,32 @@ def session(tmp_path):
 @pytest.mark.slow
 def test_solve_accept_and_export(session):
     result_id, result = service.solve_session(session, SOURCE, TARGET)
-    assert result.converged
-    error = invert(session.truth) @ result.T_target_source
+    assert result.converged and (result.parent, result.child) == (TARGET, SOURCE)
+    error = invert(session.truth) @ result.T_parent_child
     assert np.linalg.norm(error[:3, 3]) < 0.005
     assert rotation_angle_deg(error[:3, :3]) < 0.1
-    assert np.all(np.abs(error[:3, 3]) < 3 * result.std[:3] + 1e-4)
+    assert np.all(np.abs(error[:3, 3]) < 3 * result.std_vector[:3] + 1e-4)
 
     record = session.result(result_id)
+    assert (record["kind"], record["parent"], record["child"], record["sensor"]) == ("lidar_lidar", TARGET, SOURCE,
+                                                                                     SOURCE)
+    np.testing.assert_allclose(record["T_parent_child"], result.T_parent_child)
+    assert service.pair_results(session, SOURCE, TARGET) == [record] and not service.pair_results(session, TARGET,
+                                                                                                  SOURCE)
     # both frames were taken with the rig standing still: one scene, so no cross-check and a 'check'
-    assert record["verdict"]["level"] == "check" and len(record["scenes"]) == 1
+    assert record["verdict"]["level"] == "check" and len(record["diagnostics"]["scenes"]) == 1
     assert len(record["inputs"]) == 2  # the two frame pairs, as "source id:target id"
     with pytest.raises(InputError, match="confirm"):
-        service.accept(session, SOURCE, result_id)
-    service.accept(session, SOURCE, result_id, confirm=True)
+        rig_service.accept(session, result_id)
+    update = rig_service.accept(session, result_id, confirm=True)
     assert session.acceptance_log[-1].confirmed and session.acceptance_log[-1].verdict == "check"
-    accepted = session.rig.T_a_b(TARGET, SOURCE)
-    np.testing.assert_allclose(accepted, result.T_target_source, atol=1e-9)
-    assert session.accepted(service.slot(SOURCE, TARGET)) == result_id
+    assert session.accepted(f"{SOURCE}/T_{TARGET}_{SOURCE}") == result_id
+    # the rig now holds the fused tree: the measured edge, against weak mounting guesses, decides it
+    fused = session.rig.T_a_b(TARGET, SOURCE)
+    assert np.all(np.abs(params_between(result.T_parent_child, fused)) < 0.1 * result.std_vector)
+    assert any(move.frame == SOURCE for move in update.moves)
     sigma_trans_m, sigma_rot_deg = session.rig.get(SOURCE).sigmas
     assert np.all(sigma_trans_m > 0) and np.all(sigma_rot_deg > 0)
-    # lidar_front hangs off base_link, not lidar_top: its covariance was carried into base_link's axes
     assert session.rig.get(SOURCE).parent == "base_link"
 
     _, text = export_service.export_text(session, "rig")
@@ -66,14 +73,43 @@ def test_solve_accept_and_export(session):
 
 def test_non_converged_result_cannot_be_accepted(session):
     """A poor fit is stored for inspection but refused on accept; the rig keeps its transform."""
-    record = {"kind": "lidar_lidar", "target": TARGET, "converged": False, "warnings": ["fitness 0.000: no overlap"],
-              "T_target_source": np.eye(4).tolist(), "covariance": np.eye(6).tolist()}
+    record = {"kind": "lidar_lidar", "method": "gicp", "parent": TARGET, "child": SOURCE, "converged": False,
+              "warnings": ["fitness 0.000: no overlap"], "T_parent_child": np.eye(4).tolist(),
+              "covariance": np.eye(6).tolist()}
     result_id = session.add_result(SOURCE, record, inputs=[])
     before = session.rig.get(SOURCE).T_parent_child.copy()
-    with pytest.raises(InputError, match="did not converge"):  # a hand-made record has no verdict: 'check'
-        service.accept(session, SOURCE, result_id, confirm=True)
+    with pytest.raises(InputError, match="did not converge"):
+        rig_service.accept(session, result_id, confirm=True)
     np.testing.assert_array_equal(session.rig.get(SOURCE).T_parent_child, before)
-    assert session.accepted(service.slot(SOURCE, TARGET)) is None
+    assert session.accepted(f"{SOURCE}/T_{TARGET}_{SOURCE}") is None
+
+
+def test_a_result_is_checked_against_its_sensor_and_kind(session):
+    record = {"kind": "lidar_lidar", "parent": TARGET, "child": SOURCE, "T_parent_child": np.eye(4).tolist()}
+    result_id = session.add_result(SOURCE, record, inputs=[])
+    assert service.check_result(session, SOURCE, result_id)["id"] == result_id
+    with pytest.raises(InputError, match=f"result {result_id} belongs to {SOURCE}, not {TARGET}"):
+        service.check_result(session, TARGET, result_id)
+    other = session.add_result(SOURCE, {"kind": "sweep"}, inputs=[])
+    with pytest.raises(InputError, match=f"result {other} is a sweep result, not lidar_lidar"):
+        service.check_result(session, SOURCE, other)
+
+
+def test_global_guess_and_the_fit_at_a_nudged_pose(session):
+    """The step's nudging: a rough starting pose from RANSAC, and the fit of the clouds at any pose."""
+    from scipy.spatial import cKDTree
+
+    T, ransac_fitness = service.global_guess(session, SOURCE, TARGET)
+    assert 0 < ransac_fitness <= 1 and T.shape == (4, 4)
+    source_points, target_points = service.capture_pairs(session, SOURCE, TARGET)[-1]
+    tree = cKDTree(target_points)
+    at_truth = service.fit_at(source_points, tree, session.truth, 0.2)
+    nudged = service.fit_at(source_points, tree, session.truth @ from_xyz_ypr(np.array([0.3, 0, 0]), np.zeros(3)), 0.2)
+    assert at_truth["distances_m"].shape == (len(source_points),)
+    assert at_truth["fitness"] > nudged["fitness"] and at_truth["c2c_mean_m"] < nudged["c2c_mean_m"]
+    assert np.all(at_truth["inliers_m"] <= 0.2) and np.all(~np.isfinite(at_truth["distances_m"])
+                                                          | (at_truth["distances_m"] <= 0.4))
+    assert at_truth["fitness"] == pytest.approx(len(at_truth["inliers_m"]) / len(source_points))
 
 
 def test_wrong_sensors_and_missing_clouds_are_named(session):

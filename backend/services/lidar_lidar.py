@@ -1,10 +1,12 @@
 """LiDAR-to-LiDAR workflow shared by the API, the studio and the CLI.
 
 capture or import clouds -> store them -> solve ``T_target_source`` from pairs of
-captures (one per scene, or several) -> store the result with its verdict -> accept it into
-the rig as the source LiDAR's ``T_parent_child`` with its covariance. A result that did not
-converge is stored (so the user can see why) but cannot be accepted; a ``check`` verdict needs
-the user's confirmation.
+captures (one per scene, or several) -> store the result, a
+:class:`~backend.solvers.result.TransformResult` record with ``parent`` the target LiDAR and
+``child`` the source LiDAR, with its verdict. Accepting it (an edge of the rig's pose graph) is
+:func:`backend.services.rig.accept`'s, as for every result kind; :func:`check_result` is what the
+LiDAR routes check first. The studio's nudging (a global guess, the fit at the sliders' pose) is
+here too, so the step only draws.
 """
 
 from __future__ import annotations
@@ -14,14 +16,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
 from backend.core.rig import Rig
+from backend.core.transforms import transform_points
 from backend.devices.base import Sample
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
-from backend.solvers.lidar_lidar import LidarLidarResult, LidarLidarSettings
+from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
 from backend.solvers.lidar_lidar_scenes import register_pairs
-from backend.solvers.result import ProgressCallback, no_progress
+from backend.solvers.result import ProgressCallback, TransformResult, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 
@@ -38,11 +42,6 @@ def check_lidar(session: Session, sensor: str) -> None:
     kind = session.rig.get(sensor).kind
     if kind not in LIDAR_KINDS:
         raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
-
-
-def slot(source: str, target: str) -> str:
-    """The acceptance slot of a source-to-target transform."""
-    return f"{source}/T_{target}_{source}"
 
 
 def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
@@ -114,10 +113,11 @@ def capture_pairs(session: Session, source: str, target: str,
 def solve_session(session: Session, source: str, target: str, *, T_init: np.ndarray | None = None,
                   use_rig_guess: bool = True, settings: LidarLidarSettings | None = None,
                   pairs: list[tuple[str, str]] | None = None,
-                  progress: ProgressCallback = no_progress) -> tuple[str, LidarLidarResult]:
+                  progress: ProgressCallback = no_progress) -> tuple[str, TransformResult]:
     """Register ``source`` into ``target`` over the frame ``pairs`` (default :func:`pair_ids`) and store the
-    result (not yet accepted). Pairs from different places are scenes that cross-check each other (see
-    :mod:`backend.solvers.lidar_lidar_scenes`).
+    result (not yet accepted) under the source LiDAR: ``T_parent_child`` is ``T_target_source`` with ``parent``
+    ``target`` and ``child`` ``source``. Pairs from different places are scenes that cross-check each other (see
+    :mod:`backend.solvers.lidar_lidar_scenes`); the record's ``inputs`` are the pairs as "source id:target id".
 
     The initial guess is ``T_init`` if given, else the rig's current transform
     (manual nudges included) when ``use_rig_guess``, else global registration.
@@ -127,29 +127,44 @@ def solve_session(session: Session, source: str, target: str, *, T_init: np.ndar
     if T_init is None and use_rig_guess:
         T_init = session.rig.T_a_b(target, source)
     result = register_pairs(clouds, T_init, settings, progress,
-                            names=[(f"{source} {s}", f"{target} {t}") for s, t in pairs])
-    record = result.to_record() | {"target": target}
-    result_id = session.add_result(source, record, inputs=[f"{s}:{t}" for s, t in pairs])
+                            names=[(f"{source} {s}", f"{target} {t}") for s, t in pairs]).named(target, source)
+    result_id = session.add_result(source, result.to_record(), inputs=[f"{s}:{t}" for s, t in pairs])
     return result_id, result
 
 
-def apply_lidar_lidar(rig: Rig, record: dict[str, Any]) -> None:
-    """Write a stored ``T_target_source`` into the rig as the source frame's mounting, with its covariance
-    (translation in target axes, rotation about source axes; see :meth:`Rig.set_relative`)."""
-    if record.get("kind") != "lidar_lidar":
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not lidar_lidar", "result")
-    if not record.get("converged", False):
-        raise InputError(f"result {record['id']} did not converge to a good fit and cannot be accepted: "
-                         + "; ".join(record.get("warnings", [])), "result")
-    covariance = np.array([[np.nan if v is None else v for v in row] for row in record["covariance"]], float)
-    rig.set_relative(record["sensor"], record["target"], np.array(record["T_target_source"]), covariance)
+def pair_results(session: Session, source: str, target: str) -> list[dict[str, Any]]:
+    """The stored LiDAR-to-LiDAR records of ``source`` into ``target``, newest first."""
+    return [r for r in reversed(session.results(source, "lidar_lidar")) if r.get("parent") == target]
 
 
-def accept(session: Session, source: str, result_id: str, confirm: bool = False) -> None:
-    """Make a stored LiDAR-to-LiDAR result the source LiDAR's mounting (also how a user reverts)."""
+def check_result(session: Session, source: str, result_id: str) -> dict[str, Any]:
+    """The stored record ``result_id`` if it is a LiDAR-to-LiDAR result of ``source`` (the child); else an
+    :class:`InputError` naming the result's kind or sensor."""
     record = session.result(result_id)
-    if record.get("kind") != "lidar_lidar":  # before its 'target' is read: another kind has none
+    if record.get("kind") != "lidar_lidar":
         raise InputError(f"result {result_id} is a {record.get('kind')} result, not lidar_lidar", "result")
     if record["sensor"] != source:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
-    session.accept(slot(source, record["target"]), result_id, apply_lidar_lidar, confirm)
+    return record
+
+
+def global_guess(session: Session, source: str, target: str, pairs: list[tuple[str, str]] | None = None,
+                 progress: ProgressCallback = no_progress) -> tuple[np.ndarray, float]:
+    """A starting ``T_target_source`` (4x4, m) from FPFH features and RANSAC on the last of ``pairs`` (default the
+    last of :func:`pair_ids`), and RANSAC's fitness; about a voxel (``global_voxel_m``) accurate, for GICP to refine."""
+    progress(0.05, "FPFH features + RANSAC on the last frame pair")
+    source_points, target_points = capture_pairs(session, source, target, pairs)[-1]
+    return global_initial_guess(source_points, target_points, voxel_m=LidarLidarSettings().global_voxel_m)
+
+
+def fit_at(source_points: np.ndarray, target_tree: cKDTree, T_target_source: np.ndarray,
+           max_distance_m: float) -> dict[str, Any]:
+    """How the source cloud (N, 3, m, source frame) lies on the target (its KD-tree, target frame) at a nudged
+    ``T_target_source``: ``distances_m`` (N,) from each source point to its nearest target point (inf beyond
+    ``2 * max_distance_m``), ``inliers_m`` (those within ``max_distance_m``), ``fitness`` (their share) and
+    ``c2c_mean_m`` (their mean distance, NaN when there are none)."""
+    distances, _ = target_tree.query(transform_points(T_target_source, np.asarray(source_points, dtype=float)), k=1,
+                                     distance_upper_bound=2 * max_distance_m, workers=2)
+    inliers = distances[distances <= max_distance_m]
+    return {"distances_m": distances, "inliers_m": inliers, "fitness": len(inliers) / max(len(distances), 1),
+            "c2c_mean_m": float(inliers.mean()) if inliers.size else float("nan")}

@@ -4,7 +4,9 @@ Pipeline, as in the issue: an initial guess (given by the user, or
 :func:`global_initial_guess` with Open3D FPFH features and RANSAC when there is
 none), then GICP refinement with small_gicp (coarse stages with wide correspondence
 distances for the basin, then a fine stage with a tight one for accuracy), then quality
-numbers on the full-resolution clouds and a 1-sigma uncertainty of the transform.
+numbers on the full-resolution clouds and a 1-sigma uncertainty of the transform. The answer is a
+:class:`~backend.solvers.result.TransformResult` (``kind`` "lidar_lidar", ``method`` "gicp", ``parent`` "target",
+``child`` "source"), as every transform solver's.
 
 small_gicp's Hessian convention (read from ``small_gicp/factors/gicp_factor.hpp``
 and ``registration/optimizer.hpp``, v1.0): the update is a *right* perturbation,
@@ -39,7 +41,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -50,11 +52,10 @@ from backend.core.transforms import check_transform, params_between, transform_p
 from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.solvers.result import (
     ProgressCallback,
-    SolveResult,
+    TransformResult,
     finite_or_none,
     jackknife_std,
     no_progress,
-    transform_record_fields,
     transform_std,
     widen_covariance,
 )
@@ -158,92 +159,15 @@ class SceneResult:
         }
 
 
-@dataclass
-class LidarLidarResult(SolveResult):
-    kind = "lidar_lidar"
-
-    T_target_source: np.ndarray
-    """4x4, maps source-LiDAR points into the target-LiDAR frame (m)."""
-    fitness: float
-    """Fraction of source points with a target point within ``settings.max_correspondence_m``."""
-    rmse_m: float
-    """RMS distance of those inlier points to their nearest target point (m)."""
-    c2c_m: dict[str, float]
-    """Cloud-to-cloud distance of the inlier source points to the target: mean, median, p95, std (m)."""
-    covariance: np.ndarray
-    """6x6 over ``[t_x, t_y, t_z (m, target axes), r_x, r_y, r_z (rad, source axes)]``; the
-    reported (larger-per-axis) sigmas with the Hessian's correlation structure."""
-    settings: LidarLidarSettings
-    converged: bool
-    """False when GICP did not converge or the fit is poor: do not accept this result."""
-    seconds: float
-    T_init: np.ndarray
-    init_method: str
-    """"given" or "global" (FPFH + RANSAC)."""
-    std_hessian: np.ndarray
-    """(6,) 1-sigma from ``sigma^2 H^-1`` (m, m, m, rad, rad, rad); NaN where undetermined."""
-    std_spread: np.ndarray | None
-    """(6,) 1-sigma from the jackknife spread, or None when not computed."""
-    spread_source: str | None
-    """"scenes" or "sectors": what the spread was taken over."""
-    iterations: int
-    num_inliers: int
-    verdict: Verdict
-    """How far this result can be trusted (sigmas, fit, the cross-check across scenes)."""
-    scenes: list[SceneResult] = field(default_factory=list)
-    """Every scene's own solve (one entry when all the pairs were taken in one place)."""
-    warnings: list[str] = field(default_factory=list)
-
-    @property
-    def scene_spread(self) -> dict[str, float] | None:
-        """The largest distance between two scenes' own solves: ``trans_m`` (m) and ``rot_deg`` (deg), or None
-        with fewer than two scenes."""
-        solved = [s.T_target_source for s in self.scenes]
-        if len(solved) < 2:
-            return None
-        steps = [params_between(a, b) for i, a in enumerate(solved) for b in solved[i + 1:]]
-        return {"trans_m": float(max(np.linalg.norm(p[:3]) for p in steps)),
-                "rot_deg": float(np.degrees(max(np.linalg.norm(p[3:]) for p in steps)))}
-
-    @property
-    def std(self) -> np.ndarray:
-        """(6,) reported 1-sigma: translation (m, target axes), rotation (rad, source axes)."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-
-    def _std_lists(self) -> tuple[list[float | None], list[float | None]]:
-        std = self.std
-        trans = [float(s) if np.isfinite(s) else None for s in std[:3]]
-        rot = [float(np.degrees(s)) if np.isfinite(s) else None for s in std[3:]]
-        return trans, rot
-
-    def summary(self) -> dict[str, Any]:
-        trans, rot = self._std_lists()
-        return {
-            "T_target_source": self.T_target_source.tolist(),
-            "fitness": self.fitness,
-            "rmse_m": self.rmse_m,
-            "c2c_m": dict(self.c2c_m),
-            "std": {"trans_m": trans, "rot_deg": rot},
-            "seconds": self.seconds,
-            "verdict": self.verdict.to_dict(),
-            "scenes": [scene.to_record() for scene in self.scenes],
-            "scene_spread": self.scene_spread,
-        }
-
-    def to_record(self) -> dict[str, Any]:
-        record = self.summary()
-        record.update(
-            kind=self.kind,
-            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
-            std_hessian=finite_or_none(self.std_hessian),
-            std_spread=finite_or_none(self.std_spread),
-            spread_source=self.spread_source,
-            T_init=self.T_init.tolist(),
-            init_method=self.init_method,
-            iterations=self.iterations,
-            num_inliers=self.num_inliers,
-        )
-        return record
+def scene_spread(scenes: list[SceneResult]) -> dict[str, float] | None:
+    """The largest distance between two scenes' own solves: ``trans_m`` (m) and ``rot_deg`` (deg), or None with
+    fewer than two scenes."""
+    solved = [s.T_target_source for s in scenes]
+    if len(solved) < 2:
+        return None
+    steps = np.array([params_between(a, b) for i, a in enumerate(solved) for b in solved[i + 1:]])
+    return {"trans_m": float(np.linalg.norm(steps[:, :3], axis=1).max()),
+            "rot_deg": float(np.degrees(np.linalg.norm(steps[:, 3:], axis=1).max()))}
 
 
 # ---------------------------------------------------------------- input checks
@@ -534,44 +458,47 @@ def initial_guess(T_init: np.ndarray | None, source: np.ndarray, target: np.ndar
 def assemble_result(T: np.ndarray, quality: dict[str, Any], covariance: np.ndarray, cov_h: np.ndarray,
                     std_spread: np.ndarray | None, spread_source: str, settings: LidarLidarSettings, ok: bool,
                     started: float, init: tuple[np.ndarray, str], fit: Any, verdict: Verdict,
-                    scenes: list[SceneResult], warnings: list[str]) -> LidarLidarResult:
-    """A :class:`LidarLidarResult` from a solve's parts: ``quality`` as :func:`evaluate_alignment` gives it,
-    ``started`` the ``time.perf_counter()`` at the start (s), ``init`` the initial guess and its method,
-    ``fit`` the fine stage (its ``iterations`` and ``num_inliers``); ``spread_source`` names what ``std_spread``
-    (if any) was taken over."""
-    return LidarLidarResult(
-        T_target_source=T,
-        fitness=quality["fitness"],
-        rmse_m=quality["rmse_m"],
-        c2c_m=quality["c2c_m"],
-        covariance=covariance,
-        settings=settings,
-        converged=ok,
-        seconds=time.perf_counter() - started,
-        T_init=np.asarray(init[0], dtype=float),
-        init_method=init[1],
-        std_hessian=np.sqrt(np.clip(np.diag(cov_h), 0, None)),
-        std_spread=std_spread,
-        spread_source=spread_source if std_spread is not None else None,
-        iterations=int(fit.iterations),
-        num_inliers=int(fit.num_inliers),
-        verdict=verdict,
-        scenes=scenes,
-        warnings=warnings,
-    )
+                    scenes: list[SceneResult], warnings: list[str]) -> TransformResult:
+    """The :class:`TransformResult` of a solve from its parts (``parent`` "target", ``child`` "source": the
+    caller names them by sensor with :meth:`TransformResult.named`).
+
+    ``quality`` is :func:`evaluate_alignment`'s (it becomes the residuals ``fitness``, ``rmse_m`` and ``c2c_m``),
+    ``started`` the ``time.perf_counter()`` at the start (s), ``init`` the initial guess and its method, ``fit``
+    the fine stage (its ``iterations`` and ``num_inliers``); ``spread_source`` names what ``std_spread`` (if any,
+    m and rad) was taken over. The diagnostics hold every scene's own solve (:meth:`SceneResult.to_record`), the
+    ``scene_spread``, both sigma estimates ``std_hessian`` / ``std_spread`` (6, m and rad, None where
+    undetermined), ``T_init``, ``init_method`` ("given" or "global"), ``iterations`` and ``num_inliers``.
+    """
+    return TransformResult(
+        kind="lidar_lidar", method="gicp", parent="target", child="source", T_parent_child=T, covariance=covariance,
+        residuals={"fitness": quality["fitness"], "rmse_m": quality["rmse_m"], "c2c_m": dict(quality["c2c_m"])},
+        diagnostics={
+            "scenes": [scene.to_record() for scene in scenes],
+            "scene_spread": scene_spread(scenes),
+            "std_hessian": finite_or_none(np.sqrt(np.clip(np.diag(cov_h), 0, None))),
+            "std_spread": finite_or_none(std_spread),
+            "spread_source": spread_source if std_spread is not None else None,
+            "T_init": np.asarray(init[0], dtype=float).tolist(),
+            "init_method": init[1],
+            "iterations": int(fit.iterations),
+            "num_inliers": int(fit.num_inliers),
+        },
+        settings=asdict(settings), converged=ok, verdict=verdict, warnings=warnings,
+        seconds=time.perf_counter() - started)
 
 
 def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: np.ndarray | None = None,
                   settings: LidarLidarSettings | None = None, progress: ProgressCallback = no_progress,
-                  source_name: str = "source", target_name: str = "target") -> LidarLidarResult:
-    """Estimate ``T_target_source`` (maps source points into the target frame) from one frame pair.
+                  source_name: str = "source", target_name: str = "target") -> TransformResult:
+    """Estimate ``T_target_source`` (maps source points into the target frame) from one frame pair: a
+    :class:`TransformResult` with ``parent`` "target" and ``child`` "source" (see :func:`assemble_result`).
 
     ``source_points`` / ``target_points`` are (N, 3) arrays in metres (non-finite rows are dropped
     with a warning). ``T_init`` is the initial ``T_target_source``; without one, FPFH + RANSAC
     (:func:`global_initial_guess`) provides it. Raises :class:`InputError` naming
     ``source_name`` / ``target_name`` for empty, all-non-finite, too small or millimetre-looking
     clouds and for a non-rigid ``T_init``. A refinement that did not converge or fits poorly is
-    returned with ``converged=False`` and a warning: the caller must not accept it.
+    returned with ``converged=False``, a warning and a ``reject`` verdict: the caller must not accept it.
     """
     settings = settings or LidarLidarSettings()
     started = time.perf_counter()

@@ -36,7 +36,6 @@ from backend.solvers.lidar_lidar import (
     CYCLE_TOLERANCE,
     ROTATION_EPSILON_RAD,
     TRANSLATION_EPSILON_M,
-    LidarLidarResult,
     LidarLidarSettings,
     SceneResult,
     assemble_result,
@@ -52,7 +51,14 @@ from backend.solvers.lidar_lidar import (
     register_pair,
     sector_jackknife,
 )
-from backend.solvers.result import ProgressCallback, jackknife_std, no_progress, transform_std, widen_covariance
+from backend.solvers.result import (
+    ProgressCallback,
+    TransformResult,
+    jackknife_std,
+    no_progress,
+    transform_std,
+    widen_covariance,
+)
 
 SAME_PLACE_FITNESS = 0.8
 """Two pairs were taken in one place when at least this share of one's target points lies within the fine voxel
@@ -231,9 +237,11 @@ def _cross_check(judge: VerdictBuilder, scenes: list[SceneResult]) -> None:
 
 def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarray | None = None,
                    settings: LidarLidarSettings | None = None, progress: ProgressCallback = no_progress,
-                   names: list[tuple[str, str]] | None = None) -> LidarLidarResult:
+                   names: list[tuple[str, str]] | None = None) -> TransformResult:
     """One ``T_target_source`` (maps source points into the target frame) from several (source, target) frame
-    pairs (N, 3 arrays, m, sensor frames) of a rig whose LiDARs did not move between them.
+    pairs (N, 3 arrays, m, sensor frames) of a rig whose LiDARs did not move between them: a
+    :class:`TransformResult` (``parent`` "target", ``child`` "source") whose diagnostics hold every scene's own
+    solve (see :func:`backend.solvers.lidar_lidar.assemble_result`).
 
     The pairs are solved jointly (:func:`joint_gicp`) from ``T_init`` (or from global registration on the
     first pair), grouped into scenes (:func:`group_scenes`), and every scene is solved on its own for the

@@ -14,6 +14,7 @@ from backend.api.uploads import UploadRoute, save_uploads, upload_folder, upload
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB
 from backend.core.transforms import from_xyz_ypr
 from backend.services import lidar_lidar as service
+from backend.services import rig as rig_service
 from backend.solvers.lidar_lidar import LidarLidarSettings
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=UploadRoute)
@@ -56,5 +57,8 @@ def solve(body: LidarLidarSolveRequest, session: deps.SessionDep, jobs: deps.Job
 
 @router.post("/sensors/{sensor}/lidar-lidar/accept")
 def accept(sensor: str, body: LidarLidarAccept, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id, body.confirm)
+    """Make a LiDAR-to-LiDAR result of ``sensor`` (the source LiDAR) an edge of the rig and re-solve the rig
+    (a ``check`` verdict needs ``confirm``; accepting an older result reverts to it)."""
+    service.check_result(session, sensor, body.result_id)
+    rig_service.accept(session, body.result_id, confirm=body.confirm)
     return session.info()
