@@ -31,7 +31,7 @@ from backend.store.session import Session
 
 EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node")
 """Result kinds whose transforms are edges of the rig graph."""
-MANUAL_SIGMA = (0.01, 1.0)
+MANUAL_SIGMA = (0.005, 0.3)
 """1-sigma (m, deg) assumed for a transform set by hand, which carries none of its own."""
 MOVE_THRESHOLD = (1e-6, 1e-5)
 """A frame moving less than this (m, deg) does not count as moved."""

@@ -17,10 +17,11 @@ Consistency checks that come with the fit:
 - loops of measured edges (camera to LiDAR to LiDAR to camera) and their closure error.
 
 An edge that disagrees with the rest beyond :data:`FLAG_SIGMA` is flagged and left out of the
-fused tree, which the rest then holds. In one loop every edge disagrees alike (a loop cannot
-say which of its edges is wrong); the flag goes to the edge whose removal leaves the rest most
-consistent, and among equals to the newest (edges are given oldest first), which is the one
-whose acceptance broke the loop.
+fused tree, which the rest then holds. In one loop every edge disagrees alike: a loop cannot
+say which of its edges is wrong. So among the edges whose removal leaves the rest consistent
+(its chi-square within the :data:`CONSISTENT_PROBABILITY` quantile), the flag goes to the newest
+(edges are given oldest first): the one whose acceptance broke the loop. Each flagged edge names
+the edges it shares a loop with, so the user can keep it and revert one of them instead.
 
 Written here because no library we use fits a small pose graph with these diagnostics (g2o and
 GTSAM are not on our dependency list); the fit itself is :func:`scipy.optimize.least_squares`.
@@ -36,16 +37,20 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2, norm
 
 from backend.core.transforms import apply_params_many, invert, params_between, rotation_angle_deg
 from backend.solvers.result import transform_std
 
 FLAG_SIGMA = 3.0
-"""An edge whose leave-one-out disagreement exceeds this many sigma (worst axis) is flagged."""
+"""An edge whose leave-one-out disagreement exceeds this many sigma is flagged. The disagreement is the
+Mahalanobis distance of the 6-vector difference, said as the Gaussian sigma of equal probability (3 sigma:
+chi-square 20.1 on 6 degrees of freedom), so a consistent rig raises a false flag on 0.27 % of its edges."""
 UNDETERMINED_SIGMA = (100.0, np.pi)
 """Sigma (m, rad) given to an axis whose covariance is NaN: the edge says nothing along it."""
-TIE_CHI2 = 1.0
-"""Two culprit candidates whose removal leaves totals within this chi-square (or 10 %) are equals."""
+CONSISTENT_PROBABILITY = 0.9973
+"""The rest of the graph is consistent when its chi-square is within this quantile (3 sigma) for its degrees
+of freedom."""
 
 
 @dataclass
@@ -87,10 +92,13 @@ class EdgeResidual:
     chi2: float
     """``e^T Sigma^-1 e / 6`` of that error, with the edge's own covariance."""
     disagreement_sigma: float | None
-    """Worst per-axis disagreement with the tree solved from every other edge (sigma of their difference);
-    None when nothing else constrains this relation."""
+    """Disagreement with the tree solved from every other edge, in sigma of their difference (see
+    :data:`FLAG_SIGMA`); None when nothing else constrains this relation."""
     flagged: bool = False
     """Disagrees with the rest beyond :data:`FLAG_SIGMA` and is left out of the fused tree."""
+    conflicts_with: list[str] = field(default_factory=list)
+    """For a flagged edge: the acceptance slots of the edges it shares a loop with (any of them may be the wrong
+    one; reverting one of them instead keeps this edge)."""
 
     def to_dict(self) -> dict[str, Any]:
         """The CLI's edge entry (``conventions.md``) with the disagreement and flag beside it."""
@@ -98,7 +106,8 @@ class EdgeResidual:
         return {"parent": e.parent, "child": e.child, "kind": e.kind, "result_id": e.result_id, "slot": e.slot,
                 "method": e.method,
                 "residual": {"trans_m": self.trans_m, "rot_deg": self.rot_deg, "chi2": self.chi2},
-                "disagreement_sigma": self.disagreement_sigma, "flagged": self.flagged, "note": e.note}
+                "disagreement_sigma": self.disagreement_sigma, "flagged": self.flagged,
+                "conflicts_with": list(self.conflicts_with), "note": e.note}
 
 
 @dataclass
@@ -297,8 +306,13 @@ def _edge_residual(graph: _Graph, k: int, poses: dict[str, np.ndarray], disagree
                         float(whitened @ whitened / 6.0), disagreement, flagged)
 
 
+def _as_sigma(mahalanobis2: float, dof: int = 6) -> float:
+    """The Gaussian sigma whose two-sided probability equals that of a chi-square ``mahalanobis2`` on ``dof``."""
+    return float(norm.isf(chi2.sf(mahalanobis2, dof) / 2))
+
+
 def _disagreement(graph: _Graph, k: int, kept: list[int], x: np.ndarray) -> tuple[float | None, float]:
-    """Edge ``k`` against the fit of ``kept`` without it: (worst per-axis sigma, or None when the rest leave it
+    """Edge ``k`` against the fit of ``kept`` without it: (its disagreement in sigma, or None when the rest leave it
     unconstrained; the rest's total chi-square)."""
     others = [j for j in kept if j != k]
     edge = graph.edges[k]
@@ -309,8 +323,8 @@ def _disagreement(graph: _Graph, k: int, kept: list[int], x: np.ndarray) -> tupl
     T_rest, cov_predicted = graph.relative(x_rest, cov_rest, edge.parent, edge.child)
     difference = params_between(edge.T_parent_child, T_rest)
     L = graph.whiteners[k]
-    variance = np.diag(L @ L.T + cov_predicted)
-    return float(np.max(np.abs(difference) / np.sqrt(variance))), chi2_rest
+    combined = L @ L.T + cov_predicted
+    return _as_sigma(float(difference @ np.linalg.solve(combined, difference))), chi2_rest
 
 
 def _reachable(root: str, edges: list[RigEdge]) -> set[str]:
@@ -327,11 +341,13 @@ def _reachable(root: str, edges: list[RigEdge]) -> set[str]:
     return seen
 
 
-def _culprit(graph: _Graph, candidates: list[tuple[int, float]], rest_chi2: dict[int, float]) -> int:
-    """The candidate whose removal leaves the rest most consistent; among equals the newest (highest index)."""
-    best = min(rest_chi2[k] for k, _ in candidates)
-    equals = [k for k, _ in candidates if rest_chi2[k] <= best + max(TIE_CHI2, 0.1 * best)]
-    return max(equals)
+def _culprit(graph: _Graph, candidates: list[int], rest_chi2: dict[int, float], kept: list[int]) -> int:
+    """Of the edges that disagree, the newest whose removal leaves the rest consistent; when none does, the one
+    whose removal leaves the smallest chi-square."""
+    dof = 6 * (len(kept) - 1) - 6 * len(graph.names)
+    limit = chi2.ppf(CONSISTENT_PROBABILITY, dof) if dof > 0 else 0.0
+    consistent = [k for k in candidates if rest_chi2[k] <= limit]
+    return max(consistent) if consistent else min(candidates, key=lambda k: rest_chi2[k])
 
 
 def _loops(edges: list[RigEdge], measured: list[int]) -> list[RigLoop]:
@@ -397,18 +413,18 @@ def solve_rig_graph(root: str, parents: dict[str, str | None], edges: list[RigEd
     kept = list(usable)
     flagged: set[int] = set()
     disagreements: dict[int, float | None] = {}
-    x, covariance, chi2 = graph.fit(kept)
+    x, covariance, chi2_total = graph.fit(kept)
     while True:
         rest_chi2: dict[int, float] = {}
         for k in kept:
             disagreements[k], rest_chi2[k] = _disagreement(graph, k, kept, x)
-        candidates = [(k, d) for k in kept if (d := disagreements[k]) is not None and d > FLAG_SIGMA]
+        candidates = [k for k in kept if (d := disagreements[k]) is not None and d > FLAG_SIGMA]
         if not candidates:
             break
-        culprit = _culprit(graph, candidates, rest_chi2)
+        culprit = _culprit(graph, candidates, rest_chi2, kept)
         flagged.add(culprit)
         kept.remove(culprit)
-        x, covariance, chi2 = graph.fit(kept, x)
+        x, covariance, chi2_total = graph.fit(kept, x)
     for k in flagged:  # its disagreement with everything that was kept
         disagreements[k], _ = _disagreement(graph, k, kept + [k], x)
     poses = graph.poses(x)
@@ -424,11 +440,15 @@ def solve_rig_graph(root: str, parents: dict[str, str | None], edges: list[RigEd
         i = 6 * graph.index[name]
         frames[name] = FrameEstimate(name, parent, T, cov, poses[name], covariance[i:i + 3, i:i + 3].copy())
     measured = [k for k in usable if edges[k].kind != "prior"]
+    loops = _loops(edges, measured)
+    for k in flagged:
+        shared = {j for loop in loops if k in loop.edges for j in loop.edges if j != k}
+        residuals[k].conflicts_with = list(dict.fromkeys(edges[j].slot for j in sorted(shared) if edges[j].slot))
     unconnected = {}
     for name in names:
         if name == root or name in graph.T0:
             continue
         linked = sorted({e.child if e.parent == name else e.parent for e in edges if name in (e.parent, e.child)})
         unconnected[name] = linked
-    return RigTree(root, frames, residuals, _loops(edges, measured), unconnected, chi2)
+    return RigTree(root, frames, residuals, loops, unconnected, chi2_total)
 
