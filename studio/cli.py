@@ -134,9 +134,18 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write every T_ref_cam with its sigma and static_transform_publisher line")
     mc.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
-    export = sub.add_parser("export", help="export an accepted calibration from a session")
+    from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS
+
+    export = sub.add_parser("export", help="export the session's rig or an accepted calibration")
     export.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
-    export.add_argument("--format", required=True, choices=["camera_info", "opencv", "rig", "kalibr"])
+    export.add_argument("--format", required=True, choices=list(EXPORT_FORMATS),
+                        help="; ".join(f"{name}: {what}" for name, what in EXPORT_FORMATS.items()))
+    export.add_argument("--convention", choices=list(CONVENTIONS),
+                        help=f"{', '.join(CONVENTION_FORMATS)} only (default optical); "
+                             + "; ".join(f"{name}: {what}" for name, what in CONVENTIONS.items()))
+    export.add_argument("--cameras", metavar="A,B", type=_names,
+                        help="kalibr only: the cameras to write, in order (default: every camera with intrinsics "
+                             "Kalibr can describe)")
     export.add_argument("--sensor", help="camera name (camera_info, opencv)")
     export.add_argument("--out", type=Path, help="file to write (default: stdout)")
     return parser
@@ -403,13 +412,18 @@ def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
     return summary
 
 
+def _names(value: str) -> list[str]:
+    """``a,b`` as ``["a", "b"]`` (empty parts dropped)."""
+    return [name for name in value.split(",") if name]
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
 
     _check_outputs(args.out)
     session = Session.load(args.session_dir)
-    _, text = export_text(session, args.format, args.sensor)
+    _, text = export_text(session, args.format, args.sensor, convention=args.convention, cameras=args.cameras)
     if args.out:
         write_text(args.out, text)
         print(f"wrote {args.out}", file=sys.stderr)

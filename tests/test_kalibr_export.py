@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -278,20 +280,60 @@ def test_export_text_kalibr(session) -> None:
 
 
 def test_export_text_kalibr_refusals(session) -> None:
-    session.rig.get("cam_wide").intrinsics.dist[4] = -0.0115  # the demo's ground truth has k3
-    with pytest.raises(InputError, match="^cam_wide: k3 = -0.0115"):
-        export_service.export_text(session, "kalibr")
     session.rig.get("cam_wide").intrinsics = None
     with pytest.raises(InputError) as error:
         export_service.export_text(session, "kalibr")
     assert error.value.status_code == 409
     assert error.value.input == "cam_wide"
-    assert "at least two cameras with intrinsics; cam_wide has no intrinsics yet" in error.value.message
+    assert ("at least two cameras with intrinsics Kalibr can describe; cam_wide has no intrinsics yet"
+            in error.value.message)
+
+
+def test_a_camera_outside_the_subset_no_longer_blocks_the_export(tmp_path: Path) -> None:
+    """The demo rig as it is: cam_wide's lens has a k3 Kalibr's radtan cannot hold."""
+    session = SessionStore(tmp_path).create("demo_rig", rig=demo_rig())
+    rig = session.rig
+    _, text = export_service.export_text(session, "kalibr")
+    cameras, T_ref_cam = load_kalibr_camchain(text)
+    assert [name for name, _ in cameras] == ["cam_front", "cam_right"]
+    np.testing.assert_allclose(T_ref_cam["cam_right"], rig.T_a_b("cam_front", "cam_right"), rtol=0, atol=1e-12)
+    assert text.startswith("# left out: cam_wide: k3 = -0.0115 moves the farthest image corner by ")
+    assert "recalibrate cam_wide with k3 fixed at 0" in text.splitlines()[0]
+
+    _, text = export_service.export_text(session, "kalibr", cameras=["cam_right", "cam_front"])
+    assert not text.startswith("#")
+    cameras, T_ref_cam = load_kalibr_camchain(text)
+    assert [name for name, _ in cameras] == ["cam_right", "cam_front"]
+    np.testing.assert_allclose(T_ref_cam["cam_front"], rig.T_a_b("cam_right", "cam_front"), rtol=0, atol=1e-12)
+    cameras, _ = load_kalibr_camchain(export_service.export_text(session, "kalibr", cameras=["cam_front"])[1])
+    assert [name for name, _ in cameras] == ["cam_front"]
+
+
+@pytest.mark.parametrize(("cameras", "status", "start"), [
+    (["cam_front", "cam_wide"], 422, "cam_wide: k3 = -0.0115"),
+    (["cam_front", "lidar_top"], 422, "lidar_top is a lidar3d, not a camera"),
+    (["cam_front", "cam_rear"], 404, "no sensor or frame named 'cam_rear'"),
+    (["cam_front", "cam_front"], 422, "camera 'cam_front' is listed twice"),
+    ([], 422, "the kalibr export needs at least one camera"),
+])
+def test_a_camera_inside_the_subset_kalibr_cannot_describe_is_named(tmp_path: Path, cameras, status: int,
+                                                                     start: str) -> None:
+    session = SessionStore(tmp_path).create("demo_rig", rig=demo_rig())
+    with pytest.raises(InputError) as error:
+        export_service.export_text(session, "kalibr", cameras=cameras)
+    assert error.value.status_code == status and error.value.message.startswith(start), error.value.message
+
+
+def test_a_camera_without_intrinsics_inside_the_subset_is_named(session) -> None:
+    session.rig.get("cam_wide").intrinsics = None
+    with pytest.raises(InputError) as error:
+        export_service.export_text(session, "kalibr", cameras=["cam_front", "cam_wide"])
+    assert (error.value.status_code, error.value.input) == (409, "cam_wide")
+    assert error.value.message.startswith("cam_wide has no intrinsics yet")
+    assert export_service.export_text(session, "kalibr", cameras=["cam_front"])  # without it the export goes
 
 
 def test_kalibr_through_api_and_cli(session, tmp_path: Path) -> None:
-    from studio.cli import build_parser
-
     app = create_app(tmp_path)
     with TestClient(app) as client:
         assert "kalibr" in client.get("/api/exports/formats").json()
@@ -299,6 +341,25 @@ def test_kalibr_through_api_and_cli(session, tmp_path: Path) -> None:
         assert response.status_code == 200, response.text
         assert 'filename="stereo_rig_camchain.yaml"' in response.headers["content-disposition"]
         assert [name for name, _ in load_kalibr_camchain(response.text)[0]] == ["cam_front", "cam_wide"]
+        demo = app.state.studio.store.create("demo_rig", rig=demo_rig())
+        for cameras in (["cam_right,cam_front"], ["cam_right", "cam_front"]):  # comma-separated, or repeated
+            response = client.get("/api/sessions/demo_rig/export/kalibr", params={"cameras": cameras})
+            assert response.status_code == 200, response.text
+            assert [name for name, _ in load_kalibr_camchain(response.text)[0]] == ["cam_right", "cam_front"]
+        response = client.get("/api/sessions/demo_rig/export/kalibr", params={"cameras": "cam_front,cam_wide"})
+        assert response.status_code == 422
+        assert response.json()["error"]["input"] == "cam_wide"
+        assert response.json()["error"]["message"].startswith("cam_wide: k3 = -0.0115")
     app.state.studio.jobs.shutdown()
-    args = build_parser().parse_args(["export", str(session.path), "--format", "kalibr"])
-    assert args.format == "kalibr"
+
+    run = cli("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_right")
+    assert run.returncode == 0, run.stderr
+    assert [name for name, _ in load_kalibr_camchain(run.stdout)[0]] == ["cam_front", "cam_right"]
+    run = cli("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_wide")
+    assert run.returncode == 2 and run.stdout == ""
+    assert run.stderr.strip().splitlines()[-1].startswith("error: cam_wide: k3 = -0.0115")
+
+
+def cli(*args: str | Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)],
+                          cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120)

@@ -230,26 +230,31 @@ def _is_rigid(T: np.ndarray) -> bool:
     )
 
 
+def kalibr_refusal(name: str, camera: CameraIntrinsics) -> str | None:
+    """Why Kalibr's ``pinhole`` + ``radtan``/``equidistant`` cannot describe ``camera`` (a message naming
+    ``name``: a skewed ``K``, or a ``k3`` above :data:`K3_TOLERANCE_PX`), or None if it can."""
+    if abs(camera.K[0, 1]) > 1e-12 * abs(camera.K[0, 0]):
+        return (f"{name}: K has skew {camera.K[0, 1]!r} px, which Kalibr's pinhole [fu, fv, pu, pv] cannot hold; "
+                "recalibrate without skew")
+    if camera.is_fisheye or float(camera.dist[4]) == 0.0:
+        return None
+    shift_px = _k3_shift_px(camera)
+    if shift_px <= K3_TOLERANCE_PX:
+        return None
+    return (f"{name}: k3 = {float(camera.dist[4])!r} moves the farthest image corner by {shift_px:.3g} px, but "
+            f"Kalibr's radtan holds only [k1, k2, r1, r2] (no k3; at most {K3_TOLERANCE_PX} px is dropped); "
+            f"recalibrate {name} with k3 fixed at 0 or export another format")
+
+
 def _kalibr_coeffs(name: str, camera: CameraIntrinsics) -> list[float]:
-    """Kalibr's 4 coefficients of ``camera``, refusing what Kalibr cannot represent."""
+    """Kalibr's 4 coefficients of ``camera``, refusing what Kalibr cannot represent (:func:`kalibr_refusal`)."""
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, {name} holds {camera.dist.size}")
-    if abs(camera.K[0, 1]) > 1e-12 * abs(camera.K[0, 0]):
-        raise InputError(
-            f"{name}: K has skew {camera.K[0, 1]!r} px, which Kalibr's pinhole [fu, fv, pu, pv] cannot hold; "
-            "recalibrate without skew", name)
-    if camera.is_fisheye:
-        return floats(camera.dist)
-    k3 = float(camera.dist[4])
-    if k3 != 0.0:
-        shift_px = _k3_shift_px(camera)
-        if not shift_px <= K3_TOLERANCE_PX:
-            raise InputError(
-                f"{name}: k3 = {k3!r} moves the farthest image corner by {shift_px:.3g} px, but Kalibr's radtan "
-                f"holds only [k1, k2, r1, r2] (no k3; at most {K3_TOLERANCE_PX} px is dropped); recalibrate "
-                f"{name} with k3 fixed at 0 or export another format", name)
-    return floats(camera.dist[:4])
+    refusal = kalibr_refusal(name, camera)
+    if refusal is not None:
+        raise InputError(refusal, name)
+    return floats(camera.dist if camera.is_fisheye else camera.dist[:4])
 
 
 def _k3_shift_px(camera: CameraIntrinsics) -> float:

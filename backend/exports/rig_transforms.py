@@ -5,6 +5,7 @@ Layout (``format: calib-studio-rig-transforms``, ``version: 1``)::
     format: calib-studio-rig-transforms
     version: 1
     root: base_link
+    convention: optical                           # or body (see backend/exports/frame_tree.py)
     frames:
     - parent: base_link
       child: lidar
@@ -19,7 +20,10 @@ Each entry is ``T_parent_child`` of ``../shared/conventions.md`` (maps points in
 child``): translation in metres, rotation as a quaternion ``(x, y, z, w)`` with
 ``w >= 0`` and as ROS yaw, pitch, roll in degrees (``R = Rz(yaw) Ry(pitch)
 Rx(roll)``). ``sigma`` holds 1-sigma translation (m, per axis) and rotation (deg,
-about the child's x, y, z). Frames are listed parents first. The command uses the
+about the child's x, y, z). Frames are listed parents first, in the ``convention``
+chosen (:func:`~backend.exports.frame_tree.export_frames`: cameras as optical frames,
+or as body frames with a ``CAM_optical_frame`` child). A frame other than the root
+without a parent is refused (:class:`InputError` naming it), never left out. The command uses the
 ROS 2 Humble+ flag form of tf2_ros ``static_transform_publisher`` (flags as in
 ros2/geometry2 ``tf2_ros/src/static_transform_broadcaster_program.cpp``), with
 angles in radians as tf2 expects. Floats are written at full precision; a NaN or
@@ -44,6 +48,8 @@ from backend.core.transforms import (
     to_quaternion_xyzw,
     to_xyz_ypr,
 )
+from backend.exports.formats import CONVENTIONS, Convention
+from backend.exports.frame_tree import export_frames
 from backend.exports.text_file import read_text
 from backend.exports.yaml_fields import YamlFields, dump_yaml, floats, parse_yaml
 
@@ -55,32 +61,33 @@ _NORM_TOLERANCE = 1e-6
 """How far a quaternion's norm may be from 1 on load."""
 
 
-def dump_rig_transforms(rig: Rig) -> str:
-    """YAML text listing ``T_parent_child`` of every non-root frame of ``rig``, parents first."""
+def dump_rig_transforms(rig: Rig, convention: Convention = "optical") -> str:
+    """YAML text listing ``T_parent_child`` of every non-root frame of ``rig``, parents first, in ``convention``."""
     frames = []
-    for frame in rig.frames.values():
-        if frame.parent is None:
-            continue
+    for frame in export_frames(rig, convention):
         T = frame.T_parent_child
         xyz_m, ypr_rad = to_xyz_ypr(T)
-        q = to_quaternion_xyzw(T)
-        if q[3] < 0:
-            q = -q
         sigmas = frame.sigmas
-        require_finite({"sigma": sigmas}, f"rig transforms: frame {frame.name!r}", frame.name)
+        require_finite({"sigma": sigmas}, f"rig transforms: frame {frame.child!r}", frame.sensor)
         frames.append(
             {
                 "parent": frame.parent,
-                "child": frame.name,
+                "child": frame.child,
                 "translation_m": dict(zip("xyz", floats(xyz_m), strict=True)),
-                "quaternion_xyzw": dict(zip("xyzw", floats(q), strict=True)),
+                "quaternion_xyzw": dict(zip("xyzw", floats(quaternion_xyzw(T)), strict=True)),
                 "yaw_pitch_roll_deg": dict(zip(("yaw", "pitch", "roll"), floats(np.degrees(ypr_rad)), strict=True)),
                 "sigma": None if sigmas is None else {"trans_m": floats(sigmas[0]), "rot_deg": floats(sigmas[1])},
-                "static_transform_publisher": static_transform_publisher(frame.parent, frame.name, T),
+                "static_transform_publisher": static_transform_publisher(frame.parent, frame.child, T),
             }
         )
-    document = {"format": FORMAT, "version": VERSION, "root": rig.root, "frames": frames}
+    document = {"format": FORMAT, "version": VERSION, "root": rig.root, "convention": convention, "frames": frames}
     return dump_yaml(document)
+
+
+def quaternion_xyzw(T: np.ndarray) -> np.ndarray:
+    """The rotation of ``T`` as the unit quaternion ``(x, y, z, w)`` with ``w >= 0`` that the exports write."""
+    q = to_quaternion_xyzw(T)
+    return -q if q[3] < 0 else q
 
 
 def static_transform_publisher(parent: str, child: str, T_parent_child: np.ndarray) -> str:
@@ -99,7 +106,8 @@ def static_transform_publisher(parent: str, child: str, T_parent_child: np.ndarr
 def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
     """Read a rig transforms document: a :class:`~pathlib.Path` is read as a file, a ``str`` is the YAML text.
 
-    Returns one dict per frame, in file order: ``parent``, ``child``,
+    ``convention`` (optional, ``optical`` when absent) is checked, not returned: the frames are read as
+    written. Returns one dict per frame, in file order: ``parent``, ``child``,
     ``T_parent_child`` (4x4, metres) and ``sigma`` (``None`` or ``{"trans_m":
     (3,) m, "rot_deg": (3,) deg}``). Either rotation field may be omitted; if both
     are given they must agree. ``static_transform_publisher`` is derived and not
@@ -120,6 +128,9 @@ def load_rig_transforms(source: str | Path) -> list[dict[str, Any]]:
     if isinstance(version, bool) or version != VERSION:
         raise fields.error("version", f"is {shorten(version)}", f"{VERSION} (the only version this reader knows)")
     root = fields.name(top, "root", "root")
+    convention = top.get("convention", "optical")
+    if not isinstance(convention, str) or convention not in CONVENTIONS:
+        raise fields.error("convention", f"is {shorten(convention)}", f"one of {list(CONVENTIONS)}")
     entries = fields.get(top, "frames", "frames", "a list of frames")
     if not isinstance(entries, list):
         raise fields.error("frames", f"is {shorten(entries)}", "a list of frames")

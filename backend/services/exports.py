@@ -2,26 +2,27 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Sequence
 
 from backend.core.camera import CameraIntrinsics
-from backend.core.errors import InputError
-from backend.exports.kalibr_camchain import dump_kalibr_camchain
+from backend.core.errors import InputError, shorten
+from backend.core.rig import Frame, Rig
+from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS, Convention, ExportFormat
+from backend.exports.frame_tree import ancestors
+from backend.exports.kalibr_camchain import dump_kalibr_camchain, kalibr_refusal
 from backend.exports.opencv_yaml import dump_opencv_yaml
 from backend.exports.rig_transforms import dump_rig_transforms
+from backend.exports.ros2_launch import dump_ros2_launch
 from backend.exports.ros_camera_info import dump_camera_info
+from backend.exports.urdf import dump_urdf
 from backend.store.session import Session
 
-ExportFormat = Literal["camera_info", "opencv", "rig", "kalibr"]
-EXPORT_FORMATS: dict[str, str] = {
-    "camera_info": "ROS camera_info YAML (camera_calibration_parsers)",
-    "opencv": "OpenCV FileStorage YAML",
-    "rig": "the rig's transforms with sigmas and static_transform_publisher lines",
-    "kalibr": "Kalibr camchain YAML (T_cn_cnm1 chain)",
-}
+MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python"}
+"""The media type of each format that is not YAML (the others are ``application/yaml``)."""
 
 
 def accepted_camera(session: Session, sensor: str) -> CameraIntrinsics:
+    """The intrinsics of camera ``sensor``; :class:`InputError` naming it if it is no camera, or (409) has none."""
     frame = session.rig.get(sensor)
     if frame.kind != "camera":
         raise InputError(f"sensor {sensor!r} is a {frame.kind}, not a camera", "sensor")
@@ -30,14 +31,37 @@ def accepted_camera(session: Session, sensor: str) -> CameraIntrinsics:
     return frame.intrinsics
 
 
-def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None) -> tuple[str, str]:
-    """Return (file name, YAML text) of one export; ``sensor`` is used by camera_info and opencv only."""
-    if fmt == "rig":
-        return f"{session.name}_transforms.yaml", dump_rig_transforms(session.rig)
-    if fmt == "kalibr":
-        return f"{session.name}_camchain.yaml", kalibr_camchain(session)
+def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, *,
+                convention: Convention | None = None, cameras: Sequence[str] | None = None) -> tuple[str, str]:
+    """Return (file name, text) of one export of the session's rig.
+
+    ``sensor`` is the camera of camera_info and opencv (the other formats ignore it); ``convention``
+    (default ``optical``) applies to rig, urdf and launch only; ``cameras`` (default: every camera Kalibr can
+    describe) to kalibr only. A choice given for a format it does not apply to is refused (422), as is an
+    unknown format or convention; data the rig lacks is named by the exporter (a camera without intrinsics,
+    a frame with no parent).
+    """
     if fmt not in EXPORT_FORMATS:
-        raise InputError(f"unknown export format {fmt!r}; expected one of {sorted(EXPORT_FORMATS)}", "format")
+        raise InputError(f"unknown export format {shorten(fmt)}; expected one of {list(EXPORT_FORMATS)}", "format")
+    if convention is not None and fmt not in CONVENTION_FORMATS:
+        raise InputError(f"the {fmt} export has no convention choice (cameras are optical frames); convention "
+                         f"applies to {', '.join(CONVENTION_FORMATS)}", "convention")
+    if convention is not None and convention not in CONVENTIONS:
+        raise InputError(f"unknown convention {shorten(convention)}; expected one of {list(CONVENTIONS)}",
+                         "convention")
+    if cameras is not None and fmt != "kalibr":
+        raise InputError(f"the {fmt} export takes no camera subset; cameras applies to kalibr", "cameras")
+    convention = convention or "optical"
+    suffix = "" if convention == "optical" else f"_{convention}"
+    if fmt == "rig":
+        return f"{session.name}_transforms{suffix}.yaml", dump_rig_transforms(session.rig, convention)
+    if fmt == "urdf":
+        return f"{session.name}{suffix}.urdf", dump_urdf(session.rig, session.name, convention)
+    if fmt == "launch":
+        return (f"{session.name}_static_tf{suffix}.launch.py",
+                dump_ros2_launch(session.rig, convention, f"for session {session.name}"))
+    if fmt == "kalibr":
+        return f"{session.name}_camchain.yaml", kalibr_camchain(session, cameras)
     if sensor is None:
         raise InputError(f"the {fmt} export needs a camera sensor", "sensor")
     camera = accepted_camera(session, sensor)
@@ -48,31 +72,68 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None) 
     return f"{sensor}_opencv.yaml", dump_opencv_yaml(camera, extra)
 
 
-def kalibr_camchain(session: Session) -> str:
-    """Kalibr camchain YAML of every camera of the rig that has intrinsics, in the rig's order.
+def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> str:
+    """Kalibr camchain YAML of ``cameras`` (in that order), or by default of every camera of the rig with
+    intrinsics Kalibr can describe (in the rig's order; those left out are named in a comment at the top).
 
-    cam0 is the first such camera; ``T_ref_cam`` is ``rig.T_a_b(cam0, cam)``. Raises
-    :class:`InputError` (409) naming the cameras without intrinsics if fewer than two
-    have them, and the camchain writer's :class:`InputError` for a camera Kalibr cannot
-    describe (e.g. a non-negligible ``k3``).
+    cam0 is the first camera; ``T_ref_cam`` is ``rig.T_a_b(cam0, cam)``. A named camera that is not in the
+    rig (404), not a camera, has no intrinsics or no chain of parents to the root (409), or that Kalibr cannot
+    describe (e.g. a non-negligible ``k3``) raises :class:`InputError` naming it; by default such cameras are
+    left out, and fewer than two left raise one (409) naming those without intrinsics and why the others were
+    left out. One named camera
+    gives a one-camera camchain (what ``kalibr_calibrate_imu_camera`` takes for a single camera).
     """
     rig = session.rig
-    cameras = rig.sensors("camera")
-    ready = [frame for frame in cameras if frame.intrinsics is not None]
-    if len(ready) < 2:
-        missing = [frame.name for frame in cameras if frame.intrinsics is None]
-        if len(cameras) < 2:
-            problem = f"the rig has {len(cameras)} camera(s) ({', '.join(f.name for f in cameras) or 'none'})"
-        else:
-            problem = f"{', '.join(missing)} {'has' if len(missing) == 1 else 'have'} no intrinsics yet"
-        raise InputError(
-            f"the kalibr export needs at least two cameras with intrinsics; {problem}; "
-            "add cameras, solve and accept their intrinsics first",
-            ", ".join(missing) or "rig",
-            409,
-        )
-    reference = ready[0].name
-    return dump_kalibr_camchain(
-        [(frame.name, frame.intrinsics) for frame in ready],
-        {frame.name: rig.T_a_b(reference, frame.name) for frame in ready},
+    skipped: list[str] = []
+    if cameras is None:
+        chosen, skipped, missing = _describable_cameras(rig)
+        if len(chosen) < 2:
+            found = f"the rig has {len(rig.sensors('camera'))} camera(s)"
+            raise InputError(
+                f"the kalibr export needs at least two cameras with intrinsics Kalibr can describe; "
+                f"{'; '.join(skipped) or found}; add cameras, solve and accept their intrinsics first",
+                ", ".join(missing) or "rig", 409)
+    elif not cameras:
+        raise InputError("the kalibr export needs at least one camera; cameras is empty", "cameras")
+    else:
+        chosen = [_kalibr_camera(rig, name) for name in cameras]
+    reference = chosen[0].name
+    text = dump_kalibr_camchain(
+        [(frame.name, frame.intrinsics) for frame in chosen],
+        {frame.name: rig.T_a_b(reference, frame.name) for frame in chosen},
     )
+    return "".join(f"# left out: {reason}\n" for reason in skipped) + text
+
+
+def _describable_cameras(rig: Rig) -> tuple[list[Frame], list[str], list[str]]:
+    """The rig's cameras Kalibr can describe, why each other camera is left out, and those without intrinsics."""
+    chosen, skipped, missing = [], [], []
+    for frame in rig.sensors("camera"):
+        if frame.intrinsics is None:
+            missing.append(frame.name)
+            skipped.append(f"{frame.name} has no intrinsics yet")
+            continue
+        refusal = kalibr_refusal(frame.name, frame.intrinsics)
+        if refusal is None:
+            try:
+                ancestors(rig, frame.name)
+            except InputError as exc:
+                refusal = exc.message
+        if refusal is None:
+            chosen.append(frame)
+        else:
+            skipped.append(refusal)
+    return chosen, skipped, missing
+
+
+def _kalibr_camera(rig: Rig, name: str) -> Frame:
+    """Camera ``name`` of the rig with its intrinsics and a chain of parents to the root, or :class:`InputError`
+    naming it (Kalibr's own refusals follow when the camchain is written)."""
+    frame = rig.get(name)
+    if frame.kind != "camera":
+        raise InputError(f"{name} is a {frame.kind}, not a camera; the kalibr export takes cameras", name)
+    if frame.intrinsics is None:
+        raise InputError(f"{name} has no intrinsics yet; solve and accept its intrinsics first, or leave it out of "
+                         "the cameras", name, 409)
+    ancestors(rig, name)
+    return frame

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query
 from fastapi.responses import PlainTextResponse
 
 from backend.api.routes import deps
-from backend.services.exports import EXPORT_FORMATS, ExportFormat, export_text
+from backend.services.exports import EXPORT_FORMATS, MEDIA_TYPES, Convention, ExportFormat, export_text
 
 router = APIRouter(tags=["exports"])
 
@@ -32,10 +32,17 @@ def get_result(result_id: str, session: deps.SessionDep) -> dict[str, Any]:
 
 
 @router.get("/sessions/{name}/export/{fmt}", response_class=PlainTextResponse,
-            responses={200: {"content": {"application/yaml": {}}}})
+            responses={200: {"content": {"application/yaml": {}, "application/xml": {}, "text/x-python": {}}}})
 def export(fmt: ExportFormat, session: deps.SessionDep,
-           sensor: Annotated[str | None, Query(description="camera for camera_info / opencv")] = None
+           sensor: Annotated[str | None, Query(description="camera for camera_info / opencv")] = None,
+           convention: Annotated[Convention | None, Query(
+               description="rig / urdf / launch: 'optical' (default: cameras as their optical frames) or 'body' "
+                           "(each camera a body frame with a CAM_optical_frame child)")] = None,
+           cameras: Annotated[list[str] | None, Query(
+               description="kalibr: the cameras to write, in order (repeat, or comma-separated); default every "
+                           "camera Kalibr can describe")] = None,
            ) -> PlainTextResponse:
-    filename, text = export_text(session, fmt, sensor)
-    return PlainTextResponse(text, media_type="application/yaml",
+    subset = None if cameras is None else [name for value in cameras for name in value.split(",") if name]
+    filename, text = export_text(session, fmt, sensor, convention=convention, cameras=subset)
+    return PlainTextResponse(text, media_type=MEDIA_TYPES.get(fmt, "application/yaml"),
                              headers={"Content-Disposition": f'attachment; filename="{filename}"'})
