@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from backend.core.errors import InputError, clip, shorten
-from backend.exports.text_file import check_writable, write_text
+from backend.exports.text_file import check_writable, write_bytes, write_text
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERNAL_ERROR = 1
@@ -135,6 +135,15 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
     from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS
+
+    target = sub.add_parser("target", help="a printable calibration board as a PDF at exact scale")
+    target.add_argument("spec", metavar="SPEC",
+                        help="board spec, e.g. checkerboard:9x6:0.025 or charuco:11x8:0.03:0.022:DICT_5X5_100")
+    target.add_argument("--out", type=Path, required=True, metavar="board.pdf", help="the PDF to write")
+    target.add_argument("--paper", default="auto", choices=["auto", "a4", "letter", "a3"],
+                        help="auto (default): the first of a4, letter, a3 the board fits, portrait or landscape")
+    target.add_argument("--margin-mm", type=float, default=10.0, metavar="MM",
+                        help="white margin around the sheet's edge (mm, default 10, at least 5)")
 
     export = sub.add_parser("export", help="export the session's rig or an accepted calibration")
     export.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
@@ -417,6 +426,18 @@ def _names(value: str) -> list[str]:
     return [name for name in value.split(",") if name]
 
 
+def run_target(args: argparse.Namespace) -> None:
+    from backend.exports.target_pdf import board_sheet
+
+    _check_outputs(args.out)
+    sheet = board_sheet(args.spec, args.paper, args.margin_mm)
+    write_bytes(args.out, sheet.pdf)
+    layout = sheet.layout
+    orientation = "landscape" if layout.width_mm > layout.height_mm else "portrait"
+    print(f"wrote {args.out}: {layout.paper} {orientation}; print it at 100 % / actual size and check the 100 mm bar",
+          file=sys.stderr)
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
@@ -480,6 +501,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(summary))
         elif args.command == "export":
             run_export(args)
+        elif args.command == "target":
+            run_target(args)
         return 0
     except InputError as exc:
         return _fail(exc, want_json, EXIT_INPUT_ERROR)

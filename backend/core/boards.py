@@ -124,6 +124,34 @@ class BoardSpec:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, dictionary)
 
+    def dark_cells_m(self) -> np.ndarray:
+        """(N, 4) rectangles ``[x0, y0, x1, y1]`` (m) that are black on the printed board: its black squares and, on a
+        ChArUco board, each marker's black cells (border and bits). Measured from the board's outer top-left corner,
+        x along the columns, y along the rows (down the sheet). ChArUco boards follow OpenCV's own layout
+        (``CharucoBoard.getObjPoints``, ``Dictionary.generateImageMarker``), which :meth:`render` rasterises too."""
+        n_x, n_y = round(self.size_m[0] / self.square_m), round(self.size_m[1] / self.square_m)
+        if self.kind == "checkerboard":
+            dark = np.add.outer(np.arange(n_y), np.arange(n_x)) % 2 == 0
+            cells = []
+        else:
+            board = self.charuco_board()
+            dictionary = board.getDictionary()
+            bits = dictionary.markerSize + 2  # the marker's cells along a side, its one-cell black border included
+            cell_m = self.marker_m / bits
+            dark = np.ones((n_y, n_x), bool)
+            cells = []
+            for marker_id, corners in zip(board.getIds().ravel(), board.getObjPoints(), strict=True):
+                top_left = np.asarray(corners)[0, :2]
+                column, row = np.floor((top_left + self.marker_m / 2) / self.square_m).astype(int)
+                dark[row, column] = False
+                black_rows, black_cols = np.nonzero(dictionary.generateImageMarker(int(marker_id), bits) == 0)
+                cell_x0 = top_left[0] + black_cols * cell_m
+                cell_y0 = top_left[1] + black_rows * cell_m
+                cells.append(np.column_stack([cell_x0, cell_y0, cell_x0 + cell_m, cell_y0 + cell_m]))
+        rows, cols = np.nonzero(dark)
+        squares = np.column_stack([cols, rows, cols + 1, rows + 1]) * self.square_m
+        return np.concatenate([squares, *cells]).astype(float)
+
     def render(self, px_per_square: int = 60) -> np.ndarray:
         """A printable grayscale image of the whole board, ``px_per_square`` per square."""
         if self.kind == "charuco":

@@ -54,11 +54,15 @@ def check_writable(path: Path) -> None:
 
 
 def write_text(path: Path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path``: atomically for a regular or new file (a failed write leaves the old file
+    """Write ``text`` (UTF-8) to ``path`` as :func:`write_bytes` does."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path``: atomically for a regular or new file (a failed write leaves the old file
     whole; the file keeps its permissions, a new one gets the umask's), in place for a device or pipe
     (``/dev/stdout``). Any failure raises :class:`InputError` naming the file and the system's reason."""
     path = Path(path)
-    data = text.encode("utf-8")
     try:
         if path.exists() and not path.is_file():
             with open(path, "wb") as handle:

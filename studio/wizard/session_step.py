@@ -1,4 +1,4 @@
-"""Step 1: choose or create a session and set its calibration board."""
+"""Step 1: choose or create a session and set its calibration board; print the board."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import threading
 
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
+from backend.exports.target_pdf import PAPERS_MM, board_sheet
 from backend.services.jobs import Job
 from studio.context import StudioContext
 
@@ -27,10 +28,16 @@ class SessionStep:
                                                "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT")
             self.create_button = gui.add_button("Create session")
             self.summary = gui.add_markdown("No session open.")
+            self.paper = gui.add_dropdown("Paper", options=["auto", *PAPERS_MM], initial_value="auto",
+                                          hint="auto: the first of a4, letter, a3 the board fits")
+            self.print_target = gui.add_button("Print the target", disabled=True,
+                                               hint="the session's board as a PDF at exact scale: print it at 100 % "
+                                                    "/ actual size and check its 100 mm bar")
             self.broken = gui.add_markdown("")
         self._refresh()
         self.open_button.on_click(lambda _: self._open())
         self.create_button.on_click(lambda _: self._create())
+        self.print_target.on_click(self._download_target)
         ctx.on_session_changed(self._show)
 
     def _refresh(self) -> None:
@@ -61,8 +68,22 @@ class SessionStep:
         self._refresh()
         self.ctx.open_session(session)
 
+    def _download_target(self, event) -> None:
+        """Send the open session's board as a printable PDF to the page that clicked (a toast says why not)."""
+        session = self.ctx.session
+        if session is None or not session.board:
+            self.ctx.notify("No board", "Open a session with a board spec first.", error=True)
+            return
+        try:
+            sheet = board_sheet(session.board, self.paper.value)
+        except InputError as exc:
+            self.ctx.notify("Cannot print the target", exc.message, error=True)
+            return
+        event.client.send_file_download(sheet.filename, sheet.pdf)
+
     def _show(self, session) -> None:
         self._refresh()
+        self.print_target.disabled = not session.board
         if self.choice.value != session.name:
             self.choice.value = session.name
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
