@@ -7,6 +7,7 @@ their own stated noise (LiDAR-camera 3 mm / 0.1 deg, LiDAR-LiDAR 2 mm / 0.05 deg
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -241,3 +242,82 @@ def test_a_hand_set_transform_is_an_edge_with_a_stated_assumed_sigma(tmp_path: P
     assert "sigma assumed 5 mm, 0.3 deg" in edge.edge.note
     error = _error(session.rig.T_a_b("cam_front", "lidar_top"), result.T_parent_child)
     assert np.linalg.norm(error[:3]) < 0.003 and np.degrees(np.linalg.norm(error[3:])) < 0.2  # the priors pull little
+
+
+def _loop_session(tmp_path: Path, corrupt_last: bool = False):
+    """A saved session with the three results of the loop accepted (the last 5 cm off with ``corrupt_last``)."""
+    rng = np.random.default_rng(9)
+    truth = _truth()
+    session = _session(tmp_path, _rig(truth, rng))
+    results = _measured(truth, rng)
+    if corrupt_last:
+        results[-1] = replace(results[-1], T_parent_child=results[-1].T_parent_child @ np.array(
+            [[1, 0, 0, 0.0], [0, 1, 0, 0.0], [0, 0, 1, 0.05], [0, 0, 0, 1.0]]))
+    ids = [_store(session, result) for result in results]
+    for result_id in ids:
+        rig_service.accept(session, result_id)
+    return session, ids
+
+
+def test_cli_rig_json_follows_the_contract(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from studio.cli import main
+
+    session, ids = _loop_session(tmp_path, corrupt_last=True)
+    assert main(["rig", str(session.path), "--json"]) == 0
+    out, err = capsys.readouterr()
+    summary = json.loads(out)
+    assert set(summary["frames"]) == set(FRAMES)
+    for name, frame in summary["frames"].items():
+        assert frame["parent"] == "base_link"
+        assert len(frame["std"]["trans_m"]) == 3 and len(frame["std"]["rot_deg"]) == 3
+        np.testing.assert_allclose(frame["T_parent_child"], session.rig.get(name).T_parent_child, atol=1e-9)
+    edges = {edge["result_id"]: edge for edge in summary["edges"]}
+    assert set(ids) <= set(edges)
+    for edge in summary["edges"]:
+        assert {"parent", "child", "kind", "result_id", "residual"} <= set(edge)
+        assert set(edge["residual"]) == {"trans_m", "rot_deg", "chi2"}
+    assert edges[ids[-1]]["flagged"] and not edges[ids[0]]["flagged"]
+    assert edges[ids[-1]]["kind"] == "lidar_lidar" and edges[ids[-1]]["residual"]["trans_m"] > 0.03
+    [loop] = summary["loops"]
+    assert sorted(loop["frames"]) == sorted(FRAMES) and loop["trans_m"] > 0.03 and loop["rot_deg"] >= 0
+    assert f"warning: {ids[-1]} lidar_lidar lidar_top -> lidar_front disagrees" in err
+
+    assert main(["rig", str(session.path)]) == 0  # the readable table
+    out, _ = capsys.readouterr()
+    assert f"edge {ids[-1]} lidar_top -> lidar_front" in out and "FLAGGED" in out and "loop " in out
+
+
+def test_cli_rig_on_a_folder_that_is_not_a_session(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from studio.cli import main
+
+    assert main(["rig", str(tmp_path / "nothing"), "--json"]) != 0
+    out, err = capsys.readouterr()
+    assert "no session at" in err and len(err.strip().splitlines()) == 1
+    assert json.loads(out)["error"]["message"].startswith("no session at")
+
+
+def test_api_rig_preview_accept_and_revert(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from backend.api.app import create_app
+
+    session, ids = _loop_session(tmp_path)
+    extra = _store(session, _measured(_truth(), np.random.default_rng(1))[0])
+    with TestClient(create_app(tmp_path / "sessions")) as client:
+        tree = client.get("/api/sessions/loop/rig/tree")
+        assert tree.status_code == 200
+        assert set(tree.json()["frames"]) == set(FRAMES) and tree.json()["problems"] == []
+        preview = client.post("/api/sessions/loop/rig/preview", json={"result_id": extra})
+        assert preview.status_code == 200 and preview.json()["slot"] == "lidar_top/T_cam_front_lidar_top"
+        assert session.accepted("lidar_top/T_cam_front_lidar_top") == ids[0]  # a preview writes nothing
+        accepted = client.post("/api/sessions/loop/accept", json={"result_id": extra})
+        assert accepted.status_code == 200 and accepted.json()["result_id"] == extra
+        reverted = client.post("/api/sessions/loop/rig/revert", json={"slot": "lidar_top/T_cam_front_lidar_top"})
+        assert reverted.status_code == 200
+        assert len([e for e in reverted.json()["rig"]["edges"] if e["kind"] != "prior"]) == 2
+        missing = client.post("/api/sessions/loop/rig/revert", json={"slot": "lidar_top/T_cam_front_lidar_top"})
+        assert missing.status_code == 404 and "nothing is accepted" in missing.json()["error"]["message"]
+        unknown = client.post("/api/sessions/loop/accept", json={"result_id": "r9999"})
+        assert unknown.status_code == 404 and "r9999" in unknown.json()["error"]["message"]
+        bad_revert = client.post("/api/sessions/loop/accept", json={"result_id": extra, "revert": ["nope/slot"]})
+        assert bad_revert.status_code == 422 and "nope/slot" in bad_revert.json()["error"]["message"]

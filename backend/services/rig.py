@@ -208,13 +208,16 @@ def _check_acceptable(record: dict[str, Any]) -> None:
                          + ("; ".join(record.get("warnings", [])) or "no reason given"), "result", 409)
 
 
-def _accepted_after(session: Session, slot: str, result_id: str, revert: Sequence[str]) -> dict[str, str]:
-    accepted = {s: r for s, r in session.accepted_slots().items() if s not in revert and s != slot}
+def _check_revert(session: Session, revert: Sequence[str]) -> None:
     for other in revert:
         if other not in session.accepted_slots():
             raise InputError(f"cannot revert {other!r}: nothing is accepted for it; accepted: "
                              f"{sorted(session.accepted_slots())}", "revert")
-    return accepted | {slot: result_id}
+
+
+def _accepted_after(session: Session, slot: str, result_id: str, revert: Sequence[str]) -> dict[str, str]:
+    _check_revert(session, revert)
+    return {s: r for s, r in session.accepted_slots().items() if s not in revert and s != slot} | {slot: result_id}
 
 
 def preview(session: Session, result_id: str, revert: Sequence[str] = ()) -> RigUpdate:
@@ -237,6 +240,7 @@ def accept(session: Session, result_id: str, *, confirm: bool = False, revert: S
     slot = slot_of(record)
     effect = EFFECTS.get(record.get("kind"))
     with session.lock:
+        _check_revert(session, revert)
         before = solve_rig(session)
         after: list[RigTree] = []
 

@@ -13,7 +13,7 @@ from backend.services import rig as service
 router = APIRouter(tags=["rig"])
 
 
-@router.get("/sessions/{name}/rig")
+@router.get("/sessions/{name}/rig/tree")
 def rig_tree(session: deps.SessionDep) -> dict[str, Any]:
     """The fused tree (the ``calib-studio rig --json`` object) with the problems the user must look at."""
     tree = service.solve_rig(session)
