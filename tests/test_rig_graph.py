@@ -321,3 +321,22 @@ def test_api_rig_preview_accept_and_revert(tmp_path: Path) -> None:
         assert unknown.status_code == 404 and "r9999" in unknown.json()["error"]["message"]
         bad_revert = client.post("/api/sessions/loop/accept", json={"result_id": extra, "revert": ["nope/slot"]})
         assert bad_revert.status_code == 422 and "nope/slot" in bad_revert.json()["error"]["message"]
+
+
+def test_api_sensor_mounting_sigma_makes_a_prior_or_none(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from backend.api.app import create_app
+
+    with TestClient(create_app(tmp_path / "sessions")) as client:
+        assert client.post("/api/sessions", json={"name": "mounts"}).status_code == 201
+        sensors = "/api/sessions/mounts/sensors"
+        assert client.post(sensors, json={"name": "cam", "xyz_m": [0.3, 0, 0.5], "mount_sigma": [0.01, 1.0]}
+                           ).status_code == 201
+        assert client.post(sensors, json={"name": "lidar", "kind": "lidar3d", "mount_sigma": None}).status_code == 201
+        bad = client.post(sensors, json={"name": "imu", "kind": "imu", "mount_sigma": [0, 1.0]})
+        assert bad.status_code == 422 and "mount_sigma" in bad.json()["error"]["input"]
+        tree = client.get("/api/sessions/mounts/rig/tree").json()
+        assert set(tree["frames"]) == {"cam"} and tree["unconnected"] == {"lidar": []}
+        assert tree["frames"]["cam"]["std"]["trans_m"] == pytest.approx([0.01] * 3)
+        assert any("'lidar' is not connected to base_link" in p for p in tree["problems"])

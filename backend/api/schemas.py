@@ -7,10 +7,11 @@ is a 422 naming the field, and so is one inside a free-form ``device`` mapping.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field
 
+from backend.core.rig import DEFAULT_MOUNT_SIGMA
 from backend.store.schema import NAME_PATTERN, FiniteModel, FiniteTree
 
 
@@ -39,6 +40,9 @@ class SensorCreate(FiniteModel):
     kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "camera"
     xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ypr_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ROS yaw, pitch, roll in degrees")
+    mount_sigma: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = Field(
+        DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting above (m, deg), a weak prior edge of the rig graph; "
+        "null: unknown, only calibrations place the sensor")
     device: FiniteTree = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
                                                                      "height": 720}])
 

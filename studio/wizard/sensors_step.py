@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.core.rig import Frame
+from backend.core.rig import DEFAULT_MOUNT_SIGMA, Frame
 from backend.core.transforms import from_xyz_ypr
 from backend.services import recordings
 from studio.context import StudioContext
@@ -131,6 +131,10 @@ class SensorsStep:
             self.parent = gui.add_dropdown("Parent", options=["base_link"])
             self.xyz = gui.add_vector3("xyz (m)", initial_value=(0.0, 0.0, 0.0), step=0.001)
             self.ypr = gui.add_vector3("yaw pitch roll (°)", initial_value=(0.0, 0.0, 0.0), step=0.1)
+            self.mount_sigma = gui.add_vector2(
+                "Mount 1σ (mm, °)", initial_value=(1000 * DEFAULT_MOUNT_SIGMA[0], DEFAULT_MOUNT_SIGMA[1]), step=1.0,
+                min=(0.0, 0.0), hint="how well the mounting above is known (tape, CAD): a weak prior the calibrations "
+                "override; 0, 0 means unknown, so only calibrations place the sensor")
             self.driver = gui.add_dropdown("Device", options=drivers_for("camera"), initial_value="uvc")
             self.source = gui.add_text("Source", initial_value="0", hint=DRIVERS["uvc"].hint)
             self.source_help = gui.add_markdown(DRIVERS["uvc"].hint)
@@ -196,8 +200,10 @@ class SensorsStep:
                                          height=int(self.size.value[1]), topic=self.topic.value,
                                          time_window_s=tuple(self.time_window.value),
                                          scanner_port=self.scanner_port.value)
+            sigma_mm, sigma_deg = self.mount_sigma.value
+            mount_sigma = None if sigma_mm == 0 and sigma_deg == 0 else (sigma_mm / 1000, sigma_deg)
             session.add_sensor(Frame(self.name.value.strip(), self.parent.value, T, kind=self.kind.value,
-                                     device=device))
+                                     device=device, mount_sigma=mount_sigma))
         except InputError as exc:
             self.ctx.notify("Cannot add sensor", exc.one_line().removeprefix("error: "), error=True)
             return
@@ -207,6 +213,13 @@ class SensorsStep:
 
     def _show(self, session) -> None:
         self.parent.options = list(session.rig.frames)
-        lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`"
+        lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`, {_mount_text(f.mount_sigma)}"
                  f"{' · ' + f.device.get('driver', '') if f.device else ''}" for f in session.rig.sensors()]
         self.listing.content = "\n".join(lines) or "No sensors yet."
+
+
+def _mount_text(mount_sigma: tuple[float, float] | None) -> str:
+    """How well a sensor's mounting guess is known, as the listing says it."""
+    if mount_sigma is None:
+        return "mounting unknown"
+    return f"mounted ±{1000 * mount_sigma[0]:g} mm, ±{mount_sigma[1]:g}°"

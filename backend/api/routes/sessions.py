@@ -48,5 +48,6 @@ def get_rig(session: deps.SessionDep) -> dict[str, Any]:
 @router.post("/sessions/{name}/sensors", status_code=201)
 def add_sensor(body: SensorCreate, session: deps.SessionDep) -> dict[str, Any]:
     T = from_xyz_ypr(np.array(body.xyz_m), np.radians(body.ypr_deg))
-    session.add_sensor(Frame(body.name, body.parent, T, kind=body.kind, device=body.device))
+    session.add_sensor(Frame(body.name, body.parent, T, kind=body.kind, device=body.device,
+                             mount_sigma=body.mount_sigma))
     return session.info()
