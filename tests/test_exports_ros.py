@@ -26,6 +26,7 @@ from backend.core.rig import Frame, Rig
 from backend.core.transforms import from_xyz_ypr, make_T
 from backend.exports.formats import CONVENTIONS, EXPORT_FORMATS, Convention, ExportFormat
 from backend.exports.frame_tree import OPTICAL_SUFFIX, export_frames
+from backend.exports.kalibr_camchain import load_kalibr_camchain
 from backend.exports.rig_transforms import dump_rig_transforms, load_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
 from backend.exports.urdf import dump_urdf
@@ -382,12 +383,47 @@ def test_exports_through_the_api(tmp_path: Path) -> None:
             assert field in response.text
         response = client.get("/api/sessions/ros_rig/export/kalibr", params={"convention": "body"})
         assert response.status_code == 422 and response.json()["error"]["input"] == "convention"
-        session.rig.frames["lidar_rear"] = Frame("lidar_rear", None, kind="lidar3d")
+        session.rig.add(Frame("lidar_rear", "base_link", kind="lidar3d", mount_sigma=None))
         response = client.get("/api/sessions/ros_rig/export/launch")
         assert response.status_code == 409
         assert response.json()["error"]["input"] == "lidar_rear"
-        assert "frame 'lidar_rear' has no parent" in response.json()["error"]["message"]
+        assert response.json()["error"]["message"].startswith("lidar_rear: not connected to base_link by any edge")
     app.state.studio.jobs.shutdown()
+
+
+@pytest.fixture
+def loose_session(tmp_path: Path):
+    """The demo rig with a LiDAR and a camera whose mounting is unknown and that no calibration places."""
+    rig = demo_rig()
+    rig.add(Frame("lidar_rear", "base_link", kind="lidar3d", mount_sigma=None))
+    rig.add(Frame("cam_rear", "base_link", kind="camera", intrinsics=rig.get("cam_front").intrinsics,
+                  mount_sigma=None))
+    return SessionStore(tmp_path / "sessions").create("loose", rig=rig)
+
+
+@pytest.mark.parametrize("fmt", ["rig", "urdf", "launch"])
+def test_a_frame_no_edge_connects_is_named(loose_session, fmt: ExportFormat) -> None:
+    with pytest.raises(InputError) as error:
+        export_service.export_text(loose_session, fmt)
+    assert (error.value.status_code, error.value.input) == (409, "lidar_rear, cam_rear")
+    assert error.value.message.startswith("lidar_rear, cam_rear: not connected to base_link by any edge")
+    assert "lidar_rear connects to no other frame; cam_rear connects to no other frame" in error.value.message
+
+
+def test_kalibr_leaves_out_a_camera_no_edge_connects(loose_session) -> None:
+    _, text = export_service.export_text(loose_session, "kalibr")
+    assert "# left out: cam_rear is not connected to base_link by any edge\n" in text
+    assert [name for name, _ in load_kalibr_camchain(text)[0]] == ["cam_front", "cam_right"]
+    with pytest.raises(InputError) as error:
+        export_service.export_text(loose_session, "kalibr", cameras=["cam_front", "cam_rear"])
+    assert (error.value.status_code, error.value.input) == (409, "cam_rear")
+
+
+def test_an_unconnected_frame_through_the_cli(loose_session) -> None:
+    run = cli("export", loose_session.path, "--format", "urdf")
+    assert run.returncode == 2 and run.stdout == ""
+    last = run.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: lidar_rear, cam_rear: not connected to base_link by any edge"), run.stderr
 
 
 def cli(*args: str | Path) -> subprocess.CompletedProcess:

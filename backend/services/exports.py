@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError, shorten
@@ -15,6 +15,7 @@ from backend.exports.rig_transforms import dump_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
 from backend.exports.ros_camera_info import dump_camera_info
 from backend.exports.urdf import dump_urdf
+from backend.services.rig import solve_rig
 from backend.store.session import Session
 
 MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python"}
@@ -38,8 +39,9 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
     ``sensor`` is the camera of camera_info and opencv (the other formats ignore it); ``convention``
     (default ``optical``) applies to rig, urdf and launch only; ``cameras`` (default: every camera Kalibr can
     describe) to kalibr only. A choice given for a format it does not apply to is refused (422), as is an
-    unknown format or convention; data the rig lacks is named by the exporter (a camera without intrinsics,
-    a frame with no parent).
+    unknown format or convention. Data the rig lacks is refused naming the sensor: a camera without
+    intrinsics, a frame that no edge of the rig graph (a mounting guess or an accepted calibration) connects
+    to the root (409, with the frames it does connect to).
     """
     if fmt not in EXPORT_FORMATS:
         raise InputError(f"unknown export format {shorten(fmt)}; expected one of {list(EXPORT_FORMATS)}", "format")
@@ -53,6 +55,8 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
         raise InputError(f"the {fmt} export takes no camera subset; cameras applies to kalibr", "cameras")
     convention = convention or "optical"
     suffix = "" if convention == "optical" else f"_{convention}"
+    if fmt in CONVENTION_FORMATS:
+        _refuse_unconnected(solve_rig(session).unconnected, session.rig)
     if fmt == "rig":
         return f"{session.name}_transforms{suffix}.yaml", dump_rig_transforms(session.rig, convention)
     if fmt == "urdf":
@@ -72,21 +76,37 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
     return f"{sensor}_opencv.yaml", dump_opencv_yaml(camera, extra)
 
 
+def _refuse_unconnected(unconnected: Mapping[str, Sequence[str]], rig: Rig, names: Sequence[str] | None = None
+                        ) -> None:
+    """:class:`InputError` (409) naming the frames of ``names`` (default: all) that no edge of the rig graph (a
+    mounting guess or an accepted calibration) connects to the root, and the frames each connects to."""
+    lost = [name for name in (rig.frames if names is None else names) if name in unconnected]
+    if not lost:
+        return
+    links = "; ".join(f"{name} connects to {', '.join(unconnected[name]) or 'no other frame'}" for name in lost)
+    raise InputError(
+        f"{', '.join(lost)}: not connected to {rig.root} by any edge (no mounting guess, no accepted calibration), "
+        f"so the rig has no transform for {'it' if len(lost) == 1 else 'them'} ({links}); give "
+        f"{'it' if len(lost) == 1 else 'each'} a mounting guess or accept a calibration linking it to the rig",
+        ", ".join(lost), 409)
+
+
 def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> str:
     """Kalibr camchain YAML of ``cameras`` (in that order), or by default of every camera of the rig with
     intrinsics Kalibr can describe (in the rig's order; those left out are named in a comment at the top).
 
     cam0 is the first camera; ``T_ref_cam`` is ``rig.T_a_b(cam0, cam)``. A named camera that is not in the
-    rig (404), not a camera, has no intrinsics or no chain of parents to the root (409), or that Kalibr cannot
+    rig (404), not a camera, has no intrinsics or is not connected to the root (409), or that Kalibr cannot
     describe (e.g. a non-negligible ``k3``) raises :class:`InputError` naming it; by default such cameras are
     left out, and fewer than two left raise one (409) naming those without intrinsics and why the others were
     left out. One named camera
     gives a one-camera camchain (what ``kalibr_calibrate_imu_camera`` takes for a single camera).
     """
     rig = session.rig
+    unconnected = solve_rig(session).unconnected
     skipped: list[str] = []
     if cameras is None:
-        chosen, skipped, missing = _describable_cameras(rig)
+        chosen, skipped, missing = _describable_cameras(rig, unconnected)
         if len(chosen) < 2:
             found = f"the rig has {len(rig.sensors('camera'))} camera(s)"
             raise InputError(
@@ -97,6 +117,7 @@ def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> s
         raise InputError("the kalibr export needs at least one camera; cameras is empty", "cameras")
     else:
         chosen = [_kalibr_camera(rig, name) for name in cameras]
+        _refuse_unconnected(unconnected, rig, cameras)
     reference = chosen[0].name
     text = dump_kalibr_camchain(
         [(frame.name, frame.intrinsics) for frame in chosen],
@@ -105,8 +126,10 @@ def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> s
     return "".join(f"# left out: {reason}\n" for reason in skipped) + text
 
 
-def _describable_cameras(rig: Rig) -> tuple[list[Frame], list[str], list[str]]:
-    """The rig's cameras Kalibr can describe, why each other camera is left out, and those without intrinsics."""
+def _describable_cameras(rig: Rig, unconnected: Mapping[str, Sequence[str]]
+                         ) -> tuple[list[Frame], list[str], list[str]]:
+    """The rig's cameras Kalibr can describe and the rig places, why each other camera is left out, and those
+    without intrinsics."""
     chosen, skipped, missing = [], [], []
     for frame in rig.sensors("camera"):
         if frame.intrinsics is None:
@@ -114,6 +137,8 @@ def _describable_cameras(rig: Rig) -> tuple[list[Frame], list[str], list[str]]:
             skipped.append(f"{frame.name} has no intrinsics yet")
             continue
         refusal = kalibr_refusal(frame.name, frame.intrinsics)
+        if refusal is None and frame.name in unconnected:
+            refusal = f"{frame.name} is not connected to {rig.root} by any edge"
         if refusal is None:
             try:
                 ancestors(rig, frame.name)
