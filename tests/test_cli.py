@@ -15,6 +15,7 @@ import yaml
 from backend.core.rig import Frame
 from backend.exports.ros_camera_info import load_camera_info
 from backend.services import intrinsics as service
+from backend.services import rig as rig_service
 from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.session import SessionStore
 
@@ -204,7 +205,7 @@ def test_export_camera_info_from_session(left_images, tmp_path: Path):
     result_id, result = service.solve_session(session, "cam_left", IntrinsicsSettings())
     # 13 VGA views leave the image corners loose (projection sigma above 0.3 px there): a 'check', confirmed
     assert result.verdict.level == "check", result.verdict
-    service.accept(session, "cam_left", result_id, confirm=True)
+    rig_service.accept(session, result_id, confirm=True)
 
     run = cli("export", session.path, "--format", "camera_info", "--sensor", "cam_left")
     assert run.returncode == 0, run.stderr

@@ -12,6 +12,7 @@ import pytest
 from backend.core.errors import InputError, NotFoundError
 from backend.core.rig import Frame
 from backend.services import intrinsics as service
+from backend.services import rig as rig_service
 from backend.store.schema import SCHEMA_VERSION
 from backend.store.session import SESSION_FILE, Session, SessionStore
 
@@ -172,7 +173,7 @@ def test_accept_revert_and_reload(session: Session):
     r1 = session.add_result("cam", camera_record(500.0), inputs=[])
     r2 = session.add_result("cam", camera_record(520.0), inputs=[])
 
-    service.accept(session, "cam", r2)
+    rig_service.accept(session, r2)
     assert session.rig.get("cam").intrinsics.K[0, 0] == 520.0
     on_disk = json.loads((session.path / SESSION_FILE).read_text())
     assert on_disk["accepted"] == {"cam/intrinsics": r2}
@@ -181,7 +182,7 @@ def test_accept_revert_and_reload(session: Session):
     assert cam["intrinsics"]["K"][0][0] == 520.0
 
     # revert: accept the earlier one; the log keeps both steps
-    service.accept(session, "cam", r1)
+    rig_service.accept(session, r1)
     assert session.rig.get("cam").intrinsics.K[0, 0] == 500.0
     assert session.accepted("cam/intrinsics") == r1
     on_disk = json.loads((session.path / SESSION_FILE).read_text())
@@ -206,7 +207,7 @@ def test_accept_result_of_another_sensor_rejected(session: Session):
     session.add_sensor(Frame("cam2", "base_link", kind="camera"))
     rid = session.add_result("cam2", camera_record(500.0), inputs=[])
     with pytest.raises(InputError) as err:
-        service.accept(session, "cam", rid)
+        service.intrinsics_result(session, "cam", rid)  # what the accept route checks first
     assert "cam2" in err.value.message
     assert session.rig.get("cam").intrinsics is None and session.accepted("cam/intrinsics") is None
 

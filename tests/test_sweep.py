@@ -222,7 +222,7 @@ def test_sweep_calibration_recovers_truth_from_a_wrong_start(full_sweep):
     assert summary["verdict"] == transform.verdict.to_dict()
     assert set(summary["parameter_std"]) == set(std)
     record = result.to_record()
-    assert record["kind"] == "sweep_geometry" and record["converged"]
+    assert record["kind"] == "sweep" and record["converged"]
     assert TransformResult.from_record(record["transform"]).std == transform.std
 
 

@@ -1,6 +1,6 @@
 """The swept-scanner workflow on the demo rig: store a simulated sweep through the ordinary cloud path,
-calibrate its geometry against the simulator's truth, accept it into the rig (and revert), refuse bad
-results, and the API routes (job, accept, PNG image, errors)."""
+calibrate its geometry against the simulator's truth, accept it into the rig through the one rig service
+(and revert), refuse bad results, and the API routes (job, accept, PNG image, errors)."""
 
 from __future__ import annotations
 
@@ -17,15 +17,19 @@ from backend.api.app import create_app
 from backend.core.errors import CancelledError, InputError, NotFoundError
 from backend.core.rig import Frame
 from backend.core.sweep import SweepGeometry
+from backend.core.transforms import transform_error
 from backend.devices.base import Sample, create_device
 from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY, SweptScanner, points_in_base
 from backend.devices.image_io import decode_image_bytes
 from backend.services import lidar_lidar as lidar_service
+from backend.services import rig as rig_service
 from backend.services import sweep as service
 from backend.sim.demo_rig import SWEEP_NOMINAL_GEOMETRY, demo_rig
+from backend.solvers.result import TransformResult
 from backend.store.session import Session, SessionStore
 
 SENSOR = "sweep_3d"
+SLOT = f"{SENSOR}/sweep"
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
 
 
@@ -112,7 +116,7 @@ def test_calibration_of_a_stored_sweep_recovers_the_truth(calibrated):
     session, capture_id, result_id, seconds = calibrated
     print(f"calibration of one sweep: {seconds:.1f} s")
     record = session.result(result_id)
-    assert record["kind"] == "sweep_geometry" and record["sensor"] == SENSOR
+    assert record["kind"] == "sweep" and record["sensor"] == SENSOR
     assert record["inputs"] == [capture_id] and record["capture"] == capture_id
     assert record["initial"] == SweepGeometry.from_dict(SWEEP_NOMINAL_GEOMETRY).to_dict()
     assert record["settings"]["up_mount"] == pytest.approx([0.0, 0.0, 1.0])  # the mount is level
@@ -123,9 +127,16 @@ def test_calibration_of_a_stored_sweep_recovers_the_truth(calibrated):
     error_tilt = Rotation.from_matrix(TRUTH.T_servo_scanner[:3, :3].T @ g.T_servo_scanner[:3, :3]).as_rotvec()
     assert np.abs(error_t).max() < 0.002 and abs(math.degrees(error_zero)) < 0.05
     assert np.degrees(np.abs(error_tilt)).max() < 0.1
-    std = record["std"]
-    assert all(abs(e) <= 3 * s for e, s in zip(error_t[1:], std["offset_m"][1:], strict=True))
-    assert abs(math.degrees(error_zero)) <= 3 * std["zero_offset_deg"]
+    std = record["parameter_std"]
+    assert abs(error_t[1]) <= 3 * std["offset_u_m"] and abs(error_t[2]) <= 3 * std["offset_v_m"]
+    assert abs(error_zero) <= 3 * std["zero_offset_rad"]
+    # the one transform result, named by the rig: the scanner's pose in the sensor's (mount) frame at servo zero
+    transform = TransformResult.from_record(record["transform"])
+    assert (transform.kind, transform.parent, transform.child) == ("sweep", SENSOR, f"{SENSOR}_scanner")
+    assert record["std"] == transform.std and transform.std["trans_m"][0] is None  # along the axis: unseen
+    error_m, error_deg = transform_error(transform.T_parent_child, TRUTH.T_mount_scanner(0.0))
+    assert np.all(np.abs(error_m[1:]) <= 3 * np.array(transform.std["trans_m"][1:]))
+    assert np.all(np.abs(error_deg) <= 3 * np.array(transform.std["rot_deg"]) + 0.006)
     assert record["rms_after_m"] < 0.6 * record["rms_before_m"]
     # within its tolerances (2 mm, 0.1 deg) and the even and odd servo steps agree: trusted, and it says why
     assert record["verdict"]["level"] == "trusted", record["verdict"]
@@ -136,12 +147,12 @@ def test_calibration_of_a_stored_sweep_recovers_the_truth(calibrated):
 def test_accept_writes_the_geometry_into_the_rig_and_reverts(calibrated, nominal_sweep):
     session, _, result_id, _ = calibrated
     before_rig = session.rig.get(SENSOR).T_parent_child.copy()
-    service.accept(session, SENSOR, result_id)
+    rig_service.accept(session, result_id)
     record = session.result(result_id)
     device = session.rig.get(SENSOR).device
     assert device["geometry"] == record["geometry"] and device["driver"] == "swept_scanner"
-    assert session.accepted(service.slot(SENSOR)) == result_id == session.accepted(f"{SENSOR}/sweep_geometry")
-    assert np.array_equal(session.rig.get(SENSOR).T_parent_child, before_rig)  # the mount stays
+    assert session.accepted(SLOT) == result_id and rig_service.slot_of(record) == SLOT
+    assert np.allclose(session.rig.get(SENSOR).T_parent_child, before_rig, atol=1e-9)  # the mount stays
     assert Session.load(session.path).rig.get(SENSOR).device["geometry"] == record["geometry"]  # saved
 
     # the next sweep is assembled with it, and it is flatter than with the nominal geometry
@@ -155,12 +166,12 @@ def test_accept_writes_the_geometry_into_the_rig_and_reverts(calibrated, nominal
     other = {k: v for k, v in record.items() if k not in ("id", "sensor", "created", "inputs")}
     other["geometry"] = SWEEP_NOMINAL_GEOMETRY
     other_id = session.add_result(SENSOR, other, inputs=record["inputs"])
-    service.accept(session, SENSOR, other_id)
+    rig_service.accept(session, other_id)
     assert session.rig.get(SENSOR).device["geometry"] == SWEEP_NOMINAL_GEOMETRY
-    service.accept(session, SENSOR, result_id)
+    rig_service.accept(session, result_id)
     assert session.rig.get(SENSOR).device["geometry"] == record["geometry"]
     assert [a.result_id for a in session.acceptance_log] == [result_id, other_id, result_id]
-    assert [r["id"] for r in session.results(SENSOR, "sweep_geometry")] == [result_id, other_id]
+    assert [r["id"] for r in session.results(SENSOR, "sweep")] == [result_id, other_id]
 
 
 @pytest.mark.slow
@@ -169,7 +180,7 @@ def test_bad_results_are_refused_and_the_rig_stays(calibrated):
     record = session.result(result_id)
     kept = {k: v for k, v in record.items() if k not in ("id", "sensor", "created", "inputs")}
     geometry_before = dict(session.rig.get(SENSOR).device["geometry"])
-    accepted_before = session.accepted(service.slot(SENSOR))
+    accepted_before = session.accepted(SLOT)
     bad = {
         "did not converge": kept | {"converged": False, "warnings": ["not converged after 10 iterations"]},
         "leaves parameters undetermined": kept | {"covariance": [[None] * 5] * 5},
@@ -179,15 +190,19 @@ def test_bad_results_are_refused_and_the_rig_stays(calibrated):
         doctored["geometry"] = SWEEP_NOMINAL_GEOMETRY
         bad_id = session.add_result(SENSOR, doctored, inputs=[])
         with pytest.raises(InputError, match=f"{bad_id} {reason} and cannot be accepted") as info:
-            service.accept(session, SENSOR, bad_id)
+            rig_service.accept(session, bad_id)
         assert info.value.input == "result"
         assert session.rig.get(SENSOR).device["geometry"] == geometry_before
-        assert session.accepted(service.slot(SENSOR)) == accepted_before
+        assert session.accepted(SLOT) == accepted_before
+    # what the accept route checks before it hands over to the rig service
     session.add_sensor(Frame("sweep_b", "base_link", kind="lidar3d", device=demo_rig().get(SENSOR).device))
     with pytest.raises(InputError, match=f"{result_id} belongs to {SENSOR}, not sweep_b"):
-        service.accept(session, "sweep_b", result_id)
+        service.sweep_result(session, "sweep_b", result_id)
     with pytest.raises(InputError, match="not a swept scanner"):
-        service.accept(session, "lidar_top", result_id)
+        service.sweep_result(session, "lidar_top", result_id)
+    other_kind = session.add_result(SENSOR, {"kind": "lidar_lidar"}, inputs=[])
+    with pytest.raises(InputError, match=f"{other_kind} is a lidar_lidar result, not sweep"):
+        service.sweep_result(session, SENSOR, other_kind)
 
 
 @pytest.mark.slow
@@ -292,7 +307,7 @@ def test_api_calibrate_image_accept(client, nominal_sweep):
     status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/demo/results/{status['result_id']}").json()
-    assert record["kind"] == "sweep_geometry" and record["capture"] == capture.id and record["converged"]
+    assert record["kind"] == "sweep" and record["capture"] == capture.id and record["converged"]
 
     png = client.get(f"{base}/image/{capture.id}", params={"mode": "range", "result_id": status["result_id"]})
     assert png.status_code == 200 and png.headers["content-type"] == "image/png"
@@ -300,8 +315,7 @@ def test_api_calibrate_image_accept(client, nominal_sweep):
     assert image.shape[0] == 173 and abs(image.shape[1] - 1081) <= 2
 
     accepted = client.post(f"{base}/accept", json={"result_id": status["result_id"]})
-    assert accepted.status_code == 200 and accepted.json()["accepted"] == {"sweep_3d/sweep_geometry":
-                                                                          status["result_id"]}
+    assert accepted.status_code == 200 and accepted.json()["accepted"] == {SLOT: status["result_id"]}
     rig = client.get("/api/sessions/demo/rig").json()
     frame = next(f for f in rig["frames"] if f["name"] == SENSOR)
     assert frame["device"]["geometry"] == record["geometry"]
@@ -311,3 +325,5 @@ def test_api_calibrate_image_accept(client, nominal_sweep):
     refused = client.post(f"{base}/accept", json={"result_id": unconverged})
     assert refused.status_code == 422 and "did not converge" in refused.json()["error"]["message"]
     assert refused.json()["error"]["input"] == "result"
+    elsewhere = client.post("/api/sessions/demo/sensors/lidar_top/sweep/accept", json={"result_id": unconverged})
+    assert elsewhere.status_code == 422 and "not a swept scanner" in elsewhere.json()["error"]["message"]

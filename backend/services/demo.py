@@ -30,6 +30,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from backend.devices.base import create_device
 from backend.services import intrinsics as intrinsics_service
+from backend.services import rig as rig_service
 from backend.services.jobs import Job, JobRunner
 from backend.services.lidar_camera_pairs import store_pair
 from backend.services.multicam_capture import capture_set
@@ -113,7 +114,7 @@ def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Sessi
                                                     progress=lambda f, m: progress(0.2 + 0.1 * f, m))
     # The demo stands in for a user who read the verdict: a 'check' (e.g. too few views in the image corners) is
     # taken as it is and the confirmation recorded; a 'reject' is still refused.
-    intrinsics_service.accept(session, DEMO_CAMERA, result_id, confirm=True)
+    rig_service.accept(session, result_id, confirm=True)
     _add_board_pairs(session, lambda f, m: progress(0.3 + 0.3 * f, m))
     _add_camera_sets(session, lambda f, m: progress(0.6 + 0.4 * f, m))
     return session

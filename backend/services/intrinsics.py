@@ -1,8 +1,9 @@
 """Intrinsics workflow shared by the API, the studio and the CLI.
 
 capture or import images -> detect the board -> store captures -> solve -> store
-the result -> accept it into the rig. Routers and wizard steps call these
-functions and hold no logic of their own.
+the result -> accept it into the rig (:func:`backend.services.rig.accept`, whose effect is
+:func:`apply_intrinsics`). Routers and wizard steps call these functions and hold no logic of
+their own.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 
-SLOT = "intrinsics"
+KIND = IntrinsicsResult.kind
 
 
 @dataclass
@@ -165,19 +166,23 @@ def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, c
     return result_id, result
 
 
-def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
-    """Write a stored intrinsics result into the rig's camera."""
-    if record.get("kind") != "intrinsics":
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not intrinsics", "result")
-    rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
-
-
-def accept(session: Session, sensor: str, result_id: str, confirm: bool = False) -> None:
-    """Make a stored result the camera's intrinsics (also how a user reverts)."""
+def intrinsics_result(session: Session, sensor: str, result_id: str) -> dict[str, Any]:
+    """The stored intrinsics result ``result_id`` of the camera ``sensor``; raises :class:`InputError`
+    naming the result when it belongs to another sensor or is another kind."""
     record = session.result(result_id)
     if record["sensor"] != sensor:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    session.accept(f"{sensor}/{SLOT}", result_id, apply_intrinsics, confirm)
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    return record
+
+
+def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
+    """Write a stored intrinsics result into the rig's camera: the effect of accepting it
+    (:func:`backend.services.rig.accept`, slot ``"<camera>/intrinsics"``)."""
+    if record.get("kind") != KIND:
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
 
 
 def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,

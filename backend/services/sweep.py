@@ -2,10 +2,12 @@
 
 capture a sweep through the ordinary cloud path (:func:`backend.services.lidar_lidar.store_cloud`:
 points in the mount frame, the sweep meta beside them) -> calibrate the sweep geometry from a
-stored capture -> store the result -> accept it into the rig as the sensor's ``device["geometry"]``
-(the next sweeps are assembled with it). A result that did not converge, leaves parameters
-undetermined or made the planes less flat is stored (so the user can see why) but cannot be
-accepted. Frames: the sensor's frame is the sweep's ``mount`` frame (:mod:`backend.core.sweep`).
+stored capture -> store the result -> accept it (:func:`backend.services.rig.accept`, whose effect
+is :func:`apply_sweep_geometry`) as the sensor's ``device["geometry"]`` (the next sweeps are
+assembled with it). A result that did not converge, leaves parameters undetermined or made the
+planes less flat is stored (so the user can see why) but cannot be accepted. Frames: the sensor's
+frame is the sweep's ``mount`` frame (:mod:`backend.core.sweep`); a stored result's ``transform``
+is the scanner's pose in it at servo zero, parent ``<sensor>``, child ``<sensor>_scanner``.
 """
 
 from __future__ import annotations
@@ -37,11 +39,6 @@ DRIVER = "swept_scanner"
 KIND = SweepCalibrationResult.kind
 MAX_IMAGE_COLUMNS = 4096
 ImageMode = Literal["intensity", "range"]
-
-
-def slot(sensor: str) -> str:
-    """The acceptance slot of a swept scanner's geometry."""
-    return f"{sensor}/{KIND}"
 
 
 def is_swept(session: Session, sensor: str) -> bool:
@@ -115,7 +112,7 @@ def calibrate(session: Session, sensor: str, capture_id: str | None = None, *,
             :func:`up_in_sensor`. The solve starts from the rig's current geometry (:func:`rig_geometry`).
         progress: cancelling the job raises at the next report, leaving the session as it was.
 
-    Returns the id of the stored ``sweep_geometry`` result; its ``inputs`` and ``capture`` name the capture.
+    Returns the id of the stored ``sweep`` result; its ``inputs`` and ``capture`` name the capture.
     """
     progress(0.0, f"loading the sweep of {sensor}")
     capture = swept_capture(session, sensor, capture_id)
@@ -125,7 +122,9 @@ def calibrate(session: Session, sensor: str, capture_id: str | None = None, *,
     if settings.up_mount is None:
         settings = replace(settings, up_mount=up_in_sensor(session.rig, sensor))
     result = calibrate_sweep(scans, initial, settings, progress)
-    return session.add_result(sensor, result.to_record() | {"capture": capture.id}, inputs=[capture.id])
+    record = result.to_record() | {"transform": result.transform.named(sensor, f"{sensor}_scanner").to_record(),
+                                   "capture": capture.id}
+    return session.add_result(sensor, record, inputs=[capture.id])
 
 
 def _refusal(record: dict[str, Any]) -> list[str]:
@@ -142,7 +141,10 @@ def _refusal(record: dict[str, Any]) -> list[str]:
 
 
 def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
-    """Write a stored sweep geometry into the sensor's ``device["geometry"]`` (the mounting stays as it is)."""
+    """Write a stored sweep geometry into the sensor's ``device["geometry"]`` (the mounting stays as it is): the
+    effect of accepting it (:func:`backend.services.rig.accept`, slot ``"<sensor>/sweep"``). Not a rig-graph
+    edge. Refuses (:class:`InputError` on ``result``) a result that did not converge, leaves parameters
+    undetermined or made the planes less flat."""
     if record.get("kind") != KIND:
         raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
     problems = _refusal(record)
@@ -154,13 +156,16 @@ def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
     frame.device = {**frame.device, "geometry": record["geometry"]}
 
 
-def accept(session: Session, sensor: str, result_id: str, confirm: bool = False) -> None:
-    """Make a stored sweep geometry the sensor's (also how a user reverts to an older one)."""
+def sweep_result(session: Session, sensor: str, result_id: str) -> dict[str, Any]:
+    """The stored sweep geometry result ``result_id`` of the swept scanner ``sensor``; raises
+    :class:`InputError` naming the sensor or the result when either is not that."""
     _check_swept(session, sensor)
     record = session.result(result_id)
     if record["sensor"] != sensor:
         raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    session.accept(slot(sensor), result_id, apply_sweep_geometry, confirm)
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    return record
 
 
 def _beam_columns(scan_angles: np.ndarray, steps: np.ndarray) -> int:
@@ -200,10 +205,7 @@ def _assembled_sweep(session: Session, sensor: str, capture_id: str | None = Non
     scans = capture_scans(session, sensor, capture)
     if result_id is None:
         return capture, scans, SweepGeometry.from_dict(capture.meta["geometry"])
-    record = session.result(result_id)
-    if record["sensor"] != sensor or record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is not a {KIND} result of {sensor}", "result")
-    return capture, scans, SweepGeometry.from_dict(record["geometry"])
+    return capture, scans, SweepGeometry.from_dict(sweep_result(session, sensor, result_id)["geometry"])
 
 
 @dataclass

@@ -131,7 +131,7 @@ class SweepCalibrationResult(SolveResult):
     """The calibrated geometry, its parameters' uncertainty, and the scanner's pose at servo zero as the one
     transform result (:attr:`transform`). Not a rig-graph edge: accepting it rewrites the sensor's sweep geometry."""
 
-    kind = "sweep_geometry"
+    kind = "sweep"
 
     geometry: SweepGeometry
     """The calibrated geometry."""

@@ -8,6 +8,7 @@ import numpy as np
 
 from backend.core.errors import InputError
 from backend.services import intrinsics as intrinsics_service
+from backend.services import rig as rig_service
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
 from backend.solvers.board_detection import Detection
 from backend.solvers.board_pose import board_pose, nominal_camera
@@ -18,7 +19,7 @@ from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
-from studio.verdict_view import ConfirmCheck, verdict_markdown
+from studio.result_card import ResultCard
 
 NO_CAMERA = "(no camera)"
 GUIDANCE = (
@@ -59,14 +60,14 @@ class IntrinsicsStep:
                 self.solve_button = gui.add_button("Solve", color="blue")
                 self.jobs = JobPanel(ctx, [self.solve_button], cancel_label="Cancel solve")
             with gui.add_folder("Result"):
-                self.result_text = gui.add_markdown("No result yet.")
+                self.history = gui.add_dropdown("History", options=["(none)"],
+                                                hint="every solve of this camera; accepting an older one reverts")
+                self.card = ResultCard(ctx)
+                self.parameters_text = gui.add_markdown("")
                 self.checks_text = gui.add_markdown("")
                 self.rms_plot = gui.add_image(plots.view_rms_bars([], [], []), label="Per-view RMS")
                 self.uncertainty_plot = gui.add_image(np.full((270, 480, 3), 255, np.uint8),
                                                       label="Projection σ (px, far points)")
-                self.history = gui.add_dropdown("History", options=["(none)"])
-                self.confirm = ConfirmCheck(gui)
-                self.accept_button = gui.add_button("Accept selected result", color="green")
             with gui.add_folder("Export"):
                 self.export_ros = gui.add_button("Download ROS camera_info YAML")
                 self.export_opencv = gui.add_button("Download OpenCV YAML")
@@ -80,7 +81,6 @@ class IntrinsicsStep:
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
         self.history.on_update(lambda _: self._show_result(self.history.value))
-        self.accept_button.on_click(lambda _: self._accept())
         self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
         self.export_opencv.on_click(lambda event: self.ctx.download(event, "opencv", self.sensor))
         self.export_rig.on_click(lambda event: self.ctx.download(event, "rig", self.sensor))
@@ -116,8 +116,7 @@ class IntrinsicsStep:
             self.preview.image = np.full((270, 480, 3), 40, np.uint8)
         results = [] if sensor is None else session.results(sensor, "intrinsics")
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
-        accepted = None if sensor is None else session.accepted(f"{sensor}/intrinsics")
-        self.history.value = accepted or self.history.options[0]
+        self.history.value = self._accepted(results) or self.history.options[0]
         self._show_result(self.history.value)
 
     # -- live capture ---------------------------------------------------------------------
@@ -247,14 +246,16 @@ class IntrinsicsStep:
         session = self.ctx.session
         if session is None or result_id in (None, "(none)"):
             # Nothing solved for this camera: drop the previous camera's plots and boards too.
-            self.result_text.content = "No result yet."
+            self.card.show(None, None)
+            self.parameters_text.content = ""
             self.checks_text.content = ""
             self.rms_plot.image = plots.view_rms_bars([], [], [])
             self.uncertainty_plot.image = np.full((270, 480, 3), 255, np.uint8)
             self.ctx.scene.clear_boards()
             return
         record = session.result(result_id)
-        self.result_text.content = result_markdown(record, accepted=session.accepted(f"{self.sensor}/intrinsics"))
+        self.card.show(record, self._accepted([record]))
+        self.parameters_text.content = parameters_markdown(record)
         self.checks_text.content = checks_markdown(record)
         views = record["views"]
         self.rms_plot.image = plots.view_rms_bars([v["image"] for v in views], [v["rms_px"] for v in views],
@@ -264,21 +265,14 @@ class IntrinsicsStep:
         poses = [np.array(v["T_camera_board"]) for v in views if v["used"] and v["T_camera_board"]]
         self.ctx.scene.show_boards(session.rig, self.sensor, board, poses)
 
-    def _accept(self) -> None:
-        if self.sensor is None or self.history.value == "(none)":
-            return
-        try:
-            intrinsics_service.accept(self.ctx.session, self.sensor, self.history.value, confirm=self.confirm.take())
-        except InputError as exc:
-            self.ctx.notify("Cannot accept", exc.message, error=True)
-            return
-        self.ctx.notify("Accepted", f"{self.history.value} is now the intrinsics of {self.sensor}.")
-        self.ctx.scene.update_rig(self.ctx.session.rig)
-        self._show_result(self.history.value)
+    def _accepted(self, results: list[dict]) -> str | None:
+        """The result the camera's intrinsics slot holds (every intrinsics result of one camera fills the same)."""
+        return self.ctx.session.accepted(rig_service.slot_of(results[-1])) if results else None
 
 
-def result_markdown(record: dict, accepted: str | None) -> str:
-    """The result table: values with 1-sigma, RMS, strong correlations, outliers and uncertainty."""
+def parameters_markdown(record: dict) -> str:
+    """Beside the result card: each parameter with its 1-sigma, strong correlations, outliers and the projection
+    uncertainty."""
     camera, std = record["camera"], record["std"]
     K = camera["K"]
     names = {"pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"], "fisheye-equidistant": ["k1", "k2", "k3", "k4"]}
@@ -293,15 +287,11 @@ def result_markdown(record: dict, accepted: str | None) -> str:
     used = sum(v["used"] for v in record["views"])
     outliers = [v["image"] for v in record["views"] if v["outlier"]]
     unc = record["projection_uncertainty"]
-    status = "✅ accepted" if record["id"] == accepted else "not accepted"
     return (
-        f"**{record['id']}** ({status}) · {camera['model']} {camera['width']}×{camera['height']}\n\n"
-        f"**RMS {record['rms_px']:.3f} px** over {used} views\n\n"
-        f"| param | value | σ |\n|---|---|---|\n{table}\n\n"
+        f"{used} views used\n\n| param | value | σ |\n|---|---|---|\n{table}\n\n"
         f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
         f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
-        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px\n\n"
-        f"{verdict_markdown(record)}"
+        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
     )
 
 

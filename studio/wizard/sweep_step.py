@@ -3,10 +3,13 @@
 A 2D scanner on a servo gives one 3D cloud per sweep (:mod:`backend.core.sweep`). Its
 geometry (the optical centre's offset from the servo axis, the scanner's tilt on the
 horn, the servo's zero) decides how flat walls and floor come out. The step captures a
-sweep as a background job, draws it under ``/rig/<sensor>/sweep`` coloured by height,
+sweep as a background job, draws it under ``/steps/sweep/<sensor>/cloud`` coloured by height,
 calibrates the geometry (a job, cancellable), and redraws the same sweep and its LiDAR
 image with whichever result is picked, so the user sees the planes sharpen before
-accepting. Accepting writes the geometry into the rig; an older result reverts.
+accepting. The result card (:class:`~studio.result_card.ResultCard`) shows the scanner's pose at
+servo zero with its sigma and the verdict, and accepts through the rig service, which writes the
+geometry into the sensor's device (not a rig edge); accepting an older result reverts. The
+geometry panel beside it holds the sweep's own numbers.
 """
 
 from __future__ import annotations
@@ -16,17 +19,20 @@ import numpy as np
 
 from backend.core.errors import InputError
 from backend.core.sweep import SweepGeometry
-from backend.core.transforms import to_xyz_ypr
+from backend.core.transforms import to_xyz_ypr, transform_points
+from backend.services import rig as rig_service
 from backend.services import sweep as sweep_service
 from backend.solvers.sweep_calibration import SweepCalibrationSettings
 from backend.solvers.sweep_checks import LABELS
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
-from studio.verdict_view import ConfirmCheck
 
 NONE = "(no swept scanner)"
+SCENE_GROUP = "/steps/sweep"
+"""The step's layer in the 3D view: the sweep drawn in the root frame under ``<group>/<sensor>/cloud``."""
 POINT_SIZE_M = 0.02
 HELP = ("Keep the rig still where the scanner sees the **floor** and two or three **walls** or other large flat "
         "surfaces at different angles. **Capture sweep** turns the servo once through its range (a few seconds), "
@@ -49,16 +55,14 @@ class SweepStep:
             self.jobs = JobPanel(ctx, [self.capture_button, self.calibrate_button])
             self.history = ResultHistory(gui, lambda _: self._show(),
                                          hint="every calibration of this scanner; the sweep is redrawn with it")
-            self.result_text = gui.add_markdown("No sweep calibration yet.")
+            self.card = ResultCard(ctx, on_accepted=lambda _: self._draw(), empty_text="No sweep calibration yet.")
+            self.geometry_text = gui.add_markdown("")
             self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
             self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
-            self.confirm = ConfirmCheck(gui)
-            self.accept_button = gui.add_button("Accept", color="green")
         self.sensor.on_update(lambda _: self._select())
         self.capture_button.on_click(lambda _: self._capture())
         self.calibrate_button.on_click(lambda _: self._calibrate())
-        self.image_mode.on_update(lambda _: self._show())
-        self.accept_button.on_click(lambda _: self._accept())
+        self.image_mode.on_update(lambda _: self._draw())
         ctx.on_session_closing(self._drop_cloud)
         ctx.on_session_changed(self._on_session)
 
@@ -93,13 +97,21 @@ class SweepStep:
         captures = sweep_service.swept_captures(session, sensor)
         self.captures_text.content = (f"{len(captures)} sweep(s) captured; the latest, {captures[-1].id}, is used."
                                       if captures else "No sweep captured yet.")
-        self._show_history(session.accepted(sweep_service.slot(sensor)))
+        self._show_history(self._accepted())
+
+    def _results(self) -> list[dict]:
+        """The current scanner's stored sweep results, oldest first."""
+        sensor = self.current
+        return [] if sensor is None else self.ctx.session.results(sensor, sweep_service.KIND)
+
+    def _accepted(self) -> str | None:
+        """The result the scanner's acceptance slot holds (every sweep result of one scanner fills the same)."""
+        results = self._results()
+        return self.ctx.session.accepted(rig_service.slot_of(results[-1])) if results else None
 
     def _show_history(self, result_id: str | None) -> None:
         """Fill the result dropdown (newest first) and show ``result_id`` (or the newest)."""
-        sensor = self.current
-        results = [] if sensor is None else self.ctx.session.results(sensor, sweep_service.KIND)
-        self.history.fill([r["id"] for r in reversed(results)], result_id)
+        self.history.fill([r["id"] for r in reversed(self._results())], result_id)
         self._show()
 
     # -- jobs --------------------------------------------------------------------------------------
@@ -119,25 +131,18 @@ class SweepStep:
         self.jobs.run(f"Sweep geometry of {sensor}", lambda progress: sweep_service.calibrate(
             session, sensor, settings=settings, progress=progress), self._show_history)
 
-    def _accept(self) -> None:
-        sensor, result_id = self.current, self.result_id
-        if sensor is None or result_id is None:
-            self.ctx.notify("Nothing to accept", "Calibrate first.", error=True)
-            return
-        try:
-            sweep_service.accept(self.ctx.session, sensor, result_id, confirm=self.confirm.take())
-        except InputError as exc:
-            self.ctx.notify("Cannot accept", exc.message, error=True)
-            return
-        self.ctx.notify("Accepted", f"{result_id} is now the sweep geometry of {sensor}; new sweeps use it.")
-        self._show()
-
     # -- showing a sweep and a result --------------------------------------------------------------
     def _show(self) -> None:
-        """Redraw the latest sweep (cloud and image) with the picked result's geometry, and its numbers."""
+        """The picked result's card and numbers, and the latest sweep drawn with its geometry."""
+        result_id = self.result_id
+        record = None if result_id is None else self.ctx.session.result(result_id)
+        self.card.show(record, self._accepted())
+        self.geometry_text.content = "" if record is None else geometry_markdown(record)
+        self._draw()
+
+    def _draw(self) -> None:
+        """Redraw the latest sweep (cloud, in the root frame, and image) with the picked result's geometry."""
         session, sensor, result_id = self.ctx.session, self.current, self.result_id
-        self.result_text.content = "No sweep calibration yet." if result_id is None else geometry_markdown(
-            session.result(result_id))
         self._drop_cloud()
         if sensor is None or not sweep_service.swept_captures(session, sensor):
             self.image.image = BLANK_IMAGE
@@ -148,10 +153,11 @@ class SweepStep:
             self.ctx.notify("Cannot show the sweep", exc.message, error=True)
             return
         self.image.image = cv2.cvtColor(view.image, cv2.COLOR_GRAY2RGB)
-        points = view.points_mount
-        colours = cc.colour_points("height", points, None, session.rig.T_root_frame(sensor), 0)
+        T_root_mount = session.rig.T_root_frame(sensor)
+        colours = cc.colour_points("height", view.points_mount, None, T_root_mount, 0)
         self._cloud = self.ctx.server.scene.add_point_cloud(
-            f"/rig/{sensor}/sweep", points.astype(np.float32), colours, point_size=POINT_SIZE_M, precision="float32")
+            f"{SCENE_GROUP}/{sensor}/cloud", transform_points(T_root_mount, view.points_mount).astype(np.float32),
+            colours, point_size=POINT_SIZE_M, precision="float32")
 
 
 def geometry_markdown(record: dict) -> str:

@@ -12,6 +12,7 @@ from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.image_io import encode_jpeg
 from backend.services import intrinsics as service
+from backend.services import rig
 from backend.solvers.intrinsics import IntrinsicsSettings
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}", tags=["intrinsics"], route_class=UploadRoute)
@@ -58,5 +59,7 @@ def solve(sensor: str, body: IntrinsicsSolveRequest, session: deps.SessionDep,
 
 @router.post("/intrinsics/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id, body.confirm)
+    """Make a stored result the camera's intrinsics (an older one reverts); the rig service applies it."""
+    service.intrinsics_result(session, sensor, body.result_id)
+    rig.accept(session, body.result_id, confirm=body.confirm)
     return session.info()

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Response
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, SweepCalibrateRequest
 from backend.devices.image_io import encode_png
+from backend.services import rig
 from backend.services import sweep as service
 from backend.solvers.sweep_calibration import SweepCalibrationSettings
 
@@ -28,7 +29,9 @@ def calibrate(sensor: str, body: SweepCalibrateRequest, session: deps.SessionDep
 
 @router.post("/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id, body.confirm)
+    """Make a stored sweep geometry the sensor's (an older one reverts); the rig service applies it."""
+    service.sweep_result(session, sensor, body.result_id)
+    rig.accept(session, body.result_id, confirm=body.confirm)
     return session.info()
 
 
