@@ -24,6 +24,8 @@ from scipy.spatial.transform import Rotation
 
 from backend.core.errors import InputError
 
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+"""Rotation taking optical axes (x right, y down, z forward) to body axes (x forward, y left, z up)."""
 MAX_ROTATION_DEVIATION = 0.05
 """How far (max ``|R^T R - I|``) a given 3x3 may be from a rotation and still be projected onto one."""
 

@@ -25,11 +25,9 @@ import numpy as np
 
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, Rig
-from backend.core.transforms import invert, make_T
+from backend.core.transforms import R_BODY_OPTICAL, invert, make_T
 from backend.exports.formats import CONVENTIONS, Convention
 
-R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-"""Rotation taking optical axes (x right, y down, z forward) to body axes (x forward, y left, z up)."""
 T_BODY_OPTICAL = make_T(R_BODY_OPTICAL, np.zeros(3))
 """``T_CAM_CAM_optical_frame`` of the body convention: same origin, optical axes."""
 OPTICAL_SUFFIX = "_optical_frame"

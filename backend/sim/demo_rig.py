@@ -14,13 +14,11 @@ import numpy as np
 
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
-from backend.core.transforms import from_xyz_ypr, make_T
+from backend.core.transforms import R_BODY_OPTICAL, from_xyz_ypr, make_T
 
 DEMO_BOARD = "checkerboard:9x6:0.04"
 """The board spec the demo and the simulated cameras use by default."""
 
-R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-"""Rotation taking optical axes (x right, y down, z forward) to body axes (x forward, y left, z up)."""
 
 
 def _intrinsics(fx: float, fy: float, cx: float, cy: float, dist: list[float]) -> CameraIntrinsics:

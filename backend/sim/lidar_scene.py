@@ -28,9 +28,9 @@ from functools import lru_cache
 import numpy as np
 
 from backend.core.boards import BoardSpec
-from backend.core.transforms import from_xyz_ypr, make_T, transform_points
+from backend.core.transforms import R_BODY_OPTICAL, from_xyz_ypr, make_T, transform_points
 from backend.sim.board_renderer import plate_corners_m
-from backend.sim.demo_rig import DEMO_BOARD, R_BODY_OPTICAL
+from backend.sim.demo_rig import DEMO_BOARD
 
 LABELS: dict[str, int] = {"floor": 1, "wall": 2, "box": 3, "pole": 4, "ramp": 5, "board": 6, "stand": 7}
 """Surface label of each triangle (and of each LiDAR return); 0 means no surface."""
