@@ -21,6 +21,7 @@ from starlette.websockets import WebSocket
 from backend.api import auth, origin
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, rig, sessions, sweep
 from backend.api.routes import jobs as job_routes
+from backend.api.routes import report as report_routes
 from backend.api.routes.targets import router as targets_router
 from backend.core.errors import InputError
 from backend.services.jobs import JobRunner
@@ -118,6 +119,7 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
         return RedirectResponse(studio_url or "/docs")
 
     for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, multicam.router,
-                   sweep.router, recordings.router, job_routes.router, exports.router, rig.router, targets_router):
+                   sweep.router, recordings.router, job_routes.router, exports.router, rig.router, targets_router,
+                   report_routes.router):
         app.include_router(router, prefix="/api")
     return app
