@@ -86,7 +86,7 @@ def run_method(name, solve, pair, camera, reference, guesses):
             runs.append({"refused": refused.message, "seconds": time.perf_counter() - started})
             continue
         seconds = time.perf_counter() - started
-        error_t, error_r = transform_error(result.T_camera_lidar, reference)
+        error_t, error_r = transform_error(result.T_parent_child, reference)
         sigma = np.r_[result.std["trans_m"], result.std["rot_deg"]].astype(float)
         runs.append({
             "before_mm": float(1000 * np.linalg.norm(before_t)), "before_deg": float(np.linalg.norm(before_r)),

@@ -350,7 +350,7 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     from backend.core.boards import BoardSpec
     from backend.core.transforms import check_transform
     from backend.exports.ros_camera_info import load_camera_info
-    from backend.services.lidar_camera import solve_files
+    from backend.services.lidar_camera import cli_summary, solve_files
 
     pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in _pairs(args.pair)]
     camera, _ = load_camera_info(args.camera)
@@ -367,7 +367,7 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
                          progress=_progress_to_stderr(False))
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    summary = result.summary()
+    summary = cli_summary(result)
     if not result.converged:
         print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
         raise InputError(f"no usable calibration: {(result.warnings or ['the solve failed'])[0]}", "--pair")
@@ -376,10 +376,10 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
 
         from backend.core.transforms import to_xyz_ypr
 
-        xyz, ypr = to_xyz_ypr(result.T_camera_lidar)
+        xyz, ypr = to_xyz_ypr(result.T_parent_child)
         print(f"T_camera_lidar (x y z m, yaw pitch roll deg): {' '.join(f'{v:.4f}' for v in xyz)}  "
               f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}\n"
-              f"{np.array2string(result.T_camera_lidar, precision=6, suppress_small=True)}\n"
+              f"{np.array2string(result.T_parent_child, precision=6, suppress_small=True)}\n"
               f"1-sigma trans (m) {summary['std']['trans_m']}  rot (deg, LiDAR axes) {summary['std']['rot_deg']}\n"
               f"residuals {summary['residuals']}")
     return summary

@@ -62,7 +62,9 @@ def test_pairs_solve_overlay_and_accept(client):
     assert status["state"] == "done", status
     result_id = status["result_id"]
     record = client.get(f"/api/sessions/l2c/results/{result_id}").json()
-    error = invert(T_TRUE) @ np.array(record["T_camera_lidar"])
+    assert (record["kind"], record["method"], record["parent"], record["child"]) == (
+        "lidar_camera", "target", "cam_front", "lidar_front")
+    error = invert(T_TRUE) @ np.array(record["T_parent_child"])
     assert np.linalg.norm(error[:3, 3]) < 0.01, record["std"]
     assert record["files"] == ["overlay_after.jpg", "overlay_before.jpg"]
 
@@ -88,9 +90,20 @@ def test_hand_set_transform_and_errors(client):
     response = client.post("/api/sessions/l2c/lidar-camera/manual", json={
         "camera": "cam_front", "lidar": "lidar_front", "xyz_m": xyz.tolist(), "ypr_deg": np.degrees(ypr).tolist()})
     assert response.status_code == 201, response.text
-    record = client.get(f"/api/sessions/l2c/results/{response.json()['result_id']}").json()
-    np.testing.assert_allclose(record["T_camera_lidar"], T_TRUE, atol=1e-9)
+    result_id = response.json()["result_id"]
+    record = client.get(f"/api/sessions/l2c/results/{result_id}").json()
+    np.testing.assert_allclose(record["T_parent_child"], T_TRUE, atol=1e-9)
+    assert (record["method"], record["parent"], record["child"]) == ("manual", "cam_front", "lidar_front")
+    assert record["covariance"] == [[None] * 6] * 6  # nothing measured it
     assert record["verdict"] == {"level": "check", "reasons": ["set by hand: no uncertainty, no cross-check"]}
+    url = "/api/sessions/l2c/sensors/{}/lidar-camera/accept"
+    other = client.post(url.format("lidar_top"), json={"result_id": result_id, "confirm": True})
+    assert other.status_code == 422 and "belongs to lidar_front, not lidar_top" in other.json()["error"]["message"]
+    unconfirmed = client.post(url.format("lidar_front"), json={"result_id": result_id})
+    assert unconfirmed.status_code == 409 and unconfirmed.json()["error"]["input"] == "confirm", unconfirmed.text
+    accepted = client.post(url.format("lidar_front"), json={"result_id": result_id, "confirm": True})
+    assert accepted.status_code == 200, accepted.text
+    assert accepted.json()["accepted"]["lidar_front/T_cam_front_lidar_front"] == result_id
 
     files = {"image": ("frame.png", b"garbage", "image/png"), "cloud": ("c.npy", b"garbage", "application/x")}
     bad = client.post("/api/sessions/l2c/lidar-camera/pairs", data={"camera": "cam_front", "lidar": "lidar_front"},

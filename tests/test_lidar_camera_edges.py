@@ -16,7 +16,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import CancelledError, InputError
 from backend.core.projection import project_cloud
 from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
-from backend.services.lidar_camera import TOLERANCES, edges_settings, judge
+from backend.services.lidar_camera import TOLERANCES, cli_summary, edges_settings, judge
 from backend.sim.demo_rig import CAM_FRONT, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
 from backend.sim.scene_camera import render_scene_image
@@ -78,7 +78,7 @@ def initial_guess(seed: int) -> np.ndarray:
 
 def errors_and_sigmas(result, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(6,) error (m, m, m, deg, deg, deg) against ``T_true`` and the reported 1-sigma in the same units."""
-    err_t, err_r = transform_error(result.T_camera_lidar, T_true)
+    err_t, err_r = transform_error(result.T_parent_child, T_true)
     return np.r_[err_t, err_r], np.r_[result.std["trans_m"], result.std["rot_deg"]]
 
 
@@ -127,12 +127,12 @@ def test_simulated_rig_recovers_the_truth_from_10cm_5deg(sim_result):
     # reported sigmas (0.3-1.0 mm, 0.004-0.013 deg) per solve; this one 0.4 mm, 0.003 deg, 0.6 sigma.
     assert np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.2)
     assert np.all(np.abs(error) < 3 * sigma), (error, sigma)
-    assert sim_result.spread_source == "edge groups and pairs"
+    assert sim_result.diagnostics["spread_source"] == "edge groups and pairs"
     assert sim_result.residuals["edge_rms_px"] < 1.0 and sim_result.residuals["matched"] > 300
 
 
 def test_summary_is_the_cli_contract_and_the_record_is_strict_json(sim_result):
-    summary = sim_result.summary()
+    summary = cli_summary(sim_result)
     assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
     assert summary["verdict"] is None  # the solver leaves judging to the service (test_verdicts_* below)
     assert set(summary["std"]) == {"trans_m", "rot_deg"} and len(summary["std"]["trans_m"]) == 3
@@ -141,13 +141,16 @@ def test_summary_is_the_cli_contract_and_the_record_is_strict_json(sim_result):
     assert len(summary["residuals"]["per_pair_rms_px"]) == 4
     record = json.loads(json.dumps(sim_result.to_record(), allow_nan=False))
     assert record["kind"] == "lidar_camera" and record["method"] == "edges" and record["converged"]
+    assert (record["parent"], record["child"]) == ("camera", "lidar")
     assert record["covariance_order"] == TRANSFORM_PARAMETERS and np.shape(record["covariance"]) == (6, 6)
-    assert np.allclose(record["T_init"], initial_guess(1))
+    diagnostics = record["diagnostics"]
+    assert np.allclose(diagnostics["T_init"], initial_guess(1))
     assert record["settings"]["planes"]["voxel_m"] == 1.0 and record["settings"]["coarse"]["levels"]
-    assert [p["name"] for p in record["pairs"]] == ["pose 1", "pose 2", "pose 3", "pose 4"]
-    assert record["std_multistart"] is None and len(record["candidates"]) >= 2  # the yard has one alignment
-    assert record["candidates"][0]["offset_m"] == [0.0, 0.0, 0.0] and not any(
-        c["competing"] for c in record["candidates"])
+    assert [p["name"] for p in diagnostics["pairs"]] == ["pose 1", "pose 2", "pose 3", "pose 4"]
+    assert diagnostics["std_multistart"] is None and len(diagnostics["candidates"]) >= 2  # the yard has one alignment
+    assert diagnostics["candidates"][0]["offset_m"] == [0.0, 0.0, 0.0] and not any(
+        c["competing"] for c in diagnostics["candidates"])
+    assert len(diagnostics["halves_offset"]) == 6 and len(diagnostics["std_jacobian"]) == 6
 
 
 @pytest.mark.slow
@@ -163,7 +166,7 @@ def test_verdicts_on_the_simulated_rig_are_trusted_only_within_tolerance(sim_res
     assert any(r.startswith("cross-check between two halves of the pairs: ") for r in verdict.reasons)
     assert sim_result.to_record()["verdict"] == verdict.to_dict()
     # Halves that disagree (a pair from another rig, say) fail the cross-check.
-    disagreeing = replace(sim_result, halves_offset=np.r_[0.01, 0, 0, 0, 0, 0])
+    disagreeing = replace(sim_result, diagnostics={**sim_result.diagnostics, "halves_offset": [0.01, 0, 0, 0, 0, 0]})
     assert judge(disagreeing).level == "check" and any(
         r.startswith("cross-check between two halves of the pairs failed") for r in disagreeing.verdict.reasons)
     one_pair = judge(solve_edges(CAM_FRONT, sim_pairs[:1], initial_guess(1)))
@@ -221,14 +224,14 @@ def test_a_checkerboard_in_view_gives_no_confident_wrong_answer(board_pairs, sta
     error, sigma = errors_and_sigmas(result, TRUTH)
     print(f"board start {start}: error {np.round(1000 * error[:3], 1)} mm, {np.round(error[3:], 3)} deg; sigma "
           f"{np.round(1000 * sigma[:3], 1)} mm, {np.round(sigma[3:], 3)} deg; {result.seconds:.1f} s; "
-          f"{result.warnings}; matched per start {[c.matched for c in result.candidates]}")
+          f"{result.warnings}; matched per start {[c['matched'] for c in result.diagnostics['candidates']]}")
     # Before the print's reflectivity edges were dropped (in_texture), two of these three starts ended on a copy
     # shifted by about a square (57 mm, 0.4 deg) with sigmas of 1-2 mm and 0.01 deg. Now all three end within
     # 2.2 mm and 0.02 deg, 0.3-2.5 sigma (1.5-3.75 before the jackknife's squares spanned the pairs).
     assert flagged(result) or (np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.2)
                                and np.all(np.abs(error) < 3 * sigma)), (error, sigma, result.warnings)
     assert result.converged, result.warnings
-    assert all(c.matched <= result.residuals["matched"] for c in result.candidates)
+    assert all(c["matched"] <= result.residuals["matched"] for c in result.diagnostics["candidates"])
 
 
 def test_a_printed_pattern_competing_with_the_scene_is_flagged_ambiguous(board_pairs):
@@ -242,9 +245,9 @@ def test_a_printed_pattern_competing_with_the_scene_is_flagged_ambiguous(board_p
     verdict = judge(result)
     assert verdict.level == "reject" and verdict.reasons[0].startswith("the solve is not usable: ")
     record = json.loads(json.dumps(result.to_record(), allow_nan=False))
-    competing = [c for c in record["candidates"] if c["competing"]]
-    assert competing and np.allclose(record["std_multistart"][:3], np.max([np.abs(c["offset_m"]) for c in competing],
-                                                                          axis=0))
+    competing = [c for c in record["diagnostics"]["candidates"] if c["competing"]]
+    assert competing and np.allclose(record["diagnostics"]["std_multistart"][:3],
+                                     np.max([np.abs(c["offset_m"]) for c in competing], axis=0))
 
 
 def test_in_texture_tells_a_printed_pattern_from_lines():
@@ -358,7 +361,7 @@ def test_a_poor_fit_is_returned_unconverged_with_a_warning():
     pair, camera, reference = opencalib()
     strict = LidarCameraEdgesSettings(fine=REAL_SETTINGS.fine, coarse=REAL_SETTINGS.coarse, max_rms_px=0.5)
     result = solve_edges(camera, [pair], reference, strict)  # its rms is about 1 px
-    assert not result.converged and result.std_spread is None
+    assert not result.converged and result.diagnostics["std_spread"] is None
     assert any(w.startswith("poor fit: rms edge distance") and w.endswith("not accepted") for w in result.warnings)
 
 

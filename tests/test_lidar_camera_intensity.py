@@ -20,7 +20,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import apply_params, invert, make_T, params_between, transform_points
 from backend.exports.ros_camera_info import write_camera_info
-from backend.services.lidar_camera import CrossCheck, PairData, cross_check_methods, judge, solve_pairs
+from backend.services.lidar_camera import CrossCheck, PairData, cli_summary, cross_check_methods, judge, solve_pairs
 from backend.solvers.cloud_accumulation import accumulate_scans
 from backend.solvers.lidar_camera_intensity import (
     IntensityObservation,
@@ -100,7 +100,7 @@ def synthetic_result():
 
 def test_synthetic_scene_recovers_the_truth_with_covering_sigmas(synthetic_result):
     result = synthetic_result
-    error = params_between(TRUTH, result.T_camera_lidar)
+    error = params_between(TRUTH, result.T_parent_child)
     sigma = np.r_[result.std["trans_m"], np.radians(result.std["rot_deg"])]
     assert result.converged and not result.warnings
     assert np.degrees(np.abs(error[3:])).max() < 0.1
@@ -108,11 +108,13 @@ def test_synthetic_scene_recovers_the_truth_with_covering_sigmas(synthetic_resul
     assert np.all(np.abs(error) <= 3 * sigma + np.r_[np.full(3, 0.003), np.full(3, np.radians(0.01))])
     assert result.residuals["nid"] < result.residuals["nid_init"]
     assert result.residuals["mutual_information_nats"] > 0.3
-    summary = result.summary()
+    summary = cli_summary(result)
     assert set(summary) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
-    record = result.to_record()
+    record = json.loads(json.dumps(result.to_record(), allow_nan=False))
     assert record["method"] == "intensity" and record["kind"] == "lidar_camera"
-    assert len(record["covariance"]) == 6 and record["spread_source"].startswith("image regions")
+    assert (record["parent"], record["child"]) == ("camera", "lidar")
+    assert len(record["covariance"]) == 6 and record["diagnostics"]["spread_source"].startswith("image regions")
+    assert record["diagnostics"]["std_pairs"] is None and len(record["diagnostics"]["std_curvature"]) == 6
 
 
 def test_the_service_judges_it_and_names_the_missing_cross_checks(synthetic_result):
@@ -125,7 +127,7 @@ def test_the_service_judges_it_and_names_the_missing_cross_checks(synthetic_resu
     assert verdict.level == "check"
     assert "no cross-check against the edges method: the edges method could not solve these pairs" in reasons
     assert "no cross-check over pairs" in reasons
-    assert synthetic_result.summary()["verdict"]["level"] == "check"
+    assert cli_summary(synthetic_result)["verdict"]["level"] == "check"
 
 
 def test_the_method_and_the_cross_check_reach_the_service():
@@ -193,11 +195,11 @@ def test_nid_is_zero_for_dependent_and_one_for_independent_values():
 def test_methods_agree_within_their_combined_sigmas_and_the_verdict_carries_it(synthetic_result):
     result = synthetic_result
     sigma = np.sqrt(np.diag(result.covariance))
-    near = apply_params(result.T_camera_lidar, 1.5 * np.sqrt(2) * sigma * np.array([1, -1, 1, 1, -1, 1]))
-    agreement = compare_methods(result.T_camera_lidar, result.covariance, near, result.covariance, "edges")
+    near = apply_params(result.T_parent_child, 1.5 * np.sqrt(2) * sigma * np.array([1, -1, 1, 1, -1, 1]))
+    agreement = compare_methods(result.T_parent_child, result.covariance, near, result.covariance, "edges")
     assert agreement.passed and np.allclose(agreement.normalised, 1.5, rtol=0.02)
-    far = apply_params(result.T_camera_lidar, np.r_[0, 0, 0, 5 * np.sqrt(2) * sigma[3], 0, 0])
-    disagreement = compare_methods(result.T_camera_lidar, result.covariance, far, result.covariance, "edges")
+    far = apply_params(result.T_parent_child, np.r_[0, 0, 0, 5 * np.sqrt(2) * sigma[3], 0, 0])
+    disagreement = compare_methods(result.T_parent_child, result.covariance, far, result.covariance, "edges")
     assert not disagreement.passed and "at most 5.0 combined sigmas" in disagreement.detail()
     verdict = judge(result, [CrossCheck("against the edges method", disagreement.passed, disagreement.detail())])
     assert verdict.level in ("check", "reject")
@@ -237,7 +239,7 @@ def test_real_road_frame_from_3_deg_off():
                                            np.zeros(3))
     data = PairData("calib.png:calib.pcd", "calib.png", frame.image, frame.points, frame.intensity)
     result = solve_pairs(frame.camera, None, [data], T_init, method="intensity", translation_prior_m=0.005)
-    error = params_between(frame.T_camera_lidar, result.T_camera_lidar)
+    error = params_between(frame.T_camera_lidar, result.T_parent_child)
     assert result.converged
     assert np.degrees(np.abs(error[3:])).max() < 0.3
     assert np.abs(error[:3]).max() < 0.05

@@ -67,7 +67,7 @@ def test_captured_pairs_see_one_board_pose_and_solve_to_the_truth(session):
     T_true = session.rig.T_a_b("cam_front", "lidar_top")
     T_init = T_true @ from_xyz_ypr(np.array([0.06, -0.05, 0.06]), np.radians([3.0, -3.0, 2.5]))  # 10 cm, 5 deg
     result_id, result = service.solve_session(session, "cam_front", "lidar_top", T_init=T_init)
-    error = invert(T_true) @ result.T_camera_lidar
+    error = invert(T_true) @ result.T_parent_child
     assert result.converged
     # A 16-beam LiDAR crosses the board with few rings, so 8 poses give sigmas of about 8 mm and 0.4 deg (seen:
     # 7.1 mm and 0.55 deg off): the errors stay within 3 sigma, and the sigmas say the solve learnt something.
@@ -76,7 +76,10 @@ def test_captured_pairs_see_one_board_pose_and_solve_to_the_truth(session):
     assert np.linalg.norm(error[:3, 3]) < min(0.02, 3 * sigma_t), (error, result.std)
     assert _angle_deg(error) < min(1.0, 3 * sigma_r), (error, result.std)
     record = session.result(result_id)
-    assert record["camera"] == "cam_front" and record["method"] == "target"
+    assert (record["parent"], record["child"], record["sensor"]) == ("cam_front", "lidar_top", "lidar_top")
+    assert record["kind"] == "lidar_camera" and record["method"] == "target"
+    assert (result.parent, result.child) == ("cam_front", "lidar_top")
+    np.testing.assert_allclose(record["T_parent_child"], result.T_parent_child)
     assert record["inputs"] == [p.name for p in captured]
     before = read_image(session.result_file(result_id, "overlay_before.jpg"))
     after = read_image(session.result_file(result_id, "overlay_after.jpg"))
@@ -164,7 +167,7 @@ def test_the_demo_session_holds_pairs_ready_to_solve(tmp_path, demo_template):
     truth = demo_rig().T_a_b(DEMO_CAMERA, DEMO_LIDAR)
     T_init = truth @ from_xyz_ypr(np.array([0.1, 0.0, 0.0]), np.radians([0.0, 5.0, 0.0]))
     _, result = service.solve_session(session, DEMO_CAMERA, DEMO_LIDAR, T_init=T_init)
-    error = invert(truth) @ result.T_camera_lidar
+    error = invert(truth) @ result.T_parent_child
     sigma_t, sigma_r = np.array(result.std["trans_m"]), np.array(result.std["rot_deg"])
     assert result.converged and np.linalg.norm(error[:3, 3]) < 0.012 and _angle_deg(error) < 0.25
     assert np.linalg.norm(error[:3, 3]) < 3 * np.linalg.norm(sigma_t)

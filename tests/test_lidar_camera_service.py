@@ -1,5 +1,6 @@
-"""The LiDAR-to-camera results in a session: a hand-set transform stored and accepted into the rig (the LiDAR
-re-mounted, the camera left alone), reverting to an older result, and what cannot be accepted."""
+"""The LiDAR-to-camera results in a session: a hand-set transform stored as a transform result between the rig's
+frames, accepted into the rig through the one accept service (the rig re-fitted so that it holds), reverting to
+an older result, and what cannot be stored or accepted."""
 
 from __future__ import annotations
 
@@ -7,10 +8,14 @@ import numpy as np
 import pytest
 
 from backend.core.errors import InputError
-from backend.core.transforms import from_xyz_ypr
+from backend.core.transforms import from_xyz_ypr, transform_error
 from backend.services import lidar_camera as service
+from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
+from backend.solvers.result import TransformResult
 from backend.store.session import Session, SessionStore
+
+SLOT = "lidar_front/T_cam_front_lidar_front"
 
 
 @pytest.fixture
@@ -18,29 +23,51 @@ def session(tmp_path) -> Session:
     return SessionStore(tmp_path).create("l2c", rig=demo_rig())
 
 
+def _off_by(session: Session, T: np.ndarray) -> tuple[float, float]:
+    """How far the rig's ``T_cam_front_lidar_front`` is from ``T`` (m, deg)."""
+    err_t, err_r = transform_error(session.rig.T_a_b("cam_front", "lidar_front"), T)
+    return float(np.linalg.norm(err_t)), float(np.linalg.norm(err_r))
+
+
+def test_a_hand_set_transform_is_a_transform_result_between_the_rig_frames(session):
+    T = session.rig.T_a_b("cam_front", "lidar_front") @ from_xyz_ypr(np.array([0.02, 0, 0]), np.radians([1, 0, 0]))
+    result_id = service.store_manual(session, "cam_front", "lidar_front", T,
+                                     inputs=["cam_front:00001", "lidar_front:00001"])
+    record = session.result(result_id)
+    assert record["sensor"] == "lidar_front" and record["inputs"] == ["cam_front:00001", "lidar_front:00001"]
+    assert record["verdict"] == {"level": "check", "reasons": ["set by hand: no uncertainty, no cross-check"]}
+    result = TransformResult.from_record(record)
+    assert (result.kind, result.method, result.parent, result.child) == ("lidar_camera", "manual", "cam_front",
+                                                                         "lidar_front")
+    np.testing.assert_allclose(result.T_parent_child, T, atol=1e-12)
+    assert np.isnan(result.covariance).all() and result.std == {"trans_m": [None] * 3, "rot_deg": [None] * 3}
+    assert rig_service.slot_of(record) == SLOT == service.slot("lidar_front", "cam_front")
+    np.testing.assert_allclose(service.result_transform(session, "lidar_front", result_id), T, atol=1e-12)
+    # A record kept before the results were transform results (its transform under its own name) still reads.
+    legacy = session.add_result("lidar_front", {"kind": "lidar_camera", "method": "target", "camera": "cam_front",
+                                                "T_camera_lidar": T.tolist(), "converged": True}, inputs=[])
+    np.testing.assert_allclose(service.result_transform(session, "lidar_front", legacy), T, atol=1e-12)
+
+
 def test_a_hand_set_transform_is_accepted_and_reverted(session):
-    camera_before = session.rig.get("cam_front").T_parent_child.copy()
     first = session.rig.T_a_b("cam_front", "lidar_front") @ from_xyz_ypr(np.array([0.02, 0, 0]), np.radians([1, 0, 0]))
     second = first @ from_xyz_ypr(np.array([0, 0.01, 0]), np.radians([0, 0.5, 0]))
-    first_id = service.store_manual(session, "cam_front", "lidar_front", first,
-                                    inputs=["cam_front:00001", "lidar_front:00001"])
-    with pytest.raises(InputError, match="set by hand: no uncertainty, no cross-check"):
-        service.accept(session, "lidar_front", first_id)  # a manual result is a 'check': it needs confirming
-    service.accept(session, "lidar_front", first_id, confirm=True)
-    np.testing.assert_allclose(session.rig.T_a_b("cam_front", "lidar_front"), first, atol=1e-12)
-    np.testing.assert_array_equal(session.rig.get("cam_front").T_parent_child, camera_before)
-    assert session.rig.get("lidar_front").covariance is None  # nothing measured it
+    first_id = service.store_manual(session, "cam_front", "lidar_front", first, inputs=[])
+    with pytest.raises(InputError, match="set by hand: no uncertainty, no cross-check") as info:
+        rig_service.accept(session, first_id)  # a manual result is a 'check': it needs confirming
+    assert info.value.input == "confirm" and session.accepted(SLOT) is None
+    far_m, far_deg = _off_by(session, first)
+    rig_service.accept(session, first_id, confirm=True)
+    # The edge's assumed sigma (1 cm, 1 deg) against the mounting guesses' (5 cm, 5 deg): the tree takes the edge.
+    near_m, near_deg = _off_by(session, first)
+    assert far_m > 0.019 and far_deg > 0.99 and near_m < 0.001 and near_deg < 0.01, (near_m, near_deg)
 
     second_id = service.store_manual(session, "cam_front", "lidar_front", second, inputs=[])
-    service.accept(session, "lidar_front", second_id, confirm=True)
-    np.testing.assert_allclose(Session.load(session.path).rig.T_a_b("cam_front", "lidar_front"), second, atol=1e-12)
-    service.accept(session, "lidar_front", first_id, confirm=True)  # back to the first
-    np.testing.assert_allclose(session.rig.T_a_b("cam_front", "lidar_front"), first, atol=1e-12)
-    assert session.accepted("lidar_front/T_cam_front_lidar_front") == first_id
+    rig_service.accept(session, second_id, confirm=True)
+    assert _off_by(Session.load(session.path), second)[0] < 0.001
+    rig_service.accept(session, first_id, confirm=True)  # back to the first
+    assert _off_by(session, first)[0] < 0.001 and session.accepted(SLOT) == first_id
     assert [r["id"] for r in session.results("lidar_front", "lidar_camera")] == [first_id, second_id]
-    record = session.result(first_id)
-    assert record["method"] == "manual" and record["inputs"] == ["cam_front:00001", "lidar_front:00001"]
-    assert record["verdict"] == {"level": "check", "reasons": ["set by hand: no uncertainty, no cross-check"]}
 
 
 def test_what_cannot_be_stored_or_accepted_is_named(session):
@@ -54,6 +81,10 @@ def test_what_cannot_be_stored_or_accepted_is_named(session):
         service.store_manual(session, "cam_front", "lidar_front", np.eye(3), inputs=[])
     assert info.value.input == "T_camera_lidar"
     result_id = service.store_manual(session, "cam_front", "lidar_front", T, inputs=[])
-    with pytest.raises(InputError, match="belongs to lidar_front"):
-        service.accept(session, "lidar_top", result_id)
-    assert session.accepted("lidar_front/T_cam_front_lidar_front") is None
+    with pytest.raises(InputError, match="belongs to lidar_front, not lidar_top") as info:
+        service.lidar_camera_record(session, "lidar_top", result_id)
+    assert info.value.input == "result"
+    note = session.add_result("lidar_front", {"kind": "note"}, inputs=[])
+    with pytest.raises(InputError, match=f"result {note} is a note result, not lidar_camera"):
+        service.result_transform(session, "lidar_front", note)
+    assert session.accepted(SLOT) is None

@@ -1,7 +1,7 @@
 """The LiDAR-to-camera step of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium:
 a captured lidar_front cloud drawn onto cam_front's image in depth colours spread over the scene (the legend
 beneath), then an increment slider moved (8° about the camera's z), the overlay redrawn, and the hand-set transform
-accepted once its 'check' verdict is confirmed."""
+kept as a result and accepted on the result card once its 'check' verdict is confirmed."""
 
 from __future__ import annotations
 
@@ -107,12 +107,18 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         assert expect_line in page.inner_text("body")
 
         wait_body(page, re.compile(r"From where it was put: turned 8\.000°"), timeout_s=10)
+        button(page, "Keep the sliders' transform").click()
+        kept = wait_body(page, re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · manual"), timeout_s=10)
+        wait_body(page, re.compile(r"set by hand: no uncertainty, no cross-check"), timeout_s=5)
+        button(page, "Accept").filter(visible=True).last.click()  # the rig preview first
+        wait_body(page, re.compile(f"Accepting {kept.group(1)} would:"), timeout_s=15)
         page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()  # hand-set: "check"
-        button(page, "Accept as the mounting").click()
-        wait_body(page, re.compile(r"lidar_front is now mounted so that T_cam_front_lidar_front"), timeout_s=15)
+        button(page, "Apply accept").filter(visible=True).last.click()
+        wait_body(page, re.compile(f"{kept.group(1)} \\(✅ accepted\\) · lidar_camera · manual"), timeout_s=15)
     result_id = studio.get("/api/sessions/demo")["accepted"]["lidar_front/T_cam_front_lidar_front"]
+    assert result_id == kept.group(1)
     record = studio.get(f"/api/sessions/demo/results/{result_id}")
-    nudged = np.array(record["T_camera_lidar"])
+    nudged = np.array(record["T_parent_child"])
     truth = demo_rig().T_a_b("cam_front", "lidar_front")
     angle_deg = np.degrees(np.arccos(np.clip((np.trace(truth[:3, :3].T @ nudged[:3, :3]) - 1) / 2, -1, 1)))
     assert record["method"] == "manual" and angle_deg == pytest.approx(8.0, abs=0.1)

@@ -45,9 +45,10 @@ SLOT = f"{LIDAR}/T_{CAMERA}_{LIDAR}"
 POSE = ("x (m)", "y (m)", "z (m)", "yaw (°)", "pitch (°)", "roll (°)")
 """The read-only pose table beside the increment sliders."""
 DRAWN_RE = re.compile(r"([\d,]+) of ([\d,]+) points drawn over (\d+) pairs")
-RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · target · ✅ converged · [\d.]+ s\s+"
-                       r"1σ translation \(mm\): ([\d.]+), ([\d.]+), ([\d.]+) · rotation \(°\): ([\d.]+), ([\d.]+), "
-                       r"([\d.]+)")
+RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · target · [\d.]+ s\s+Verdict[\s\S]*?"
+                       rf"{CAMERA} → {LIDAR}[\s\S]*?"
+                       r"1σ: ([\d.]+), ([\d.]+), ([\d.]+) mm · ([\d.]+), ([\d.]+), ([\d.]+)°")
+"""The result card of a converged target solve (the card says "not converged" after the seconds otherwise)."""
 YAW_OFF_DEG, X_OFF_M = 3.0, 0.05
 """How far the sliders are typed away from the truth before solving."""
 TOLERANCE_M, TOLERANCE_DEG = 0.015, 0.3
@@ -239,10 +240,10 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         expect(page.get_by_label("Result", exact=True).last).to_have_value(result_id)
         record = studio.get(f"/api/sessions/demo/results/{result_id}")
         assert record["kind"] == "lidar_camera" and record["method"] == "target" and record["converged"]
-        assert record["camera"] == CAMERA and record["sensor"] == LIDAR
-        init_m, init_deg = _errors(np.array(record["T_init"]), T_off)  # the boxes round to 1 mm and 0.01°
+        assert (record["parent"], record["child"], record["sensor"]) == (CAMERA, LIDAR, LIDAR)
+        init_m, init_deg = _errors(np.array(record["diagnostics"]["T_init"]), T_off)  # boxes round: 1 mm, 0.01°
         assert init_m < 1e-3 and init_deg < 0.02, f"the solve did not start from the sliders ({init_m}, {init_deg})"
-        T_solved = np.array(record["T_camera_lidar"])
+        T_solved = np.array(record["T_parent_child"])
         solved_m, solved_deg = _errors(T_solved, truth)
         assert solved_m < TOLERANCE_M and solved_deg < TOLERANCE_DEG, (solved_m, solved_deg)
         deadline = time.monotonic() + 10
@@ -273,15 +274,18 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         page.get_by_text("Before / after", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve.png")
 
-        # 5. Accept, sliders untouched since the solve: the solve itself is the mounting, not a manual copy. Its
-        # verdict is on the card; one that says 'check' needs the box ticked.
+        # 5. Accept on the result card: the solve itself is accepted, not a manual copy. Its verdict is on the card;
+        # one that says 'check' needs the box ticked. The first click shows what moves in the rig, the second applies.
         verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)"), timeout_s=5).group(1)
         assert verdict != "reject", page.inner_text("body")[-2000:]
+        button(page, "Accept").filter(visible=True).last.click()
+        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Apply accept"),
+                            timeout_s=15)
+        assert re.search(rf"{LIDAR} moves [\d.]+ mm", preview.group(1)), preview.group(1)  # the solve is mm off
         _visible(page, "Confirm the check").check()
-        button(page, "Accept as the mounting").click()
-        wait_body(page, re.compile(f"{result_id}: {LIDAR} is now mounted so that T_{CAMERA}_{LIDAR} is the "
-                                   r"result's transform \(target solve\)"), timeout_s=15)
-        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · target"), timeout_s=10)
+        button(page, "Apply accept").filter(visible=True).last.click()
+        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · lidar_camera · target"), timeout_s=15)
+        wait_body(page, re.compile(r"Accepted\.\s+"), timeout_s=5)
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_accepted.png")
     session = studio.get("/api/sessions/demo")

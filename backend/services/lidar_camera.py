@@ -6,10 +6,11 @@ solve of ``T_camera_lidar`` (:mod:`backend.solvers.lidar_camera_target`). Every 
 cannot be used is refused naming the file: an image or cloud that cannot be read, an image
 whose size disagrees with the intrinsics, a board that is not found.
 
-By hand: a transform set with the studio's sliders is stored as a ``lidar_camera`` result of
-method ``manual`` (no uncertainty: nothing measured it) naming the image and cloud it was
-judged on, and accepted like any result: the LiDAR is re-mounted so that the rig's
-``T_camera_lidar`` is the result's, earlier results stay in the history, an older one reverts.
+Every solve is kept as the solver's :class:`~backend.solvers.result.TransformResult` between the rig's
+frames (parent: the camera, child: the LiDAR) with its before/after overlays. By hand: a transform set
+with the studio's sliders is kept the same way, of method ``manual`` (covariance undetermined: nothing
+measured it) naming the image and cloud it was judged on. Either is accepted into the rig graph by
+:func:`backend.services.rig.accept`, like every result kind.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
-from backend.core.rig import Rig
 from backend.core.transforms import check_transform
 from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
@@ -34,32 +34,25 @@ from backend.services import intrinsics as intrinsics_service
 from backend.services.intrinsics import check_camera
 from backend.services.lidar_camera_pairs import check_image_size, stored_pairs
 from backend.services.lidar_lidar import check_lidar
+from backend.services.rig import record_transforms
 from backend.solvers.cloud_accumulation import accumulate_scans
-from backend.solvers.lidar_camera_edges import (
-    EdgeObservation,
-    LidarCameraEdgesResult,
-    LidarCameraEdgesSettings,
-    solve_edges,
-)
+from backend.solvers.lidar_camera_edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
 from backend.solvers.lidar_camera_intensity import (
     IntensityObservation,
-    LidarCameraIntensityResult,
     LidarCameraIntensitySettings,
     solve_intensity,
 )
 from backend.solvers.lidar_camera_target import (
-    LidarCameraResult,
     LidarCameraTargetSettings,
     TargetObservation,
     camera_board_pose,
     solve_target,
 )
 from backend.solvers.method_agreement import compare_methods
-from backend.solvers.result import TRANSFORM_PARAMETERS, ProgressCallback, no_progress
+from backend.solvers.result import TRANSFORM_PARAMETERS, ProgressCallback, TransformResult, no_progress
 from backend.store.session import Session
 
 METHODS = ("target", "edges", "intensity")
-AnyLidarCameraResult = LidarCameraResult | LidarCameraEdgesResult | LidarCameraIntensityResult
 TARGETLESS = ("edges", "intensity")
 """The targetless methods: each cross-checks the other on the same pairs."""
 DEFAULT_PLATE_MARGIN_SQUARES = 1.0
@@ -98,7 +91,14 @@ class CrossCheck:
     """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
 
 
-def judge(result: LidarCameraResult | LidarCameraEdgesResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
+def _diagnostic(result: TransformResult, key: str, undetermined: float = np.nan) -> np.ndarray | None:
+    """A (6,) vector of ``result.diagnostics`` (m, rad) as floats, ``undetermined`` where it is None; None when the
+    solver did not compute it."""
+    values = result.diagnostics.get(key)
+    return None if values is None else np.array([undetermined if v is None else v for v in values], dtype=float)
+
+
+def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
     """The verdict of a solved ``T_camera_lidar`` (also stored on ``result.verdict``).
 
     Unconverged or ambiguous: ``reject``. Else the sigmas against the method's :data:`TOLERANCES`, competing
@@ -107,12 +107,12 @@ def judge(result: LidarCameraResult | LidarCameraEdgesResult, extra: Sequence[Cr
     answer on the same pairs, say. Without any cross-check it stays at ``check``, saying which is missing.
     """
     builder = VerdictBuilder()
-    method = getattr(result, "method", "target")
+    method = result.method
     if not result.converged:
         builder.reject("the solve is not usable: " + "; ".join(result.warnings or ["it did not converge"]))
     translation_m, rotation_deg = TOLERANCES[method]
     judge_transform_sigmas(builder, result.std, translation_m / COVERAGE, rotation_deg / COVERAGE)
-    if method == "edges" and result.std_multistart is not None:
+    if method == "edges" and result.diagnostics.get("std_multistart") is not None:
         builder.check("other alignments fit about as well; the sigmas are widened to cover them")
     _spread_check(builder, result, method)
     for check in extra:
@@ -124,10 +124,10 @@ def judge(result: LidarCameraResult | LidarCameraEdgesResult, extra: Sequence[Cr
     return result.verdict
 
 
-def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCameraEdgesResult, method: str) -> None:
+def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str) -> None:
     """The cross-check between independent captures. Target: the leave-one-pose-out spread against the Jacobian's
-    sigma (:data:`MAX_SPREAD_RATIO`). Edges: its two halves of the pairs solved apart
-    (:attr:`~backend.solvers.lidar_camera_edges.LidarCameraEdgesResult.halves_offset`) differ by at most
+    sigma (:data:`MAX_SPREAD_RATIO`; ``diagnostics["std_spread"]`` and ``["std_jacobian"]``). Edges: its two halves
+    of the pairs solved apart (``diagnostics["halves_offset"]``) differ by at most
     :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
     data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again). Intensity:
     :func:`_intensity_pairs_check`."""
@@ -135,19 +135,21 @@ def _spread_check(builder: VerdictBuilder, result: LidarCameraResult | LidarCame
         _intensity_pairs_check(builder, result)
         return
     if method == "target":
-        if result.std_spread is None:
+        std_spread = _diagnostic(result, "std_spread")
+        if std_spread is None:
             builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
             return
-        ratio = np.asarray(result.std_spread) / np.maximum(result.std_jacobian, 1e-12)
+        ratio = std_spread / np.maximum(_diagnostic(result, "std_jacobian"), 1e-12)
         ratio_check(builder, "leave one of the poses out", ratio, MAX_SPREAD_RATIO,
                     "the re-solves spread at most {ratio} times the Jacobian's sigma")
         return
-    if result.halves_offset is None:
+    halves_offset = _diagnostic(result, "halves_offset")
+    if halves_offset is None:
         builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
                               "pairs with another method")
         return
-    expected = 2 * np.sqrt(np.diag(result.covariance))
-    ratio = np.abs(result.halves_offset) / np.maximum(expected, 1e-12)
+    expected = 2 * result.std_vector
+    ratio = np.abs(halves_offset) / np.maximum(expected, 1e-12)
     ratio_check(builder, "between two halves of the pairs", ratio, COVERAGE,
                 "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
 
@@ -161,56 +163,60 @@ def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: fl
                         + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
 
 
-def _intensity_pairs_check(builder: VerdictBuilder, result: LidarCameraIntensityResult) -> None:
-    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (with three pairs or more)
-    is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the larger of the curvature's and
-    the spread over image regions and restarts, which one pair already shows)."""
-    if result.std_pairs is None:
+def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:
+    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (``diagnostics["std_pairs"]``,
+    with three pairs or more) is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the
+    larger of the curvature's and the spread over image regions and restarts, which one pair already shows; an
+    undetermined curvature sigma is infinite)."""
+    std_pairs = _diagnostic(result, "std_pairs")
+    if std_pairs is None:
         builder.missing_check("over pairs", "too few pairs for a leave-one-out re-solve (3 or more are needed)")
         return
-    within = np.fmax(result.std_curvature, result.std_groups)
-    ratio_check(builder, "leave one of the pairs out", np.asarray(result.std_pairs) / np.maximum(within, 1e-12),
+    within = _diagnostic(result, "std_curvature", np.inf)
+    std_groups = _diagnostic(result, "std_groups")
+    if std_groups is not None:
+        within = np.fmax(within, std_groups)
+    ratio_check(builder, "leave one of the pairs out", std_pairs / np.maximum(within, 1e-12),
                 MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
 
 
 def slot(lidar: str, camera: str) -> str:
-    """The acceptance slot of a LiDAR's transform to a camera."""
+    """The acceptance slot of a LiDAR's transform to a camera (the one :func:`backend.services.rig.slot_of` gives
+    its records)."""
     return f"{lidar}/T_{camera}_{lidar}"
+
+
+def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:
+    """The stored record of a LiDAR-to-camera result of ``lidar``; :class:`InputError` naming ``result`` when it is
+    another kind or another sensor's."""
+    record = session.result(result_id)
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    if record["sensor"] != lidar:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
+    return record
 
 
 def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.ndarray, *,
                  inputs: list[str]) -> str:
-    """Keep a hand-set ``T_camera_lidar`` as a result of ``lidar`` (``inputs``: the captures it was judged on)."""
+    """Keep a hand-set ``T_camera_lidar`` as a result of ``lidar`` (``inputs``: the captures it was judged on): a
+    :class:`~backend.solvers.result.TransformResult` record of method ``manual`` whose covariance is undetermined
+    (the rig service gives such an edge an assumed sigma)."""
     check_lidar(session, lidar)
     check_camera(session, camera)
     T_camera_lidar, _ = check_transform(T_camera_lidar, "T_camera_lidar")
-    record = {"kind": KIND, "method": "manual", "camera": camera, "T_camera_lidar": T_camera_lidar.tolist(),
-              "covariance": None, "std": {"trans_m": [None] * 3, "rot_deg": [None] * 3}, "residuals": {},
-              "converged": True, "seconds": 0.0, "warnings": ["set by hand: no uncertainty"],
-              "verdict": MANUAL_VERDICT.to_dict()}
-    return session.add_result(lidar, record, inputs=inputs)
+    result = TransformResult(kind=KIND, method="manual", parent=camera, child=lidar, T_parent_child=T_camera_lidar,
+                             covariance=np.full((6, 6), np.nan), verdict=MANUAL_VERDICT,
+                             warnings=["set by hand: no uncertainty"])
+    return session.add_result(lidar, result.to_record(), inputs=inputs)
 
 
-def apply_lidar_camera(rig: Rig, record: dict[str, Any]) -> None:
-    """Re-mount the result's LiDAR so that ``rig.T_a_b(camera, lidar)`` is the result's ``T_camera_lidar``."""
-    if record.get("kind") != KIND:
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
-    if not record.get("converged", False):
-        raise InputError(f"result {record['id']} did not converge and cannot be accepted: "
-                         + "; ".join(record.get("warnings", [])), "result")
-    covariance = record.get("covariance")
-    rig.set_relative(record["sensor"], record["camera"], np.array(record["T_camera_lidar"]),
-                     None if covariance is None else np.array(covariance, dtype=float))
-
-
-def accept(session: Session, lidar: str, result_id: str, confirm: bool = False) -> None:
-    """Make a stored LiDAR-to-camera result the LiDAR's mounting (also how a user reverts)."""
-    record = session.result(result_id)
-    if record.get("kind") != KIND:  # before its 'camera' names a slot: another kind's 'camera' is something else
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    if record["sensor"] != lidar:
-        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
-    session.accept(slot(lidar, record["camera"]), result_id, apply_lidar_camera, confirm)
+def cli_summary(result: TransformResult) -> dict[str, Any]:
+    """``{"T_camera_lidar", "std", "residuals", "seconds", "verdict"}``: the ``lidar-camera`` command's JSON as
+    ``conventions.md`` gives it (``verdict`` None until judged)."""
+    summary = result.summary()
+    return {"T_camera_lidar": summary["T_parent_child"]} | {key: summary[key] for key in
+                                                            ("std", "residuals", "seconds", "verdict")}
 
 
 def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> LidarCameraTargetSettings:
@@ -303,7 +309,7 @@ def read_pair_files(pairs: Sequence[tuple[Path, Path | Sequence[Path]]],
 def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
                 *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
-                progress: ProgressCallback = no_progress) -> AnyLidarCameraResult:
+                progress: ProgressCallback = no_progress) -> TransformResult:
     """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
 
     ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
@@ -344,7 +350,7 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
 
 def solve_targetless(method: str, camera: CameraIntrinsics, pairs: Sequence[PairData], T_init: np.ndarray,
                      translation_prior_m: float | None = None, progress: ProgressCallback = no_progress
-                     ) -> LidarCameraEdgesResult | LidarCameraIntensityResult:
+                     ) -> TransformResult:
     """One targetless solve (``method`` "edges" or "intensity") of the pairs; see :func:`solve_pairs`."""
     if method == "edges":
         observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
@@ -353,11 +359,11 @@ def solve_targetless(method: str, camera: CameraIntrinsics, pairs: Sequence[Pair
     return solve_intensity(camera, observations, T_init, intensity_settings(translation_prior_m), progress)
 
 
-def cross_check_methods(result: LidarCameraEdgesResult | LidarCameraIntensityResult, camera: CameraIntrinsics,
-                        pairs: Sequence[PairData], T_init: np.ndarray, translation_prior_m: float | None = None,
+def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs: Sequence[PairData],
+                        T_init: np.ndarray, translation_prior_m: float | None = None,
                         progress: ProgressCallback = no_progress) -> CrossCheck:
     """Solve the same pairs with the other targetless method and compare the two answers
-    (:func:`~backend.solvers.method_agreement.compare_methods`; kept on an intensity result's ``agreement``): the
+    (:func:`~backend.solvers.method_agreement.compare_methods`; kept in ``result.diagnostics["cross_check"]``): the
     cross-check for :func:`judge`, not made when the other method cannot answer (refused, or not one answer)."""
     other_method = next(m for m in TARGETLESS if m != result.method)
     name = f"against the {other_method} method"
@@ -369,17 +375,16 @@ def cross_check_methods(result: LidarCameraEdgesResult | LidarCameraIntensityRes
     if not other.converged:
         return CrossCheck(name, False, f"the {other_method} method gave no usable answer: " + "; ".join(other.warnings),
                           made=False)
-    agreement = compare_methods(result.T_camera_lidar, result.covariance, other.T_camera_lidar, other.covariance,
+    agreement = compare_methods(result.T_parent_child, result.covariance, other.T_parent_child, other.covariance,
                                 other_method)
-    if isinstance(result, LidarCameraIntensityResult):
-        result.agreement = agreement
+    result.diagnostics["cross_check"] = agreement.to_record()
     return CrossCheck(name, agreement.passed, agreement.detail())
 
 
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
                 T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
-                progress: ProgressCallback = no_progress) -> AnyLidarCameraResult:
+                progress: ProgressCallback = no_progress) -> TransformResult:
     """:func:`solve_pairs` on (image, cloud) files of the same moments (a pair's cloud may be several scans: see
     :func:`read_pair_files`)."""
     check_method(method, "--method", cross_check)
@@ -425,22 +430,21 @@ def camera_intrinsics(session: Session, camera: str) -> CameraIntrinsics:
 
 
 def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray:
-    """The ``T_camera_lidar`` (4x4, m) of a stored LiDAR-to-camera result of ``lidar``."""
-    record = session.result(result_id)
-    if record["sensor"] != lidar or record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is not a {KIND} result of {lidar}", "result")
-    return np.array(record["T_camera_lidar"], dtype=float)
+    """The ``T_camera_lidar`` (4x4, m) of a stored LiDAR-to-camera result of ``lidar`` (records stored before the
+    results were :class:`~backend.solvers.result.TransformResult` ones included)."""
+    return record_transforms(lidar_camera_record(session, lidar, result_id))[0].T_parent_child
 
 
 def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
                   T_init: np.ndarray | None = None, image_ids: list[str] | None = None,
                   plate_margin_m: float | None = None, translation_prior_m: float | None = None,
                   cross_check: bool = False,
-                  progress: ProgressCallback = no_progress) -> tuple[str, AnyLidarCameraResult]:
+                  progress: ProgressCallback = no_progress) -> tuple[str, TransformResult]:
     """Solve ``T_camera_lidar`` from the session's stored pairs and keep the result (not yet accepted).
 
-    ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record
-    names the camera and the method, and before/after overlays are stored with it. ``plate_margin_m`` is for the
+    ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record is the
+    result's between ``camera`` (parent) and ``lidar`` (child), and before/after overlays are stored with it;
+    the returned result is so named too. ``plate_margin_m`` is for the
     target method (:func:`target_settings`), ``translation_prior_m`` and ``cross_check`` for the targetless methods
     (:func:`edges_settings`, :func:`cross_check_methods`).
     """
@@ -454,7 +458,7 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
                          translation_prior_m=translation_prior_m, cross_check=cross_check,
                          progress=lambda fraction, message: progress(0.9 * fraction, message))
     progress(0.95, "drawing the before/after overlays")
-    files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_camera_lidar)
-    record = result.to_record() | {"camera": camera, "method": method}
-    result_id = session.add_result(lidar, record, inputs=[p.name for p in loaded], files=files)
+    files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_parent_child)
+    result = result.named(camera, lidar)
+    result_id = session.add_result(lidar, result.to_record(), inputs=[p.name for p in loaded], files=files)
     return result_id, result

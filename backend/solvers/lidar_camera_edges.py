@@ -37,14 +37,14 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
    view, or edges too few to tell) widens the sigmas to cover it (the multi-start spread,
    :func:`_multistart`) with a warning, or, when it is further off than
    :attr:`LidarCameraEdgesSettings.max_ambiguity`, makes the result ambiguous (``converged=False``).
-   All are kept in :attr:`LidarCameraEdgesResult.candidates`.
+   All are kept in the result's ``diagnostics["candidates"]``.
 
 A scene with too few edges is refused with an :class:`InputError` naming the pair and what is
 lacking (LiDAR edge points, image edge pixels, matches), as is a set of edges that leaves a
 motion unobservable (all edges parallel: the smallest eigenvalue of the scaled ``J^T J``). A
 solve that ends with a poor fit is returned with ``converged=False`` and a warning.
 
-Parameters, covariance and sigmas follow :func:`backend.solvers.lidar_lidar.params_between`:
+Parameters, covariance and sigmas follow :func:`backend.core.transforms.params_between`:
 ``[t_x, t_y, t_z]`` (m, along the camera's optical axes) and ``[r_x, r_y, r_z]`` (rad; reported in deg)
 of a right perturbation ``R @ rotvec(r)``, i.e. about the LiDAR's axes, as ``conventions.md`` asks.
 """
@@ -66,7 +66,6 @@ from backend.core.camera_inverse import visible_radius
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
-from backend.core.verdict import Verdict
 from backend.solvers.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.solvers.edge_search import CoarseSearchSettings, coarse_search
 from backend.solvers.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
@@ -75,14 +74,12 @@ from backend.solvers.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.solvers.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
 from backend.solvers.result import (
     TRANSFORM_PARAMETERS,
-    LidarCameraSummary,
     ProgressCallback,
-    SolveResult,
+    TransformResult,
     finite_or_none,
     jackknife_std,
     jacobian_covariance,
     no_progress,
-    transform_record_fields,
     widen_covariance,
 )
 
@@ -249,74 +246,6 @@ class CandidateFit:
                 "competing": self.competing}
 
 
-@dataclass
-class LidarCameraEdgesResult(LidarCameraSummary, SolveResult):
-    kind = "lidar_camera"
-    method = "edges"
-
-    T_camera_lidar: np.ndarray
-    """4x4, maps LiDAR points into the camera's optical frame (m)."""
-    covariance: np.ndarray
-    """6x6 over :data:`~backend.solvers.result.TRANSFORM_PARAMETERS` (translation in camera axes, rotation
-    about the LiDAR's axes): the reported (larger-per-parameter) sigmas with the Jacobian's correlations."""
-    residuals: dict[str, Any]
-    """``edge_rms_px``, ``edge_median_px``, ``edge_p95_px`` (absolute point-to-line distances of the matched
-    points, px), ``lidar_edge_points`` (in view at the solution), ``image_edge_pixels``, ``matched`` (all pairs)
-    and ``per_pair_rms_px``."""
-    pairs: list[PairResiduals]
-    """The pairs, in input order."""
-    settings: LidarCameraEdgesSettings
-    converged: bool
-    """False when the solve failed or fits poorly: do not accept this result."""
-    seconds: float
-    T_init: np.ndarray
-    T_coarse: np.ndarray
-    """Where the solution's fine alignment started (:attr:`CandidateFit.T_start`)."""
-    std_jacobian: np.ndarray
-    """(6,) 1-sigma from ``sigma^2 (J^T J)^-1`` (m, m, m, rad, rad, rad); NaN where undetermined."""
-    std_spread: np.ndarray | None
-    """(6,) 1-sigma of the jackknife, or None when not computed."""
-    spread_source: str | None
-    """What the jackknife left out: "edge groups" or "edge groups and pairs"."""
-    halves_offset: np.ndarray | None
-    """(6,) the solution from the pairs of even place (2nd, 4th, ...) about the one from the others (m, camera axes;
-    rad, LiDAR axes), each re-solved at the solution's matches (:func:`_halves`): an independent cross-check of two
-    halves of the data; None with one pair, or when not converged."""
-    std_multistart: np.ndarray | None
-    """(6,) 1-sigma covering the competing alignments (the multi-start spread): per parameter the largest
-    ``|offset|`` of a competing :class:`CandidateFit`; None when none competes."""
-    candidates: list[CandidateFit]
-    """The fine alignment from each start (the coarse search's distinct results, then the probes), the
-    solution's first."""
-    iterations: int
-    """Residual evaluations of :func:`scipy.optimize.least_squares` over the solution's fine rounds."""
-    rounds: int
-    """Fine association + solve rounds run."""
-    warnings: list[str] = field(default_factory=list)
-    verdict: Verdict | None = None
-    """How far the result can be trusted (:func:`backend.services.lidar_camera.judge`); None until judged."""
-
-    def to_record(self) -> dict[str, Any]:
-        record = self.summary()
-        record.update(
-            kind=self.kind,
-            method=self.method,
-            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
-            std_jacobian=finite_or_none(self.std_jacobian),
-            std_spread=finite_or_none(self.std_spread),
-            spread_source=self.spread_source,
-            halves_offset=finite_or_none(self.halves_offset),
-            T_init=self.T_init.tolist(),
-            T_coarse=self.T_coarse.tolist(),
-            std_multistart=finite_or_none(self.std_multistart),
-            candidates=[c.to_record() for c in self.candidates],
-            iterations=self.iterations,
-            rounds=self.rounds,
-            pairs=[p.to_record() for p in self.pairs],
-        )
-        return record
-
-
 # ---------------------------------------------------------------- edges of each pair
 
 
@@ -474,7 +403,7 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
 
 def _halves(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pairs: int, t_prior: np.ndarray,
             settings: LidarCameraEdgesSettings) -> np.ndarray | None:
-    """(6,) :attr:`LidarCameraEdgesResult.halves_offset`: the pairs of odd and of even place re-solved apart at fixed
+    """(6,) the result's ``diagnostics["halves_offset"]``: the pairs of odd and of even place re-solved apart at fixed
     matches from ``T``, the second's solution about the first's; None with fewer than two pairs."""
     if n_pairs < 2:
         return None
@@ -608,7 +537,7 @@ def _rms(values: np.ndarray) -> float | None:
 
 def _statistics(T: np.ndarray, matches: EdgeMatches, pairs: list[_Pair], in_view_counts: list[int],
                 camera: CameraIntrinsics) -> tuple[dict[str, Any], list[PairResiduals]]:
-    """The ``residuals`` dict of :class:`LidarCameraEdgesResult` and each pair's fit at ``T`` (None without matches)."""
+    """The result's ``residuals`` and each pair's fit at ``T`` (None without matches)."""
     d = np.abs(matches.residuals(T, camera))
     per_pair = [PairResiduals(pair.name, seen, int(np.count_nonzero(pair.lidar.kind == PLANE)),
                               int(np.count_nonzero(pair.lidar.kind == REFLECTIVITY)), len(pair.image),
@@ -638,7 +567,7 @@ def scaled_to(camera: CameraIntrinsics, settings: LidarCameraEdgesSettings) -> L
 
 def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_init: np.ndarray,
                 settings: LidarCameraEdgesSettings | None = None,
-                progress: ProgressCallback = no_progress) -> LidarCameraEdgesResult:
+                progress: ProgressCallback = no_progress) -> TransformResult:
     """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from edges.
 
     ``pairs`` are images and clouds taken at the same moments (any number; the robot may move between
@@ -648,6 +577,21 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     edge pixels in a pair (named), too few matches, or edges that leave a motion unobservable. A solve
     whose least squares fails, whose rms distance exceeds ``settings.max_rms_px`` or whose competing alignments
     lie further apart than ``settings.max_ambiguity`` is returned with ``converged=False`` and a warning.
+
+    Returns a :class:`~backend.solvers.result.TransformResult` (kind ``lidar_camera``, method ``edges``, parent
+    ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance (order
+    :data:`~backend.solvers.result.TRANSFORM_PARAMETERS`) holds the reported (larger-per-parameter) sigmas with the
+    Jacobian's correlations. ``residuals``: ``edge_rms_px``, ``edge_median_px``, ``edge_p95_px`` (absolute
+    point-to-line distances of the matched points, px), ``lidar_edge_points`` (in view at the solution),
+    ``image_edge_pixels``, ``matched`` (all pairs) and ``per_pair_rms_px``. ``diagnostics`` (6-vectors in m, m, m,
+    rad, rad, rad; None where undetermined): ``std_jacobian`` (``sigma^2 (J^T J)^-1``), ``std_spread`` (the
+    jackknife's, or None) and ``spread_source`` (what it left out: "edge groups" or "edge groups and pairs"),
+    ``halves_offset`` (the solution from the pairs of even place about the one from the others, :func:`_halves`: the
+    cross-check of two halves of the data; None with one pair or when not converged), ``std_multistart`` (per
+    parameter the largest ``|offset|`` of a competing alignment; None when none competes), ``candidates`` (each
+    start's :class:`CandidateFit`, the solution's first), ``T_init``, ``T_coarse`` (where the solution's fine
+    alignment started), ``iterations`` (residual evaluations of its fine rounds), ``rounds`` and ``pairs`` (each
+    pair's :class:`PairResiduals`, in input order).
     """
     settings = scaled_to(camera, settings or LidarCameraEdgesSettings())
     started = time.perf_counter()
@@ -678,24 +622,21 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     if warning is not None:
         warnings.append(warning)
         converged = converged and not warning.startswith("ambiguous")
+    halves_offset = _halves(best.T, best.matches, camera, len(prepared), t_prior, settings) if converged else None
     progress(1.0, "done")
-    return LidarCameraEdgesResult(
-        T_camera_lidar=best.T,
+    return TransformResult(
+        kind="lidar_camera", method="edges", parent="camera", child="lidar",
+        T_parent_child=best.T,
         covariance=widen_covariance(covariance, std_multistart),
         residuals=residuals,
-        pairs=per_pair,
-        settings=settings,
+        diagnostics={"std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_j), 0, None))),
+                     "std_spread": finite_or_none(std_spread), "spread_source": spread_source,
+                     "halves_offset": finite_or_none(halves_offset), "std_multistart": finite_or_none(std_multistart),
+                     "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
+                     "T_coarse": best.T_start.tolist(), "iterations": best.iterations, "rounds": best.rounds,
+                     "pairs": [p.to_record() for p in per_pair]},
+        settings=asdict(settings),
         converged=converged,
-        seconds=time.perf_counter() - started,
-        T_init=T_init,
-        T_coarse=best.T_start,
-        std_jacobian=np.sqrt(np.clip(np.diag(cov_j), 0, None)),
-        std_spread=std_spread,
-        spread_source=spread_source,
-        halves_offset=_halves(best.T, best.matches, camera, len(prepared), t_prior, settings) if converged else None,
-        std_multistart=std_multistart,
-        candidates=candidates,
-        iterations=best.iterations,
-        rounds=best.rounds,
         warnings=warnings,
+        seconds=time.perf_counter() - started,
     )

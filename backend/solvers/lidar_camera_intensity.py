@@ -48,7 +48,7 @@ image or a set of intensities with (nearly) one value; a cost that is flat: the 
 solution below :attr:`~LidarCameraIntensitySettings.min_mutual_information` (the intensities say nothing about the
 image), or a rotation the curvature leaves undetermined beyond ``max_flat_sigma``.
 
-Parameters, covariance and sigmas follow :func:`backend.solvers.lidar_lidar.params_between` (the order
+Parameters, covariance and sigmas follow :func:`backend.core.transforms.params_between` (the order
 :data:`~backend.solvers.result.TRANSFORM_PARAMETERS`): ``[t_x, t_y, t_z]`` (m, along the camera's optical axes)
 and ``[r_x, r_y, r_z]`` (rad; reported in deg) of a right perturbation ``R @ rotvec(r)``, i.e. about the LiDAR's
 axes, as ``conventions.md`` asks.
@@ -59,7 +59,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import cv2
@@ -70,18 +70,14 @@ from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
-from backend.core.verdict import Verdict
 from backend.solvers.lidar_camera_edges import in_view
 from backend.solvers.lidar_lidar import check_cloud
-from backend.solvers.method_agreement import MethodAgreement
 from backend.solvers.result import (
-    LidarCameraSummary,
     ProgressCallback,
-    SolveResult,
+    TransformResult,
     finite_or_none,
     jackknife_std,
     no_progress,
-    transform_record_fields,
     widen_covariance,
 )
 
@@ -219,70 +215,6 @@ class IntensityCandidate:
         return {"T_start": self.T_start.tolist(), "T_camera_lidar": self.T_camera_lidar.tolist(), "nid": self.nid,
                 "offset_m": finite_or_none(self.offset[:3]), "offset_deg": finite_or_none(np.degrees(self.offset[3:])),
                 "competing": self.competing}
-
-
-@dataclass
-class LidarCameraIntensityResult(LidarCameraSummary, SolveResult):
-    kind = "lidar_camera"
-    method = "intensity"
-
-    T_camera_lidar: np.ndarray
-    """4x4, maps LiDAR points into the camera's optical frame (m)."""
-    covariance: np.ndarray
-    """6x6 over :data:`~backend.solvers.result.TRANSFORM_PARAMETERS`: the reported (larger-per-parameter) sigmas
-    with the curvature's correlations."""
-    residuals: dict[str, Any]
-    """``nid`` and ``nid_init`` (mean over pairs), ``mutual_information_nats`` (mean), ``points_in_image`` (all
-    pairs) and ``per_pair_nid``."""
-    pairs: list[IntensityPairResiduals]
-    settings: LidarCameraIntensitySettings
-    converged: bool
-    """False when the solve failed or is ambiguous: do not accept this result."""
-    seconds: float
-    T_init: np.ndarray
-    T_coarse: np.ndarray
-    """The coarse grid point the solution's fine search started from."""
-    std_curvature: np.ndarray
-    """(6,) 1-sigma of the cost's curvature (m, m, m, rad, rad, rad); inf where undetermined."""
-    std_spread: np.ndarray | None
-    """(6,) the largest of :attr:`std_groups` and :attr:`std_pairs` per parameter, or None when not computed."""
-    std_groups: np.ndarray | None
-    """(6,) 1-sigma over the scenes' parts: the larger of the leave-one-image-region-out jackknife and the
-    restarts' spread, or None when neither was computed."""
-    std_pairs: np.ndarray | None
-    """(6,) 1-sigma of the leave-one-pair-out jackknife (with :data:`MIN_SPREAD_PAIRS` pairs or more), or None."""
-    spread_source: str | None
-    """What the spread covers: "image regions" (or "image regions and pairs": what the jackknife left out) and
-    "restarts"."""
-    candidates: list[IntensityCandidate]
-    """The fine search from each coarse grid point, the solution's first."""
-    evaluations: int
-    """Cost evaluations over the whole solve."""
-    warnings: list[str] = field(default_factory=list)
-    agreement: MethodAgreement | None = None
-    """The cross-check with the other targetless method on the same pairs, when one was run."""
-    verdict: Verdict | None = None
-    """Set by :func:`backend.services.lidar_camera.judge` (the solver leaves it None)."""
-
-    def to_record(self) -> dict[str, Any]:
-        record = self.summary()
-        record.update(
-            kind=self.kind,
-            method=self.method,
-            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
-            std_curvature=finite_or_none(self.std_curvature),
-            std_spread=finite_or_none(self.std_spread),
-            std_groups=finite_or_none(self.std_groups),
-            std_pairs=finite_or_none(self.std_pairs),
-            spread_source=self.spread_source,
-            T_init=self.T_init.tolist(),
-            T_coarse=self.T_coarse.tolist(),
-            candidates=[c.to_record() for c in self.candidates],
-            evaluations=self.evaluations,
-            pairs=[p.to_record() for p in self.pairs],
-            cross_check=None if self.agreement is None else self.agreement.to_record(),
-        )
-        return record
 
 
 # ---------------------------------------------------------------- the cost
@@ -697,7 +629,7 @@ def _check_flat(covariance: np.ndarray, mean_mi: float, settings: LidarCameraInt
 
 def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservation], T_init: np.ndarray,
                     settings: LidarCameraIntensitySettings | None = None,
-                    progress: ProgressCallback = no_progress) -> LidarCameraIntensityResult:
+                    progress: ProgressCallback = no_progress) -> TransformResult:
     """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from LiDAR intensities
     against image grey values (minimum NID).
 
@@ -706,6 +638,19 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     translation within a few cm). Raises :class:`InputError` for no pairs, a bad image, cloud or transform, a cloud
     without intensities, too few points in view, a flat cost (see the module). A solve that ends ambiguous (another
     alignment fits as well) is returned with ``converged=False`` and a warning.
+
+    Returns a :class:`~backend.solvers.result.TransformResult` (kind ``lidar_camera``, method ``intensity``, parent
+    ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance holds the reported
+    (larger-per-parameter) sigmas with the curvature's correlations. ``residuals``: ``nid`` and ``nid_init`` (mean
+    over pairs), ``mutual_information_nats`` (mean), ``points_in_image`` (all pairs) and ``per_pair_nid``.
+    ``diagnostics`` (6-vectors in m, m, m, rad, rad, rad; None where undetermined or not computed):
+    ``std_curvature`` (the cost's curvature), ``std_groups`` (over the scenes' parts: the larger of the
+    leave-one-image-region-out jackknife and the restarts' spread), ``std_pairs`` (the leave-one-pair-out jackknife,
+    with :data:`MIN_SPREAD_PAIRS` pairs or more), ``std_spread`` (the largest of those two per parameter),
+    ``spread_source`` ("image regions" (and "pairs": what the jackknife left out) and "restarts"), ``candidates``
+    (the fine search from each coarse grid point as :class:`IntensityCandidate`, the solution's first), ``T_init``,
+    ``T_coarse`` (the grid point the solution's search started from), ``evaluations`` (of the cost) and ``pairs``
+    (each pair's :class:`IntensityPairResiduals`).
     """
     settings = settings or LidarCameraIntensitySettings()
     started = time.perf_counter()
@@ -767,35 +712,32 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     candidates.insert(0, candidates.pop(best))
     competing = [c for c in candidates if c.competing]
     if competing:
-        spread = np.max(np.abs([c.offset for c in competing]), axis=0)
+        apart = np.max(np.abs([c.offset for c in competing]), axis=0)
         warnings.append(f"ambiguous: {len(competing) + 1} alignments fit about equally well (mean NID "
                         f"{mean_nids[best]:.4f} at the solution, {', '.join(f'{c.nid:.4f}' for c in competing)} at "
-                        f"the others), up to {1000 * spread[:3].max():.0f} mm and {np.degrees(spread[3:].max()):.2f} "
+                        f"the others), up to {1000 * apart[:3].max():.0f} mm and {np.degrees(apart[3:].max()):.2f} "
                         "deg apart; not accepted")
         converged = False
     nid_init = nid_and_mi(np.array([p.joint(T_init, camera, True, settings.bins)[0][0] for p in prepared]))[0]
     per_pair = [IntensityPairResiduals(p.name, len(p.points), int(joints[i].sum().round()), float(nid[i]),
                                        float(nid_init[i]), float(mi[i])) for i, p in enumerate(prepared)]
     progress(1.0, "done")
-    return LidarCameraIntensityResult(
-        T_camera_lidar=T,
+    return TransformResult(
+        kind="lidar_camera", method="intensity", parent="camera", child="lidar",
+        T_parent_child=T,
         covariance=covariance,
         residuals={"nid": float(nid.mean()), "nid_init": float(nid_init.mean()),
                    "mutual_information_nats": float(mi.mean()),
                    "points_in_image": int(sum(p.points_in_image for p in per_pair)),
                    "per_pair_nid": [p.nid for p in per_pair]},
-        pairs=per_pair,
-        settings=settings,
+        diagnostics={"std_curvature": finite_or_none(np.sqrt(np.diag(curvature.covariance))),
+                     "std_spread": finite_or_none(spread), "std_groups": finite_or_none(std_groups),
+                     "std_pairs": finite_or_none(curvature.std_pairs), "spread_source": source,
+                     "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
+                     "T_coarse": starts[best].tolist(), "evaluations": objective.evaluations,
+                     "pairs": [p.to_record() for p in per_pair]},
+        settings=asdict(settings),
         converged=converged,
-        seconds=time.perf_counter() - started,
-        T_init=T_init,
-        T_coarse=starts[best],
-        std_curvature=np.sqrt(np.diag(curvature.covariance)),
-        std_spread=spread,
-        std_groups=std_groups,
-        std_pairs=curvature.std_pairs,
-        spread_source=source,
-        candidates=candidates,
-        evaluations=objective.evaluations,
         warnings=warnings,
+        seconds=time.perf_counter() - started,
     )

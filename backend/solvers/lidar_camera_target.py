@@ -22,7 +22,7 @@ LiDAR's cloud. Pipeline, as in the issue:
    units: the board's flatness, its pose error from PnP and the LiDAR's range bias move
    all points of a pose together, which a per-point noise model cannot see).
 
-Parameters, covariance and sigmas follow :func:`backend.solvers.lidar_lidar.params_between`:
+Parameters, covariance and sigmas follow :func:`backend.core.transforms.params_between`:
 ``[t_x, t_y, t_z]`` (m, along the camera's optical axes) and ``[r_x, r_y, r_z]`` (rad; reported
 in deg) of a right perturbation ``R @ rotvec(r)``, i.e. about the LiDAR's (child frame's) axes,
 as ``../shared/conventions.md`` asks.
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -42,19 +42,16 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import apply_params, check_transform, invert, right_jacobian, transform_points
-from backend.core.verdict import Verdict
 from backend.solvers.board_detection import detect_board
 from backend.solvers.board_pose import board_pose
 from backend.solvers.lidar_lidar import check_cloud
 from backend.solvers.result import (
-    LidarCameraSummary,
     ProgressCallback,
-    SolveResult,
+    TransformResult,
     finite_or_none,
     jackknife_std,
     jacobian_covariance,
     no_progress,
-    transform_record_fields,
     widen_covariance,
 )
 
@@ -152,54 +149,6 @@ class PoseResiduals:
 
     def to_record(self) -> dict[str, Any]:
         return asdict(self)
-
-
-@dataclass
-class LidarCameraResult(LidarCameraSummary, SolveResult):
-    kind = "lidar_camera"
-
-    T_camera_lidar: np.ndarray
-    """4x4, maps LiDAR points into the camera's optical frame (m)."""
-    covariance: np.ndarray
-    """6x6 over ``[t_x, t_y, t_z (m, camera axes), r_x, r_y, r_z (rad, about the LiDAR's axes)]``: the
-    reported (larger-per-parameter) sigmas with the Jacobian's correlation structure."""
-    residuals: dict[str, Any]
-    """``plane_rms_m``, ``plane_median_m``, ``plane_p95_m`` (absolute point-to-plane distances),
-    ``edge_rms_m`` (edge points to the plate outline, in the board plane) and ``per_pose_rms_m``
-    (point-to-plane RMS of each pose), all in m."""
-    poses: list[PoseResiduals]
-    """The poses used, in input order."""
-    settings: LidarCameraTargetSettings
-    converged: bool
-    """False when the solve diverged or fits poorly: do not accept this result."""
-    seconds: float
-    T_init: np.ndarray
-    std_jacobian: np.ndarray
-    """(6,) 1-sigma from ``sigma^2 (J^T J)^-1`` (m, m, m, rad, rad, rad); NaN where undetermined."""
-    std_spread: np.ndarray | None
-    """(6,) 1-sigma from the leave-one-pose-out jackknife, or None when not computed."""
-    iterations: int
-    """Residual evaluations of :func:`scipy.optimize.least_squares` over all rounds (trf: about one
-    per iteration)."""
-    rounds: int
-    """Segmentation + solve rounds run."""
-    warnings: list[str] = field(default_factory=list)
-    verdict: Verdict | None = None
-    """How far the result can be trusted (:func:`backend.services.lidar_camera.judge`); None until judged."""
-
-    def to_record(self) -> dict[str, Any]:
-        record = self.summary()
-        record.update(
-            kind=self.kind,
-            **transform_record_fields(self.covariance, self.settings, self.converged, self.warnings),
-            std_jacobian=finite_or_none(self.std_jacobian),
-            std_spread=finite_or_none(self.std_spread),
-            T_init=self.T_init.tolist(),
-            iterations=self.iterations,
-            rounds=self.rounds,
-            poses=[p.to_record() for p in self.poses],
-        )
-        return record
 
 
 # ---------------------------------------------------------------- camera side
@@ -441,7 +390,7 @@ def _edge_weight(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.
 
 def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
            settings: LidarCameraTargetSettings):
-    """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.solvers.lidar_lidar.params_between`).
+    """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.core.transforms.params_between`).
 
     The Jacobian is analytic (a residual ``a . (R p + t) + c`` with ``R = R_ref Exp(w)`` has
     ``d/dt = a`` and ``d/dw = -((R^T a) x p)^T J_r(w)``): finite differences would cost six more
@@ -487,7 +436,7 @@ def _rms(values: np.ndarray) -> float:
 
 def _fit_statistics(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, names: list[str]
                     ) -> tuple[dict[str, Any], list[PoseResiduals]]:
-    """The ``residuals`` dict of :class:`LidarCameraResult` and each pose's fit at ``T``."""
+    """The result's ``residuals`` and each pose's fit at ``T``."""
     plane, edges = stacked.residuals(T, centre, half)
     d = np.abs(plane)
     poses = [PoseResiduals(name, int(np.sum(stacked.plane_pose == i)), int(np.sum(stacked.edge_pose == i)),
@@ -501,7 +450,7 @@ def _fit_statistics(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: 
 
 def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_init: np.ndarray,
                  settings: LidarCameraTargetSettings | None = None,
-                 progress: ProgressCallback = no_progress) -> LidarCameraResult:
+                 progress: ProgressCallback = no_progress) -> TransformResult:
     """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from board poses.
 
     ``observations`` pair each pose's camera board pose with its LiDAR cloud; ``T_init`` is the
@@ -511,6 +460,16 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     LiDAR cloud (named), and a degenerate set of board normals. A solve that diverges, loses the
     board in a later round or ends with a point-to-plane RMS above ``settings.max_plane_rms_m`` is
     returned with ``converged=False`` and a warning: the caller must not accept it.
+
+    Returns a :class:`~backend.solvers.result.TransformResult` (kind ``lidar_camera``, method ``target``, parent
+    ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance holds the reported
+    (larger-per-parameter) sigmas with the Jacobian's correlations. ``residuals``: ``plane_rms_m``,
+    ``plane_median_m``, ``plane_p95_m`` (absolute point-to-plane distances), ``edge_rms_m`` (edge points to the
+    plate outline, in the board plane) and ``per_pose_rms_m`` (point-to-plane RMS of each pose), all in m.
+    ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1`` and ``std_spread`` (6,) of the
+    leave-one-pose-out jackknife or None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
+    ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run) and
+    ``poses`` (each pose's :class:`PoseResiduals`, in input order).
     """
     settings = settings or LidarCameraTargetSettings()
     started = time.perf_counter()
@@ -568,18 +527,16 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     if settings.spread and converged:
         std_spread = _jackknife(T, stacked, centre, half, edge_weight, settings, progress)
     progress(1.0, "done")
-    return LidarCameraResult(
-        T_camera_lidar=T,
+    return TransformResult(
+        kind="lidar_camera", method="target", parent="camera", child="lidar",
+        T_parent_child=T,
         covariance=widen_covariance(cov_j, std_spread),
         residuals=residuals,
-        poses=poses,
-        settings=settings,
+        diagnostics={"std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_j), 0, None))),
+                     "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
+                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses]},
+        settings=asdict(settings),
         converged=converged,
-        seconds=time.perf_counter() - started,
-        T_init=T_init,
-        std_jacobian=np.sqrt(np.clip(np.diag(cov_j), 0, None)),
-        std_spread=std_spread,
-        iterations=iterations,
-        rounds=round_index + 1,
         warnings=warnings,
+        seconds=time.perf_counter() - started,
     )

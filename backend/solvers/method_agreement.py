@@ -1,7 +1,7 @@
 """Whether two solves of one transform by independent methods agree within their uncertainties.
 
 The cross-check between LiDAR-to-camera methods (edges against intensity, on the same pairs): the difference of
-the two ``T_camera_lidar`` in the result's parameters (:func:`backend.solvers.lidar_lidar.params_between`: m along
+the two ``T_camera_lidar`` in the result's parameters (:func:`backend.core.transforms.params_between`: m along
 the camera's axes, rad about the LiDAR's) against the combined 1-sigma ``sqrt(sigma_a^2 + sigma_b^2)`` per
 parameter, the two estimates' errors being independent (different cues of the same data).
 """

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -56,13 +56,6 @@ def jackknife_std(estimates: np.ndarray) -> np.ndarray:
 
 TRANSFORM_PARAMETERS = ["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_rad"]
 """Order of a transform result's covariance: translation (m, parent axes), rotation about the child's axes (rad)."""
-
-
-def transform_record_fields(covariance: np.ndarray, settings: Any, converged: bool, warnings: list[str]
-                            ) -> dict[str, Any]:
-    """What every transform solver's history record holds beside its own numbers (``settings``: a dataclass)."""
-    return {"settings": asdict(settings), "converged": converged, "warnings": list(warnings),
-            "covariance": [finite_or_none(row) for row in covariance], "covariance_order": TRANSFORM_PARAMETERS}
 
 
 def transform_std(covariance: np.ndarray) -> dict[str, list[float | None]]:
@@ -153,30 +146,6 @@ class TransformResult(SolveResult):
         """The same result between frames called ``parent`` and ``child`` (a solver names them by role, the
         service by the rig's sensors)."""
         return TransformResult(**{**self.__dict__, "parent": parent, "child": child})
-
-
-# TODO(issue 13): removed once the LiDAR-camera solvers return TransformResult
-class LidarCameraSummary:
-    """The CLI's JSON and the reported sigmas of every LiDAR-to-camera solver's result (a dataclass holding
-    ``T_camera_lidar`` (4x4, m), ``covariance`` (6x6, :data:`TRANSFORM_PARAMETERS`), ``residuals`` and ``seconds``)."""
-
-    T_camera_lidar: np.ndarray
-    covariance: np.ndarray
-    residuals: dict[str, Any]
-    seconds: float
-    verdict: Verdict | None
-    """Set by :func:`backend.services.lidar_camera.judge` (the solvers leave it None)."""
-
-    @property
-    def std(self) -> dict[str, list[float | None]]:
-        """Reported 1-sigma: ``trans_m`` (m, camera axes), ``rot_deg`` (deg, about the LiDAR's axes)."""
-        return transform_std(self.covariance)
-
-    def summary(self) -> dict[str, Any]:
-        """``{"T_camera_lidar", "std", "residuals", "seconds", "verdict"}``, as ``conventions.md`` gives for
-        ``lidar-camera`` (``verdict`` None until judged)."""
-        return {"T_camera_lidar": self.T_camera_lidar.tolist(), "std": self.std, "residuals": dict(self.residuals),
-                "seconds": self.seconds, "verdict": None if self.verdict is None else self.verdict.to_dict()}
 
 
 def jacobian_covariance(result: Any, n_params: int = 6) -> np.ndarray:

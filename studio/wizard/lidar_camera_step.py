@@ -9,14 +9,17 @@ pair, all pairs tiled so that every scene is judged at once, or the latest captu
 projected with the camera's intrinsics, coloured over one scale with its legend beneath.
 Redraws run on one worker thread that always draws the newest pose, so dragging never queues
 work. The first scene's overlay also fills the camera's frustum in 3D, and its cloud can be
-painted with the image's colours. *Open the full-size overlay* opens the API's overlay page
-(zoom and pan at the image's resolution) on the same scene, transform and style.
+painted with the image's colours (under the step's layer group, ``/steps/lidar_camera/...``).
+*Open the full-size overlay* opens the API's overlay page (zoom and pan at the image's
+resolution) on the same scene, transform and style.
 
 Solving runs as a job from the sliders' transform (solve, then nudge; or nudge, then
-solve): target-based on the pairs with a board, or targetless on edges. Each solve is kept
-in the result history with its before/after overlays and its verdict; accepting a result, or
-the sliders' own transform (as a result set by hand), re-mounts the LiDAR (a ``check`` verdict
-only with *Confirm the check* ticked).
+solve): target-based on the pairs with a board, or targetless on edges or intensities. Each
+solve is kept in the result history with its before/after overlays (shown beside the card)
+and its verdict; *Keep the sliders' transform* keeps the sliders' own as a result set by
+hand. The result card (:class:`~studio.result_card.ResultCard`) shows the picked result and
+accepts it into the rig graph after showing what moves (a ``check`` verdict only with
+*Confirm the check* ticked).
 """
 
 from __future__ import annotations
@@ -30,18 +33,21 @@ import numpy as np
 from backend.core.errors import InputError
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
 from backend.core.projection import colourise_cloud
-from backend.core.transforms import to_xyz_ypr
+from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
 from backend.services import lidar_camera as lidar_camera_service
 from backend.services import lidar_camera_pairs as pairs_service
 from backend.services import lidar_lidar as lidar_service
+from backend.services import rig as rig_service
 from backend.services.lidar_camera import PairData
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
-from studio.verdict_view import ConfirmCheck, verdict_markdown
 
+STEP = "lidar_camera"
+"""The step's name: its scene nodes live under its layer group (:meth:`studio.scene.RigScene.group`)."""
 NONE = "(none)"
 ALL_PAIRS = "all pairs"
 LATEST = "latest captures"
@@ -103,13 +109,13 @@ class LidarCameraStep:
                      "whose edges are all far away, which fix the rotation but hardly the translation")
             self.solve_button = gui.add_button("Solve from the sliders", color="blue")
             self.jobs = JobPanel(ctx, [self.solve_button, self.capture_button])
+            self.keep_button = gui.add_button("Keep the sliders' transform",
+                                              hint="keep the sliders' transform as a result set by hand (no "
+                                                   "uncertainty), to accept it like a solve")
             self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, move_sliders=True),
                                          hint="every solve and hand-set transform of this pair; pick one to "
                                               "inspect or accept")
-            self.stats_text = gui.add_markdown("")
-            self.confirm = ConfirmCheck(gui)
-            self.accept_button = gui.add_button("Accept as the mounting", color="green",
-                                                hint="the picked result, or the sliders' transform if you moved them")
+            self.card = ResultCard(ctx, on_accepted=self._on_accepted, empty_text="No LiDAR-to-camera result yet.")
             with gui.add_folder("Before / after", expand_by_default=False):
                 self.before_image = gui.add_image(PLACEHOLDER, label="Before", format="jpeg")
                 self.after_image = gui.add_image(PLACEHOLDER, label="After", format="jpeg")
@@ -130,10 +136,12 @@ class LidarCameraStep:
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
         self.capture_button.on_click(lambda _: self._capture())
         self.solve_button.on_click(lambda _: self._solve())
-        self.accept_button.on_click(lambda _: self._accept())
+        self.keep_button.on_click(lambda _: self._keep())
+        self.paint_cloud.on_update(lambda _: self.ctx.show_step(STEP) if self.paint_cloud.value else None)
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
+        ctx.on_rig_changed(lambda _: self._show_result(self.result_id, move_sliders=False))
 
     # -- session, sensors and data ------------------------------------------------------------
     def _close(self) -> None:
@@ -230,6 +238,7 @@ class LidarCameraStep:
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed for a pair.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.jobs.run(f"pair {pair[0]}+{pair[1]}", lambda progress: pairs_service.capture_pair_from_devices(
             session, *pair, require_board=need_board, progress=progress).name,
             lambda name: self._list_scenes(select=name), done_message="Pair captured in {seconds:.1f} s.")
@@ -240,6 +249,7 @@ class LidarCameraStep:
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed to solve.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.jobs.run(f"{pair[1]} to {pair[0]} ({method})", lambda progress: lidar_camera_service.solve_session(
             session, *pair, method=method, T_init=T_init, translation_prior_m=prior_m, progress=progress)[0],
             self._on_solved)
@@ -254,48 +264,41 @@ class LidarCameraStep:
         if pair is None:
             return []
         results = self.ctx.session.results(pair[1], lidar_camera_service.KIND)
-        return [r["id"] for r in reversed(results) if r.get("camera") == pair[0]]
+        return [r["id"] for r in reversed(results) if rig_service.record_transforms(r)[0].parent == pair[0]]
 
     def _show_result(self, result_id: str | None, move_sliders: bool) -> None:
         session, pair = self.ctx.session, self.pair
         self.result_id = result_id
         if session is None or pair is None or result_id is None:
-            self.stats_text.content = "No LiDAR-to-camera result yet."
+            self.card.show(None, None)
             self.before_image.image = self.after_image.image = PLACEHOLDER
             return
         record = session.result(result_id)
         if move_sliders:
-            self.editor.set(np.array(record["T_camera_lidar"]))
-        accepted = session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
-        self.stats_text.content = f"{result_markdown(record, accepted)}\n\n{verdict_markdown(record)}"
+            self.editor.set(rig_service.record_transforms(record)[0].T_parent_child)
+        self.card.show(record, session.accepted(lidar_camera_service.slot(pair[1], pair[0])))
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
             stored = name in record.get("files", [])  # a transform set by hand has none
             handle.image = read_image(session.result_file(result_id, name))[..., ::-1] if stored else PLACEHOLDER
 
-    def _accept(self) -> None:
+    def _keep(self) -> None:
+        """Keep the sliders' transform as a result set by hand, judged on the captures on screen, and show it."""
         session, pair = self.ctx.session, self.pair
         if pair is None:
-            self.ctx.notify("Nothing to accept", "Pick a camera and a LiDAR first.", error=True)
+            self.ctx.notify("Nothing to keep", "Pick a camera and a LiDAR first.", error=True)
             return
-        camera, lidar = pair
-        T_sliders = self.editor.T
         try:
-            result_id = self.result_id
-            if result_id is None or not np.allclose(np.array(session.result(result_id)["T_camera_lidar"]), T_sliders,
-                                                    atol=1e-6):
-                result_id = lidar_camera_service.store_manual(session, camera, lidar, T_sliders, inputs=self._inputs)
-            lidar_camera_service.accept(session, lidar, result_id, confirm=self.confirm.take())
+            result_id = lidar_camera_service.store_manual(session, *pair, self.editor.T, inputs=self._inputs)
         except InputError as exc:
-            self.ctx.notify("Cannot accept", exc.message, error=True)
+            self.ctx.notify("Cannot keep the transform", exc.message, error=True)
             return
-        self.ctx.scene.update_rig(session.rig)
         self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders=False)
-        record = session.result(result_id)
-        manual = record.get("method") == "manual"
-        how = "set by hand, no uncertainty" if manual else f"{record.get('method')} solve"
-        whose = "sliders'" if manual else "result's"
-        self.ctx.notify("Accepted", f"{result_id}: {lidar} is now mounted so that T_{camera}_{lidar} is the "
-                        f"{whose} transform ({how}).")
+        self.ctx.notify("Kept", f"{result_id}: T_{pair[0]}_{pair[1]} as set on the sliders; accept it below.")
+
+    def _on_accepted(self, result_id: str) -> None:
+        """The card accepted ``result_id``: list it as accepted, and redraw the overlay with the re-fitted rig."""
+        self.history.fill(self._pair_results(), result_id)
+        self._wake.set()
 
     # -- drawing (worker thread) ------------------------------------------------------------------
     def _redraw_loop(self) -> None:
@@ -368,24 +371,8 @@ class LidarCameraStep:
             return
         colours, seen = colourise_cloud(scene.points, T_camera_lidar, intrinsics, scene.image,
                                         occlusion_px=OverlayStyle.occlusion_px)
+        points_root = transform_points(self.ctx.session.rig.T_root_frame(lidar), scene.points[seen])
         self._colourised = self.ctx.server.scene.add_point_cloud(
-            f"/rig/{lidar}/colourised", scene.points[seen].astype(np.float32), colours[seen],
+            f"{self.ctx.scene.group(STEP)}/{lidar}/colourised", points_root.astype(np.float32), colours[seen],
             point_size=COLOURISED_POINT_SIZE_M, precision="float32")
 
-
-def _sigmas(values: list[float | None], scale: float, digits: int) -> str:
-    return ", ".join("n/a" if v is None else f"{scale * v:.{digits}f}" for v in values)
-
-
-def result_markdown(record: dict, accepted: str | None) -> str:
-    """Method, convergence, 1-sigma and residuals of a LiDAR-to-camera result."""
-    status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
-    residuals = " · ".join(f"{key} {value:.4g}" for key, value in record.get("residuals", {}).items()
-                           if isinstance(value, (int, float)))
-    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
-    std = record["std"]
-    return (f"**{record['id']}** ({status}) · {record.get('method', '?')} · {verdict} · "
-            f"{record.get('seconds', 0.0):.2f} s\n\n"
-            f"1σ translation (mm): {_sigmas(std['trans_m'], 1000, 2)} · rotation (°): {_sigmas(std['rot_deg'], 1, 3)}"
-            + (f"\n\n{residuals}" if residuals else "") + warnings)

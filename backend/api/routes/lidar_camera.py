@@ -25,6 +25,7 @@ from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
 from backend.services import lidar_camera as service
 from backend.services import lidar_camera_pairs as pairs_service
+from backend.services import rig as rig_service
 from backend.services.intrinsics import check_camera
 from backend.services.lidar_lidar import check_lidar
 
@@ -95,7 +96,9 @@ def manual(body: LidarCameraManual, session: deps.SessionDep) -> dict[str, Any]:
 
 @router.post("/sensors/{sensor}/lidar-camera/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    service.accept(session, sensor, body.result_id, body.confirm)
+    """Accept a LiDAR-to-camera result of ``sensor`` into the rig (:func:`backend.services.rig.accept`)."""
+    service.lidar_camera_record(session, sensor, body.result_id)
+    rig_service.accept(session, body.result_id, confirm=body.confirm)
     return session.info()
 
 
