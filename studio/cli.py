@@ -140,8 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     target.add_argument("spec", metavar="SPEC",
                         help="board spec, e.g. checkerboard:9x6:0.025 or charuco:11x8:0.03:0.022:DICT_5X5_100")
     target.add_argument("--out", type=Path, required=True, metavar="board.pdf", help="the PDF to write")
-    target.add_argument("--paper", default="auto", choices=["auto", "a4", "letter", "a3"],
-                        help="auto (default): the first of a4, letter, a3 the board fits, portrait or landscape")
+    target.add_argument("--paper", default="auto",
+                        help="a4, letter, a3, a2, a1, a0, or auto (default): the first of these the board fits, "
+                             "portrait or landscape")
     target.add_argument("--margin-mm", type=float, default=10.0, metavar="MM",
                         help="white margin around the sheet's edge (mm, default 10, at least 5)")
 

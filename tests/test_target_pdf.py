@@ -16,7 +16,7 @@ import pypdfium2 as pdfium
 import pytest
 from conftest import Studio, button, choose, studio_page
 from fastapi.testclient import TestClient
-from playwright.sync_api import Browser
+from playwright.sync_api import Browser, expect
 
 from backend.api.app import create_app
 from backend.core.boards import BoardSpec
@@ -135,13 +135,13 @@ def test_a_board_that_does_not_fit_is_refused_with_the_size_it_needs() -> None:
     assert board_sheet(CHARUCO).layout.paper == "a3"  # auto takes the first paper it fits
 
     with pytest.raises(InputError) as too_big:
-        board_sheet("checkerboard:12x9:0.05")
+        board_sheet("checkerboard:12x9:0.1")
     message = too_big.value.message
-    assert "670 x 534 mm" in message and "a3" in message
-    largest_mm = float(re.search(r"squares of at most ([\d.]+) mm", message).group(1))
-    board_sheet(f"checkerboard:12x9:{largest_mm / 1000}", "a3")  # the square size it suggests does fit
+    assert "1320 x 1034 mm" in message and "the largest paper offered, a0" in message
+    largest_mm = float(re.search(r"squares of at most ([\d.]+) mm for a0", message).group(1))
+    board_sheet(f"checkerboard:12x9:{largest_mm / 1000}", "a0")  # the square size it suggests does fit
     with pytest.raises(InputError):
-        board_sheet(f"checkerboard:12x9:{(largest_mm + 0.2) / 1000}", "a3")
+        board_sheet(f"checkerboard:12x9:{(largest_mm + 0.2) / 1000}", "a0")
 
 
 @pytest.mark.parametrize(("spec", "paper", "margin_mm", "input_name"), [
@@ -167,7 +167,7 @@ def test_cli_writes_the_sheet(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 @pytest.mark.parametrize(("args", "message"), [
     (["checkerboard:9x6"], "has the wrong number of fields"),
     ([CHARUCO, "--paper", "a4"], "needs a sheet of 350 x 274 mm"),
-    ([CHECKERBOARD, "--paper", "a5"], "invalid choice: 'a5'"),
+    ([CHECKERBOARD, "--paper", "a5"], "unknown paper 'a5'"),
     ([CHECKERBOARD, "--margin-mm", "1"], "expected at least 5 mm"),
 ])
 def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str],
@@ -187,17 +187,17 @@ def test_cli_refuses_an_output_it_cannot_write(tmp_path: Path, capsys: pytest.Ca
 
 def test_api_serves_the_sheet(tmp_path: Path) -> None:
     with TestClient(create_app(tmp_path)) as client:
-        answer = client.get("/api/targets/pdf", params={"spec": CHARUCO, "paper": "a3", "margin_mm": 12})
+        answer = client.get("/api/targets/pdf", params={"board": CHARUCO, "paper": "a3", "margin_mm": 12})
         assert answer.status_code == 200, answer.text
         assert answer.headers["content-type"] == "application/pdf"
         assert 'filename="charuco_11x8_30mm_22mm_DICT_5X5_100.pdf"' in answer.headers["content-disposition"]
         assert answer.content == board_sheet(CHARUCO, "a3", 12.0).pdf
 
-        for params, status, input_name in (({"spec": "checkerboard:9x6"}, 422, "board"),
-                                           ({"spec": CHARUCO, "paper": "a4"}, 422, "paper"),
-                                           ({"spec": CHECKERBOARD, "paper": "a5"}, 422, "query.paper"),
-                                           ({"spec": CHECKERBOARD, "margin_mm": "nan"}, 422, "margin_mm"),
-                                           ({}, 422, "query.spec")):
+        for params, status, input_name in (({"board": "checkerboard:9x6"}, 422, "board"),
+                                           ({"board": CHARUCO, "paper": "a4"}, 422, "paper"),
+                                           ({"board": CHECKERBOARD, "paper": "a5"}, 422, "query.paper"),
+                                           ({"board": CHECKERBOARD, "margin_mm": "nan"}, 422, "margin_mm"),
+                                           ({}, 422, "query.board")):
             answer = client.get("/api/targets/pdf", params=params)
             assert answer.status_code == status, (params, answer.text)
             assert answer.json()["error"]["input"] == input_name, (params, answer.json())
@@ -207,13 +207,17 @@ def test_api_serves_the_sheet(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_session_step_downloads_the_sessions_board(browser: Browser, studio: Studio) -> None:
     board = studio.get("/api/sessions/demo")["board"]
+    sheet = board_sheet(board)
     with studio_page(browser, studio.url, {"width": 1600, "height": 1000}) as page:
-        choose(page, "Paper", "a3")
+        choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
         button(page, "Print the target").click()
-        link = page.get_by_role("link", name=re.compile(r"\.pdf"))
+        expect(page.get_by_text("Cannot print the target")).to_be_visible()
+        expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
+        choose(page, "Paper", "auto")
+        button(page, "Print the target").click()
         with page.expect_download() as download:
-            link.click()
-        saved = Path(download.value.path())
-    assert download.value.suggested_filename == board_sheet(board).filename
-    assert saved.read_bytes() == board_sheet(board, "a3").pdf
-    assert board in rasterise(saved.read_bytes())[2]
+            page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
+        saved = Path(download.value.path()).read_bytes()
+        assert download.value.suggested_filename == sheet.filename
+    assert saved == sheet.pdf
+    assert board in rasterise(saved)[2]

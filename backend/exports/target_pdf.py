@@ -22,9 +22,11 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError, shorten
 
-Paper = Literal["auto", "a4", "letter", "a3"]
-PAPERS_MM: dict[str, tuple[float, float]] = {"a4": (210.0, 297.0), "letter": (215.9, 279.4), "a3": (297.0, 420.0)}
-"""Each paper's (width, height) in portrait (mm), in the order ``auto`` tries them."""
+Paper = Literal["auto", "a4", "letter", "a3", "a2", "a1", "a0"]
+PAPERS_MM: dict[str, tuple[float, float]] = {"a4": (210.0, 297.0), "letter": (215.9, 279.4), "a3": (297.0, 420.0),
+                                             "a2": (420.0, 594.0), "a1": (594.0, 841.0), "a0": (841.0, 1189.0)}
+"""Each paper's (width, height) in portrait (mm), in the order ``auto`` tries them: office sizes first, then the
+print shop's (a 9x6 board of 40 mm squares needs a2)."""
 MIN_MARGIN_MM = 5.0
 """The narrowest white margin (mm): office printers leave the outer ~4 mm of a sheet blank."""
 DEFAULT_MARGIN_MM = 10.0
@@ -110,7 +112,7 @@ def sheet_layout(board: BoardSpec, paper: str = "auto", margin_mm: float = DEFAU
 def _does_not_fit(board: BoardSpec, paper: str, margin_mm: float, need_w: float, need_h: float) -> str:
     """Why ``board`` fits no candidate sheet: the size it needs, and a paper or a square size that fits."""
     board_w, board_h = (1000.0 * v for v in board.size_m)
-    shown = "a3" if paper == "auto" else paper
+    shown = list(PAPERS_MM)[-1] if paper == "auto" else paper
     message = (f"board {board} is {board_w:.5g} x {board_h:.5g} mm; with {margin_mm:g} mm margins and the "
                f"{LEGEND_HEIGHT_MM:g} mm legend it needs a sheet of {need_w:.5g} x {need_h:.5g} mm (either way round), "
                f"larger than {'the largest paper offered, ' if paper == 'auto' else ''}{shown} "

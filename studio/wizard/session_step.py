@@ -29,7 +29,7 @@ class SessionStep:
             self.create_button = gui.add_button("Create session")
             self.summary = gui.add_markdown("No session open.")
             self.paper = gui.add_dropdown("Paper", options=["auto", *PAPERS_MM], initial_value="auto",
-                                          hint="auto: the first of a4, letter, a3 the board fits")
+                                          hint="auto: the first paper the board fits, in this list's order")
             self.print_target = gui.add_button("Print the target", disabled=True,
                                                hint="the session's board as a PDF at exact scale: print it at 100 % "
                                                     "/ actual size and check its 100 mm bar")
