@@ -142,6 +142,8 @@ def test_a_board_that_does_not_fit_is_refused_with_the_size_it_needs() -> None:
     board_sheet(f"checkerboard:12x9:{largest_mm / 1000}", "a0")  # the square size it suggests does fit
     with pytest.raises(InputError):
         board_sheet(f"checkerboard:12x9:{(largest_mm + 0.2) / 1000}", "a0")
+    with pytest.raises(InputError, match="margins of 500 mm leave no room on a0"):
+        board_sheet(CHECKERBOARD, margin_mm=500.0)
 
 
 @pytest.mark.parametrize(("spec", "paper", "margin_mm", "input_name"), [

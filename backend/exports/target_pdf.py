@@ -100,12 +100,12 @@ def sheet_layout(board: BoardSpec, paper: str = "auto", margin_mm: float = DEFAU
     need_h = board_h + LEGEND_HEIGHT_MM + 2 * margin_mm
     candidates = list(PAPERS_MM) if paper == "auto" else [paper]
     for name in candidates:
-        for sheet_w, sheet_h in (PAPERS_MM[name], PAPERS_MM[name][::-1]):
-            if need_w <= sheet_w + 1e-9 and need_h <= sheet_h + 1e-9:
-                free_h = sheet_h - 2 * margin_mm - LEGEND_HEIGHT_MM
-                board_y = margin_mm + (free_h - board_h) / 2
-                return SheetLayout(name, sheet_w, sheet_h, (sheet_w - board_w) / 2, board_y,
-                                   sheet_h - margin_mm - LEGEND_HEIGHT_MM, margin_mm)
+        if (sheet := _sheet_for(need_w, need_h, PAPERS_MM[name])) is not None:
+            sheet_w, sheet_h = sheet
+            free_h = sheet_h - 2 * margin_mm - LEGEND_HEIGHT_MM
+            board_y = margin_mm + (free_h - board_h) / 2
+            return SheetLayout(name, sheet_w, sheet_h, (sheet_w - board_w) / 2, board_y,
+                               sheet_h - margin_mm - LEGEND_HEIGHT_MM, margin_mm)
     raise InputError(_does_not_fit(board, paper, margin_mm, need_w, need_h), "paper")
 
 
@@ -117,19 +117,23 @@ def _does_not_fit(board: BoardSpec, paper: str, margin_mm: float, need_w: float,
                f"{LEGEND_HEIGHT_MM:g} mm legend it needs a sheet of {need_w:.5g} x {need_h:.5g} mm (either way round), "
                f"larger than {'the largest paper offered, ' if paper == 'auto' else ''}{shown} "
                "({:g} x {:g} mm)".format(*PAPERS_MM[shown]))
-    larger = [name for name in PAPERS_MM if name != paper and _fits(need_w, need_h, PAPERS_MM[name])]
+    larger = [name for name in PAPERS_MM if name != paper and _sheet_for(need_w, need_h, PAPERS_MM[name])]
     if larger:
         return f"{message}: print it on {larger[0]}"
     squares = np.array([board_w, board_h]) / (1000.0 * board.square_m)
     sheet = PAPERS_MM[shown]
-    largest_mm = max(np.min((np.array([w, h]) - 2 * margin_mm - [0.0, LEGEND_HEIGHT_MM]) / squares)
-                     for w, h in (sheet, sheet[::-1]) if w - 2 * margin_mm >= LEGEND_WIDTH_MM)
+    largest_mm = max((np.min((np.array([w, h]) - 2 * margin_mm - [0.0, LEGEND_HEIGHT_MM]) / squares)
+                      for w, h in (sheet, sheet[::-1]) if w - 2 * margin_mm >= LEGEND_WIDTH_MM), default=0.0)
+    if largest_mm < 0.1:
+        return f"{message}: margins of {margin_mm:g} mm leave no room on {shown} for the board and its legend"
     return (f"{message}: choose squares of at most {math.floor(largest_mm * 10) / 10:g} mm for {shown}, or have the "
             "board printed on a larger sheet")
 
 
-def _fits(need_w: float, need_h: float, sheet: tuple[float, float]) -> bool:
-    return any(need_w <= w + 1e-9 and need_h <= h + 1e-9 for w, h in (sheet, sheet[::-1]))
+def _sheet_for(need_w: float, need_h: float, paper_mm: tuple[float, float]) -> tuple[float, float] | None:
+    """The paper's (width, height) (mm) the right way round for a need of ``need_w`` x ``need_h`` mm: portrait if
+    it fits so, else landscape, else None."""
+    return next(((w, h) for w, h in (paper_mm, paper_mm[::-1]) if need_w <= w + 1e-9 and need_h <= h + 1e-9), None)
 
 
 def render_sheet(board: BoardSpec, layout: SheetLayout) -> bytes:
