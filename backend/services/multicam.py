@@ -45,7 +45,7 @@ from backend.solvers.board_detection import Detection, common_corners, detect_bo
 from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.solvers.multicam_graph import Observation
-from backend.solvers.result import ProgressCallback, TransformResult, no_progress
+from backend.solvers.result import ProgressCallback, no_progress
 from backend.solvers.stereo import Rectification, epipolar_errors, rectified_preview, rectified_row_errors, rectify
 from backend.store.session import Session
 
@@ -165,11 +165,6 @@ def apply_refined_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
         raise InputError(f"result {record.get('id')} is a {record.get('kind')} result, not {KIND}", "result")
     for name in record["settings"]["estimate_intrinsics"]:
         rig.get(name).intrinsics = CameraIntrinsics.from_dict(record["cameras"][name])
-
-
-def record_transforms(record: dict[str, Any]) -> dict[str, TransformResult]:
-    """A stored multicam result's per-camera transforms (parent the reference camera), in camera order."""
-    return {name: TransformResult.from_record(t) for name, t in record["transforms"].items()}
 
 
 def record_T_ref_cam(record: dict[str, Any]) -> dict[str, np.ndarray]:
