@@ -48,6 +48,10 @@ Mahalanobis distance of the 6-vector difference, said as the Gaussian sigma of e
 chi-square 20.1 on 6 degrees of freedom), so a consistent rig raises a false flag on 0.27 % of its edges."""
 UNDETERMINED_SIGMA = (100.0, np.pi)
 """Sigma (m, rad) given to an axis whose covariance is NaN: the edge says nothing along it."""
+UNCONSTRAINED = 1e-6
+"""An edge whose hat block leaves less than this of any direction to the others is constrained by itself alone."""
+JACOBIAN_STEP = 1e-7
+"""Finite-difference step of the Jacobians (m, rad)."""
 CONSISTENT_PROBABILITY = 0.9973
 """The rest of the graph is consistent when its chi-square is within this quantile (3 sigma) for its degrees
 of freedom."""
@@ -254,6 +258,16 @@ class _Graph:
         errors = self.edge_errors(kept, self.poses(x))
         return np.einsum("kij,kj->ki", self.inverse_whiteners[kept], errors).ravel()
 
+    def jacobian(self, x: np.ndarray, kept: list[int]) -> np.ndarray:
+        """(6 len(kept), 6 n) whitened Jacobian of :meth:`residuals` at ``x`` (forward differences, step 1e-7)."""
+        base = self.residuals(x, kept)
+        J = np.zeros((len(base), len(x)))
+        for column in np.flatnonzero(self.sparsity(kept).any(axis=0)):
+            moved = x.copy()
+            moved[column] += JACOBIAN_STEP
+            J[:, column] = (self.residuals(moved, kept) - base) / JACOBIAN_STEP
+        return J
+
     def sparsity(self, kept: list[int]) -> np.ndarray:
         """Which steps each residual row depends on: an edge's six rows on its two frames' six columns each."""
         pattern = np.zeros((6 * len(kept), 6 * len(self.names)), dtype=bool)
@@ -276,7 +290,7 @@ class _Graph:
             return x0, np.zeros((0, 0)), 0.0
         solution = least_squares(self.residuals, x0, args=(kept,), method="trf", xtol=1e-10,
                                  ftol=1e-10, gtol=1e-10, max_nfev=200, jac_sparsity=self.sparsity(kept))
-        J = solution.jac.toarray()  # sparse, from the grouped finite differences
+        J = self.jacobian(solution.x, kept)
         covariance = np.linalg.pinv(J.T @ J)
         return solution.x, 0.5 * (covariance + covariance.T), float(2 * solution.cost)
 
@@ -288,12 +302,11 @@ class _Graph:
         if not columns:
             return T, np.zeros((6, 6))
         J = np.zeros((6, len(columns)))
-        step = 1e-7
         for c, column in enumerate(columns):
             moved = x.copy()
-            moved[column] += step
+            moved[column] += JACOBIAN_STEP
             P = self.poses(moved)
-            J[:, c] = params_between(T, invert(P[a]) @ P[b]) / step
+            J[:, c] = params_between(T, invert(P[a]) @ P[b]) / JACOBIAN_STEP
         sub = covariance[np.ix_(columns, columns)]
         return T, J @ sub @ J.T
 
@@ -311,20 +324,37 @@ def _as_sigma(mahalanobis2: float, dof: int = 6) -> float:
     return float(norm.isf(chi2.sf(mahalanobis2, dof) / 2))
 
 
-def _disagreement(graph: _Graph, k: int, kept: list[int], x: np.ndarray) -> tuple[float | None, float]:
-    """Edge ``k`` against the fit of ``kept`` without it: (its disagreement in sigma, or None when the rest leave it
-    unconstrained; the rest's total chi-square)."""
-    others = [j for j in kept if j != k]
-    edge = graph.edges[k]
-    x_rest, cov_rest, chi2_rest = graph.fit(others, x)
-    reachable = _reachable(graph.root, [graph.edges[j] for j in others])
-    if edge.parent not in reachable or edge.child not in reachable:
-        return None, chi2_rest
-    T_rest, cov_predicted = graph.relative(x_rest, cov_rest, edge.parent, edge.child)
-    difference = params_between(edge.T_parent_child, T_rest)
-    L = graph.whiteners[k]
-    combined = L @ L.T + cov_predicted
-    return _as_sigma(float(difference @ np.linalg.solve(combined, difference))), chi2_rest
+def _leave_one_out(graph: _Graph, kept: list[int], x: np.ndarray, covariance: np.ndarray, chi2_total: float
+                   ) -> dict[int, tuple[float | None, float]]:
+    """Every kept edge against the fit of all the others, from the one fit: ``k -> (disagreement in sigma, or None
+    when the others leave it unconstrained; the others' total chi-square)``.
+
+    The linear least-squares identities (Cook's leave-one-out): with the whitened Jacobian's hat block
+    ``P_k = J_k (J^T J)^-1 J_k^T`` of edge ``k``, its measurement differs from the others' prediction by
+    ``(I - P_k)^-1 r_k`` with covariance ``(I - P_k)^-1``, so its squared Mahalanobis distance is
+    ``r_k^T (I - P_k)^-1 r_k``, which is also what leaving it out takes off the total chi-square.
+    """
+    J, r = graph.jacobian(x, kept), graph.residuals(x, kept)
+    out = {}
+    for row, k in enumerate(kept):
+        rows = slice(6 * row, 6 * row + 6)
+        complement = np.eye(6) - J[rows] @ covariance @ J[rows].T
+        if np.linalg.eigvalsh(0.5 * (complement + complement.T)).min() < UNCONSTRAINED:
+            out[k] = (None, chi2_total)
+            continue
+        mahalanobis2 = float(r[rows] @ np.linalg.solve(complement, r[rows]))
+        out[k] = (_as_sigma(mahalanobis2), max(chi2_total - mahalanobis2, 0.0))
+    return out
+
+
+def _against_fit(graph: _Graph, k: int, kept: list[int], x: np.ndarray, covariance: np.ndarray) -> float | None:
+    """A left-out edge ``k`` against the fit of ``kept``, in sigma (None when ``kept`` does not reach both its
+    frames)."""
+    reachable = _reachable(graph.root, [graph.edges[j] for j in kept])
+    if graph.edges[k].parent not in reachable or graph.edges[k].child not in reachable:
+        return None
+    J, r = graph.jacobian(x, [k]), graph.residuals(x, [k])
+    return _as_sigma(float(r @ np.linalg.solve(np.eye(6) + J @ covariance @ J.T, r)))
 
 
 def _reachable(root: str, edges: list[RigEdge]) -> set[str]:
@@ -415,9 +445,9 @@ def solve_rig_graph(root: str, parents: dict[str, str | None], edges: list[RigEd
     disagreements: dict[int, float | None] = {}
     x, covariance, chi2_total = graph.fit(kept)
     while True:
-        rest_chi2: dict[int, float] = {}
-        for k in kept:
-            disagreements[k], rest_chi2[k] = _disagreement(graph, k, kept, x)
+        checks = _leave_one_out(graph, kept, x, covariance, chi2_total)
+        disagreements.update({k: sigma for k, (sigma, _) in checks.items()})
+        rest_chi2 = {k: rest for k, (_, rest) in checks.items()}
         candidates = [k for k in kept if (d := disagreements[k]) is not None and d > FLAG_SIGMA]
         if not candidates:
             break
@@ -426,7 +456,7 @@ def solve_rig_graph(root: str, parents: dict[str, str | None], edges: list[RigEd
         kept.remove(culprit)
         x, covariance, chi2_total = graph.fit(kept, x)
     for k in flagged:  # its disagreement with everything that was kept
-        disagreements[k], _ = _disagreement(graph, k, kept + [k], x)
+        disagreements[k] = _against_fit(graph, k, kept, x, covariance)
     poses = graph.poses(x)
     residuals = [_edge_residual(graph, k, poses, disagreements.get(k), k in flagged) if k in usable else
                  EdgeResidual(edges[k], float("nan"), float("nan"), float("nan"), None, False)
