@@ -2,9 +2,10 @@
 
 Live clouds from the two simulated 3D LiDARs, a capture of each, then LiDAR to
 LiDAR: lidar_front into lidar_top, refined with GICP from the sliders (the demo
-rig's mounting) over the ticked capture pair, inspected (c2c colours, histogram, stats,
-the verdict and the scenes table) and checked through the HTTP API against the
-simulator's truth; its 'check' verdict (one scene) is accepted once confirmed.
+rig's mounting) over the ticked capture pair, inspected (c2c colours, histogram, the
+result card's pose, sigma, residuals and verdict, the scenes list) and checked through the
+HTTP API against the simulator's truth; its 'check' verdict (one scene) is accepted, after
+the rig preview, once confirmed. The clouds hang under the step's layer group, ``/steps/lidar``.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 VIEWPORT = {"width": 1600, "height": 2000}
 LIVE_RE = re.compile(r"lidar_top\s+([\d.]+) Hz, ([\d,]+) pts drawn.*lidar_front\s+([\d.]+) Hz, ([\d,]+) pts drawn",
                      re.S)
-RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · lidar_front → lidar_top · ✅ converged")
+RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · lidar_lidar · gicp")
 FRAME_RATE_JS = """() => new Promise(resolve => {
     let frames = 0; const start = performance.now();
     function tick() { frames++; if (performance.now() - start < 2000) requestAnimationFrame(tick);
@@ -84,8 +85,8 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     match = wait_body(page, RESULT_RE, timeout_s=90)
     result_id = match.group(1)
     body = page.inner_text("body")
-    for text in ("fitness", "RMSE", "c2c mean / median / p95", "1σ translation (mm)", "1σ rotation (°)",
-                 "off the others", "One scene: capture the rig in two more places for a cross-check."):
+    for text in ("lidar_top → lidar_front", "1σ:", "fitness", "rmse", "c2c mean", "off the others",
+                 "One scene: capture the rig in two more places for a cross-check."):
         assert text in body, f"{text!r} missing from the result"
     # one place only: no cross-check, so the verdict is 'check' and says why
     wait_body(page, re.compile(r"Verdict: \S+ check\..*no cross-check across scenes: only one scene", re.S),
@@ -98,18 +99,30 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     summaries = studio.get("/api/sessions/demo/results?sensor=lidar_front&kind=lidar_lidar")
     assert [r["id"] for r in summaries] == [result_id], summaries
     record = studio.get(f"/api/sessions/demo/results/{result_id}")
-    assert record["converged"] and record["target"] == "lidar_top"
-    error = invert(demo_rig().T_a_b("lidar_top", "lidar_front")) @ np.array(record["T_target_source"])
-    print(f"{result_id}: fitness {record['fitness']:.3f}, error {1000 * np.linalg.norm(error[:3, 3]):.2f} mm")
+    assert record["converged"] and (record["parent"], record["child"]) == ("lidar_top", "lidar_front")
+    error = invert(demo_rig().T_a_b("lidar_top", "lidar_front")) @ np.array(record["T_parent_child"])
+    print(f"{result_id}: fitness {record['residuals']['fitness']:.3f}, "
+          f"error {1000 * np.linalg.norm(error[:3, 3]):.2f} mm")
     assert np.linalg.norm(error[:3, 3]) < 0.01
 
-    button(page, "Accept").click()  # a 'check' is refused until confirmed
+    # first the rig preview; this step's Accept is the one right above its scenes list (other steps have theirs)
+    page.get_by_text("Scenes (x, y, z · yaw, pitch, roll):").locator(
+        "xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
+    wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+    button(page, "Apply accept").click()  # a 'check' is refused until confirmed
     wait_body(page, re.compile(rf"result {result_id} was judged 'check'"), timeout_s=15)
-    # the step's own box sits right above its Accept (other steps have theirs)
-    confirm = button(page, "Accept").locator("xpath=preceding::input[@type='checkbox'][1]")
+    # the step's own box sits right above its Accept
+    confirm = button(page, "Apply accept").locator("xpath=preceding::input[@type='checkbox'][1]")
     expect(confirm).to_have_accessible_name("Confirm the check")
     confirm.check()
-    button(page, "Accept").click()
+    button(page, "Apply accept").click()
     wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("lidar_front/T_lidar_top_lidar_front") == result_id, session["accepted"]
+    # the rig now holds the fused tree, which the accepted edge decides against the weak mounting guesses (5 cm)
+    frames = studio.get("/api/sessions/demo/rig/tree")["frames"]
+    assert frames["lidar_top"]["parent"] == frames["lidar_front"]["parent"] == "base_link"
+    fused = invert(np.array(frames["lidar_top"]["T_parent_child"])) @ np.array(frames["lidar_front"]["T_parent_child"])
+    offset = invert(np.array(record["T_parent_child"])) @ fused
+    assert np.linalg.norm(offset[:3, 3]) < 0.001, offset
+    page.screenshot(path=ARTIFACTS / "studio_lidar_accepted.png")

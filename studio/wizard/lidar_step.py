@@ -1,21 +1,24 @@
 """Step 4: LiDARs - live clouds, capture, and LiDAR-to-LiDAR extrinsics (guess, refine, inspect, accept).
 
 Live: one :class:`~backend.services.live_clouds.LiveClouds` thread per ticked LiDAR
-draws its cloud under ``/rig/<sensor>/live`` (so the rig places it), range-windowed,
+draws its cloud under ``/steps/lidar/<sensor>/live`` (the step's layer group; each sensor's
+node there is posed where the rig has the sensor), range-windowed,
 coloured by sensor, intensity, height or range, at most *Points drawn per LiDAR*
 (default :data:`MAX_DISPLAY_POINTS`; an even stride; the full scan is what gets captured).
 Each live cloud is one scene node whose buffers are replaced in place, float16 on the wire.
 
 LiDAR to LiDAR: the six sliders *are* ``T_target_source`` (m, ROS yaw/pitch/roll in
-degrees). The target's latest captured cloud is drawn under ``/rig/<target>/l2l`` and
+degrees). The target's latest captured cloud is drawn under ``/steps/lidar/<target>/l2l`` and
 the source's as a child node posed by the sliders, so moving a slider only re-poses
 that node (no points re-sent). "Global guess" and "Refine (GICP)" run as jobs and
 write their transform back into the sliders; refine starts from the sliders and solves
 one transform over the ticked capture pairs (*Scenes*: pairs taken in different places
 cross-check each other). Half a second after the last nudge the source cloud is
-recoloured by its distance to the target at the new pose (colours only). The result
-card shows the verdict and every scene's own solve; *Confirm the check* lets a
-``check`` be accepted.
+recoloured by its distance to the target at the new pose (colours only). The guess and
+the fit at the sliders' pose are :mod:`backend.services.lidar_lidar`'s; this step only draws.
+The :class:`~studio.result_card.ResultCard` shows the result (pose, sigma, residuals, verdict)
+and accepts it into the rig's tree with its preview; beside it, every scene's own solve and the
+cloud-to-cloud histogram.
 """
 
 from __future__ import annotations
@@ -29,21 +32,24 @@ import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
-from backend.core.transforms import to_xyz_ypr, transform_points
+from backend.core.transforms import to_xyz_ypr
 from backend.services import lidar_lidar as lidar_service
+from backend.services import rig as rig_service
 from backend.services import sweep as sweep_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
-from backend.solvers.lidar_lidar import LidarLidarSettings, global_initial_guess
+from backend.solvers.lidar_lidar import LidarLidarSettings
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
+from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
-from studio.verdict_view import ConfirmCheck, verdict_markdown
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
+STEP_GROUP = "/steps/lidar"
+"""Scene path of this step's layers (live and captured clouds), one posed node per sensor under it."""
 MAX_DISPLAY_POINTS = 100_000
 """Per sensor, by default. 100k float16 points are 0.6 MB a frame (+0.3 MB when coloured per point)."""
 LIVE_PRECISION = "float16"
@@ -87,7 +93,6 @@ class LidarStep:
         self.ctx = ctx
         self.live: dict[str, LiveClouds] = {}
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
-        self.result_id: str | None = None
         self._drawn: dict[str, int] = {}
         """Points drawn in each sensor's latest live frame."""
         self._errors: dict[str, str] = {}
@@ -100,7 +105,10 @@ class LidarStep:
         self.pair_boxes: dict[tuple[str, str], viser.GuiCheckboxHandle] = {}
         """One checkbox per (source capture id, target capture id) pair of the chosen LiDARs."""
         self._live_nodes: dict[str, viser.PointCloudHandle] = {}
+        self._sensor_nodes: dict[str, viser.FrameHandle] = {}
+        """``/steps/lidar/<sensor>``, posed where the rig has the sensor: its clouds hang under it."""
         self._lock = threading.Lock()
+        self._nodes_lock = threading.Lock()
         self.max_correspondence_m = LidarLidarSettings().max_correspondence_m
         gui = ctx.server.gui
         with gui.add_folder("4 · LiDARs", expand_by_default=False):
@@ -138,11 +146,11 @@ class LidarStep:
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
                 self.history = ResultHistory(gui, self._show_result,
                                              hint="every solve of this pair; pick one to inspect or accept")
-                self.stats_text = gui.add_markdown("No LiDAR-to-LiDAR result yet.")
+                self.card = ResultCard(ctx, on_accepted=self._on_accepted,
+                                       empty_text="No LiDAR-to-LiDAR result yet.")
+                self.scenes_text = gui.add_markdown("")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
-                self.confirm = ConfirmCheck(gui)
-                self.accept_button = gui.add_button("Accept", color="green")
 
         self.start_button.on_click(lambda _: self.start_live())
         self.stop_button.on_click(lambda _: self.stop_live())
@@ -153,7 +161,6 @@ class LidarStep:
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
         self.global_button.on_click(lambda _: self._global_guess())
         self.refine_button.on_click(lambda _: self._refine())
-        self.accept_button.on_click(lambda _: self._accept())
         ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
 
@@ -165,9 +172,13 @@ class LidarStep:
         return lidar_service.lidar_names(session.rig)
 
     def _close(self) -> None:
-        """Leave the open session: stop its live clouds and let go of its LiDAR-to-LiDAR clouds."""
+        """Leave the open session: stop its live clouds and let go of its LiDAR-to-LiDAR clouds and sensor nodes."""
         self.stop_live()
         self._drop_pair_clouds()
+        with self._nodes_lock:
+            nodes, self._sensor_nodes = self._sensor_nodes, {}
+        for node in nodes.values():
+            node.remove()
         self.live_text.content = "Not live."
         self.histogram.image = cc.distance_histogram(np.zeros(0), self.max_correspondence_m)
 
@@ -266,7 +277,25 @@ class LidarStep:
             except RuntimeError:  # removed with a redrawn rig: make a new one
                 pass
         self._live_nodes[sensor] = self.ctx.server.scene.add_point_cloud(
-            f"/rig/{sensor}/live", points, colours, point_size=size, precision=LIVE_PRECISION)
+            f"{self._sensor_node(sensor)}/live", points, colours, point_size=size, precision=LIVE_PRECISION)
+
+    def _sensor_node(self, sensor: str) -> str:
+        """The scene path of ``sensor``'s clouds, ``/steps/lidar/<sensor>``: a node posed where the rig has the
+        sensor (made on first use)."""
+        with self._nodes_lock:
+            if sensor not in self._sensor_nodes:
+                self._sensor_nodes[sensor] = self.ctx.server.scene.add_frame(
+                    f"{STEP_GROUP}/{sensor}", show_axes=False, **_pose(self.ctx.session.rig.T_root_frame(sensor)))
+            return self._sensor_nodes[sensor].name
+
+    def _place_sensors(self) -> None:
+        """Re-pose every sensor's node where the rig now has it (after an accept): their clouds move with them."""
+        session = self.ctx.session
+        with self._nodes_lock:
+            for sensor, node in self._sensor_nodes.items():
+                if sensor in session.rig.frames:
+                    pose = _pose(session.rig.T_root_frame(sensor))
+                    node.wxyz, node.position = pose["wxyz"], pose["position"]
 
     def _rates(self, live: dict[str, LiveClouds]) -> str:
         """Per sensor: draw rate, points drawn, and the device's own status when it is not plainly streaming."""
@@ -354,8 +383,7 @@ class LidarStep:
         self.editor.set(self._rig_T(), undoable=False)
         self._list_pairs()
         self._load_pair_clouds()
-        accepted = None if pair is None else self.ctx.session.accepted(lidar_service.slot(*pair))
-        self._show_history(accepted)
+        self._show_history(self._accepted_id())
 
     def _list_pairs(self) -> None:
         """One ticked checkbox per capture pair of the chosen LiDARs (kept ticked or not when already listed)."""
@@ -378,17 +406,19 @@ class LidarStep:
         """The ticked (source capture id, target capture id) pairs."""
         return [key for key, box in self.pair_boxes.items() if box.value]
 
-    def _pair_results(self) -> list[str]:
-        """Ids of the pair's results, newest first."""
+    def _pair_records(self) -> list[dict]:
+        """The pair's stored results, newest first."""
         pair = self.pair
-        if pair is None:
-            return []
-        results = self.ctx.session.results(pair[0], "lidar_lidar")
-        return [r["id"] for r in reversed(results) if r.get("target") == pair[1]]
+        return [] if pair is None else lidar_service.pair_results(self.ctx.session, *pair)
+
+    def _accepted_id(self) -> str | None:
+        """The pair's result the rig holds now (all of the pair's results fill one slot), or None."""
+        records = self._pair_records()
+        return self.ctx.session.accepted(rig_service.slot_of(records[0])) if records else None
 
     def _show_history(self, result_id: str | None, move_sliders: bool = False) -> None:
         """Fill the result dropdown and show ``result_id`` (or the newest)."""
-        self._show_result(self.history.fill(self._pair_results(), result_id), move_sliders)
+        self._show_result(self.history.fill([r["id"] for r in self._pair_records()], result_id), move_sliders)
 
     def _drop_pair_clouds(self) -> None:
         """Remove the pair's clouds from the scene and forget them (a pending recolour finds nothing to do)."""
@@ -416,7 +446,7 @@ class LidarStep:
         if target not in clouds:
             return
         size = float(self.point_size.value)
-        root = f"/rig/{target}/l2l"
+        root = f"{self._sensor_node(target)}/l2l"
         self._l2l_nodes.append(scene.add_point_cloud(f"{root}/target", clouds[target].astype(np.float32),
                                                      TARGET_COLOUR, point_size=size, precision="float32"))
         if source in clouds:
@@ -444,18 +474,15 @@ class LidarStep:
         if node is None or points is None or tree is None:
             return
         max_m = self.max_correspondence_m
-        d, _ = tree.query(transform_points(self.slider_T(), points.astype(float)), k=1,
-                          distance_upper_bound=2 * max_m, workers=2)
+        fit = lidar_service.fit_at(points, tree, self.slider_T(), max_m)
         try:
-            node.colors = cc.distance_colours(d, max_m)
+            node.colors = cc.distance_colours(fit["distances_m"], max_m)
         except RuntimeError:  # the cloud was replaced (new capture, accept) while this ran
             return
-        inliers = d[d <= max_m]
-        self.histogram.image = cc.distance_histogram(inliers, max_m)
-        fitness = len(inliers) / max(len(d), 1)
-        mean = 1000 * float(inliers.mean()) if inliers.size else float("nan")
-        self.jobs.text.content = (f"At the slider pose: fitness {fitness:.3f}, c2c mean {mean:.1f} mm "
-                                      f"(distances in mm: 0 dark … {max_m * 1000:.0f} yellow, beyond red).")
+        self.histogram.image = cc.distance_histogram(fit["inliers_m"], max_m)
+        self.jobs.text.content = (f"At the slider pose: fitness {fit['fitness']:.3f}, c2c mean "
+                                  f"{1000 * fit['c2c_mean_m']:.1f} mm (distances in mm: 0 dark … "
+                                  f"{max_m * 1000:.0f} yellow, beyond red).")
 
     # -- jobs ---------------------------------------------------------------------------------------
     def _submit(self, title: str, work, on_done) -> None:
@@ -465,13 +492,10 @@ class LidarStep:
         self.jobs.run(title, work, on_done)
 
     def _global_guess(self) -> None:
-        session, pair, chosen = self.ctx.session, self.pair, self.chosen_pairs()[-1:] or None
-        voxel_m = LidarLidarSettings().global_voxel_m
+        session, pair, chosen = self.ctx.session, self.pair, self.chosen_pairs() or None
 
         def work(progress):
-            progress(0.05, "FPFH features + RANSAC on the last ticked pair")
-            source_points, target_points = lidar_service.capture_pairs(session, *pair, chosen)[-1]
-            return global_initial_guess(source_points, target_points, voxel_m=voxel_m)
+            return lidar_service.global_guess(session, *pair, chosen, progress)
 
         def done(result) -> None:
             T, fitness = result
@@ -495,59 +519,28 @@ class LidarStep:
     # -- result ----------------------------------------------------------------------------------------
     def _show_result(self, result_id: str | None, move_sliders: bool = True) -> None:
         session = self.ctx.session
-        self.result_id = result_id
         if session is None or result_id is None:
-            self.stats_text.content = "No LiDAR-to-LiDAR result yet."
+            self.card.show(None, None)
+            self.scenes_text.content = ""
             return
         record = session.result(result_id)
         self.max_correspondence_m = record["settings"]["max_correspondence_m"]
         if move_sliders:
-            self.editor.set(np.array(record["T_target_source"]))  # also recolours the source cloud
-        self.stats_text.content = result_markdown(
-            record, accepted=session.accepted(lidar_service.slot(record["sensor"], record["target"])))
+            self.editor.set(np.array(record["T_parent_child"]))  # also recolours the source cloud
+        self.card.show(record, session.accepted(rig_service.slot_of(record)))
+        self.scenes_text.content = scenes_markdown(record)
 
-    def _accept(self) -> None:
-        session, pair = self.ctx.session, self.pair
-        if pair is None or self.result_id is None:
-            self.ctx.notify("Nothing to accept", "Refine first.", error=True)
-            return
-        try:
-            lidar_service.accept(session, pair[0], self.result_id, confirm=self.confirm.take())
-        except InputError as exc:
-            self.ctx.notify("Cannot accept", exc.message, error=True)
-            return
-        self.ctx.notify("Accepted", f"{self.result_id} is now the mounting of {pair[0]}.")
-        self.ctx.scene.update_rig(session.rig)  # the target's frame may have moved; its clouds move with it
-        self._show_result(self.result_id, move_sliders=False)
-
-
-def _mm(values: list[float | None]) -> str:
-    return ", ".join("n/a" if v is None else f"{1000 * v:.2f}" for v in values)
-
-
-def result_markdown(record: dict, accepted: str | None) -> str:
-    """Fit, cloud-to-cloud statistics, 1-sigma, convergence, verdict and scenes of a LiDAR-to-LiDAR result."""
-    c2c, std = record["c2c_m"], record["std"]
-    status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    verdict = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
-    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
-    rot = ", ".join("n/a" if v is None else f"{v:.3f}" for v in std["rot_deg"])
-    return (
-        f"**{record['id']}** ({status}) · {record['sensor']} → {record['target']} · {verdict}\n\n"
-        f"{verdict_markdown(record)}\n\n"
-        f"fitness **{record['fitness']:.3f}** · RMSE **{1000 * record['rmse_m']:.1f} mm** · "
-        f"{record.get('seconds', 0.0):.2f} s\n\n"
-        f"c2c mean / median / p95: {1000 * c2c['mean']:.1f} / {1000 * c2c['median']:.1f} / "
-        f"{1000 * c2c['p95']:.1f} mm\n\n"
-        f"1σ translation (mm): {_mm(std['trans_m'])}\n\n"
-        f"1σ rotation (°): {rot}\n\n{scenes_markdown(record)}{warnings}"
-    )
+    def _on_accepted(self, result_id: str) -> None:
+        """The card accepted ``result_id`` and re-fitted the rig's tree: the sensors' clouds follow their frames."""
+        self._place_sensors()
 
 
 def scenes_markdown(record: dict) -> str:
-    """Every scene's own solve (x y z in m, yaw pitch roll in degrees), how far it lies from the other scenes'
-    joint solve, and the spread between scenes (markdown; a list, which wraps in the narrow panel)."""
-    scenes, inputs = record.get("scenes", []), record.get("inputs", [])
+    """Every scene's own solve (``T_target_source``: x y z in m, yaw pitch roll in degrees), how far it lies from
+    the other scenes' joint solve, and the spread between scenes (markdown; a list, which wraps in the narrow
+    panel), from the record's diagnostics."""
+    diagnostics, inputs = record.get("diagnostics", {}), record.get("inputs", [])
+    scenes = diagnostics.get("scenes", [])
     if not scenes:
         return ""
     rows = []
@@ -561,7 +554,7 @@ def scenes_markdown(record: dict) -> str:
         rows.append(f"- **scene {k + 1}** ({pairs}): {', '.join(f'{v:.3f}' for v in xyz)} m · "
                     f"{', '.join(f'{v:.2f}' for v in np.degrees(ypr))}° · fitness {scene['fitness']:.3f} · "
                     f"off the others {off}{agrees}")
-    spread = record.get("scene_spread")
+    spread = diagnostics.get("scene_spread")
     spread_text = ("One scene: capture the rig in two more places for a cross-check." if spread is None else
                    f"Spread between scenes: **{1000 * spread['trans_m']:.1f} mm / {spread['rot_deg']:.3f}°**.")
     return "Scenes (x, y, z · yaw, pitch, roll):\n\n" + "\n".join(rows) + f"\n\n{spread_text}"
