@@ -9,6 +9,7 @@ camera and board pose, the cloud-to-cloud distances of a LiDAR-LiDAR edge from i
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -113,31 +114,34 @@ class ReportData:
 
 
 def gather(session: Session) -> ReportData:
-    """Read the report's data from ``session`` (nothing is written)."""
+    """Read the report's data from ``session`` (nothing is written). The accepted results, the rig and its tree are
+    read under the session's lock, so an accept cannot land in between; results and captures are write-once, so
+    what is read from them afterwards (corners, clouds) is what they were."""
     with session.lock:
         accepted = [session.result(result_id) for result_id in session.accepted_slots().values()]
         tree = solve_rig(session)
-        rig = session.rig
-        frames = [{"name": f.name, "kind": f.kind, "parent": f.parent,
-                   "captures": len(session.captures(f.name)) if f.kind != "frame" else 0}
-                  for f in rig.frames.values() if f.parent is not None]
-        cameras, missing = [], {}
-        intrinsics = {r["sensor"]: r for r in accepted if r.get("kind") == "intrinsics"}
-        for camera in rig.sensors("camera"):
-            if camera.name in intrinsics:
-                cameras.append(camera_report(session, intrinsics[camera.name]))
-            else:
-                count = len(session.results(camera.name, "intrinsics"))
-                missing[camera.name] = ("its intrinsics come from another accepted result (a multi-camera solve)"
-                                        if camera.intrinsics is not None else
-                                        f"no accepted intrinsics result ({count} in the history)" if count else
-                                        "no intrinsics solve yet")
-        edges = [edge_report(session, residual) for residual in tree.edges if residual.edge.result_id is not None]
-        geometries = [EdgeReport(None, TransformResult.from_record(r["transform"]), r) for r in accepted
-                      if r.get("kind") == "sweep" and "transform" in r]
-        return ReportData(session=session.info(), generated_at=time.time(), frames=frames, tree=tree,
-                          cameras=cameras, cameras_without_intrinsics=missing, edges=edges, geometries=geometries,
-                          acceptance_log=session.acceptance_log)
+        rig = copy.deepcopy(session.rig)
+        info, acceptance_log = session.info(), session.acceptance_log
+    frames = [{"name": f.name, "kind": f.kind, "parent": f.parent,
+               "captures": len(session.captures(f.name)) if f.kind != "frame" else 0}
+              for f in rig.frames.values() if f.parent is not None]
+    cameras, missing = [], {}
+    intrinsics = {r["sensor"]: r for r in accepted if r.get("kind") == "intrinsics"}
+    for camera in rig.sensors("camera"):
+        if camera.name in intrinsics:
+            cameras.append(camera_report(session, intrinsics[camera.name]))
+        else:
+            count = len(session.results(camera.name, "intrinsics"))
+            missing[camera.name] = ("its intrinsics come from another accepted result (a multi-camera solve)"
+                                    if camera.intrinsics is not None else
+                                    f"no accepted intrinsics result ({count} in the history)" if count else
+                                    "no intrinsics solve yet")
+    edges = [edge_report(session, residual) for residual in tree.edges if residual.edge.result_id is not None]
+    geometries = [EdgeReport(None, TransformResult.from_record(r["transform"]), r) for r in accepted
+                  if r.get("kind") == "sweep" and "transform" in r]
+    return ReportData(session=info, generated_at=time.time(), frames=frames, tree=tree, cameras=cameras,
+                      cameras_without_intrinsics=missing, edges=edges, geometries=geometries,
+                      acceptance_log=acceptance_log)
 
 
 def camera_report(session: Session, record: dict[str, Any]) -> CameraReport:

@@ -283,9 +283,10 @@ def rig_drawing(tree: RigTree) -> tuple[str, float]:
     sphere = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1)
     circle = np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 33)), np.sin(np.linspace(0, 2 * np.pi, 33))])
     with mpl.rc_context(STYLE):
-        figure = _figure(7.2, 3.8)
-        ax3d = figure.add_subplot(1, 2, 1, projection="3d")
-        top = figure.add_subplot(1, 2, 2)
+        figure = _figure(8.0, 4.4)
+        grid = figure.add_gridspec(1, 2, width_ratios=[1.5, 1])
+        ax3d = figure.add_subplot(grid[0], projection="3d")
+        top = figure.add_subplot(grid[1])
         for frame in tree.frames.values():
             if frame.parent in poses:
                 line = np.array([poses[frame.parent][:3, 3], frame.T_root_frame[:3, 3]])
