@@ -7,11 +7,13 @@ import viser
 from backend.services.jobs import JobRunner
 from backend.store.session import Session, SessionStore
 from studio.context import StudioContext
+from studio.layers import Layers
 from studio.scene import RigScene
 from studio.wizard.intrinsics_step import IntrinsicsStep
 from studio.wizard.lidar_camera_step import LidarCameraStep
 from studio.wizard.lidar_step import LidarStep
 from studio.wizard.multicam_step import MulticamStep
+from studio.wizard.rig_step import RigStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
 from studio.wizard.sweep_step import SweepStep
@@ -25,6 +27,7 @@ class StudioApp:
         server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
         server.gui.add_markdown("## Calibration Studio\nFrom raw sensors to trusted transforms, step by step.")
         self.ctx = StudioContext(server, store, jobs, RigScene(server), api_url=api_url)
+        self.layers = Layers(self.ctx)
         self.session_step = SessionStep(self.ctx)
         self.sensors_step = SensorsStep(self.ctx)
         self.intrinsics_step = IntrinsicsStep(self.ctx)
@@ -32,6 +35,7 @@ class StudioApp:
         self.sweep_step = SweepStep(self.ctx)
         self.lidar_camera_step = LidarCameraStep(self.ctx)
         self.multicam_step = MulticamStep(self.ctx)
+        self.rig_step = RigStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

@@ -36,6 +36,8 @@ class StudioContext:
     """Where the browser reaches the REST API (``http://host:port``; empty when the studio page is served by it)."""
     _closing: list[Callable[[], None]] = field(default_factory=list)
     _listeners: list[Callable[[Session], None]] = field(default_factory=list)
+    _rig_listeners: list[Callable[[Session], None]] = field(default_factory=list)
+    _step_listeners: list[Callable[[str], None]] = field(default_factory=list)
     _switching: threading.RLock = field(default_factory=threading.RLock)
     """Held through a session change: two clicks on *Open session* change it one after the other."""
 
@@ -47,6 +49,29 @@ class StudioContext:
     def on_session_changed(self, listener: Callable[[Session], None]) -> None:
         """``listener(session)`` runs once ``session`` is current and the scene shows its rig."""
         self._listeners.append(listener)
+
+    def on_rig_changed(self, listener: Callable[[Session], None]) -> None:
+        """``listener(session)`` runs after an accept or a revert changed the open session's rig."""
+        self._rig_listeners.append(listener)
+
+    def rig_changed(self) -> None:
+        """An accept or a revert changed the open session's rig (the result card calls this): redraw the rig's
+        frames and tell every :meth:`on_rig_changed` listener."""
+        if self.session is None:
+            return
+        self.scene.update_rig(self.session.rig)
+        for listener in self._rig_listeners:
+            self._call(listener, self.session, during="the rig change")
+
+    def on_step_shown(self, listener: Callable[[str], None]) -> None:
+        """``listener(step)`` runs when :meth:`show_step` is called (the layers panel follows it)."""
+        self._step_listeners.append(listener)
+
+    def show_step(self, step: str) -> None:
+        """Make ``step`` (``intrinsics``, ``lidar``, ``sweep``, ``lidar_camera``, ``multicam``, ``rig``, ...) the one
+        whose layers the 3D view shows: a step calls this when the user starts working in it."""
+        for listener in self._step_listeners:
+            self._call(listener, step, during="the step change")
 
     def open_session(self, session: Session) -> None:
         """Leave the open session, make ``session`` current, draw its rig and tell every step."""
@@ -63,18 +88,24 @@ class StudioContext:
             for hook in self._closing:
                 self._call(hook)
 
-    def _call(self, callback: Callable, *args) -> None:
+    def _call(self, callback: Callable, *args, during: str = "the session change") -> None:
         """Run one step's hook; a failure is logged with its traceback and shown, and never stops the next step."""
         try:
             callback(*args)
         except Exception as exc:  # noqa: BLE001 - one broken step must not leave the others on the old session
-            log.exception("a studio step failed on a session change")
-            self.notify("Session change", f"a step could not follow the session change: {exc}", error=True)
+            log.exception("a studio step failed on %s", during)
+            self.notify("Studio", f"a step could not follow {during}: {exc}", error=True)
 
-    def download(self, event: viser.GuiEvent, fmt: ExportFormat, sensor: str | None = None) -> None:
-        """Send one export of the open session to the page that clicked (a toast says why when there is none)."""
+    def download(self, event: viser.GuiEvent, fmt: ExportFormat, sensor: str | None = None, **options) -> None:
+        """Send one export of the open session to the page that clicked (a toast says why when there is none);
+        ``options`` are :func:`~backend.services.exports.export_text`'s (``convention``, ``cameras``)."""
+        self.send_file(event, lambda: export_text(self.session, fmt, sensor, **options))
+
+    def send_file(self, event: viser.GuiEvent, make: Callable[[], tuple[str, str]]) -> None:
+        """Send the ``(file name, text)`` that ``make()`` returns to the page that clicked; an
+        :class:`InputError` from it is shown as a toast instead."""
         try:
-            filename, text = export_text(self.session, fmt, sensor)
+            filename, text = make()
         except InputError as exc:
             self.notify("Nothing to export", exc.message, error=True)
             return

@@ -1,8 +1,13 @@
-"""The rig in 3D: frames, camera frusta with their images, boards at their poses, and a solved camera rig.
+"""The rig in 3D: frames, camera frusta with their images, boards at their poses, a solved camera rig, and the
+fused rig tree (sigma ellipsoids and edges coloured by their residual).
 
 Holds viser scene handles and updates them; all geometry comes from
 :mod:`backend.core` (poses are ``T_root_frame`` from the rig). The root frame is
 drawn z-up, like ROS's ``base_link``.
+
+Every wizard step draws its own layers under one group node, ``/steps/<step>/...`` (the rig step's
+tree under ``/rig_tree/...``): :meth:`RigScene.group` gives a step's path and
+:meth:`RigScene.set_group_visible` shows or hides everything under it at once.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import viser.transforms as vtf
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
+from backend.solvers.rig_graph import EdgeResidual, RigTree
 
 DEFAULT_FOV_RAD = np.radians(60.0)
 FRUSTUM_SCALE_M = 0.15
@@ -34,6 +40,15 @@ SENSOR_COLOURS = {
 }
 SOLVED_COLOUR = (235, 130, 20)
 """Frusta of a solved camera rig on show (:meth:`RigScene.show_solved_cameras`), beside the rig's own (blue)."""
+RIG_TREE = "/rig_tree"
+"""Scene path of the fused rig tree, the rig step's layer group."""
+ELLIPSOID_COLOUR = (130, 80, 220)
+ELLIPSOID_MAX_M = 0.3
+"""Longest semi-axis drawn (m): a larger one (a frame known only from its mounting guess, scaled up) is cut to this
+and drawn as a wireframe."""
+EDGE_COLOURS = {"green": (40, 170, 70), "amber": (240, 170, 20), "red": (220, 40, 40), "grey": (150, 150, 150)}
+"""Edges of the rig tree by residual: normalised chi2 <= 1 green, <= 9 amber, beyond or flagged red, no residual
+(the edge reaches no fused frame) grey."""
 
 
 def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
@@ -60,6 +75,33 @@ def _board_drawing(board: BoardSpec) -> tuple[np.ndarray, float, float, np.ndarr
     return texture, width_m, height_m, T_board_plane
 
 
+def step_group(step: str) -> str:
+    """Scene path of a wizard step's layer group: ``/steps/<step>`` (the rig step's is :data:`RIG_TREE`)."""
+    return RIG_TREE if step == "rig" else f"/steps/{step}"
+
+
+def edge_colour(residual: EdgeResidual) -> str:
+    """``green`` (normalised chi2 <= 1), ``amber`` (<= 9), ``red`` (beyond, or flagged) or ``grey`` (no residual)."""
+    if residual.flagged:
+        return "red"
+    if not np.isfinite(residual.chi2):
+        return "grey"
+    return "green" if residual.chi2 <= 1.0 else "amber" if residual.chi2 <= 9.0 else "red"
+
+
+def ellipsoid_pose(covariance_m2: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Principal axes of a 3x3 position covariance (m^2) as a rotation (wxyz, right-handed) and the 1-sigma
+    semi-axes times ``scale`` (m, uncut); None when the covariance is undetermined (NaN)."""
+    covariance_m2 = np.asarray(covariance_m2, dtype=float)
+    if not np.isfinite(covariance_m2).all():
+        return None
+    variances, axes = np.linalg.eigh(0.5 * (covariance_m2 + covariance_m2.T))
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] = -axes[:, 0]
+    semi_axes_m = scale * np.sqrt(np.clip(variances, 0.0, None))
+    return vtf.SO3.from_matrix(axes).wxyz, np.maximum(semi_axes_m, 1e-4)
+
+
 def _thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     small = cv2.resize(image, (width, int(round(image.shape[0] * scale))), interpolation=cv2.INTER_AREA)
@@ -73,8 +115,13 @@ class RigScene:
         self.server = server
         self._frames: dict[str, viser.FrameHandle] = {}
         self._frusta: dict[str, viser.CameraFrustumHandle] = {}
-        self._boards: dict[str, list[viser.ImageHandle]] = {"live": [], "captured": []}
+        self._boards: dict[str, list[viser.ImageHandle]] = {}
+        """Board images drawn by :meth:`show_boards`, by ``<step>/<live|captured>``."""
         self._solved: list[viser.SceneNodeHandle] = []
+        self._groups: dict[str, viser.FrameHandle] = {}
+        self._hidden: set[str] = set()
+        """Steps whose layer group is hidden; kept across a redrawn rig."""
+        self._tree: list[viser.SceneNodeHandle] = []
         server.scene.set_up_direction("+z")
         server.initial_camera.position = INITIAL_CAMERA_POSITION_M
         server.initial_camera.look_at = INITIAL_LOOK_AT_M
@@ -86,9 +133,30 @@ class RigScene:
         self.server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)
         self._frames.clear()
         self._frusta.clear()
-        self._boards = {"live": [], "captured": []}
+        self._boards = {}
         self._solved = []
+        self._tree = []
+        steps, self._groups = list(self._groups), {}
+        for step in steps:  # every group node afresh, before any step draws into it
+            self.group(step)
         self.update_rig(rig)
+
+    def group(self, step: str) -> str:
+        """Scene path of ``step``'s layer group (:func:`step_group`), its node created when it is not there yet;
+        draw the step's layers under it."""
+        path = step_group(step)
+        if step not in self._groups:
+            self._groups[step] = self.server.scene.add_frame(path, show_axes=False, visible=step not in self._hidden)
+        return path
+
+    def set_group_visible(self, step: str, visible: bool) -> None:
+        """Show or hide everything under ``step``'s layer group (a redrawn rig keeps the choice)."""
+        self.group(step)
+        self._groups[step].visible = visible
+        if visible:
+            self._hidden.discard(step)
+        else:
+            self._hidden.add(step)
 
     def update_rig(self, rig: Rig) -> None:
         """Bring the drawing up to date with ``rig`` after an accept or a new sensor, keeping everything else.
@@ -125,22 +193,22 @@ class RigScene:
         if handle is not None:
             handle.image = _thumbnail(image)
 
-    def clear_boards(self, live: bool = False) -> None:
-        """Remove the boards drawn by :meth:`show_boards` (the live one, or the captured views)."""
-        group = "live" if live else "captured"
-        for handle in self._boards[group]:
+    def clear_boards(self, step: str, live: bool = False) -> None:
+        """Remove the boards ``step`` drew with :meth:`show_boards` (the live one, or the captured views)."""
+        for handle in self._boards.pop(f"{step}/{'live' if live else 'captured'}", []):
             handle.remove()
-        self._boards[group] = []
 
-    def show_boards(self, rig: Rig, camera: str, board: BoardSpec, T_camera_boards: list[np.ndarray],
+    def show_boards(self, step: str, rig: Rig, camera: str, board: BoardSpec, T_camera_boards: list[np.ndarray],
                     live: bool = False) -> None:
-        """Draw the board at each pose in front of ``camera`` (captured views, or the live view)."""
-        group = "live" if live else "captured"
-        self.clear_boards(live)
+        """Draw the board at each pose in front of ``camera`` (captured views, or the live view) in ``step``'s
+        layer group, under ``/steps/<step>/boards/<live|captured>/``."""
+        kind = "live" if live else "captured"
+        self.clear_boards(step, live)
+        root = f"{self.group(step)}/boards/{kind}"
         texture, width_m, height_m, T_board_plane = _board_drawing(board)
         T_root_camera = rig.T_root_frame(camera)
-        self._boards[group] = [
-            self.server.scene.add_image(f"/boards/{group}/{i}", texture, render_width=width_m, render_height=height_m,
+        self._boards[f"{step}/{kind}"] = [
+            self.server.scene.add_image(f"{root}/{i}", texture, render_width=width_m, render_height=height_m,
                                         format="png", **_pose(T_root_camera @ T_camera_board @ T_board_plane))
             for i, T_camera_board in enumerate(T_camera_boards)
         ]
@@ -154,10 +222,11 @@ class RigScene:
                 pass
         self._solved = []
 
-    def show_solved_cameras(self, rig: Rig, reference: str, T_ref_cams: dict[str, np.ndarray],
+    def show_solved_cameras(self, step: str, rig: Rig, reference: str, T_ref_cams: dict[str, np.ndarray],
                             cameras: dict[str, CameraIntrinsics], board: BoardSpec,
                             T_ref_boards: dict[str, np.ndarray], tag: str = "solved") -> None:
-        """Draw a solved camera rig beside the rig's own, placed from the reference camera's pose in the rig.
+        """Draw a solved camera rig beside the rig's own, placed from the reference camera's pose in the rig, in
+        ``step``'s layer group (``/steps/<step>/solved/...``).
 
         Each camera's frustum (:data:`SOLVED_COLOUR`, its solved field of view) sits at
         ``T_root_ref @ T_ref_cam`` and is labelled ``name · tag``; the board is drawn at every
@@ -165,9 +234,10 @@ class RigScene:
         """
         self.clear_solved_cameras()
         scene = self.server.scene
+        root = f"{self.group(step)}/solved"
         T_root_ref = rig.T_root_frame(reference)
         for name, T_ref_cam in T_ref_cams.items():
-            node = f"/solved/cameras/{name}"
+            node = f"{root}/cameras/{name}"
             camera = cameras[name]
             self._solved.append(scene.add_frame(node, axes_length=0.05, axes_radius=0.003,
                                                 **_pose(T_root_ref @ T_ref_cam)))
@@ -178,7 +248,38 @@ class RigScene:
                                                 font_screen_scale=0.7))
         texture, width_m, height_m, T_board_plane = _board_drawing(board)
         self._solved += [
-            scene.add_image(f"/solved/boards/{name}", texture, render_width=width_m, render_height=height_m,
+            scene.add_image(f"{root}/boards/{name}", texture, render_width=width_m, render_height=height_m,
                             format="png", **_pose(T_root_ref @ T_ref_board @ T_board_plane))
             for name, T_ref_board in T_ref_boards.items()
         ]
+
+    def show_rig_tree(self, tree: RigTree, ellipsoid_scale: float) -> None:
+        """Draw the fused rig tree under :data:`RIG_TREE`, replacing the last drawing.
+
+        Every frame gets its origin's 1-sigma ellipsoid (``covariance_root_translation``, semi-axes times
+        ``ellipsoid_scale`` so that millimetres show, cut at :data:`ELLIPSOID_MAX_M`) at
+        ``/rig_tree/ellipsoids/<frame>``; every edge
+        ``i`` of ``tree.edges`` whose two frames are fused gets a line from the parent's origin to the
+        child's at ``/rig_tree/edges/<i>``, coloured by :func:`edge_colour` (priors thinner).
+        """
+        for handle in self._tree:
+            handle.remove()
+        scene, root = self.server.scene, self.group("rig")
+        origins = {tree.root: np.zeros(3)} | {name: f.T_root_frame[:3, 3] for name, f in tree.frames.items()}
+        self._tree = []
+        for name, frame in tree.frames.items():
+            pose = ellipsoid_pose(frame.covariance_root_translation, ellipsoid_scale)
+            if pose is not None:
+                wxyz, semi_axes_m = pose
+                self._tree.append(scene.add_icosphere(
+                    f"{root}/ellipsoids/{name}", radius=1.0, color=ELLIPSOID_COLOUR, subdivisions=2,
+                    scale=tuple(float(a) for a in np.minimum(semi_axes_m, ELLIPSOID_MAX_M)),
+                    wireframe=bool(semi_axes_m.max() > ELLIPSOID_MAX_M), opacity=0.35, cast_shadow=False,
+                    receive_shadow=False, wxyz=wxyz, position=origins[name]))
+        for i, residual in enumerate(tree.edges):
+            edge = residual.edge
+            if edge.parent not in origins or edge.child not in origins:
+                continue
+            self._tree.append(scene.add_line_segments(
+                f"{root}/edges/{i}", np.array([[origins[edge.parent], origins[edge.child]]]),
+                EDGE_COLOURS[edge_colour(residual)], thickness=0.003 if edge.kind == "prior" else 0.008))
