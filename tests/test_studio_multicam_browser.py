@@ -3,8 +3,10 @@
 The demo session stores 10 synchronised sets of two cameras (:data:`backend.services.demo.DEMO_SET_CAMERAS`:
 cam_front, with accepted intrinsics, and a partner without any), and its rig is the simulator's truth. On step 7
 the two cameras of the sets are ticked, the first the reference; the rig is solved (the partner's intrinsics
-estimated from the sets), checked against the truth through the HTTP API; its verdict is 'reject' (the partner's
-lens from 10 sets is tens of pixels uncertain in the corners, and step 3 is named), so accepting it is refused.
+estimated from the sets), shown on the result card (the partner's pose from the reference with its 1-sigma) beside
+the step's own tables, and checked against the truth through the HTTP API (one transform record per camera); its
+verdict is 'reject' (the partner's lens from 10 sets is tens of pixels uncertain in the corners, and step 3 is
+named), so accepting it is refused after the rig preview.
 A set is then captured from both simulated cameras: refused at a 0 ms time tolerance (the status line says
 which camera was late), stored at the default 20 ms (the reads start together and are retried when out of
 step). The stereo check rectifies one set; the exports stay disabled with no rig accepted. Screenshots and the
@@ -46,14 +48,16 @@ REFERENCE, OTHER = DEMO_SET_CAMERAS
 SLOT = f"multicam:{REFERENCE}+{OTHER}"
 TOLERANCE_M, TOLERANCE_DEG = 0.02, 2.0
 NUMBER = r"(-?\d+\.\d+)"
-RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · ✅ converged · (\d+) sets · (\d+) views used, (\d+) flagged")
-SIGMAS = r"(reference|\d+\.\d\d/\d+\.\d\d/\d+\.\d\d)"
-ROW_RE = re.compile(rf"({REFERENCE}|{OTHER})\s+(trusted|check|reject)\s+{NUMBER}\s+{SIGMAS}\s+{SIGMAS}\s+(yes|no)"
+RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · multicam · [\d.]+ s")
+"""The result card's first line."""
+USED_RE = re.compile(rf"(\d+) sets · (\d+) views used, (\d+) flagged · reference {REFERENCE}")
+ROW_RE = re.compile(rf"({REFERENCE}|{OTHER})\s+(trusted|check|reject)\s+{NUMBER}\s+(yes|no)"
                     r"(?:: .*?projection σ ≤ ([\d.]+) px)?")
-"""A camera's row of the result table: verdict · RMS (px) · σ x/y/z (mm) · σ rx/ry/rz (°) · intrinsics estimated
-(with their sigmas and the worst projection sigma)."""
-POSE_RE = re.compile(rf"{OTHER}: x, y, z {NUMBER}, {NUMBER}, {NUMBER} m · yaw, pitch, roll {NUMBER}, {NUMBER}, "
-                     rf"{NUMBER}°")
+"""A camera's row of the step's table: verdict · RMS (px) · intrinsics estimated (with their sigmas and the worst
+projection sigma)."""
+POSE_RE = re.compile(rf"{REFERENCE} → {OTHER}: {NUMBER}, {NUMBER}, {NUMBER} m · {NUMBER}, {NUMBER}, {NUMBER}° "
+                     rf"\(yaw, pitch, roll\)\s+1σ: {NUMBER}, {NUMBER}, {NUMBER} mm · {NUMBER}, {NUMBER}, {NUMBER}°")
+"""The card's transform: x, y, z (m), yaw, pitch, roll (deg) and the 1-sigma (mm, deg)."""
 PAIR_RE = re.compile(rf"{REFERENCE} \+ {OTHER}\s+(\d+)\s+{NUMBER}\s+{NUMBER}")
 SETS_RE = re.compile(rf"(\d+) sets of {REFERENCE}, {OTHER}")
 STEREO_RE = re.compile(rf"(set\d+), {REFERENCE} left, {OTHER} right: (\d+) corners seen by both · epipolar error "
@@ -108,29 +112,29 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         assert sets_before == 10, sets_before
         wait_body(page, re.compile(rf"set00010\s+{REFERENCE}, {OTHER}\s+set00009"), timeout_s=5)
 
-        # 2. Solve: a job, then the result table with both cameras' numbers.
+        # 2. Solve: a job, then the result card (the partner's pose and sigma) and the step's table of both cameras.
         started = time.monotonic()
         button(page, "Solve rig").click()
         result = wait_body(page, RESULT_RE, timeout_s=120)
         solve_s = time.monotonic() - started
-        result_id, n_sets = result.group(1), int(result.group(2))
-        assert n_sets == 10, result.group(0)
+        result_id = result.group(1)
         wait_body(page, re.compile(r"Solved in [\d.]+ s\."), timeout_s=10)
-        assert (int(result.group(3)), int(result.group(4))) == (20, 0), result.group(0)
+        used = wait_body(page, USED_RE, timeout_s=10)
+        assert (int(used.group(1)), int(used.group(2)), int(used.group(3))) == (10, 20, 0), used.group(0)
         body = page.inner_text("body")
         rows = {m.group(1): m.groups()[1:] for m in ROW_RE.finditer(body)}
         assert set(rows) == {REFERENCE, OTHER}, f"not a row per camera:\n{body[-3000:]}"
-        assert rows[REFERENCE][2:5] == ("reference", "reference", "no"), rows
+        assert rows[REFERENCE][2] == "no", rows
         # cam_right's lens from the 10 sets alone is tens of pixels uncertain in the corners: rejected
-        assert rows[OTHER][0] == "reject" and rows[OTHER][4] == "yes" and float(rows[OTHER][5]) > 10, rows
+        assert rows[OTHER][0] == "reject" and rows[OTHER][2] == "yes" and float(rows[OTHER][3]) > 10, rows
         assert f"calibrate {OTHER} in step 3 (Camera intrinsics) first" in body, body[-3000:]
         rms = {name: float(row[1]) for name, row in rows.items()}
         assert all(0 < r < 1.0 for r in rms.values()), rms
-        sigma_mm, sigma_deg = ([float(v) for v in rows[OTHER][i].split("/")] for i in (2, 3))
-        assert all(0 < s < 10 for s in sigma_mm) and all(0 <= s < 2 for s in sigma_deg) and max(sigma_deg) > 0, \
-            rows[OTHER]
         pose = POSE_RE.search(body)
-        assert pose, f"no pose of {OTHER}:\n{body[-3000:]}"
+        assert pose, f"no pose of {OTHER} on the card:\n{body[-3000:]}"
+        sigma_mm, sigma_deg = [float(v) for v in pose.group(7, 8, 9)], [float(v) for v in pose.group(10, 11, 12)]
+        assert all(0 < s < 10 for s in sigma_mm) and all(0 <= s < 2 for s in sigma_deg) and max(sigma_deg) > 0, \
+            pose.group(0)
         xyz_m = [float(v) for v in pose.group(1, 2, 3)]
         assert abs(np.linalg.norm(xyz_m) - np.linalg.norm(truth[:3, 3])) < TOLERANCE_M, xyz_m
         pair = PAIR_RE.search(body)
@@ -139,6 +143,8 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         assert abs(baseline_mm - 1e3 * np.linalg.norm(truth[:3, 3])) < 1e3 * TOLERANCE_M, pair.group(0)
         assert epipolar_px < 1.0, pair.group(0)
         expect(page.get_by_label("Rig result", exact=True)).to_have_value(result_id)
+        # the solved rig is drawn in this step's layer group, so the 3D view now shows this step's layers
+        expect(page.get_by_label("Step in view", exact=True)).to_have_value("Step 7 · Multi-camera")
 
         graph = decoded_image(labelled_image(page, "Observation graph"))
         cv2.imwrite(str(ARTIFACTS / "studio_multicam_graph.png"), graph)
@@ -155,15 +161,25 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         assert record["converged"] and record["reference"] == REFERENCE, record["warnings"]
         assert record["camera_order"] == [REFERENCE, OTHER]
         assert record["settings"]["estimate_intrinsics"] == [OTHER]
-        error_m, error_deg = _errors(np.array(record["T_ref_cam"][OTHER]), truth)
+        (transform,) = record["transforms"].values()
+        assert (transform["kind"], transform["method"], transform["parent"], transform["child"]) == (
+            "multicam", "bundle", REFERENCE, OTHER), transform
+        error_m, error_deg = _errors(np.array(transform["T_parent_child"]), truth)
         assert error_m < TOLERANCE_M and error_deg < TOLERANCE_DEG, (error_m, error_deg)
-        assert np.allclose(xyz_m, np.array(record["T_ref_cam"][OTHER])[:3, 3], atol=1e-4), xyz_m
+        assert np.allclose(xyz_m, np.array(transform["T_parent_child"])[:3, 3], atol=1e-4), xyz_m
         page.get_by_text("Observation graph", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_multicam_solved.png")
 
-        # 4. Accept is refused with the verdict's reasons, even with the check confirmed: nothing is mounted.
-        page.get_by_role("checkbox", name="Confirm the check", exact=True).check()
-        button(page, "Accept rig").click()
+        # 4. Accept first previews the rig, then is refused with the verdict's reasons, even with the check
+        #    confirmed: nothing is mounted. (This step's card sits right above its 'Show the solved rig' box.)
+        show_3d = page.get_by_role("checkbox", name="Show the solved rig in 3D", exact=True)
+        show_3d.locator("xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
+        wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+        apply = show_3d.locator("xpath=preceding::button[normalize-space(.)='Apply accept'][1]")
+        confirm = apply.locator("xpath=preceding::input[@type='checkbox'][1]")
+        expect(confirm).to_have_accessible_name("Confirm the check")
+        confirm.check()
+        apply.click()
         wait_body(page, re.compile(f"result {result_id} was judged 'reject' and cannot be accepted"), timeout_s=15)
         session = studio.get("/api/sessions/demo")
         assert SLOT not in session["accepted"], session["accepted"]

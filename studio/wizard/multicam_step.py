@@ -8,13 +8,15 @@ runs the joint calibration (:func:`backend.services.multicam.solve_session`) as 
 the reference camera keeps its place in the rig and every other camera is solved
 relative to it; cameras without intrinsics get them estimated from the sets.
 
-Each result answers "how good is this": per camera its ``T_ref_cam`` with 1-sigma (mm,
-degrees), RMS and estimated intrinsics; the observation graph (which cameras saw the
-board together, how often); per-frame residual bars; per pair the baseline and the
-epipolar error, with a rectified preview of any set; and in 3D the solved frusta and
-board poses beside the rig. Accepting mounts the cameras (an older result reverts);
-the rig is then exported as the rig transforms YAML (with ROS static transforms) or a
-Kalibr camchain.
+Each result answers "how good is this": the result card (:class:`~studio.result_card.ResultCard`)
+shows every camera's ``T_ref_cam`` with its 1-sigma, the verdict and the warnings, and accepts
+it (each camera an edge of the rig graph, after the rig preview; an older result reverts);
+beside it per camera its verdict, RMS and estimated intrinsics, the observation graph (which
+cameras saw the board together, how often), per-frame residual bars, per pair the baseline
+and the epipolar error, with the stereo check of any set
+(:func:`backend.services.multicam.stereo_check`), and in 3D the solved frusta and board poses
+beside the rig, in the step's layer group. The rig is then exported as the rig transforms YAML
+(with ROS static transforms) or a Kalibr camchain.
 """
 
 from __future__ import annotations
@@ -26,11 +28,8 @@ import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
-from backend.core.errors import InputError
-from backend.core.transforms import to_xyz_ypr
 from backend.services import multicam as multicam_service
 from backend.services import multicam_capture as capture_service
-from backend.services import rig as rig_service
 from backend.solvers.stereo import (
     LINE_COLOUR_BGR,
     Rectification,
@@ -38,9 +37,11 @@ from backend.solvers.stereo import (
 from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
-from studio.verdict_view import ConfirmCheck, verdict_markdown
 
+STEP = "multicam"
+"""The step's layer group in the 3D view (:mod:`studio.layers`)."""
 NONE = "(none)"
 HELP = ("Hold the board still where **two or more cameras** see it and capture a set; move it so that every camera "
         "shares sets with the others (the observation graph must link them all) and the board reaches the corners "
@@ -113,10 +114,9 @@ class MulticamStep:
             self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, draw=True),
                                          label="Rig result",
                                          hint="every solve of these cameras; pick one to inspect, accept or revert to")
-            self.result_text = gui.add_markdown("No multi-camera result yet.")
-            self.confirm = ConfirmCheck(gui)
-            self.accept_button = gui.add_button("Accept rig", color="green",
-                                                hint="mount the cameras as the picked result has them")
+            self.card = ResultCard(ctx, on_accepted=lambda result_id: self._show_result(result_id, draw=True),
+                                   empty_text="No multi-camera result for these cameras yet.")
+            self.rig_text = gui.add_markdown("")
             self.show_3d = gui.add_checkbox("Show the solved rig in 3D", initial_value=True,
                                             hint="orange frusta and the board poses, placed from the reference")
             self.graph_image = gui.add_image(plots.observation_graph_image([], {}, []), label="Observation graph")
@@ -137,7 +137,6 @@ class MulticamStep:
         self.capture_button.on_click(lambda _: self._capture())
         self.import_button.on_click(lambda _: self._import())
         self.solve_button.on_click(lambda _: self._solve())
-        self.accept_button.on_click(lambda _: self._accept())
         self.show_3d.on_update(lambda _: self._draw_3d())
         self.stereo_pair.on_update(lambda _: None if self._filling else self._pair_sets())
         self.stereo_set.on_update(lambda _: None if self._filling else self._show_stereo())
@@ -272,14 +271,15 @@ class MulticamStep:
         accepted = None if record is None else session.accepted(multicam_service.slot(record["camera_order"]))
         for handle in (self.export_rig, self.export_kalibr):
             handle.disabled = accepted is None
+        self.card.show(record, accepted)
         if record is None:
-            self.result_text.content = "No multi-camera result for these cameras yet."
+            self.rig_text.content = ""
             self.graph_image.image = plots.observation_graph_image([], {}, [])
             self.residual_image.image = plots.frame_residual_bars([], [])
             self.ctx.scene.clear_solved_cameras()
             self._fill_pairs()
             return
-        self.result_text.content = result_markdown(record, accepted)
+        self.rig_text.content = rig_markdown(record)
         graph = record["graph"]
         self.graph_image.image = plots.observation_graph_image(graph["cameras"], graph["frames_seen"],
                                                                graph["edges"], record["reference"])
@@ -294,27 +294,11 @@ class MulticamStep:
         if record is None or not self.show_3d.value:
             self.ctx.scene.clear_solved_cameras()
             return
-        self.ctx.scene.clear_boards()  # another step's boards would mix with this result's
+        self.ctx.show_step(STEP)
         self.ctx.scene.show_solved_cameras(
-            session.rig, record["reference"], multicam_service.record_T_ref_cam(record),
+            STEP, session.rig, record["reference"], multicam_service.record_T_ref_cam(record),
             {n: CameraIntrinsics.from_dict(c) for n, c in record["cameras"].items()}, BoardSpec.parse(record["board"]),
             {n: np.array(T) for n, T in record["T_ref_board"].items()}, tag=record["id"])
-
-    def _accept(self) -> None:
-        session, result_id = self.ctx.session, self.history.selected
-        if result_id is None:
-            self.ctx.notify("Nothing to accept", "Solve the rig first.", error=True)
-            return
-        try:
-            rig_service.accept(session, result_id, confirm=self.confirm.take())
-        except InputError as exc:
-            self.ctx.notify("Cannot accept", exc.message, error=True)
-            return
-        self.ctx.scene.update_rig(session.rig)
-        self._show_result(result_id, draw=True)
-        record = session.result(result_id)
-        others = ", ".join(c for c in record["camera_order"] if c != record["reference"])
-        self.ctx.notify("Accepted", f"{result_id}: {others} now mounted relative to {record['reference']}.")
 
     # -- stereo check ----------------------------------------------------------------------------------
     def _fill_pairs(self) -> None:
@@ -375,11 +359,6 @@ def stereo_markdown(check: multicam_service.StereoCheck) -> str:
             f"{1e3 * rect.baseline_m:.1f} mm")
 
 
-def _sigmas(values: list[float | None], scale: float) -> str:
-    """1-sigmas per axis, two decimals, as one unbreakable word (the table stays narrow)."""
-    return "/".join("n/a" if v is None else f"{scale * v:.2f}" for v in values)
-
-
 def _estimated(record: dict, camera: str) -> str:
     """An estimated camera's intrinsics with their 1-sigma and its worst projection sigma across the image."""
     intrinsics, std = CameraIntrinsics.from_dict(record["cameras"][camera]), record["intrinsics_std"][camera]
@@ -423,37 +402,18 @@ def bag_report_markdown(report: dict) -> str:
                if unmatched else "\n\nEvery frame was matched."))
 
 
-def result_markdown(record: dict, accepted: str | None) -> str:
-    """A multicam result: per camera its RMS, 1-sigma and intrinsics, each pose in the reference, the pair checks
-    and the warnings."""
-    status = "✅ accepted" if record["id"] == accepted else "not accepted"
-    converged = "✅ converged" if record.get("converged") else "⚠️ **not converged** - cannot be accepted"
-    reference, estimated = record["reference"], set(record["settings"]["estimate_intrinsics"])
+def rig_markdown(record: dict) -> str:
+    """What the result card does not show of a multicam result: the sets and views used, per camera its verdict,
+    RMS and the intrinsics estimated with the rig, and the pair checks."""
+    estimated = set(record["settings"]["estimate_intrinsics"])
     verdicts = record.get("verdict", {})
     flagged = sum(f["flagged"] for f in record["frames"])
-    rows, poses = [], []
-    transforms = multicam_service.record_transforms(record)
-    for name in record["camera_order"]:
-        sigmas = ("reference", "reference") if name == reference else (
-            _sigmas(transforms[name].std["trans_m"], 1e3), _sigmas(transforms[name].std["rot_deg"], 1.0))
-        level = verdicts.get(name, {}).get("level", "none")
-        rows.append(f"| {name} | {level} | {record['rms_px'][name]:.3f} | {sigmas[0]} | {sigmas[1]} | "
-                    f"{_estimated(record, name) if name in estimated else 'no'} |")
-        if name != reference:
-            xyz, ypr = to_xyz_ypr(transforms[name].T_parent_child)
-            poses.append(f"- **{name}**: x, y, z {', '.join(f'{v:.4f}' for v in xyz)} m · yaw, pitch, roll "
-                         f"{', '.join(f'{np.degrees(v):.2f}' for v in ypr)}°")
+    rows = [f"| {name} | {verdicts.get(name, {}).get('level', 'none')} | {record['rms_px'][name]:.3f} | "
+            f"{_estimated(record, name) if name in estimated else 'no'} |" for name in record["camera_order"]]
     pairs = "\n".join(f"| {p['a']} + {p['b']} | {p['frames']} | {1e3 * p['baseline_m']:.1f} | "
                       f"{p['epipolar_rms_px']:.3f} |" for p in record.get("pairs", []))
-    warnings = "".join(f"\n\n⚠️ {w}" for w in record.get("warnings", []))
-    return (f"**{record['id']}** ({status}) · {converged} · {len(record['T_ref_board'])} sets · "
-            f"{len(record['frames']) - flagged} views used, {flagged} flagged · {record.get('seconds', 0.0):.2f} s\n\n"
-            + verdict_markdown(record) + "\n\n"
-            "| camera | verdict | RMS (px) | σ x/y/z (mm) | σ rx/ry/rz (°) | intrinsics estimated |\n"
-            "|---|---|---|---|---|---|\n"
-            + "\n".join(rows)
-            + f"\n\nσ: 1-sigma of T_{reference}_camera, rotations about the camera's own axes.\n\n"
-            + "\n".join(poses)
+    return (f"**{len(record['T_ref_board'])} sets** · {len(record['frames']) - flagged} views used, {flagged} flagged "
+            f"· reference {record['reference']}\n\n"
+            "| camera | verdict | RMS (px) | intrinsics estimated |\n|---|---|---|---|\n" + "\n".join(rows)
             + ("\n\n| pair | shared sets | baseline (mm) | epipolar RMS (px) |\n|---|---|---|---|\n" + pairs
-               if pairs else "")
-            + warnings)
+               if pairs else ""))
