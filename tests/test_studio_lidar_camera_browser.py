@@ -60,7 +60,7 @@ def _tick(page, label: str, on: bool) -> None:
 
 def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
     with studio_page(browser, studio.url, VIEWPORT) as page:
-        unfold(page, "4 · LiDARs", page.get_by_label("lidar_top", exact=True))
+        unfold(page, "4 · LiDARs", button(page, "Start live"))
         for name, live in (("lidar_top", False), ("scanner_2d", False), ("sweep_3d", False), ("lidar_front", True)):
             _tick(page, name, live)
         button(page, "Start live").click()
