@@ -158,6 +158,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "Kalibr can describe)")
     export.add_argument("--sensor", help="camera name (camera_info, opencv)")
     export.add_argument("--out", type=Path, help="file to write (default: stdout)")
+
+    report = sub.add_parser("report", help="the session's calibration report: one self-contained HTML file")
+    report.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
+    report.add_argument("--out", type=Path, required=True, metavar="report.html", help="the HTML file to write")
     return parser
 
 
@@ -439,6 +443,16 @@ def run_target(args: argparse.Namespace) -> None:
           file=sys.stderr)
 
 
+def run_report(args: argparse.Namespace) -> None:
+    """Write the session's calibration report (HTML, plots and CSS inline) to ``--out``."""
+    from backend.services.report import render_report
+    from backend.store.session import Session
+
+    _check_outputs(args.out)
+    write_text(args.out, render_report(Session.load(args.session_dir)))
+    print(f"wrote {args.out}", file=sys.stderr)
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
@@ -502,6 +516,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(summary))
         elif args.command == "export":
             run_export(args)
+        elif args.command == "report":
+            run_report(args)
         elif args.command == "target":
             run_target(args)
         return 0
