@@ -210,7 +210,8 @@ def unit_residual_bars(edge: EdgeReport) -> str | None:
                        label=f"{column} ({'mm' if in_mm else 'px'})")
             ax.set_xticks(range(len(entries)), labels, rotation=30 if len(labels) > 4 else 0, ha="right",
                           fontsize=6)
-            ax.set_ylabel("RMS (mm or px)")
+            units = sorted({"mm" if c.endswith("_m") else "px" for c in columns})
+            ax.set_ylabel(f"RMS ({' or '.join(units)})")
             ax.set_title(f"{edge.result.parent} -> {edge.result.child}: residual RMS per entry of '{key}'")
             ax.legend(fontsize=7)
             return to_data_uri(figure)
