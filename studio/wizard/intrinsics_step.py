@@ -22,6 +22,8 @@ from studio.live_toggle import LiveToggle
 from studio.result_card import ResultCard
 
 NO_CAMERA = "(no camera)"
+STEP = "intrinsics"
+"""The step's layer group in the 3D view (the boards it draws)."""
 GUIDANCE = (
     "Hold the board still, then move it: **left ↔ right**, **top ↔ bottom**, **near ↔ far**, and "
     "**tilt** it 20–40° in each direction. A frame is kept automatically when it adds coverage; the green tint "
@@ -124,6 +126,7 @@ class IntrinsicsStep:
         if self.sensor is None:
             self.ctx.notify("No camera", "Add a camera in step 2 first.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.stop_live()
         live: LiveCapture | None = None
 
@@ -149,13 +152,13 @@ class IntrinsicsStep:
         self.toggle.stopped()
         if live is not None:
             live.stop()
-            self.ctx.scene.clear_boards(live=True)
+            self.ctx.scene.clear_boards("intrinsics", live=True)
 
     def _on_ended(self, run: tuple) -> None:
         """The live capture ended by itself (it failed to open, or its device went away): it is no longer live."""
         if self.live in run:
             self.live = None
-            self.ctx.scene.clear_boards(live=True)
+            self.ctx.scene.clear_boards("intrinsics", live=True)
 
     def _capture_now(self) -> None:
         if self.live is None:
@@ -188,7 +191,8 @@ class IntrinsicsStep:
             camera = self.ctx.session.rig.get(self.sensor).intrinsics or nominal_camera(*detection.image_size)
             T_camera_board = board_pose(camera, board, detection)
             if T_camera_board is not None:
-                self.ctx.scene.show_boards(self.ctx.session.rig, self.sensor, board, [T_camera_board], live=True)
+                self.ctx.scene.show_boards("intrinsics", self.ctx.session.rig, self.sensor, board, [T_camera_board],
+                                           live=True)
 
     def _on_captured(self, record: CaptureRecord, coverage: Coverage) -> None:
         self._show_coverage(coverage)
@@ -230,6 +234,7 @@ class IntrinsicsStep:
             self.ctx.notify("No camera", "Pick a camera first.", error=True)
             return
         settings = self._settings()
+        self.ctx.show_step(STEP)
         self.jobs.run(f"intrinsics of {sensor}",
                       lambda progress: intrinsics_service.solve_session(session, sensor, settings,
                                                                         progress=progress)[0],
@@ -251,7 +256,7 @@ class IntrinsicsStep:
             self.checks_text.content = ""
             self.rms_plot.image = plots.view_rms_bars([], [], [])
             self.uncertainty_plot.image = np.full((270, 480, 3), 255, np.uint8)
-            self.ctx.scene.clear_boards()
+            self.ctx.scene.clear_boards("intrinsics")
             return
         record = session.result(result_id)
         self.card.show(record, self._accepted([record]))
@@ -263,7 +268,7 @@ class IntrinsicsStep:
         self.uncertainty_plot.image = plots.uncertainty_map(record["projection_uncertainty"]["sigma_px"])
         board = intrinsics_service.session_board(session)
         poses = [np.array(v["T_camera_board"]) for v in views if v["used"] and v["T_camera_board"]]
-        self.ctx.scene.show_boards(session.rig, self.sensor, board, poses)
+        self.ctx.scene.show_boards("intrinsics", session.rig, self.sensor, board, poses)
 
     def _accepted(self, results: list[dict]) -> str | None:
         """The result the camera's intrinsics slot holds (every intrinsics result of one camera fills the same)."""

@@ -3,10 +3,10 @@
 A 2D scanner on a servo gives one 3D cloud per sweep (:mod:`backend.core.sweep`). Its
 geometry (the optical centre's offset from the servo axis, the scanner's tilt on the
 horn, the servo's zero) decides how flat walls and floor come out. The step captures a
-sweep as a background job, draws it under ``/steps/sweep/<sensor>/cloud`` coloured by height,
-calibrates the geometry (a job, cancellable), and redraws the same sweep and its LiDAR
-image with whichever result is picked, so the user sees the planes sharpen before
-accepting. The result card (:class:`~studio.result_card.ResultCard`) shows the scanner's pose at
+sweep as a background job, draws it in the step's layer (``/steps/sweep/<sensor>/cloud``)
+coloured by height, calibrates the geometry (a job, cancellable), and redraws the same sweep
+and its LiDAR image with whichever result is picked, so the user sees the planes sharpen
+before accepting. The result card (:class:`~studio.result_card.ResultCard`) shows the scanner's pose at
 servo zero with its sigma and the verdict, and accepts through the rig service, which writes the
 geometry into the sensor's device (not a rig edge); accepting an older result reverts. The
 geometry panel beside it holds the sweep's own numbers.
@@ -31,8 +31,9 @@ from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 
 NONE = "(no swept scanner)"
-SCENE_GROUP = "/steps/sweep"
-"""The step's layer in the 3D view: the sweep drawn in the root frame under ``<group>/<sensor>/cloud``."""
+STEP = "sweep"
+"""The step's layer group in the 3D view (:meth:`studio.scene.RigScene.group`): the sweep drawn in the root
+frame under ``<group>/<sensor>/cloud``."""
 POINT_SIZE_M = 0.02
 HELP = ("Keep the rig still where the scanner sees the **floor** and two or three **walls** or other large flat "
         "surfaces at different angles. **Capture sweep** turns the servo once through its range (a few seconds), "
@@ -44,6 +45,8 @@ class SweepStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
         self._cloud = None
+        self._T_root_mount: np.ndarray | None = None
+        """The sensor's pose in the root frame the drawn cloud was placed with (m)."""
         gui = ctx.server.gui
         with gui.add_folder("5 · Swept scanner", expand_by_default=False):
             gui.add_markdown(HELP)
@@ -53,9 +56,9 @@ class SweepStep:
             self.estimate_tilt = gui.add_checkbox("Estimate the scanner's tilt", initial_value=True)
             self.calibrate_button = gui.add_button("Calibrate", color="blue")
             self.jobs = JobPanel(ctx, [self.capture_button, self.calibrate_button])
-            self.history = ResultHistory(gui, lambda _: self._show(),
+            self.history = ResultHistory(gui, lambda _: self._pick(),
                                          hint="every calibration of this scanner; the sweep is redrawn with it")
-            self.card = ResultCard(ctx, on_accepted=lambda _: self._draw(), empty_text="No sweep calibration yet.")
+            self.card = ResultCard(ctx, empty_text="No sweep calibration yet.")
             self.geometry_text = gui.add_markdown("")
             self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
             self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
@@ -65,6 +68,7 @@ class SweepStep:
         self.image_mode.on_update(lambda _: self._draw())
         ctx.on_session_closing(self._drop_cloud)
         ctx.on_session_changed(self._on_session)
+        ctx.on_rig_changed(lambda _: self._follow_rig())
 
     # -- session and sensor --------------------------------------------------------------------
     @property
@@ -80,6 +84,7 @@ class SweepStep:
         if self._cloud is not None:
             self._cloud.remove()
             self._cloud = None
+            self._T_root_mount = None
 
     def _on_session(self, session) -> None:
         swept = [f.name for f in session.rig.sensors() if sweep_service.is_swept(session, f.name)]
@@ -120,6 +125,7 @@ class SweepStep:
         if sensor is None:
             self.ctx.notify("No swept scanner", "Add a sensor with the swept_scanner device first.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.jobs.run(f"Sweep of {sensor}", lambda progress: sweep_service.capture_sweep(session, sensor, progress),
                       lambda record: self._select(), done_message="{title}: captured in {seconds:.1f} s.")
 
@@ -128,10 +134,23 @@ class SweepStep:
         if sensor is None:
             return
         settings = SweepCalibrationSettings(estimate_tilt=bool(self.estimate_tilt.value))
+        self.ctx.show_step(STEP)
         self.jobs.run(f"Sweep geometry of {sensor}", lambda progress: sweep_service.calibrate(
             session, sensor, settings=settings, progress=progress), self._show_history)
 
     # -- showing a sweep and a result --------------------------------------------------------------
+    def _pick(self) -> None:
+        """The user picked a result: this step's layer comes into view, drawn with it."""
+        self.ctx.show_step(STEP)
+        self._show()
+
+    def _follow_rig(self) -> None:
+        """An accept or a revert re-fitted the rig: redraw the sweep if its sensor moved."""
+        sensor = self.current
+        if self._T_root_mount is not None and sensor is not None and not np.allclose(
+                self.ctx.session.rig.T_root_frame(sensor), self._T_root_mount, atol=1e-9):
+            self._draw()
+
     def _show(self) -> None:
         """The picked result's card and numbers, and the latest sweep drawn with its geometry."""
         result_id = self.result_id
@@ -156,8 +175,10 @@ class SweepStep:
         T_root_mount = session.rig.T_root_frame(sensor)
         colours = cc.colour_points("height", view.points_mount, None, T_root_mount, 0)
         self._cloud = self.ctx.server.scene.add_point_cloud(
-            f"{SCENE_GROUP}/{sensor}/cloud", transform_points(T_root_mount, view.points_mount).astype(np.float32),
-            colours, point_size=POINT_SIZE_M, precision="float32")
+            f"{self.ctx.scene.group(STEP)}/{sensor}/cloud",
+            transform_points(T_root_mount, view.points_mount).astype(np.float32), colours, point_size=POINT_SIZE_M,
+            precision="float32")
+        self._T_root_mount = T_root_mount
 
 
 def geometry_markdown(record: dict) -> str:
