@@ -274,3 +274,19 @@ def test_the_demo_sets_solve_the_stereo_partner_near_the_truth(tmp_path, demo_te
     with pytest.raises(InputError, match="judged 'reject' and cannot be accepted"):
         rig_service.accept(session, result_id, confirm=True)
     assert session.accepted(service.slot(["cam_front", "cam_right"])) is None
+
+
+def test_record_poses_of_both_record_shapes():
+    """Every camera's T_ref_cam from a record of per-camera transforms, and from one stored before them."""
+    T_left_right = np.eye(4)
+    T_left_right[:3, 3] = [0.083, 0.0, 0.001]
+    cameras = {"left": {}, "right": {}}
+    current = {"reference": "left", "cameras": cameras,
+               "transforms": {"right": {"parent": "left", "child": "right", "T_parent_child": T_left_right.tolist()}}}
+    older = {"reference": "left", "cameras": cameras, "T_ref_cam": {"left": np.eye(4).tolist(),
+                                                                     "right": T_left_right.tolist()}}
+    for record in (current, older):
+        poses = service.record_T_ref_cam(record)
+        assert list(poses) == ["left", "right"]
+        np.testing.assert_array_equal(poses["left"], np.eye(4))
+        np.testing.assert_array_equal(poses["right"], T_left_right)

@@ -168,8 +168,11 @@ def apply_refined_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
 
 
 def record_T_ref_cam(record: dict[str, Any]) -> dict[str, np.ndarray]:
-    """Every camera's ``T_ref_cam`` (4x4, m) of a stored result, the reference's identity included."""
+    """Every camera's ``T_ref_cam`` (4x4, m) of a stored result, the reference's identity included (a record stored
+    before the per-camera transforms holds them under ``T_ref_cam``)."""
     reference = record["reference"]
+    if "transforms" not in record:
+        return {name: np.array(T, dtype=float) for name, T in record["T_ref_cam"].items()}
     return {name: np.eye(4) if name == reference else np.array(record["transforms"][name]["T_parent_child"])
             for name in record["cameras"]}
 
