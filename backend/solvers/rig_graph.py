@@ -48,7 +48,7 @@ Mahalanobis distance of the 6-vector difference, said as the Gaussian sigma of e
 chi-square 20.1 on 6 degrees of freedom), so a consistent rig raises a false flag on 0.27 % of its edges."""
 UNDETERMINED_SIGMA = (100.0, np.pi)
 """Sigma (m, rad) given to an axis whose covariance is NaN: the edge says nothing along it."""
-UNCONSTRAINED = 1e-6
+UNCONSTRAINED = 1e-10
 """An edge whose hat block leaves less than this of any direction to the others is constrained by itself alone."""
 JACOBIAN_STEP = 1e-7
 """Finite-difference step of the Jacobians (m, rad)."""
