@@ -2,7 +2,8 @@
 
 Live: one :class:`~backend.services.live_clouds.LiveClouds` thread per ticked LiDAR
 draws its cloud under ``/steps/lidar/<sensor>/live`` (the step's layer group; each sensor's
-node there is posed where the rig has the sensor), range-windowed,
+node there is posed where the rig has the sensor, and follows it when an accept or a revert moves
+it; starting live or a job puts the step in view), range-windowed,
 coloured by sensor, intensity, height or range, at most *Points drawn per LiDAR*
 (default :data:`MAX_DISPLAY_POINTS`; an even stride; the full scan is what gets captured).
 Each live cloud is one scene node whose buffers are replaced in place, float16 on the wire.
@@ -48,8 +49,8 @@ from studio.transform_sliders import TransformSliders
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
-STEP_GROUP = "/steps/lidar"
-"""Scene path of this step's layers (live and captured clouds), one posed node per sensor under it."""
+STEP = "lidar"
+"""This step's layer group (``/steps/lidar``: live and captured clouds, one posed node per sensor under it)."""
 MAX_DISPLAY_POINTS = 100_000
 """Per sensor, by default. 100k float16 points are 0.6 MB a frame (+0.3 MB when coloured per point)."""
 LIVE_PRECISION = "float16"
@@ -146,8 +147,7 @@ class LidarStep:
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
                 self.history = ResultHistory(gui, self._show_result,
                                              hint="every solve of this pair; pick one to inspect or accept")
-                self.card = ResultCard(ctx, on_accepted=self._on_accepted,
-                                       empty_text="No LiDAR-to-LiDAR result yet.")
+                self.card = ResultCard(ctx, empty_text="No LiDAR-to-LiDAR result yet.")
                 self.scenes_text = gui.add_markdown("")
                 self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
                                                label="Cloud-to-cloud distances")
@@ -163,6 +163,7 @@ class LidarStep:
         self.refine_button.on_click(lambda _: self._refine())
         ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
+        ctx.on_rig_changed(lambda _: self._place_sensors())  # an accept or revert, in any step, moved frames
 
     # -- session ------------------------------------------------------------------------------
     def _lidars(self) -> list[str]:
@@ -206,6 +207,7 @@ class LidarStep:
         if session is None or not chosen:
             self.ctx.notify("No LiDAR", "Tick at least one LiDAR to show live.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.stop_live()
         self._drawn, self._errors = {}, {}
         live = {name: LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
@@ -285,11 +287,13 @@ class LidarStep:
         with self._nodes_lock:
             if sensor not in self._sensor_nodes:
                 self._sensor_nodes[sensor] = self.ctx.server.scene.add_frame(
-                    f"{STEP_GROUP}/{sensor}", show_axes=False, **_pose(self.ctx.session.rig.T_root_frame(sensor)))
+                    f"{self.ctx.scene.group(STEP)}/{sensor}", show_axes=False,
+                    **_pose(self.ctx.session.rig.T_root_frame(sensor)))
             return self._sensor_nodes[sensor].name
 
     def _place_sensors(self) -> None:
-        """Re-pose every sensor's node where the rig now has it (after an accept): their clouds move with them."""
+        """Re-pose every sensor's node where the rig now has it (after an accept or a revert): their clouds move
+        with them."""
         session = self.ctx.session
         with self._nodes_lock:
             for sensor, node in self._sensor_nodes.items():
@@ -489,6 +493,7 @@ class LidarStep:
         if self.pair is None:
             self.ctx.notify("Pick two LiDARs", "Source and target must be two different LiDARs.", error=True)
             return
+        self.ctx.show_step(STEP)
         self.jobs.run(title, work, on_done)
 
     def _global_guess(self) -> None:
@@ -529,10 +534,6 @@ class LidarStep:
             self.editor.set(np.array(record["T_parent_child"]))  # also recolours the source cloud
         self.card.show(record, session.accepted(rig_service.slot_of(record)))
         self.scenes_text.content = scenes_markdown(record)
-
-    def _on_accepted(self, result_id: str) -> None:
-        """The card accepted ``result_id`` and re-fitted the rig's tree: the sensors' clouds follow their frames."""
-        self._place_sensors()
 
 
 def scenes_markdown(record: dict) -> str:
