@@ -24,6 +24,12 @@ DEFAULT_MOUNT_SIGMA = (0.05, 5.0)
 """1-sigma (m, deg) of a mounting guess (tape, CAD) when none is given: a weak prior the calibrations override."""
 
 
+def edge_slot(parent: str, child: str) -> str:
+    """The name of the relation ``T_parent_child`` between two frames, as the session's acceptance slots call it
+    (``lidar_top/T_cam_front_lidar_top``): one accepted result per relation."""
+    return f"{child}/T_{parent}_{child}"
+
+
 @dataclass
 class Frame:
     """One node of the frame tree."""

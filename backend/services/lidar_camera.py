@@ -26,6 +26,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
+from backend.core.rig import edge_slot
 from backend.core.transforms import check_transform
 from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
@@ -183,7 +184,7 @@ def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> 
 def slot(lidar: str, camera: str) -> str:
     """The acceptance slot of a LiDAR's transform to a camera (the one :func:`backend.services.rig.slot_of` gives
     its records)."""
-    return f"{lidar}/T_{camera}_{lidar}"
+    return edge_slot(camera, lidar)
 
 
 def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:

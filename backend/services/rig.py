@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.core.rig import Rig
+from backend.core.rig import Rig, edge_slot
 from backend.core.transforms import params_between
 from backend.services import intrinsics as intrinsics_service
 from backend.services import multicam as multicam_service
@@ -83,10 +83,10 @@ def slot_of(record: dict[str, Any]) -> str:
     if kind == "sweep":
         return f"{record['sensor']}/sweep"
     if kind == "multicam":
-        return f"multicam:{'+'.join(sorted(record['camera_order']))}"
+        return multicam_service.slot(record["camera_order"])
     if kind in EDGE_KINDS:
         transform = record_transforms(record)[0]
-        return f"{transform.child}/T_{transform.parent}_{transform.child}"
+        return edge_slot(transform.parent, transform.child)
     raise InputError(f"result {record.get('id')} is a {kind!r} result, which cannot be accepted", "result")
 
 
