@@ -264,7 +264,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
               f"overlay differs from the truth's in {near:.2%} of pixels solved, {far:.2%} off; {drawn.group(0)}")
         assert near < far / 3, f"the solved overlay is not back at the truth's ({near:.2%} vs {far:.2%} off)"
 
-        page.get_by_text("Before / after", exact=True).click()
+        unfold(page, "Before / after", labelled_image(page, "Before"))
         for label in ("Before", "After"):
             image = labelled_image(page, label)
             expect(image).to_be_visible()
