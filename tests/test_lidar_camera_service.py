@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from backend.core.errors import InputError
+from backend.core.rig import edge_slot
 from backend.core.transforms import from_xyz_ypr, transform_error
 from backend.services import lidar_camera as service
 from backend.services import rig as rig_service
@@ -41,7 +42,7 @@ def test_a_hand_set_transform_is_a_transform_result_between_the_rig_frames(sessi
                                                                          "lidar_front")
     np.testing.assert_allclose(result.T_parent_child, T, atol=1e-12)
     assert np.isnan(result.covariance).all() and result.std == {"trans_m": [None] * 3, "rot_deg": [None] * 3}
-    assert rig_service.slot_of(record) == SLOT == service.slot("lidar_front", "cam_front")
+    assert rig_service.slot_of(record) == SLOT == edge_slot("cam_front", "lidar_front")
     np.testing.assert_allclose(service.result_transform(session, "lidar_front", result_id), T, atol=1e-12)
     # A record kept before the results were transform results (its transform under its own name) still reads.
     legacy = session.add_result("lidar_front", {"kind": "lidar_camera", "method": "target", "camera": "cam_front",

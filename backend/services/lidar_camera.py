@@ -26,7 +26,6 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
-from backend.core.rig import edge_slot
 from backend.core.transforms import check_transform
 from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
@@ -179,12 +178,6 @@ def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> 
         within = np.fmax(within, std_groups)
     ratio_check(builder, "leave one of the pairs out", std_pairs / np.maximum(within, 1e-12),
                 MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
-
-
-def slot(lidar: str, camera: str) -> str:
-    """The acceptance slot of a LiDAR's transform to a camera (the one :func:`backend.services.rig.slot_of` gives
-    its records)."""
-    return edge_slot(camera, lidar)
 
 
 def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:

@@ -33,6 +33,7 @@ import numpy as np
 from backend.core.errors import InputError
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
 from backend.core.projection import colourise_cloud
+from backend.core.rig import edge_slot
 from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
 from backend.services import lidar_camera as lidar_camera_service
@@ -176,7 +177,7 @@ class LidarCameraStep:
         if pair is None:  # not the previous pair's static_transform_publisher line
             self.editor.text.content = "Pick a camera and a LiDAR."
         self._list_scenes()
-        accepted = None if pair is None else self.ctx.session.accepted(lidar_camera_service.slot(pair[1], pair[0]))
+        accepted = None if pair is None else self.ctx.session.accepted(edge_slot(*pair))
         self._show_result(self.history.fill(self._pair_results(), accepted), move_sliders=False)
 
     def _stored_pairs(self) -> list[pairs_service.CapturePair]:
@@ -276,7 +277,7 @@ class LidarCameraStep:
         record = session.result(result_id)
         if move_sliders:
             self.editor.set(rig_service.record_transforms(record)[0].T_parent_child)
-        self.card.show(record, session.accepted(lidar_camera_service.slot(pair[1], pair[0])))
+        self.card.show(record, session.accepted(edge_slot(*pair)))
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
             stored = name in record.get("files", [])  # a transform set by hand has none
             handle.image = read_image(session.result_file(result_id, name))[..., ::-1] if stored else PLACEHOLDER
