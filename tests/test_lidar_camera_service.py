@@ -59,7 +59,8 @@ def test_a_hand_set_transform_is_accepted_and_reverted(session):
     assert info.value.input == "confirm" and session.accepted(SLOT) is None
     far_m, far_deg = _off_by(session, first)
     rig_service.accept(session, first_id, confirm=True)
-    # The edge's assumed sigma (1 cm, 1 deg) against the mounting guesses' (5 cm, 5 deg): the tree takes the edge.
+    # The edge's assumed sigma (rig_service.MANUAL_SIGMA) against the mounting guesses' (5 cm, 5 deg): the tree takes
+    # the edge.
     near_m, near_deg = _off_by(session, first)
     assert far_m > 0.019 and far_deg > 0.99 and near_m < 0.001 and near_deg < 0.01, (near_m, near_deg)
 
