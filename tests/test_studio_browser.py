@@ -31,7 +31,8 @@ CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
 """``backend.sim.demo_rig.CAM_WIDE``: what the simulated wide camera really is."""
 MIN_VIEWS = 12
 VIEWS_RE = re.compile(r"(\d+) views ·")
-RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · (pinhole-radtan|fisheye-equidistant) 1280×720")
+RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · intrinsics[\s\S]*?"
+                       r"(pinhole-radtan|fisheye-equidistant) 1280×720")
 
 
 @pytest.fixture
@@ -71,7 +72,7 @@ def _settled_views(page: Page, quiet_s: float = 4.0, timeout_s: float = 60.0) ->
 
 def _scroll_to_result(page: Page) -> None:
     page.get_by_text("Per-view RMS", exact=True).scroll_into_view_if_needed()
-    page.get_by_text(re.compile(r"^RMS \d")).scroll_into_view_if_needed()
+    page.get_by_text(re.compile(r"^reprojection RMS \d")).scroll_into_view_if_needed()
     time.sleep(0.5)
 
 
@@ -140,7 +141,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     assert match.group(2) == "not accepted", _body(page)
     result_id = match.group(1)
     body = _body(page)
-    assert re.search(r"RMS \d+\.\d+ px over \d+ views", body), body
+    assert re.search(r"reprojection RMS \d+\.\d+ px[\s\S]*\d+ views used", body), body
     for text in ("fx", "fy", "cx", "cy", "k1", "σ", "Verdict:", "Cross-validation (two halves):", "Model:",
                  "held-out RMS (px)", "pinhole-rational", "Corners:"):
         assert text in body, f"{text!r} missing from the result"
@@ -157,12 +158,15 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     assert record["model_comparison"]["status"] == "compared", record["model_comparison"]
     print(f"cam_wide verdict {level}: {record['verdict']['reasons']}; model {record['model_comparison']['reason']}")
     assert level != "reject", record["verdict"]  # the wide lens gets k3 (or fisheye) from auto
+    # the result card's Accept (step 3 comes first; later steps have their own) first shows what the rig would do
+    button(page, "Accept").first.click()
+    expect(page.get_by_text(f"Accepting {result_id} would:", exact=False)).to_be_visible()
     if level == "check":  # a 'check' is refused until confirmed
-        button(page, "Accept selected result").click()
+        button(page, "Apply accept").first.click()
         expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=15_000)
         assert not studio.get("/api/sessions/demo")["accepted"].get("cam_wide/intrinsics")
-        page.get_by_label("Confirm the check").first.check()  # step 3 comes first; later steps have their own
-    button(page, "Accept selected result").click()
+        page.get_by_label("Confirm the check").first.check()
+    button(page, "Apply accept").first.click()
     expect(page.get_by_text(f"{result_id} (✅ accepted)", exact=False)).to_be_visible()
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("cam_wide/intrinsics") == result_id, session

@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 VIEWPORT = {"width": 1600, "height": 2000}
 VELO_LIVE_RE = re.compile(r"velo_sim\s+([\d.]+) Hz, ([\d,]+) pts drawn")
-SWEEP_RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · ✅ converged · (\d+) planes")
+SWEEP_RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · sweep · [\d.]+ s")
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
 
 
@@ -109,17 +109,27 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
         button(page, "Calibrate").click()
         match = wait_body(page, SWEEP_RESULT_RE, timeout_s=120)
         result_id = match.group(1)
+        # the result card (the scanner's pose at servo zero, its sigma, the verdict) and the sweep's own panel
+        wait_body(page, re.compile(r"sweep_3d → sweep_3d_scanner: .* m · .*\s+1σ: n/a, \d+\.\d+, \d+\.\d+ mm"),
+                  timeout_s=5)
         body = page.inner_text("body")
-        for text in ("Optical centre from the servo axis (mm)", "Servo zero offset (°)", "Plane RMS"):
+        for text in ("Verdict:", "Sweep geometry · ", "Optical centre in the servo frame (mm)", "servo zero offset (°)",
+                     "Estimated (1σ): offset u ± ", "rms_after "):
             assert text in body, f"{text!r} missing from the result"
         page.get_by_text("The sweep as a LiDAR image", exact=False).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_sweep.png")
 
-        button(page, "Accept").click()
+        # the card's Accept (the one after this step's Calibrate) first previews what the rig would do, then applies
+        calibrate = button(page, "Calibrate")
+        calibrate.locator("xpath=following::button[normalize-space(.)='Accept'][1]").click()
+        wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+        calibrate.locator("xpath=following::button[normalize-space(.)='Apply accept'][1]").click()
         wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
+        page.screenshot(path=ARTIFACTS / "studio_sweep_accepted.png")
 
     record = studio.get(f"/api/sessions/demo/results/{result_id}")
-    assert studio.get("/api/sessions/demo")["accepted"]["sweep_3d/sweep_geometry"] == result_id
+    assert studio.get("/api/sessions/demo")["accepted"]["sweep_3d/sweep"] == result_id
+    assert record["transform"]["parent"] == "sweep_3d" and record["transform"]["child"] == "sweep_3d_scanner"
     frames = {f["name"]: f for f in studio.get("/api/sessions/demo/rig")["frames"]}
     assert frames["sweep_3d"]["device"]["geometry"] == record["geometry"]
     found = SweepGeometry.from_dict(record["geometry"])

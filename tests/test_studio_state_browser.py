@@ -38,7 +38,8 @@ FAILED_STARTS = 6
 """Failed starts in a row: the failure is reported by the capture thread, racing the click that started it."""
 PREVIEW_GREY = 40
 """The live preview's blank frame (no capture of this camera yet)."""
-RESULT_RE = re.compile(r"r\d{4} \((not accepted|✅ accepted)\) · (pinhole-radtan|fisheye-equidistant)")
+RESULT_RE = re.compile(r"r\d{4} \((not accepted|✅ accepted)\) · intrinsics[\s\S]*?"
+                       r"(pinhole-radtan|fisheye-equidistant)")
 
 
 def _post(studio: Studio, path: str, **kwargs) -> dict:
