@@ -18,18 +18,19 @@ from backend.core.transforms import to_xyz_ypr
 from backend.services import rig as rig_service
 from backend.solvers.rig_graph import FLAG_SIGMA, EdgeResidual, RigTree
 from studio.context import StudioContext
-from studio.scene import ELLIPSOID_MAX_M, edge_colour
+from studio.scene import ELLIPSOID_MAX_M
 
 NONE = "(no accepted edge)"
 HELP = ("The rig as one tree: every accepted result is an edge between two frames, the mounting guesses weak "
         "priors; the tree is their least-squares fit. An edge whose residual disagrees with the rest beyond "
-        f"{FLAG_SIGMA:g} sigma is marked 🔴 and left out: revert it, or revert what it disagrees with.")
+        f"{FLAG_SIGMA:g} sigma is marked 🔴 and left out: revert it, or revert what it disagrees with. 🟢: within "
+        f"{FLAG_SIGMA:g} sigma of the rest (the disagreement column says when no other edge checks it); ⚪: not in "
+        "the fit (it reaches no frame connected to the root).")
 ELLIPSOID_SCALES = {"auto": None, "×1": 1.0, "×10": 10.0, "×100": 100.0, "×1000": 1000.0}
 """How much the sigma ellipsoids are scaled up; *auto* is :func:`auto_scale`."""
 AUTO_TARGET_M = 0.1
 """*auto* draws the median frame's largest 1-sigma semi-axis at most this long (m)."""
 DOWNLOADS = {"URDF": "urdf", "ROS 2 launch file": "launch", "rig YAML": "rig"}
-COLOUR_MARKS = {"green": "🟩", "amber": "🟨", "red": "🟥", "grey": "⬜"}
 
 
 def _numbers(values, fmt: str, factor: float = 1.0) -> str:
@@ -53,30 +54,31 @@ def frames_markdown(tree: RigTree) -> str:
     for name, frame in tree.frames.items():
         xyz_m, ypr_rad = to_xyz_ypr(frame.T_parent_child)
         std = frame.std
-        rows.append(f"| {name} | {frame.parent} | {_numbers(xyz_m, '.4f')} | {_numbers(np.degrees(ypr_rad), '.2f')} "
-                    f"| {_numbers(std['trans_m'], '.2f', 1000.0)} | {_numbers(std['rot_deg'], '.3f')} |")
+        rows.append(f"| {name} | {frame.parent} | {_numbers(xyz_m, '.3f')} | {_numbers(np.degrees(ypr_rad), '.2f')} "
+                    f"| {_numbers(std['trans_m'], '.1f', 1000.0)} | {_numbers(std['rot_deg'], '.2f')} |")
     return "\n".join(rows)
 
 
 def edge_mark(residual: EdgeResidual) -> str:
-    """🔴 flagged, 🟢 within :data:`FLAG_SIGMA` of the rest, ⚪ nothing else checks it (or it is not in the fit)."""
+    """🔴 flagged (beyond :data:`FLAG_SIGMA` of the rest, left out), 🟢 within it, ⚪ not in the fit."""
     if residual.flagged:
         return "🔴"
-    return "⚪" if residual.disagreement_sigma is None else "🟢"
+    return "🟢" if np.isfinite(residual.chi2) else "⚪"
 
 
 def edges_markdown(tree: RigTree) -> str:
     """Every edge: its mark, frames, kind, result, residual against the tree (mm, deg, chi2/6), disagreement."""
-    rows = ["| | parent → child | kind | result | residual mm / ° / χ² | disagreement (σ) | line |",
-            "|---|---|---|---|---|---|---|"]
+    rows = ["| | parent → child | kind | result | residual mm / ° / χ² | disagreement (σ) |",
+            "|---|---|---|---|---|---|"]
     for residual in tree.edges:
         edge = residual.edge
         fitted = np.isfinite(residual.chi2)
         value = (f"{residual.trans_m * 1000:.2f} / {residual.rot_deg:.3f} / {residual.chi2:.2f}" if fitted
                  else "not in the fit")
-        disagreement = "–" if residual.disagreement_sigma is None else f"{residual.disagreement_sigma:.1f}"
+        disagreement = ("no other edge checks it" if residual.disagreement_sigma is None
+                        else f"{residual.disagreement_sigma:.1f}")
         rows.append(f"| {edge_mark(residual)} | {edge.parent} → {edge.child} | {edge.kind} | {edge.result_id or '–'} "
-                    f"| {value} | {disagreement} | {COLOUR_MARKS[edge_colour(residual)]} |")
+                    f"| {value} | {disagreement} |")
     return "\n".join(rows)
 
 
@@ -168,7 +170,8 @@ class RigStep:
         self.scale_note.content = (
             f"The 3D view (*Rig tree* layer): each frame's 1-sigma ellipsoid of its origin in {self.tree.root} axes, "
             f"drawn **×{scale:g}** to be visible (wireframe: cut at {ELLIPSOID_MAX_M:g} m); each edge a line "
-            "coloured by its residual: 🟩 χ² ≤ 1, 🟨 ≤ 9, 🟥 beyond or flagged, ⬜ not in the fit.")
+            "coloured by its residual: green χ² ≤ 1, amber ≤ 9, red beyond or flagged, grey not in the fit; mounting "
+            "priors thinner.")
         self.ctx.scene.show_rig_tree(self.tree, scale)
 
     def _revert(self) -> None:
