@@ -134,8 +134,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write every T_ref_cam with its sigma and static_transform_publisher line")
     mc.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
-    from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS
-
     target = sub.add_parser("target", help="a printable calibration board as a PDF at exact scale")
     target.add_argument("spec", metavar="SPEC",
                         help="board spec, e.g. checkerboard:9x6:0.025 or charuco:11x8:0.03:0.022:DICT_5X5_100")
@@ -145,6 +143,12 @@ def build_parser() -> argparse.ArgumentParser:
                              "portrait or landscape")
     target.add_argument("--margin-mm", type=float, default=10.0, metavar="MM",
                         help="white margin around the sheet's edge (mm, default 10, at least 5)")
+
+    from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS
+
+    rig = sub.add_parser("rig", help="the session's rig as one fused tree: every accepted edge's residual, the loops")
+    rig.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
+    rig.add_argument("--json", action="store_true", help="print the tree as one JSON object")
 
     export = sub.add_parser("export", help="export the session's rig or an accepted calibration")
     export.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
@@ -443,6 +447,31 @@ def run_target(args: argparse.Namespace) -> None:
           file=sys.stderr)
 
 
+def run_rig(args: argparse.Namespace) -> dict[str, Any]:
+    """The fused tree of a session (nothing is written); problems (flagged edges, unconnected frames) on stderr."""
+    from backend.services.rig import solve_rig
+    from backend.store.session import Session
+
+    tree = solve_rig(Session.load(args.session_dir))
+    for problem in tree.problems():
+        print(f"warning: {problem}", file=sys.stderr)
+    summary = tree.summary()
+    if not args.json:
+        for name, frame in summary["frames"].items():
+            xyz = ", ".join(f"{row[3]:.4f}" for row in frame["T_parent_child"][:3])
+            sigma = ", ".join("n/a" if v is None else f"{1000 * v:.2f}" for v in frame["std"]["trans_m"])
+            print(f"{frame['parent']} -> {name}: {xyz} m (1 sigma {sigma} mm)")
+        for edge in summary["edges"]:
+            residual = edge["residual"]
+            print(f"edge {edge['result_id'] or 'prior'} {edge['parent']} -> {edge['child']}: "
+                  f"{1000 * residual['trans_m']:.2f} mm, {residual['rot_deg']:.3f} deg, chi2 {residual['chi2']:.2f}"
+                  + (" FLAGGED" if edge["flagged"] else ""))
+        for loop in summary["loops"]:
+            print(f"loop {' -> '.join(loop['frames'])}: closes to {1000 * loop['trans_m']:.2f} mm, "
+                  f"{loop['rot_deg']:.3f} deg")
+    return summary
+
+
 def run_report(args: argparse.Namespace) -> None:
     """Write the session's calibration report (HTML, plots and CSS inline) to ``--out``."""
     from backend.services.report import render_report
@@ -509,7 +538,7 @@ def main(argv: list[str] | None = None) -> int:
 
             return serve(args)
         run = {"intrinsics": run_intrinsics, "lidar-lidar": run_lidar_lidar, "lidar-camera": run_lidar_camera,
-               "multicam": run_multicam}
+               "multicam": run_multicam, "rig": run_rig}
         if args.command in run:
             summary = run[args.command](args)
             if want_json:
