@@ -16,7 +16,7 @@ import pytest
 
 from backend.core.errors import InputError, NotFoundError
 from backend.core.rig import Frame, Rig
-from backend.core.transforms import apply_params, invert, params_between
+from backend.core.transforms import apply_params, invert, make_T, params_between
 from backend.core.verdict import Verdict
 from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
@@ -68,6 +68,11 @@ def _session(tmp_path: Path, rig: Rig, name: str = "loop"):
 
 def _store(session, result: TransformResult) -> str:
     return session.add_result(result.child, result.to_record(), inputs=[])
+
+
+def _shifted(result: TransformResult, xyz_m: list[float]) -> TransformResult:
+    """``result`` with its child moved by ``xyz_m`` (m, child axes): a corrupted measurement."""
+    return replace(result, T_parent_child=result.T_parent_child @ make_T(np.eye(3), np.array(xyz_m, float)))
 
 
 def _error(T_estimate: np.ndarray, T_true: np.ndarray) -> np.ndarray:
@@ -141,8 +146,7 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
     truth = _truth()
     session = _session(tmp_path, _rig(truth, rng))
     good, good_again, bad = _measured(truth, rng)
-    bad = replace(bad, T_parent_child=bad.T_parent_child @ np.array(
-        [[1, 0, 0, 0.05], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+    bad = _shifted(bad, [0.05, 0, 0])
     for result in (good, good_again):
         rig_service.accept(session, _store(session, result))
     before = {name: session.rig.T_root_frame(name) for name in FRAMES}
@@ -169,8 +173,7 @@ def test_keeping_the_new_edge_reverts_the_one_it_disagrees_with(tmp_path: Path) 
     truth = _truth()
     session = _session(tmp_path, _rig(truth, rng))
     first, second, third = _measured(truth, rng)
-    wrong = replace(first, T_parent_child=first.T_parent_child @ np.array(
-        [[1, 0, 0, 0.0], [0, 1, 0, 0.05], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+    wrong = _shifted(first, [0, 0.05, 0])
     wrong_id = _store(session, wrong)
     for result in (wrong, second):
         rig_service.accept(session, wrong_id if result is wrong else _store(session, result))
@@ -251,8 +254,7 @@ def _loop_session(tmp_path: Path, corrupt_last: bool = False):
     session = _session(tmp_path, _rig(truth, rng))
     results = _measured(truth, rng)
     if corrupt_last:
-        results[-1] = replace(results[-1], T_parent_child=results[-1].T_parent_child @ np.array(
-            [[1, 0, 0, 0.0], [0, 1, 0, 0.0], [0, 0, 1, 0.05], [0, 0, 0, 1.0]]))
+        results[-1] = _shifted(results[-1], [0, 0, 0.05])
     ids = [_store(session, result) for result in results]
     for result_id in ids:
         rig_service.accept(session, result_id)

@@ -24,6 +24,15 @@ DEFAULT_MOUNT_SIGMA = (0.05, 5.0)
 """1-sigma (m, deg) of a mounting guess (tape, CAD) when none is given: a weak prior the calibrations override."""
 
 
+def covariance_sigmas(covariance: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """1-sigma translation (m, per parent axis) and rotation (deg, about the child's x, y, z) of a transform's 6x6
+    covariance (``[t (m), r (rad)]``), or None without one."""
+    if covariance is None:
+        return None
+    std = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    return std[:3], np.degrees(std[3:])
+
+
 def edge_slot(parent: str, child: str) -> str:
     """The name of the relation ``T_parent_child`` between two frames, as the session's acceptance slots call it
     (``lidar_top/T_cam_front_lidar_top``): one accepted result per relation."""
@@ -74,10 +83,7 @@ class Frame:
     @property
     def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:
         """1-sigma translation (m, per axis) and rotation (deg, about child x, y, z)."""
-        if self.covariance is None:
-            return None
-        std = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        return std[:3], np.degrees(std[3:])
+        return covariance_sigmas(self.covariance)
 
 
 @dataclass

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from backend.core.errors import InputError, shorten
-from backend.core.rig import Frame, Rig
+from backend.core.rig import Frame, Rig, covariance_sigmas
 from backend.core.transforms import R_BODY_OPTICAL, invert, make_T
 from backend.exports.formats import CONVENTIONS, Convention
 
@@ -50,10 +50,7 @@ class ExportedFrame:
     @property
     def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:
         """1-sigma translation (m, per parent axis) and rotation (deg, about the child's x, y, z), or None."""
-        if self.covariance is None:
-            return None
-        std = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        return std[:3], np.degrees(std[3:])
+        return covariance_sigmas(self.covariance)
 
 
 def export_frames(rig: Rig, convention: Convention = "optical") -> list[ExportedFrame]:
