@@ -51,8 +51,8 @@ EDGE_COLOURS = {"green": (40, 170, 70), "amber": (240, 170, 20), "red": (220, 40
 (the edge reaches no fused frame) grey."""
 
 
-def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
-    """viser ``wxyz`` / ``position`` keyword arguments of a 4x4 transform."""
+def viser_pose(T: np.ndarray) -> dict[str, np.ndarray]:
+    """viser ``wxyz`` / ``position`` keyword arguments of a 4x4 transform (m)."""
     se3 = vtf.SE3.from_matrix(T)
     return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
 
@@ -165,7 +165,7 @@ class RigScene:
         each frustum takes its camera's current field of view; frames new to the rig are drawn.
         """
         for frame in rig.frames.values():
-            pose = _pose(rig.T_root_frame(frame.name))
+            pose = viser_pose(rig.T_root_frame(frame.name))
             handle = self._frames.get(frame.name)
             if handle is not None:
                 handle.wxyz, handle.position = pose["wxyz"], pose["position"]
@@ -209,7 +209,7 @@ class RigScene:
         T_root_camera = rig.T_root_frame(camera)
         self._boards[f"{step}/{kind}"] = [
             self.server.scene.add_image(f"{root}/{i}", texture, render_width=width_m, render_height=height_m,
-                                        format="png", **_pose(T_root_camera @ T_camera_board @ T_board_plane))
+                                        format="png", **viser_pose(T_root_camera @ T_camera_board @ T_board_plane))
             for i, T_camera_board in enumerate(T_camera_boards)
         ]
 
@@ -240,7 +240,7 @@ class RigScene:
             node = f"{root}/cameras/{name}"
             camera = cameras[name]
             self._solved.append(scene.add_frame(node, axes_length=0.05, axes_radius=0.003,
-                                                **_pose(T_root_ref @ T_ref_cam)))
+                                                **viser_pose(T_root_ref @ T_ref_cam)))
             self._solved.append(scene.add_camera_frustum(
                 f"{node}/frustum", fov=float(camera.fov_y_rad), aspect=camera.width / camera.height,
                 scale=FRUSTUM_SCALE_M, color=SOLVED_COLOUR))
@@ -249,7 +249,7 @@ class RigScene:
         texture, width_m, height_m, T_board_plane = _board_drawing(board)
         self._solved += [
             scene.add_image(f"{root}/boards/{name}", texture, render_width=width_m, render_height=height_m,
-                            format="png", **_pose(T_root_ref @ T_ref_board @ T_board_plane))
+                            format="png", **viser_pose(T_root_ref @ T_ref_board @ T_board_plane))
             for name, T_ref_board in T_ref_boards.items()
         ]
 

@@ -29,7 +29,6 @@ import time
 
 import numpy as np
 import viser
-import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
 from backend.core.errors import InputError
@@ -45,6 +44,7 @@ from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
+from studio.scene import viser_pose
 from studio.transform_sliders import TransformSliders
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
@@ -69,11 +69,6 @@ SCENES_HELP = ("Tick the capture pairs to solve from (source ↔ target). Pairs 
                "transform is solved for all of them, and each scene's own solve cross-checks the others.")
 LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
              "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
-
-
-def _pose(T: np.ndarray) -> dict[str, np.ndarray]:
-    se3 = vtf.SE3.from_matrix(T)
-    return {"wxyz": se3.rotation().wxyz, "position": se3.translation()}
 
 
 def wire_faults(meta: dict) -> str:
@@ -288,7 +283,7 @@ class LidarStep:
             if sensor not in self._sensor_nodes:
                 self._sensor_nodes[sensor] = self.ctx.server.scene.add_frame(
                     f"{self.ctx.scene.group(STEP)}/{sensor}", show_axes=False,
-                    **_pose(self.ctx.session.rig.T_root_frame(sensor)))
+                    **viser_pose(self.ctx.session.rig.T_root_frame(sensor)))
             return self._sensor_nodes[sensor].name
 
     def _place_sensors(self) -> None:
@@ -298,7 +293,7 @@ class LidarStep:
         with self._nodes_lock:
             for sensor, node in self._sensor_nodes.items():
                 if sensor in session.rig.frames:
-                    pose = _pose(session.rig.T_root_frame(sensor))
+                    pose = viser_pose(session.rig.T_root_frame(sensor))
                     node.wxyz, node.position = pose["wxyz"], pose["position"]
 
     def _rates(self, live: dict[str, LiveClouds]) -> str:
@@ -376,7 +371,7 @@ class LidarStep:
     def _on_slider(self, T: np.ndarray) -> None:
         node = self._source_node
         if node is not None:  # the live nudge: only the pose travels
-            pose = _pose(T)
+            pose = viser_pose(T)
             node.wxyz, node.position = pose["wxyz"], pose["position"]
             self._schedule_recolour()
 
@@ -457,7 +452,7 @@ class LidarStep:
             points = clouds[source].astype(np.float32)
             lidars = self._lidars()
             node = scene.add_point_cloud(f"{root}/source", points, cc.sensor_colour(lidars.index(source)),
-                                         point_size=size, precision="float32", **_pose(self.slider_T()))
+                                         point_size=size, precision="float32", **viser_pose(self.slider_T()))
             self._l2l_nodes.append(node)
             with self._lock:
                 self._source_node, self._source_points = node, points
