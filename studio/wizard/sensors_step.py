@@ -213,8 +213,9 @@ class SensorsStep:
 
     def _show(self, session) -> None:
         self.parent.options = list(session.rig.frames)
-        lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`, {_mount_text(f.mount_sigma)}"
-                 f"{' · ' + f.device.get('driver', '') if f.device else ''}" for f in session.rig.sensors()]
+        lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`"
+                 f"{' · ' + f.device.get('driver', '') if f.device else ''} · {_mount_text(f.mount_sigma)}"
+                 for f in session.rig.sensors()]
         self.listing.content = "\n".join(lines) or "No sensors yet."
 
 
