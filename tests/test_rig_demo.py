@@ -42,6 +42,10 @@ def _calibrate_camera(session, camera: str) -> str:
     return intrinsics_service.solve_session(session, camera, IntrinsicsSettings())[0]
 
 
+CALIBRATED = {"cam_front", "cam_right", "lidar_top", "lidar_front"}
+"""The frames the accepted results reach: their mounting priors are checked by those results."""
+
+
 @pytest.mark.slow
 def test_every_accepted_edge_of_the_demo_holds_within_3_sigma(demo_template: Path, tmp_path: Path) -> None:
     session = SessionStore(fresh_demo(demo_template, tmp_path / "sessions")).get("demo")
@@ -64,7 +68,7 @@ def test_every_accepted_edge_of_the_demo_holds_within_3_sigma(demo_template: Pat
     measured = {e.edge.result_id: e for e in tree.edges if e.edge.kind != "prior"}
     assert set(measured) == {lidar_lidar_id, lidar_camera_id, multicam_id}
     for edge in tree.edges:  # a frame with only its mounting guess (cam_wide, the scanners) has nothing to check it
-        constrained = edge.edge.kind != "prior" or edge.edge.child in {"cam_front", "cam_right", "lidar_top", "lidar_front"}
+        constrained = edge.edge.kind != "prior" or edge.edge.child in CALIBRATED
         assert (edge.disagreement_sigma is not None) == constrained, edge.to_dict()
         assert edge.disagreement_sigma is None or edge.disagreement_sigma < FLAG_SIGMA, edge.to_dict()
     # the LiDAR-LiDAR edge still holds after the LiDAR-camera accept moved lidar_top: within its own sigma

@@ -22,6 +22,8 @@ from conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
 from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
+from backend.exports.target_pdf import board_sheet
+
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 VIEWPORT = {"width": 1600, "height": 1000}
@@ -201,3 +203,20 @@ def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_c
     page.wait_for_timeout(1000)  # let the toast finish sliding in before the picture
     page.screenshot(path=ARTIFACTS / "studio_bad_upload.png")
     assert httpx.get(captures_url).json() == before
+
+
+def test_session_step_downloads_the_sessions_board(browser: Browser, studio: Studio) -> None:
+    board = studio.get("/api/sessions/demo")["board"]
+    sheet = board_sheet(board)
+    with studio_page(browser, studio.url, {"width": 1600, "height": 1000}) as page:
+        choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
+        button(page, "Print the target").click()
+        expect(page.get_by_text("Cannot print the target")).to_be_visible()
+        expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
+        choose(page, "Paper", "auto")
+        button(page, "Print the target").click()
+        with page.expect_download() as download:
+            page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
+        saved = Path(download.value.path()).read_bytes()
+        assert download.value.suggested_filename == sheet.filename
+    assert saved == sheet.pdf  # the sheet test_target_pdf.py measures

@@ -2,7 +2,7 @@
 
 The squares (and ChArUco markers) must print at the spec's size within 0.2 mm, the page must be the paper's size,
 the spec and the print instruction must be on the sheet as text, and the scale bar must be 100 mm. The CLI, the API
-and the studio's session step serve the same sheet.
+and the studio's session step (tests/test_studio_browser.py, beside the studio it shares) serve the same sheet.
 """
 
 from __future__ import annotations
@@ -14,9 +14,7 @@ import cv2
 import numpy as np
 import pypdfium2 as pdfium
 import pytest
-from conftest import Studio, button, choose, studio_page
 from fastapi.testclient import TestClient
-from playwright.sync_api import Browser, expect
 
 from backend.api.app import create_app
 from backend.core.boards import BoardSpec
@@ -203,23 +201,3 @@ def test_api_serves_the_sheet(tmp_path: Path) -> None:
             answer = client.get("/api/targets/pdf", params=params)
             assert answer.status_code == status, (params, answer.text)
             assert answer.json()["error"]["input"] == input_name, (params, answer.json())
-
-
-@pytest.mark.browser
-@pytest.mark.slow
-def test_session_step_downloads_the_sessions_board(browser: Browser, studio: Studio) -> None:
-    board = studio.get("/api/sessions/demo")["board"]
-    sheet = board_sheet(board)
-    with studio_page(browser, studio.url, {"width": 1600, "height": 1000}) as page:
-        choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
-        button(page, "Print the target").click()
-        expect(page.get_by_text("Cannot print the target")).to_be_visible()
-        expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
-        choose(page, "Paper", "auto")
-        button(page, "Print the target").click()
-        with page.expect_download() as download:
-            page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
-        saved = Path(download.value.path()).read_bytes()
-        assert download.value.suggested_filename == sheet.filename
-    assert saved == sheet.pdf
-    assert board in rasterise(saved)[2]
