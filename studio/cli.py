@@ -60,6 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="open the studio on a demo session of the simulated rig")
     demo.add_argument("--sessions", type=Path, default=Path("sessions"), help="where the demo session is kept")
     demo.add_argument("--fresh", action="store_true", help="rebuild the demo session from scratch")
+    demo.add_argument("--rig", choices=["default", "depth-cell"], default="default",
+                      help="default: the simulated robot rig; depth-cell: six simulated Kinect v2 nodes over a "
+                           "10 x 15 x 5 m cell, each its own node-agent process")
     _add_serve_args(demo)
 
     serve = sub.add_parser("serve", help="serve the studio on a folder of sessions")
@@ -166,6 +169,28 @@ def build_parser() -> argparse.ArgumentParser:
     report = sub.add_parser("report", help="the session's calibration report: one self-contained HTML file")
     report.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/demo")
     report.add_argument("--out", type=Path, required=True, metavar="report.html", help="the HTML file to write")
+
+    network = sub.add_parser("depth-network", help="a depth-camera network: every node's pose in the world with "
+                                                   "its uncertainty, and the laser-distance verification")
+    network.add_argument("session_dir", type=Path, help="the session folder, e.g. sessions/depth-cell")
+    network.add_argument("--solve", action="store_true",
+                         help="solve every node from its captures first (and accept the results into the rig)")
+    network.add_argument("--json", action="store_true", help="print the network as one JSON object")
+
+    node = sub.add_parser("node", help="run a node agent on a sensor's computer: publish its frames over Zenoh "
+                                       "and answer the studio's capture requests")
+    node.add_argument("--name", required=True, help="the node's name in the rig, e.g. sn1")
+    node.add_argument("--device", required=True,
+                      help="what to capture from: sim-cell:NODE, kinect2[:SERIAL], realsense[:SERIAL], "
+                           "depth-files:DIR, or a driver's JSON settings")
+    node.add_argument("--connect", action="append", default=[], metavar="tcp/HOST:7447",
+                      help="a Zenoh endpoint to connect to (the studio's or a router's); repeatable")
+    node.add_argument("--listen", action="append", default=[], metavar="tcp/0.0.0.0:7448",
+                      help="a Zenoh endpoint to listen on; repeatable")
+    node.add_argument("--rate", type=float, default=None, metavar="HZ",
+                      help="frames published per second (default: the device's own rate)")
+    node.add_argument("--voxel", type=float, default=0.02, metavar="M",
+                      help="voxel size (m) of the published, compressed clouds (default 0.02; captures are full)")
     return parser
 
 
@@ -482,6 +507,27 @@ def run_report(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}", file=sys.stderr)
 
 
+def run_depth_network(args: argparse.Namespace) -> dict[str, Any]:
+    """Every node's ``T_world_node`` with its sigma and verdict, and the verification table (solving first with
+    ``--solve``); the pose table on stdout without ``--json``."""
+    from backend.services.depth_network import network_summary, pose_table_text
+    from backend.store.session import Session
+
+    session = Session.load(args.session_dir)
+    summary = network_summary(session, solve=args.solve, progress=_progress_to_stderr(False))
+    if not args.json:
+        print(pose_table_text(summary))
+    return summary
+
+
+def run_node(args: argparse.Namespace) -> int:
+    """Serve one sensor over Zenoh until interrupted."""
+    from backend.devices.node_agent import run_agent
+
+    return run_agent(name=args.name, device=args.device, connect=args.connect, listen=args.listen,
+                     rate_hz=args.rate, voxel_m=args.voxel)
+
+
 def run_export(args: argparse.Namespace) -> None:
     from backend.services.exports import export_text
     from backend.store.session import Session
@@ -538,7 +584,7 @@ def main(argv: list[str] | None = None) -> int:
 
             return serve(args)
         run = {"intrinsics": run_intrinsics, "lidar-lidar": run_lidar_lidar, "lidar-camera": run_lidar_camera,
-               "multicam": run_multicam, "rig": run_rig}
+               "multicam": run_multicam, "rig": run_rig, "depth-network": run_depth_network}
         if args.command in run:
             summary = run[args.command](args)
             if want_json:
@@ -549,6 +595,8 @@ def main(argv: list[str] | None = None) -> int:
             run_report(args)
         elif args.command == "target":
             run_target(args)
+        elif args.command == "node":
+            return run_node(args)
         return 0
     except InputError as exc:
         return _fail(exc, want_json, EXIT_INPUT_ERROR)

@@ -42,6 +42,9 @@ class Sample:
     """(N, 3) float64 points in the sensor's frame (m), for range sensors; z = 0 for a 2D scanner."""
     intensity: np.ndarray | None = None
     """(N,) float32 return intensity of each point, in the sensor's own units, when it reports one."""
+    depth: np.ndarray | None = None
+    """(H, W) float32 depth along the optical axis (m, 0 = no return), for depth cameras; ``points`` and
+    ``intensity`` then hold its valid pixels (node frame) and their IR amplitude."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Driver facts worth keeping (source file, frame index, ground truth in simulation)."""
 
