@@ -120,3 +120,44 @@ class CaptureRecord(BaseModel):
     board: str | None = None
     detection: dict[str, Any] | None = None
     meta: dict[str, Any] = Field(default_factory=dict)
+
+
+DEPTH_NETWORK_VERSION = 1
+"""Version of ``depth_network.json``; a file of another version is refused (and quarantined) naming it."""
+
+
+class GuidedNodeState(FiniteModel):
+    """Where one depth node stands in the guided procedure (``backend.services.depth_guided``)."""
+
+    step: str | None = Field(None, description="the step to work on next; None: not started, or every step done")
+    done: list[str] = Field(default_factory=list, description="steps whose criterion held when they were applied")
+    history: list[list[list[float]]] = Field(default_factory=list, description="T_world_node (4x4, m) after "
+                                             "every start, apply and nudge, oldest first; the last is current")
+    result_id: str | None = Field(None, description="the result finish() stored, once finished")
+
+
+class VerificationPoint(FiniteModel):
+    """One end of a verified distance: a named point in the world (m), and the node it was picked from."""
+
+    name: str = Field(min_length=1, max_length=64)
+    point_m: tuple[float, float, float] = Field(description="world frame, m, when picked")
+    node: str | None = Field(None, description="the node whose cloud it was picked in; its estimate then follows "
+                                               "that node's current pose")
+    point_node_m: tuple[float, float, float] | None = Field(None, description="the same point in the node frame, m")
+
+
+class VerificationEntry(FiniteModel):
+    """A laser-measured distance between two picked points."""
+
+    a: VerificationPoint
+    b: VerificationPoint
+    measured_m: float = Field(gt=0, description="laser-measured distance, m")
+
+
+class DepthNetworkFile(FiniteModel):
+    """``depth_network.json``: a depth cell's layout, the guided state per node and the verification table."""
+
+    schema_version: int = DEPTH_NETWORK_VERSION
+    layout: dict[str, Any] | None = Field(None, description="CellLayout.to_dict(); None: the default cell")
+    guided: dict[str, GuidedNodeState] = Field(default_factory=dict)
+    verification: list[VerificationEntry] = Field(default_factory=list)

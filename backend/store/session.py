@@ -3,9 +3,11 @@
 Layout::
 
     <root>/<name>/session.json                    rig, board, accepted results (atomic rewrite)
-    <root>/<name>/captures/<sensor>/<id>.png      captured image, or <id>.npy for a cloud (write-once)
+    <root>/<name>/captures/<sensor>/<id>.png      captured image, <id>.npy for a cloud, <id>.npz for a depth image
+                                                  and its amplitude (write-once)
     <root>/<name>/captures/<sensor>/<id>.json     capture metadata (write-once)
     <root>/<name>/results/<id>.json               one solve result each (write-once)
+    <root>/<name>/depth_network.json              a depth cell's layout, guided state, verification (atomic)
     <root>/<name>/quarantine/<same path>          a broken capture or result, moved aside
     <root>/<name>/quarantine/<folder>/<id>.why.json   why it was moved: file, moved, to, reason, at
 
@@ -30,6 +32,7 @@ import os
 import re
 import threading
 import time
+import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,14 +41,27 @@ import numpy as np
 from pydantic import ValidationError
 
 from backend.core.errors import InputError, NotFoundError
+from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.rig import Frame, Rig
 from backend.core.verdict import Verdict
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import remove_stale_temp_files, write_bytes_atomic, write_json_atomic
 from backend.store.rig_io import rig_from_model, rig_to_model
-from backend.store.schema import FILE_NAME_PATTERN, NAME_PATTERN, SCHEMA_VERSION, Acceptance, CaptureRecord, SessionFile
+from backend.store.schema import (
+    DEPTH_NETWORK_VERSION,
+    FILE_NAME_PATTERN,
+    NAME_PATTERN,
+    SCHEMA_VERSION,
+    Acceptance,
+    CaptureRecord,
+    DepthNetworkFile,
+    SessionFile,
+)
 
 SESSION_FILE = "session.json"
+DEPTH_NETWORK_FILE = "depth_network.json"
+DEPTH_ARRAYS = ("depth", "amplitude")
+"""The arrays of a depth capture's ``.npz``: depth along the optical axis (m, 0 = no return) and IR amplitude."""
 QUARANTINE = "quarantine"
 _NOTE_SUFFIX = ".why.json"
 
@@ -75,6 +91,21 @@ def check_name(name: str, what: str) -> str:
         raise InputError(f"{what} {name!r} must be 1-64 letters, digits, '_' or '-', starting with a letter or digit",
                          what)
     return name
+
+
+def read_bounded_npy(handle: Any, what: str, max_elements: int) -> np.ndarray:
+    """One ``.npy`` array from an open binary file, its header checked before any data is read: a float or
+    integer array of at most ``max_elements`` values, else :class:`ValueError` saying what it holds (so a
+    crafted header cannot make the reader allocate gigabytes)."""
+    version = np.lib.format.read_magic(handle)
+    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read_header(handle)
+    if dtype.kind not in "fiu" or dtype.hasobject:
+        raise ValueError(f"{what} holds {dtype} values; expected numbers")
+    if int(np.prod(shape, dtype=np.int64)) > max_elements:
+        raise ValueError(f"{what} is an array of shape {shape}, more than {max_elements:,} values")
+    handle.seek(0)
+    return np.lib.format.read_array(handle, allow_pickle=False)
 
 
 class Session:
@@ -302,9 +333,89 @@ class Session:
         return records
 
     @staticmethod
-    def _capture_data(meta: Path) -> tuple[Path, Path]:
-        """The data files a capture's metadata file may sit beside (an image or a cloud)."""
-        return meta.with_suffix(".png"), meta.with_suffix(".npy")
+    def _capture_data(meta: Path) -> tuple[Path, Path, Path]:
+        """The data files a capture's metadata file may sit beside (an image, a cloud or a depth image)."""
+        return meta.with_suffix(".png"), meta.with_suffix(".npy"), meta.with_suffix(".npz")
+
+    def add_depth_capture(self, sensor: str, depth_m: np.ndarray, amplitude: np.ndarray,
+                          record: dict[str, Any]) -> CaptureRecord:
+        """Store a depth image (H, W: m along the optical axis, 0 = no return; NaN stored as 0) and its IR
+        amplitude (H, W) as one compressed ``.npz``, so the pixel structure survives for the solvers; the
+        record gets ``image_size`` and ``n_points`` (pixels with a return). At most
+        :data:`~backend.core.limits.MAX_IMAGE_PIXELS` pixels."""
+        depth = np.nan_to_num(np.asarray(depth_m, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        amplitude = np.nan_to_num(np.asarray(amplitude, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        if depth.ndim != 2 or depth.size == 0:
+            raise InputError(f"a depth image is H x W metres; got an array of shape {depth.shape}", "depth")
+        if amplitude.shape != depth.shape:
+            raise InputError(f"the amplitude image is {amplitude.shape}; expected the depth image's {depth.shape}",
+                             "amplitude")
+        if depth.size > MAX_IMAGE_PIXELS.value():
+            raise InputError(f"the depth image has {depth.size:,} px, more than {MAX_IMAGE_PIXELS.describe()}",
+                             "depth", 413)
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, depth=depth, amplitude=amplitude)
+        return self._add_capture_file(sensor, ".npz", buffer.getvalue(), {
+            **record, "image_size": (depth.shape[1], depth.shape[0]), "n_points": int(np.count_nonzero(depth > 0))})
+
+    def depth_capture(self, sensor: str, capture_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """Depth (H, W, float32 m along the optical axis, 0 = no return) and IR amplitude (H, W, float32) of a
+        depth capture; one that cannot be read is quarantined with its metadata (422)."""
+        check_name(capture_id, "capture")
+        path = self._capture_dir(sensor) / f"{capture_id}.npz"
+        if not path.exists():
+            raise (self._quarantined_error(path)
+                   or NotFoundError(f"no depth capture {capture_id!r} for sensor {sensor!r}", "capture"))
+        try:
+            with zipfile.ZipFile(path) as archive:
+                arrays = []
+                for name in DEPTH_ARRAYS:
+                    with archive.open(f"{name}.npy") as handle:
+                        arrays.append(read_bounded_npy(io.BytesIO(handle.read(64 << 20)), name,
+                                                       MAX_IMAGE_PIXELS.value()))
+            depth, amplitude = arrays
+            if depth.ndim != 2 or amplitude.shape != depth.shape:
+                raise ValueError(f"depth {depth.shape} and amplitude {amplitude.shape} are not one H x W image")
+        except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+            raise self._quarantine(path, f"not a readable depth + amplitude capture ({exc}); it may be truncated",
+                                   path.with_suffix(".json")) from None
+        return depth.astype(np.float32), amplitude.astype(np.float32)
+
+    # -- the depth network ------------------------------------------------------------
+    def depth_network(self) -> DepthNetworkFile:
+        """The session's ``depth_network.json`` (a fresh, empty one if there is none). A file that cannot be
+        read is quarantined (422 naming it, once): the rest of the session stays as it is, and the next read
+        starts afresh."""
+        path = self.path / DEPTH_NETWORK_FILE
+        with self.lock:
+            if not path.exists():
+                return DepthNetworkFile()
+            try:
+                raw = json.loads(path.read_bytes())
+                version = raw.get("schema_version") if isinstance(raw, dict) else None
+                if version != DEPTH_NETWORK_VERSION:
+                    raise self._quarantine(path, f"field 'schema_version' is {version!r}, expected "
+                                                 f"{DEPTH_NETWORK_VERSION}")
+                return DepthNetworkFile.model_validate(raw)
+            except (OSError, ValueError) as exc:  # JSON and pydantic errors are ValueErrors
+                if isinstance(exc, InputError):
+                    raise
+                reason = _field_problem(exc) if isinstance(exc, ValidationError) else f"not valid JSON ({exc})"
+                raise self._quarantine(path, reason) from None
+
+    def save_depth_network(self, state: DepthNetworkFile) -> None:
+        """Write ``depth_network.json`` atomically."""
+        with self.lock:
+            write_json_atomic(self.path / DEPTH_NETWORK_FILE, state.model_dump(mode="json"))
+
+    def set_root(self, root: str) -> None:
+        """Rename the root of a rig that holds no other frame yet (a depth cell's rig is rooted at ``world``)."""
+        check_name(root, "root")
+        with self._change():
+            if len(self.rig.frames) > 1:
+                raise InputError(f"the rig already holds {sorted(set(self.rig.frames) - {self.rig.root})} under "
+                                 f"{self.rig.root!r}; its root can only be renamed while it is empty", "root", 409)
+            self.rig = Rig(root=root)
 
     def capture_cloud(self, sensor: str, capture_id: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Points (N, 3) float64 in the sensor frame (m) and intensity (N,) (None if never recorded)."""
