@@ -1,0 +1,204 @@
+"""The depth-network step's 3D layers: the cell's known geometry, a node's capture at the pose being tuned,
+the features found in it, the merged voxel map of every node and the verification picks.
+
+Everything is drawn in the cell's ``world`` frame (m, Z up) under the step's layer group
+(``/steps/depth_network/...``, :meth:`studio.scene.RigScene.group`), so it shows and hides with the step:
+
+- ``cell/``: the floor outline and the walls' top edges, every floor line (tape) with its label
+  (``X = 2 m``), every retroreflective cross as an X with its name;
+- ``node/``: the node being tuned at the pose on the editor (a frustum), its capture's points mapped
+  into ``world`` with that pose, and the features found in it coloured by kind (floor grey, tables
+  white, lines yellow, crosses red), so a table top drawn below its known height shows at once;
+- ``map``: the merged voxel map (cube centres, one per occupied voxel), coloured per node or by count;
+- ``picks/``: the two verification points and the segment between them.
+
+Only drawing lives here; every number comes from the services (:mod:`backend.services.depth_network`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from backend.core.colour_maps import colormap
+from backend.core.depth import KINECT_V2, DepthIntrinsics
+from backend.core.depth_cell import CellLayout
+from backend.core.transforms import transform_points
+from studio.cloud_colours import display_subset, sensor_colour
+from studio.scene import RigScene, viser_pose
+
+STEP = "depth_network"
+"""The step's layer group (:meth:`studio.scene.RigScene.group`)."""
+TAPE_COLOUR = (240, 200, 30)
+CROSS_COLOUR = (220, 40, 40)
+OUTLINE_COLOUR = (120, 120, 120)
+FEATURE_COLOURS = {"floor": (150, 150, 150), "table": (250, 250, 250), "line": (240, 200, 30), "point": (220, 40, 40)}
+"""Feature points by kind (:class:`backend.solvers.depth_features.Feature`)."""
+CAPTURE_COLOUR = (60, 140, 220)
+PICK_COLOUR = (230, 40, 200)
+LINE_HEIGHT_M = 0.004
+"""Floor lines and crosses are drawn this far above the floor (m), so the floor's points do not hide them."""
+CAPTURE_POINT_SIZE_M = 0.025
+FEATURE_POINT_SIZE_M = 0.035
+MAX_CAPTURE_POINTS = 60_000
+"""Most points of one capture drawn (an even stride through it; a Kinect v2 frame has up to 217k)."""
+FRUSTUM_SCALE_M = 0.6
+COUNT_COLOUR_MAX = 30
+"""Voxel counts at or above this are drawn at the colour map's hot end (TURBO, from 1)."""
+
+
+def frustum_fov_aspect(intrinsics: DepthIntrinsics = KINECT_V2) -> tuple[float, float]:
+    """Vertical field of view (rad) and aspect ratio of a depth camera's frustum."""
+    return float(2.0 * np.arctan2(intrinsics.height / 2.0, intrinsics.fy)), intrinsics.width / intrinsics.height
+
+
+def cell_outline(layout: CellLayout) -> np.ndarray:
+    """(12, 2, 3) segments (m, world) of the cell's box: the floor's four edges, the walls' top edges and the
+    four vertical corners."""
+    sx, sy, sz = layout.size_m
+    corners = np.array([[0.0, 0.0], [sx, 0.0], [sx, sy], [0.0, sy]])
+    floor = np.column_stack([corners, np.zeros(4)])
+    top = np.column_stack([corners, np.full(4, sz)])
+    ring = np.roll(np.arange(4), -1)
+    return np.concatenate([np.stack([floor, floor[ring]], axis=1), np.stack([top, top[ring]], axis=1),
+                           np.stack([floor, top], axis=1)])
+
+
+def floor_line_segments(layout: CellLayout) -> np.ndarray:
+    """(L, 2, 3) one segment per floor line (m, world), just above the floor."""
+    segments = np.zeros((len(layout.lines), 2, 3))
+    for i, line in enumerate(layout.lines):
+        along = 1 if line.axis == "x" else 0  # an X = value line runs along Y
+        segments[i, :, 1 - along] = line.value_m
+        segments[i, :, along] = line.span_m
+    segments[:, :, 2] = LINE_HEIGHT_M
+    return segments
+
+
+def cross_segments(layout: CellLayout) -> np.ndarray:
+    """(2C, 2, 3) each cross as two diagonal arms of its size (m, world), just above the floor."""
+    if not layout.crosses:
+        return np.zeros((0, 2, 3))
+    centres = np.array([c.position_m for c in layout.crosses], dtype=float)
+    half = np.array([c.size_m / 2.0 for c in layout.crosses])[:, None]
+    arms = []
+    for direction in (np.array([1.0, 1.0, 0.0]), np.array([1.0, -1.0, 0.0])):
+        offset = half * direction / np.sqrt(2.0)
+        arms.append(np.stack([centres - offset, centres + offset], axis=1))
+    segments = np.concatenate(arms)
+    segments[:, :, 2] += LINE_HEIGHT_M
+    return segments
+
+
+def count_colours(counts: np.ndarray) -> np.ndarray:
+    """(M, 3) uint8 colours of voxel point counts: TURBO from 1 to :data:`COUNT_COLOUR_MAX` on a log scale."""
+    return colormap(np.log(np.maximum(np.asarray(counts, float), 1.0)), 0.0, np.log(COUNT_COLOUR_MAX))
+
+
+class DepthView:
+    """Holds the step's scene handles and redraws them; every method replaces what it drew last."""
+
+    def __init__(self, scene: RigScene):
+        self.scene = scene
+        self._handles: dict[str, list] = {}
+
+    @property
+    def root(self) -> str:
+        return self.scene.group(STEP)
+
+    def _replace(self, key: str, handles: list) -> None:
+        self.clear(key)
+        self._handles[key] = handles
+
+    def clear(self, key: str | None = None) -> None:
+        """Remove what one layer (``cell``, ``node``, ``features``, ``map``, ``picks``) drew, or all of them."""
+        for name in [key] if key else list(self._handles):
+            for handle in reversed(self._handles.pop(name, [])):
+                try:
+                    handle.remove()
+                except (RuntimeError, KeyError):  # gone with a redrawn rig (the scene was reset)
+                    pass
+
+    def forget(self) -> None:
+        """The scene was reset (another session opened): drop the handles without removing them."""
+        self._handles = {}
+
+    def show_cell(self, layout: CellLayout) -> None:
+        """The cell's box, its floor lines with labels and its crosses with names (``cell/``)."""
+        server, root = self.scene.server, f"{self.root}/cell"
+        handles = [server.scene.add_line_segments(f"{root}/outline", cell_outline(layout), OUTLINE_COLOUR,
+                                                  thickness=0.02)]
+        if layout.lines:
+            handles.append(server.scene.add_line_segments(f"{root}/lines", floor_line_segments(layout), TAPE_COLOUR,
+                                                          thickness=0.05))
+        for line, segment in zip(layout.lines, floor_line_segments(layout), strict=True):
+            handles.append(server.scene.add_label(f"{root}/line_labels/{line.name}", line.label,
+                                                  position=segment.mean(axis=0) + (0.0, 0.0, 0.05),
+                                                  font_screen_scale=0.7))
+        if layout.crosses:
+            handles.append(server.scene.add_line_segments(f"{root}/crosses", cross_segments(layout), CROSS_COLOUR,
+                                                          thickness=0.04))
+        for cross in layout.crosses:
+            handles.append(server.scene.add_label(f"{root}/cross_labels/{cross.name}", cross.name,
+                                                  position=np.add(cross.position_m, (0.0, 0.0, 0.05)),
+                                                  font_screen_scale=0.6))
+        self._replace("cell", handles)
+
+    def show_node(self, node: str, T_world_node: np.ndarray, points_node: np.ndarray | None,
+                  intrinsics: DepthIntrinsics = KINECT_V2) -> None:
+        """``node``'s frustum at ``T_world_node`` (the editor's pose) and its capture (N, 3, node frame, m) mapped
+        into ``world`` with it (``node/``); at most :data:`MAX_CAPTURE_POINTS` points."""
+        server, root = self.scene.server, f"{self.root}/node"
+        fov, aspect = frustum_fov_aspect(intrinsics)
+        pose = viser_pose(T_world_node)
+        handles = [server.scene.add_camera_frustum(f"{root}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M,
+                                                   color=CAPTURE_COLOUR, thickness=0.02, **pose),
+                   server.scene.add_label(f"{root}/label", f"{node} (editor)", font_screen_scale=0.8,
+                                          position=pose["position"] + (0.0, 0.0, 0.15))]
+        if points_node is not None and len(points_node):
+            shown, _ = display_subset(np.asarray(points_node, float), None, MAX_CAPTURE_POINTS)
+            handles.append(server.scene.add_point_cloud(
+                f"{root}/capture", transform_points(T_world_node, shown).astype(np.float32), CAPTURE_COLOUR,
+                point_size=CAPTURE_POINT_SIZE_M, precision="float32"))
+        self._replace("node", handles)
+
+    def show_features(self, features: Sequence, T_world_node: np.ndarray) -> None:
+        """The features found in the node's captures (``Feature``: kind, name, points in the node frame), in
+        ``world`` at ``T_world_node``, coloured by kind (``features/<i>``)."""
+        server, root = self.scene.server, f"{self.root}/features"
+        handles = []
+        for i, feature in enumerate(features):
+            points = np.asarray(feature.points, float).reshape(-1, 3)
+            if not len(points):
+                continue
+            shown, _ = display_subset(points, None, MAX_CAPTURE_POINTS // 4)
+            handles.append(server.scene.add_point_cloud(
+                f"{root}/{i}", transform_points(T_world_node, shown).astype(np.float32),
+                FEATURE_COLOURS.get(feature.kind, CAPTURE_COLOUR), point_size=FEATURE_POINT_SIZE_M,
+                precision="float32"))
+        self._replace("features", handles)
+
+    def show_voxel_map(self, centres_m: np.ndarray, counts: np.ndarray, node_index: np.ndarray, voxel_m: float,
+                       colour_by: str) -> None:
+        """The merged voxel map (``map``): one cube centre per voxel (M, 3, m, world), coloured per node
+        (``colour_by="node"``, the index into the network's node list) or by its point count (``"count"``)."""
+        if not len(centres_m):
+            self.clear("map")
+            return
+        colours = (count_colours(counts) if colour_by == "count"
+                   else np.array([sensor_colour(int(i)) for i in range(int(np.max(node_index)) + 1)],
+                                 np.uint8)[np.asarray(node_index, int)])
+        self._replace("map", [self.scene.server.scene.add_point_cloud(
+            f"{self.root}/map", np.asarray(centres_m, np.float32), colours, point_size=float(voxel_m),
+            point_shape="square", precision="float32")])
+
+    def show_picks(self, points_m: Sequence[np.ndarray]) -> None:
+        """The verification points picked so far (m, world) and, once there are two, the segment between them."""
+        server, root = self.scene.server, f"{self.root}/picks"
+        handles = [server.scene.add_icosphere(f"{root}/{i}", radius=0.06, color=PICK_COLOUR,
+                                              position=np.asarray(p, float)) for i, p in enumerate(points_m)]
+        if len(points_m) == 2:
+            handles.append(server.scene.add_line_segments(f"{root}/segment", np.array([points_m], float),
+                                                          PICK_COLOUR, thickness=0.03))
+        self._replace("picks", handles)
