@@ -9,6 +9,7 @@ from backend.devices import (  # noqa: F401
     image_folder,
     rosbag_source,
     simulated_camera,
+    simulated_depth,
     simulated_lidar,
     uvc_camera,
     velodyne,
