@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-ExportFormat = Literal["camera_info", "opencv", "rig", "kalibr", "urdf", "launch"]
+ExportFormat = Literal["camera_info", "opencv", "rig", "kalibr", "urdf", "launch", "pose-table"]
 EXPORT_FORMATS: dict[str, str] = {
     "camera_info": "ROS camera_info YAML (camera_calibration_parsers)",
     "opencv": "OpenCV FileStorage YAML",
@@ -15,6 +15,7 @@ EXPORT_FORMATS: dict[str, str] = {
     "kalibr": "Kalibr camchain YAML (T_cn_cnm1 chain)",
     "urdf": "URDF: one link per frame, one fixed joint per non-root frame (origin xyz, rpy)",
     "launch": "ROS 2 Python launch file: one tf2_ros static_transform_publisher per frame",
+    "pose-table": "CSV of the depth nodes' poses in the world: X, Y, Z (m), RotZ, RotY, RotX (deg), 1-sigma",
 }
 """Every format of :data:`ExportFormat`, in the order the CLI and the API list them, with what it holds."""
 

@@ -11,6 +11,7 @@ from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORM
 from backend.exports.frame_tree import ancestors
 from backend.exports.kalibr_camchain import dump_kalibr_camchain, kalibr_refusal
 from backend.exports.opencv_yaml import dump_opencv_yaml
+from backend.exports.pose_table import dump_pose_table
 from backend.exports.rig_transforms import dump_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
 from backend.exports.ros_camera_info import dump_camera_info
@@ -18,7 +19,7 @@ from backend.exports.urdf import dump_urdf
 from backend.services.rig import solve_rig
 from backend.store.session import Session
 
-MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python"}
+MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python", "pose-table": "text/csv"}
 """The media type of each format that is not YAML (the others are ``application/yaml``)."""
 
 
@@ -55,8 +56,10 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
         raise InputError(f"the {fmt} export takes no camera subset; cameras applies to kalibr", "cameras")
     convention = convention or "optical"
     suffix = "" if convention == "optical" else f"_{convention}"
-    if fmt in CONVENTION_FORMATS:
+    if fmt in CONVENTION_FORMATS or fmt == "pose-table":
         _refuse_unconnected(solve_rig(session).unconnected, session.rig)
+    if fmt == "pose-table":
+        return f"{session.name}_pose_table.csv", dump_pose_table(session.rig)
     if fmt == "rig":
         return f"{session.name}_transforms{suffix}.yaml", dump_rig_transforms(session.rig, convention)
     if fmt == "urdf":

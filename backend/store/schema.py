@@ -136,14 +136,22 @@ class GuidedNodeState(FiniteModel):
     result_id: str | None = Field(None, description="the result finish() stored, once finished")
 
 
+class VerificationView(FiniteModel):
+    """One node's sighting of a verification point: where that node sees it, in its own frame (m)."""
+
+    node: str = Field(pattern=NAME_PATTERN)
+    point_node_m: tuple[float, float, float]
+    weight: float = Field(1.0, gt=0, description="its share in the point's estimate (e.g. the pixels it covers)")
+
+
 class VerificationPoint(FiniteModel):
-    """One end of a verified distance: a named point in the world (m), and the node it was picked from."""
+    """One end of a verified distance: a named point in the world (m) and the nodes that see it."""
 
     name: str = Field(min_length=1, max_length=64)
     point_m: tuple[float, float, float] = Field(description="world frame, m, when picked")
-    node: str | None = Field(None, description="the node whose cloud it was picked in; its estimate then follows "
-                                               "that node's current pose")
-    point_node_m: tuple[float, float, float] | None = Field(None, description="the same point in the node frame, m")
+    views: list[VerificationView] = Field(default_factory=list, description="the nodes it was seen by; its "
+                                          "estimate is their weighted mean at the nodes' current poses (none: "
+                                          "point_m as it is)")
 
 
 class VerificationEntry(FiniteModel):
