@@ -1,0 +1,296 @@
+"""The node agent: one sensor on its own computer, served to the studio over Zenoh.
+
+``calib-studio node --name sn1 --device sim-cell:sn1 --connect tcp/STUDIO:7447`` opens the device
+(:func:`backend.devices.device_spec.parse_device_spec`), then, as a Zenoh peer (multicast scouting off, so it
+reaches only the endpoints it is given), declares under ``calib/node/sn1/``:
+
+- ``alive``: a liveliness token, present while the agent runs (the studio's presence list);
+- ``info``: a queryable answering JSON ``{name, kind, device, rate_hz, voxel_m, intrinsics?}``;
+- ``frames``: a publisher of the latest reading, voxelised to ``voxel_m`` and compressed
+  (:func:`backend.devices.cloud_codec.encode_frame`), at up to ``rate_hz``, only while someone subscribes;
+  each put carries the attachment :data:`FRAME_STAMP` (sequence number, node time at sending);
+- ``capture``: a queryable answering with the next full-resolution frame read after the request;
+- ``clock``: a queryable answering the node's time (float64 seconds, little-endian), for the studio's
+  request/reply clock-offset estimate.
+
+A simulated device also follows ``calib/sim/placements`` (JSON list of table placements) through its
+``set_placements``. SIGTERM or SIGINT end the agent cleanly (exit 0); a bad device spec, a device that fails to
+open or an endpoint Zenoh refuses is an :class:`InputError` (the CLI's one-line error, exit 2). Log lines go to
+stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from backend.core.depth_cell import TablePlacement
+from backend.core.errors import InputError, shorten
+from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device
+from backend.devices.cloud_codec import encode_frame, frame_intrinsics
+from backend.devices.device_spec import parse_device_spec
+
+DEFAULT_PORT = 7447
+"""Zenoh's usual port: the studio listens on ``tcp/127.0.0.1:7447`` unless told otherwise."""
+NODE_PREFIX = "calib/node"
+SIM_PLACEMENTS_KEY = "calib/sim/placements"
+FRAME_STAMP = struct.Struct("<Qd")
+"""Attachment of every streamed frame: sequence number (from 0), node time when it was sent (s)."""
+CLOCK_REPLY = struct.Struct("<d")
+"""Payload of a clock reply: the node's time (s)."""
+MAX_IDLE_RATE_HZ = 30.0
+"""Frames streamed per second when ``rate_hz`` is None, at most (a device that paces itself may give fewer)."""
+STOP_POLL_S = 0.1
+"""How long an idle agent sleeps between looks at its stop flag (s); capture requests wake it at once."""
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_\-]{1,64}")
+"""A node name: one Zenoh key chunk (no ``/``, ``*``, ``$``, ``?``, ``#``)."""
+
+
+def node_key(name: str, what: str) -> str:
+    """The Zenoh key ``calib/node/<name>/<what>`` (``what``: alive, info, frames, capture, clock; or ``*``)."""
+    return f"{NODE_PREFIX}/{name}/{what}"
+
+
+def zenoh_config(listen: list[str], connect: list[str]) -> zenoh.Config:
+    """A peer's configuration: the given listen and connect endpoints only, multicast scouting off."""
+    settings = {"mode": "peer", "scouting": {"multicast": {"enabled": False}},
+                "listen": {"endpoints": list(listen)}, "connect": {"endpoints": list(connect)}}
+    return zenoh.Config.from_json5(json.dumps(settings))
+
+
+def open_session(listen: list[str], connect: list[str], field_name: str) -> zenoh.Session:
+    """A Zenoh peer session; :class:`InputError` naming ``field_name`` and the endpoints if Zenoh refuses them
+    (a malformed endpoint, a port already taken)."""
+    for endpoint in (*listen, *connect):
+        if not isinstance(endpoint, str) or not re.fullmatch(r"[a-z0-9]+/\S+", endpoint):
+            raise InputError(f"endpoint {shorten(endpoint)}: expected PROTOCOL/ADDRESS such as "
+                             f"tcp/127.0.0.1:{DEFAULT_PORT}", field_name)
+    try:
+        return zenoh.open(zenoh_config(listen, connect))
+    except zenoh.ZError as exc:
+        raise InputError(f"Zenoh refused the endpoints (listen {listen}, connect {connect}): "
+                         f"{' '.join(str(exc).split())}", field_name) from None
+
+
+def sample_kind(sample: Sample) -> str:
+    """What the sensor is, from one of its samples: ``depth``, ``lidar`` or ``camera``."""
+    if sample.depth is not None:
+        return "depth"
+    return "lidar" if sample.points is not None else "camera"
+
+
+@dataclass
+class _Pending:
+    """What the agent's zenoh callbacks hand to its read loop."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    queries: list[zenoh.Query] = field(default_factory=list)
+    placements: list[TablePlacement] | None = None
+    wake: threading.Event = field(default_factory=threading.Event)
+    """Set when a capture request arrives, so an idle loop answers at once."""
+
+
+def run_agent(name: str, device: str, connect: list[str] | None = None, listen: list[str] | None = None,
+              rate_hz: float | None = None, voxel_m: float | None = 0.02,
+              clock: Callable[[], float] = time.time, stop: threading.Event | None = None) -> int:
+    """Serve one sensor over Zenoh until SIGTERM/SIGINT (or ``stop`` is set); returns the exit code 0.
+
+    Args:
+        name: the node's name in the rig (``sn1``): one key chunk of letters, digits, ``_`` and ``-``.
+        device: a device spec (:func:`~backend.devices.device_spec.parse_device_spec`).
+        connect: endpoints to connect to (the studio's ``tcp/HOST:7447``, or a router's).
+        listen: endpoints to listen on (none by default: the agent dials out).
+        rate_hz: streamed frames per second; None: as the device delivers them (at most
+            :data:`MAX_IDLE_RATE_HZ` for a device that does not pace itself).
+        voxel_m: voxel edge (m) of the streamed clouds; None streams full frames. Captures are always full.
+        clock: the node's clock (s since the epoch): what ``clock`` replies and frame stamps read.
+        stop: ends the agent when set (for running it in a thread, where signals cannot reach it).
+
+    Raises:
+        InputError: a bad name, device spec, voxel size or endpoint, a device that cannot be opened, or a
+            device lost while serving (``input`` names which).
+    """
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+        raise InputError(f"node name {shorten(name)}: expected 1-64 letters, digits, '_' or '-'", "name")
+    if rate_hz is not None and not rate_hz > 0:
+        raise InputError(f"rate {rate_hz!r} Hz: expected a positive number of frames per second", "rate")
+    if voxel_m is not None and not voxel_m > 0:
+        raise InputError(f"voxel size {voxel_m!r} m: expected a positive number of metres", "voxel")
+    settings = parse_device_spec(device)
+    stop = stop or threading.Event()
+    restore = _stop_on_signals(stop)
+    sensor = _open_device(settings, device)
+    try:
+        first = _read(sensor, device)
+        session = open_session(list(listen or []), list(connect or []), "connect")
+        try:
+            agent = _Agent(name, device, sensor, session, rate_hz, voxel_m, clock, first)
+            _log(name, f"serving {sensor.describe()} ({agent.info['kind']}) on {agent.endpoints()}")
+            agent.serve(stop)
+        finally:
+            session.close()
+    finally:
+        sensor.close()
+        restore()
+    _log(name, "stopped")
+    return 0
+
+
+def _stop_on_signals(stop: threading.Event) -> Callable[[], None]:
+    """Make SIGTERM and SIGINT set ``stop`` (in the main thread only); returns what puts the old handlers back."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore
+
+
+def _open_device(settings: dict[str, Any], spec: str) -> CaptureDevice:
+    """The opened device; its own error as an :class:`InputError` naming the spec."""
+    try:
+        sensor = create_device(settings)
+        sensor.open()
+    except DeviceError as exc:
+        raise InputError(f"cannot open {shorten(spec)}: {exc}", "device") from None
+    return sensor
+
+
+def _read(sensor: CaptureDevice, spec: str) -> Sample:
+    try:
+        return sensor.read()
+    except DeviceError as exc:
+        raise InputError(f"{shorten(spec)} stopped delivering: {exc}", "device") from None
+
+
+class _Agent:
+    """The declared Zenoh entities of one node and its read-publish-answer loop."""
+
+    def __init__(self, name: str, spec: str, sensor: CaptureDevice, session: zenoh.Session, rate_hz: float | None,
+                 voxel_m: float | None, clock: Callable[[], float], first: Sample):
+        self.name, self.spec, self.sensor, self.session = name, spec, sensor, session
+        self.rate_hz, self.voxel_m, self.clock = rate_hz, voxel_m, clock
+        self.pending = _Pending()
+        self.sequence = 0
+        self.info: dict[str, Any] = {"name": name, "kind": sample_kind(first), "device": spec, "rate_hz": rate_hz,
+                                     "voxel_m": voxel_m}
+        intrinsics = None if first.depth is None else frame_intrinsics(first.depth, first.meta)
+        if intrinsics is not None:
+            self.info["intrinsics"] = intrinsics.to_dict()
+        self.publisher = session.declare_publisher(node_key(name, "frames"))
+        self.entities = [
+            self.publisher,
+            session.declare_queryable(node_key(name, "info"), self._answer_info),
+            session.declare_queryable(node_key(name, "clock"), self._answer_clock),
+            session.declare_queryable(node_key(name, "capture"), self._queue_capture),
+        ]
+        if hasattr(sensor, "set_placements"):
+            self.entities.append(session.declare_subscriber(SIM_PLACEMENTS_KEY, self._take_placements))
+        self.token = session.liveliness().declare_token(node_key(name, "alive"))
+
+    def endpoints(self) -> str:
+        return ", ".join(str(link.dst) for link in self.session.info.links()) or "no peer yet"
+
+    def serve(self, stop: threading.Event) -> None:
+        """Until ``stop`` is set: once a period, read the device if a capture waits or someone subscribes (an
+        idle node costs nothing), answer the captures asked before the read, and stream the frame."""
+        period_s = 1.0 / (self.rate_hz or MAX_IDLE_RATE_HZ)
+        next_s = time.monotonic()
+        try:
+            while not stop.is_set():
+                with self.pending.lock:
+                    queries, self.pending.queries = self.pending.queries, []
+                    placements, self.pending.placements = self.pending.placements, None
+                    self.pending.wake.clear()
+                if placements is not None:
+                    self.sensor.set_placements(placements)
+                    _log(self.name, f"tables moved: {[p.table for p in placements]}")
+                streaming = self.publisher.matching_status
+                if queries or streaming:
+                    self._read_and_send(queries, streaming)
+                next_s = max(next_s + period_s, time.monotonic())
+                if not streaming:  # a capture request wakes the loop at once
+                    next_s = time.monotonic() + STOP_POLL_S
+                self.pending.wake.wait(max(0.0, next_s - time.monotonic()))
+        finally:
+            self.token.undeclare()
+            for entity in self.entities:
+                entity.undeclare()
+            with self.pending.lock:
+                self._refuse(self.pending.queries, f"node {self.name} is stopping")
+
+    def _read_and_send(self, queries: list[zenoh.Query], streaming: bool) -> None:
+        """One reading: the answer to every waiting capture, and a streamed frame."""
+        try:
+            sample = _read(self.sensor, self.spec)
+        except InputError as exc:
+            self._refuse(queries, f"node {self.name}: {exc.message}")
+            raise
+        sample.meta["node_time_s"] = self.clock()
+        for query in queries:
+            self._answer_capture(query, sample)
+        if streaming:
+            self._publish(sample)
+
+    @staticmethod
+    def _refuse(queries: list[zenoh.Query], message: str) -> None:
+        for query in queries:
+            query.reply_err(message)
+            query.drop()
+
+    def _publish(self, sample: Sample) -> None:
+        """Stream one frame (voxelised unless ``voxel_m`` is None)."""
+        payload = encode_frame(sample, self.voxel_m)
+        self.publisher.put(payload, attachment=FRAME_STAMP.pack(self.sequence, self.clock()))
+        self.sequence += 1
+
+    def _answer_info(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, json.dumps(self.info))
+
+    def _answer_clock(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, CLOCK_REPLY.pack(self.clock()))
+
+    def _queue_capture(self, query: zenoh.Query) -> None:
+        """Keep the query for the read loop, which answers it with the next frame (taken after it arrived)."""
+        with self.pending.lock:
+            self.pending.queries.append(query)
+            self.pending.wake.set()
+
+    def _answer_capture(self, query: zenoh.Query, sample: Sample) -> None:
+        try:
+            query.reply(query.key_expr, encode_frame(sample, None))
+        except InputError as exc:
+            query.reply_err(f"node {self.name}: {exc.message}")
+        finally:
+            query.drop()
+
+    def _take_placements(self, message: zenoh.Sample) -> None:
+        """Parse the studio's table placements (JSON list of ``{table, centre_xy_m, yaw_deg}``) for the loop."""
+        try:
+            rows = json.loads(message.payload.to_bytes())
+            placements = [TablePlacement(str(row["table"]), (float(row["centre_xy_m"][0]),
+                                                             float(row["centre_xy_m"][1])),
+                                         float(row.get("yaw_deg", 0.0))) for row in rows]
+        except (ValueError, TypeError, KeyError, IndexError):
+            _log(self.name, f"ignored table placements that are not a JSON list of tables: "
+                            f"{shorten(message.payload.to_bytes()[:200])}")
+            return
+        with self.pending.lock:
+            self.pending.placements = placements
+
+
+def _log(name: str, message: str) -> None:
+    print(f"node {name}: {message}", file=sys.stderr, flush=True)
