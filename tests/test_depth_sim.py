@@ -137,18 +137,24 @@ LAYOUT_LINES = {line.name: line.axis for line in LAYOUT.lines}
 
 @pytest.mark.parametrize("arrangement", ["behind", "beside"])
 def test_table_placements_whole_in_view_and_apart(arrangement):
-    """For every node: three tables, each top's corners inside the image and within range, not touching; behind
-    runs from the image's bottom up (and further away), beside from left to right."""
+    """For every node: three tables, each top's corners inside the image and within range, every pixel inside
+    its outline on it (nothing hides any of it), not touching; behind runs from the image's bottom up (and further
+    away), beside from left to right."""
+    v, u = np.mgrid[0:KINECT_V2.height, 0:KINECT_V2.width]
+    pixels = np.column_stack([u.ravel(), v.ravel()])
     for node in PAPER_NODE_POSES:
         placements = table_placements(node, arrangement)
         assert placements == table_placements(node, arrangement)  # deterministic
         T_node_world = invert(node_pose(node))
+        on_a_top = (CellScene(LAYOUT, placements).render(node_pose(node), None).labels == SURFACES["table"]).ravel()
         centres_uv = []
         for placement in placements:
             points = transform_points(T_node_world, table_corners_m(LAYOUT, placement))
             uv, z = KINECT_V2.project(points)
             assert (z > 0).all() and (uv >= 0).all() and (uv[:, 0] < 512).all() and (uv[:, 1] < 424).all()
             assert (np.linalg.norm(points, axis=1) < KINECT_V2.max_range_m).all()
+            outline = Path(uv).contains_points(pixels)
+            assert outline.sum() > 1000 and on_a_top[outline].all(), (node, placement)
             centres_uv.append(uv.mean(axis=0))
         centres = np.array([p.centre_xy_m for p in placements])
         gaps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
