@@ -7,7 +7,7 @@ constraint solve of each node's ``T_world_node`` (:mod:`backend.solvers.depth_no
 and accepted into the rig like every result (:func:`backend.services.rig.accept`); pairwise ICP between
 overlapping nodes only as extra edges beside those, never alone. The whole network: every node's latest
 cloud in the world (:func:`world_clouds`), merged into a voxel map (:func:`merged_voxel_map`), the
-retroreflective crosses found in it (:func:`cross_targets`), a point picked by a ray (:func:`pick_point`),
+retroreflective crosses found in it (:func:`detected_crosses`), a point picked by a ray (:func:`pick_point`),
 and the verification table of laser-measured distances (:func:`add_verification`), whose estimates follow
 the nodes' current poses. :func:`network_summary` is the CLI's ``depth-network --json`` contract.
 
@@ -20,13 +20,12 @@ from __future__ import annotations
 import io
 import itertools
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
 from backend.core.depth import KINECT_V2, DepthIntrinsics, pose_from_row
-from backend.core.depth_cell import CellLayout, default_cell_layout
+from backend.core.depth_cell import CellLayout, TableSpec, default_cell_layout
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, edge_slot
 from backend.core.transforms import invert, transform_points
@@ -35,7 +34,7 @@ from backend.devices.base import Sample
 from backend.devices.image_io import check_pixels
 from backend.exports.pose_table import format_pose_table, node_order, pose_table_rows
 from backend.services import rig as rig_service
-from backend.solvers.result import ProgressCallback, TransformResult, no_progress, transform_std
+from backend.solvers.result import ProgressCallback, no_progress, transform_std
 from backend.store.schema import CaptureRecord, DepthNetworkFile, VerificationEntry, VerificationPoint
 from backend.store.session import Session, read_bounded_npy
 
@@ -135,19 +134,19 @@ def T_world_node(session: Session, node: str) -> np.ndarray:
 
 
 def capture_node(session: Session, node: str, sample: Sample, arrangement: Arrangement = "free",
-                 tables: Sequence[str] = (), *, device: str = "node", source: str | None = None,
+                 tables: Sequence[str | TableSpec] = (), *, device: str = "node", source: str | None = None,
                  clock_offset_s: float | None = None, intrinsics: DepthIntrinsics = KINECT_V2) -> CaptureRecord:
     """Keep one depth frame of ``node``: ``sample.depth`` (H, W, m along the optical axis, 0 = no return) and
     its IR amplitude (the image from ``sample.intensity`` at ``sample.meta["pixel_index"]``, or at the valid
-    pixels when the counts agree; zeros when the sample has none), with the ``arrangement`` and the names of
-    the ``tables`` (of the layout) that stood in view. ``record.meta`` holds ``arrangement``, ``tables``,
+    pixels when the counts agree; zeros when the sample has none), with the ``arrangement`` and the ``tables``
+    (names or specs, of the layout) that stood in view. ``record.meta`` holds ``arrangement``, ``tables``,
     ``node_time_s`` and ``clock_offset_s`` beside the driver's own facts. An empty or wrongly sized depth image
     is refused and nothing is stored."""
     check_node(session, node)
     if arrangement not in ARRANGEMENTS:
         raise InputError(f"arrangement {shorten(arrangement)}: expected one of {list(ARRANGEMENTS)}", "arrangement")
     cell = layout(session)
-    names = list(tables)
+    names = [t.name if isinstance(t, TableSpec) else str(t) for t in tables]
     for name in names:
         cell.table(name)
     if len(set(names)) != len(names):
@@ -246,7 +245,7 @@ def observations(session: Session, node: str, arrangement: str | None = None,
         points, index = capture_intrinsics(record).unproject(depth)
         out.append(DepthObservation(capture_id=record.id, points=points, amplitude=amplitude.ravel()[index],
                                     pixel_index=index, tables=[cell.table(t) for t in record.meta.get("tables", [])],
-                                    arrangement=record.meta["arrangement"]))
+                                    arrangement=record.meta["arrangement"], intrinsics=capture_intrinsics(record)))
     return out
 
 
@@ -255,11 +254,12 @@ def observations(session: Session, node: str, arrangement: str | None = None,
 
 
 def solve_node(session: Session, node: str, progress: ProgressCallback = no_progress,
-               T_init: np.ndarray | None = None) -> tuple[str, TransformResult]:
+               T_init: np.ndarray | None = None) -> dict[str, Any]:
     """Solve ``T_world_node`` from every capture of ``node`` (floor, tables, lines and surveyed points of the
     layout; :func:`backend.solvers.depth_node.solve_depth_node`) from ``T_init`` (default: the rig's current
-    pose) and store the result (not yet accepted) under the node. Evidence that does not fix all six degrees of
-    freedom raises :class:`InputError` naming what is missing; nothing is stored then."""
+    pose) and store the result (not yet accepted) under the node; the stored record (its ``id``, the
+    :class:`~backend.solvers.result.TransformResult` record, ``inputs``: the capture ids). Evidence that does not
+    fix all six degrees of freedom raises :class:`InputError` naming what is missing; nothing is stored then."""
     from backend.solvers.depth_node import solve_depth_node
 
     cell = layout(session)
@@ -268,8 +268,7 @@ def solve_node(session: Session, node: str, progress: ProgressCallback = no_prog
         raise InputError(f"no depth captures of {node} yet; capture the node first", node)
     T_init = T_world_node(session, node) if T_init is None else np.asarray(T_init, dtype=float)
     result = solve_depth_node(node, observed, cell, T_init, progress=progress).named(WORLD, node)
-    result_id = session.add_result(node, result.to_record(), inputs=[o.capture_id for o in observed])
-    return result_id, result
+    return session.result(session.add_result(node, result.to_record(), inputs=[o.capture_id for o in observed]))
 
 
 def accept_node(session: Session, node: str, result_id: str, confirm: bool = False) -> rig_service.RigUpdate:
@@ -294,7 +293,7 @@ def solve_network(session: Session, nodes: Sequence[str] | None = None, *, icp: 
     for i, node in enumerate(nodes):
         progress(i / max(len(nodes), 1) * (0.8 if icp else 1.0), f"solving {node}")
         try:
-            result_id, _ = solve_node(session, node)
+            result_id = solve_node(session, node)["id"]
             out["results"][node] = result_id
             accept_node(session, node, result_id, confirm)
             out["accepted"].append(result_id)
@@ -350,59 +349,65 @@ def world_clouds(session: Session, nodes: Sequence[str] | None = None) -> dict[s
     return out
 
 
-@dataclass
-class VoxelMap:
+class VoxelMap(NamedTuple):
     """Every node's cloud accumulated on a grid in the world: the paper's merged map."""
 
-    voxel_m: float
     centres_m: np.ndarray
     """(M, 3) voxel centres, world frame, m."""
     counts: np.ndarray
     """(M,) points in each voxel (the map's intensity)."""
     node_index: np.ndarray
-    """(M,) index into :attr:`nodes` of the node with most points in each voxel."""
-    nodes: list[str]
+    """(M,) index into :func:`node_names` of the node with most points in each voxel."""
 
-    def to_dict(self, max_voxels: int | None = None) -> dict[str, Any]:
-        """JSON form; with ``max_voxels``, only the densest that many (``truncated`` says so)."""
-        keep = np.arange(len(self.counts))
-        if max_voxels is not None and len(keep) > max_voxels:
-            keep = np.sort(np.argsort(-self.counts, kind="stable")[:max_voxels])
-        return {"voxel_m": self.voxel_m, "nodes": self.nodes, "n_voxels": len(self.counts),
-                "truncated": len(keep) < len(self.counts), "centres_m": np.round(self.centres_m[keep], 4).tolist(),
-                "counts": self.counts[keep].tolist(), "node_index": self.node_index[keep].tolist()}
+
+def voxel_map_dict(session: Session, voxel_map: VoxelMap, voxel_m: float, max_voxels: int | None = None
+                   ) -> dict[str, Any]:
+    """JSON form of a :func:`merged_voxel_map`; with ``max_voxels``, only the densest that many (``truncated``)."""
+    keep = np.arange(len(voxel_map.counts))
+    if max_voxels is not None and len(keep) > max_voxels:
+        keep = np.sort(np.argsort(-voxel_map.counts, kind="stable")[:max_voxels])
+    return {"voxel_m": voxel_m, "nodes": node_names(session), "n_voxels": len(voxel_map.counts),
+            "truncated": len(keep) < len(voxel_map.counts),
+            "centres_m": np.round(voxel_map.centres_m[keep], 4).tolist(),
+            "counts": voxel_map.counts[keep].tolist(), "node_index": voxel_map.node_index[keep].tolist()}
 
 
 def merged_voxel_map(session: Session, voxel_m: float = DEFAULT_VOXEL_M, nodes: Sequence[str] | None = None
                      ) -> VoxelMap:
-    """Every node's latest cloud in the world (at the current poses) on a ``voxel_m`` grid: voxel centres,
-    the point count per voxel and which node gave most of its points (numpy ``unique`` over voxel keys)."""
+    """Every node's latest cloud in the world (at the current poses) on a ``voxel_m`` grid: voxel centres (M, 3,
+    m), the point count per voxel and which node (index into :func:`node_names`) gave most of its points."""
     if not np.isfinite(voxel_m) or not 0.005 <= voxel_m <= 2.0:
         raise InputError(f"voxel size {voxel_m} m: expected 0.005 to 2 m", "voxel_m")
     clouds = world_clouds(session, nodes)
-    names = list(clouds)
-    if not names:
-        return VoxelMap(voxel_m, np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), [])
-    points = np.concatenate([clouds[n][0] for n in names])
-    owner = np.concatenate([np.full(len(clouds[n][0]), i) for i, n in enumerate(names)])
-    keys, inverse, counts = np.unique(np.floor(points / voxel_m).astype(np.int64), axis=0, return_inverse=True,
-                                      return_counts=True)
-    inverse = inverse.ravel()
-    combos, combo_counts = np.unique(inverse * len(names) + owner, return_counts=True)
+    if not clouds:
+        return VoxelMap(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    names = node_names(session)
+    points = np.concatenate([cloud for cloud, _ in clouds.values()])
+    owner = np.concatenate([np.full(len(cloud), names.index(n)) for n, (cloud, _) in clouds.items()])
+    cells = np.floor(points / voxel_m).astype(np.int64)
+    low, span = cells.min(axis=0), np.ptp(cells, axis=0) + 1
+    flat_keys, inverse, counts = np.unique((cells[:, 0] - low[0]) * span[1] * span[2] + (cells[:, 1] - low[1])
+                                           * span[2] + (cells[:, 2] - low[2]), return_inverse=True,
+                                           return_counts=True)  # one integer per cell: 1-D unique is fast
+    keys = np.column_stack(np.unravel_index(flat_keys, tuple(span))) + low
+    combos, combo_counts = np.unique(inverse.ravel() * len(names) + owner, return_counts=True)
     voxel_of, node_of = combos // len(names), combos % len(names)
     order = np.lexsort((-combo_counts, voxel_of))  # per voxel, its largest node count first
     first = order[np.r_[True, voxel_of[order][1:] != voxel_of[order][:-1]]]
-    return VoxelMap(voxel_m, (keys + 0.5) * voxel_m, counts, node_of[first], names)
+    return VoxelMap((keys + 0.5) * voxel_m, counts, node_of[first])
 
 
 def cross_sightings(session: Session, nodes: Sequence[str] | None = None) -> list[dict[str, Any]]:
     """The retroreflective crosses each node's latest capture sees: connected pixels whose range-normalised
     amplitude exceeds :data:`CROSS_REFLECTIVITY` (clusters touching the image border are left out: cut, their
-    centre would be biased). Each centre is the area-weighted centroid of its points (a pixel's footprint on the
-    floor grows as range^2 / cos(incidence), so near and far parts of a cross count alike) and ``area_m2`` the
-    area its pixels cover. ``[{"name" (the layout's cross within :data:`CROSS_NAME_RADIUS_M`, else
-    ``cross@NODE#k``), "node", "point_m" (world), "point_node_m", "n_pixels", "area_m2"}]``."""
+    centre would be biased). Each centre is the solvers' :func:`~backend.solvers.depth_features.cross_centre`
+    of its points at the node's current pose (bars along world X and Y) and ``area_m2`` the floor area its pixels
+    cover (a pixel's footprint grows as range^2 / cos(incidence)). ``[{"name" (the layout's cross within
+    :data:`CROSS_NAME_RADIUS_M`, else ``cross@NODE#k``), "node", "point_m" (world), "point_node_m", "n_pixels",
+    "area_m2"}]``."""
     from scipy import ndimage
+
+    from backend.solvers.depth_features import cross_centre
 
     cell = layout(session)
     found = []
@@ -427,22 +432,23 @@ def cross_sightings(session: Session, nodes: Sequence[str] | None = None) -> lis
         ranges = np.linalg.norm(points, axis=1)
         area = ranges**2 / (intrinsics.fx * intrinsics.fy) / np.clip(np.abs(points @ up_node) / ranges, 0.05, None)
         label = flat[pixels]
-        sums = np.stack([np.bincount(label, weights=area * points[:, k], minlength=count + 1) for k in range(3)], 1)
         total = np.bincount(label, weights=area, minlength=count + 1)
         n_pixels = np.bincount(label, minlength=count + 1)
         border = set(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]).tolist())
+        points_world = transform_points(T, points)
+        T_node_world = invert(T)
         for k in range(1, count + 1):
             if n_pixels[k] < MIN_CROSS_PIXELS or k in border:
                 continue
-            centre_node = sums[k] / total[k]
-            centre = transform_points(T, centre_node[None])[0]
+            centre = cross_centre(points_world[label == k])
+            centre_node = transform_points(T_node_world, centre[None])[0]
             found.append({"name": _cross_name(cell, centre, f"cross@{node}#{k}"), "node": node,
                           "point_m": centre.tolist(), "point_node_m": centre_node.tolist(),
                           "n_pixels": int(n_pixels[k]), "area_m2": float(total[k])})
     return found
 
 
-def cross_targets(session: Session, nodes: Sequence[str] | None = None) -> list[dict[str, Any]]:
+def detected_crosses(session: Session, nodes: Sequence[str] | None = None) -> list[dict[str, Any]]:
     """Every cross the nodes see, as a pick target: ``{"name", "point_m" (world, m), "views": [{"node",
     "point_node_m", "weight"}], "n_pixels"}``, its position the pixel-weighted mean of its sightings
     (:func:`cross_sightings`) at the nodes' current poses. A sighting covering less than
@@ -474,9 +480,14 @@ def _cross_name(cell: CellLayout, point_m: np.ndarray, fallback: str) -> str:
     return cell.crosses[nearest].name if distances[nearest] <= CROSS_NAME_RADIUS_M else fallback
 
 
-def pick_point(session: Session, origin_m: Sequence[float], direction: Sequence[float]) -> dict[str, Any]:
+def pick_point(session: Session, origin_m: Sequence[float], direction: Sequence[float]) -> np.ndarray:
+    """The world point (3, m) a click's ray picks (:func:`pick`)."""
+    return np.array(pick(session, origin_m, direction)["point_m"])
+
+
+def pick(session: Session, origin_m: Sequence[float], direction: Sequence[float]) -> dict[str, Any]:
     """The point a click's ray (``origin_m``, ``direction``: world frame, m) picks in the merged cloud: a found
-    cross within :data:`CROSS_SNAP_M` of the ray (:func:`cross_targets`), else the nearest cloud point along the
+    cross within :data:`CROSS_SNAP_M` of the ray (:func:`detected_crosses`), else the nearest cloud point along the
     ray within :data:`PICK_RADIUS_M` of it. ``{"name", "kind": "cross" | "point", "point_m", "views",
     "ray_distance_m"}``, ready for :func:`add_verification`; :class:`InputError` when the ray misses everything."""
     origin = np.asarray(origin_m, dtype=float)
@@ -492,7 +503,7 @@ def pick_point(session: Session, origin_m: Sequence[float], direction: Sequence[
         along = offset @ ray
         return along, np.linalg.norm(offset - along[:, None] * ray, axis=1)
 
-    targets = cross_targets(session)
+    targets = detected_crosses(session)
     if targets:
         along, off = along_and_off(np.array([t["point_m"] for t in targets]))
         near = np.flatnonzero((off <= CROSS_SNAP_M) & (along > 0))
@@ -549,7 +560,7 @@ def verification_rows(session: Session, network: DepthNetworkFile | None = None)
 
 
 def _verification_point(session: Session, data: Mapping[str, Any], field: str) -> VerificationPoint:
-    """A verification end from a request (or :func:`pick_point`'s answer: extra keys are ignored)."""
+    """A verification end from a request (or :func:`pick`'s answer: extra keys are ignored)."""
     from pydantic import ValidationError
 
     try:
@@ -565,7 +576,7 @@ def _verification_point(session: Session, data: Mapping[str, Any], field: str) -
 def add_verification(session: Session, a: Mapping[str, Any], b: Mapping[str, Any], measured_m: float
                      ) -> dict[str, Any]:
     """Add a laser-measured distance ``measured_m`` (m) between two picked points ``a`` and ``b``
-    (``{"name", "point_m"}`` world m, optionally ``views`` as :func:`pick_point` gives them) to the session's
+    (``{"name", "point_m"}`` world m, optionally ``views`` as :func:`pick` gives them) to the session's
     table; the row as :func:`verification_row` gives it."""
     point_a, point_b = _verification_point(session, a, "a"), _verification_point(session, b, "b")
     if not np.isfinite(measured_m) or not 0 < measured_m < 1000:
@@ -590,8 +601,8 @@ def remove_verification(session: Session, index: int) -> None:
 
 def verify_layout_distances(session: Session) -> list[dict[str, Any]]:
     """Add a verification row for every laser-measured distance of the layout whose two crosses the nodes see
-    (:func:`cross_targets`); the rows added."""
-    targets = {t["name"]: t for t in cross_targets(session)}
+    (:func:`detected_crosses`); the rows added."""
+    targets = {t["name"]: t for t in detected_crosses(session)}
     return [add_verification(session, targets[d.a], targets[d.b], d.measured_m)
             for d in layout(session).distances if d.a in targets and d.b in targets]
 

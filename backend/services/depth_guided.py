@@ -1,0 +1,234 @@
+"""The guided procedure of one depth node (issue 14), shared by the API and the studio.
+
+Per node, in :data:`~backend.solvers.depth_guided.GUIDED_STEPS` order: ``initial`` (the pose typed from tape
+or laser-meter measurements: :func:`start`), ``tables_behind`` (RotX, then Z), ``tables_beside`` (RotY, Z
+again), ``lines`` (RotZ, X and Y). Each step's :func:`advise` measures that step's residuals on the node's
+captures of that step's arrangement at the current pose and suggests the pose-row fields it changes
+(:func:`backend.solvers.depth_guided.advise`); :func:`apply` takes the suggestion, and the step is done
+once its criterion holds at the new pose. :func:`nudge` sets the pose by hand at any time and :func:`undo`
+goes back one pose: every pose stays in the history. :func:`finish` keeps the final pose as a
+:class:`~backend.solvers.result.TransformResult` (kind ``depth_node``, method ``guided``) like any solve.
+
+Steps are taken in order (rotations interact unless tuned in order): a later step before an earlier one is
+done is a 409 naming both. A table not found, two tables at the same distance or empty depth is an
+:class:`InputError` and the pose stays as it was. The state lives in the session's ``depth_network.json``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from backend.core.depth import pose_from_row, pose_row
+from backend.core.errors import InputError, shorten
+from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
+from backend.services import depth_network as network
+from backend.services import rig as rig_service
+from backend.solvers.result import TransformResult
+from backend.store.schema import GuidedNodeState
+from backend.store.session import Session
+
+STEP_ARRANGEMENT: dict[str, str | None] = {"initial": None, "tables_behind": "behind", "tables_beside": "beside",
+                                           "lines": None}
+"""The captures each step reads: those of one arrangement, or (None) every capture of the node."""
+ORDER_REASON: dict[str, str] = {
+    "initial": "the typed pose is where every step starts",
+    "tables_behind": "RotX before RotY: rotations interact",
+    "tables_beside": "RotY before RotZ, X and Y: the lines are read on a level view",
+    "lines": "the last step",
+}
+"""Why each step comes before the next (the 409 of a step taken out of order says it)."""
+
+
+def _steps() -> tuple[str, ...]:
+    from backend.solvers.depth_guided import GUIDED_STEPS
+
+    return tuple(GUIDED_STEPS)
+
+
+def _node_state(session: Session, node: str) -> GuidedNodeState:
+    network.check_node(session, node)
+    return network.state(session).guided.get(node, GuidedNodeState())
+
+
+def _save(session: Session, node: str, guided: GuidedNodeState) -> None:
+    with session.lock:
+        file = network.state(session)
+        file.guided[node] = guided
+        session.save_depth_network(file)
+
+
+def state(session: Session, node: str) -> dict[str, Any]:
+    """Where ``node`` stands: ``{"node", "step"}`` (the step to work on: ``initial`` before :func:`start`, None
+    when every step is done), ``done``, ``pose_row`` and ``T_world_node`` (the current pose; None before start),
+    ``history`` (every pose row, oldest first) and ``result_id`` (of :func:`finish`)."""
+    guided = _node_state(session, node)
+    current = np.array(guided.history[-1]) if guided.history else None
+    return {"node": node, "step": guided.step if guided.history else "initial", "done": list(guided.done),
+            "pose_row": None if current is None else list(pose_row(current)),
+            "T_world_node": None if current is None else current.tolist(),
+            "history": [list(pose_row(np.array(T))) for T in guided.history], "result_id": guided.result_id,
+            "steps": list(_steps())}
+
+
+def start(session: Session, node: str, pose: Sequence[float]) -> dict[str, Any]:
+    """Start (or restart) ``node``'s procedure from the typed ``pose`` row (X, Y, Z m; RotZ, RotY, RotX deg):
+    ``initial`` is done, the next step is ``tables_behind``; earlier poses stay in the history."""
+    T = pose_from_row(pose)
+    guided = _node_state(session, node)
+    steps = _steps()
+    _save(session, node, GuidedNodeState(step=steps[1], done=[steps[0]], history=[*guided.history, T.tolist()]))
+    return state(session, node)
+
+
+def _check_step(guided: GuidedNodeState, node: str, step: str) -> None:
+    """Refuse an unknown step, a node not started, or a step whose earlier steps are not done (409)."""
+    steps = _steps()
+    if step not in steps:
+        raise InputError(f"unknown step {shorten(step)}; the steps are {list(steps)}", "step")
+    if not guided.history:
+        raise InputError(f"the guided procedure of {node} has not started: type its measured pose first "
+                         f"(step 'initial')", "step", 409)
+    if step == steps[0]:
+        raise InputError("step 'initial' is the typed pose: start again from a typed pose to redo it", "step", 409)
+    pending = guided.step
+    if pending is not None and steps.index(step) > steps.index(pending):
+        raise InputError(f"step {step!r} comes after {pending!r} ({ORDER_REASON[pending]}); finish {pending!r} "
+                         "first", "step", 409)
+
+
+def _observations(session: Session, node: str, step: str) -> list[Any]:
+    arrangement = STEP_ARRANGEMENT[step]
+    observed = network.observations(session, node, arrangement)
+    if not observed:
+        what = f"with the tables {arrangement} each other" if arrangement else "at all"
+        raise InputError(f"no capture of {node} {what} yet; capture the node "
+                         f"{f'with arrangement {arrangement!r} ' if arrangement else ''}for step {step!r}",
+                         "captures")
+    return observed
+
+
+def advise(session: Session, node: str, step: str, T_world_node: np.ndarray | None = None) -> Any:
+    """Step ``step``'s :class:`~backend.solvers.depth_guided.StepAdvice` for ``node`` at ``T_world_node`` (default:
+    the procedure's current pose): its residuals, the suggested pose-row fields, whether its criterion holds.
+    What the captures do not show (a table not found, two at the same distance, no depth) is an
+    :class:`InputError` listing it; nothing changes."""
+    from backend.solvers.depth_guided import advise as solver_advise
+
+    guided = _node_state(session, node)
+    _check_step(guided, node, step)
+    T = np.array(guided.history[-1]) if T_world_node is None else np.asarray(T_world_node, dtype=float)
+    advice = solver_advise(step, _observations(session, node, step), network.layout(session), T)
+    if advice.problems:
+        raise InputError(f"{node}, step {step!r}: {'; '.join(advice.problems)}; the pose is kept", "captures")
+    return advice
+
+
+def advice_dict(advice: Any) -> dict[str, Any]:
+    """A :class:`~backend.solvers.depth_guided.StepAdvice` as JSON (``T_suggested`` a nested list, and its row)."""
+    return {"step": advice.step, "residuals": advice.residuals, "suggestion": dict(advice.suggestion),
+            "T_suggested": np.asarray(advice.T_suggested).tolist(),
+            "pose_row_suggested": list(pose_row(advice.T_suggested)), "done": bool(advice.done),
+            "criterion": advice.criterion, "why": advice.why, "problems": list(advice.problems)}
+
+
+def apply(session: Session, node: str, step: str) -> dict[str, Any]:
+    """Take step ``step``'s suggestion at the current pose (the previous pose stays in the history); when its
+    criterion then holds the step is done and the next one is due. :func:`state` with ``advice``: the step's
+    advice at the new pose."""
+    steps = _steps()
+    with session.lock:
+        advice = advise(session, node, step)
+        guided = _node_state(session, node)
+        T_new = np.asarray(advice.T_suggested, dtype=float)
+        after = advise(session, node, step, T_new)
+        guided.history.append(T_new.tolist())
+        if after.done and step not in guided.done:
+            guided.done.append(step)
+        if after.done and guided.step == step:
+            index = steps.index(step) + 1
+            guided.step = steps[index] if index < len(steps) else None
+        _save(session, node, guided)
+    return state(session, node) | {"advice": advice_dict(after)}
+
+
+def nudge(session: Session, node: str, pose: Sequence[float]) -> dict[str, Any]:
+    """Set the pose by hand (the pose row, m and deg); the steps done stay done. The previous pose stays in the
+    history."""
+    T = pose_from_row(pose)
+    with session.lock:
+        guided = _node_state(session, node)
+        if not guided.history:
+            raise InputError(f"the guided procedure of {node} has not started: type its measured pose first",
+                             "step", 409)
+        if not np.allclose(guided.history[-1], T, rtol=0, atol=1e-12):
+            guided.history.append(T.tolist())
+            _save(session, node, guided)
+    return state(session, node)
+
+
+def undo(session: Session, node: str) -> dict[str, Any]:
+    """Go back to the previous pose of the history (the typed pose is the oldest one kept)."""
+    with session.lock:
+        guided = _node_state(session, node)
+        if len(guided.history) < 2:
+            raise InputError(f"{node}: no earlier pose to go back to", "history", 409)
+        guided.history.pop()
+        _save(session, node, guided)
+    return state(session, node)
+
+
+def finish(session: Session, node: str, *, accept: bool = False, confirm: bool = False) -> dict[str, Any]:
+    """Keep the procedure's final pose as a result of ``node`` (kind ``depth_node``, method ``guided``, parent
+    ``world``) and return its stored record; with ``accept``, accept it into the rig too (a ``check`` verdict
+    needs ``confirm``).
+
+    Covariance: the transform set by hand's (:data:`backend.services.rig.MANUAL_SIGMA`, 5 mm and 0.3 deg per
+    axis): the residuals say the criteria hold, not how far the pose may still be off within them. Verdict:
+    those sigmas against the default tolerances, and as the cross-check every step's criterion re-measured at
+    the final pose (a nudge after a step may have undone it)."""
+    steps = _steps()
+    guided = _node_state(session, node)
+    if not guided.history:
+        raise InputError(f"the guided procedure of {node} has not started: type its measured pose first", "step",
+                         409)
+    missing = [s for s in steps if s not in guided.done]
+    if missing:
+        raise InputError(f"{node}: step {missing[0]!r} is not done yet (steps left: {missing})", "step", 409)
+    T = np.array(guided.history[-1])
+    checks = {step: advise(session, node, step, T) for step in steps[1:]}
+    sigma_m, sigma_deg = rig_service.MANUAL_SIGMA
+    covariance = np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3)
+    result = TransformResult(kind="depth_node", method="guided", parent=network.WORLD, child=node, T_parent_child=T,
+                             covariance=covariance,
+                             residuals=_residual_summary([r for a in checks.values() for r in a.residuals]),
+                             diagnostics={"steps": {step: advice_dict(a) for step, a in checks.items()},
+                                          "pose_row": list(pose_row(T)),
+                                          "history": [list(pose_row(np.array(h))) for h in guided.history],
+                                          "covariance_note": f"set by hand: sigma assumed {sigma_m * 1e3:g} mm, "
+                                                             f"{sigma_deg:g} deg"})
+    judge = VerdictBuilder()
+    judge_transform_sigmas(judge, result.std)
+    failed = [step for step, a in checks.items() if not a.done]
+    judge.cross_check("every step's criterion at the final pose", not failed,
+                      f"{', '.join(failed)} no longer hold{'s' if len(failed) == 1 else ''}" if failed else
+                      "; ".join(a.criterion for a in checks.values()))
+    result.verdict = judge.verdict()
+    inputs = [c.id for c in network.captures(session, node)]
+    record = session.result(session.add_result(node, result.to_record(), inputs=inputs))
+    guided.result_id = record["id"]
+    _save(session, node, guided)
+    if accept:
+        rig_service.accept(session, record["id"], confirm=confirm)
+    return record
+
+
+def _residual_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """``rms_m`` of the features' errors against their known values, the worst one and how many (m)."""
+    errors = np.array([r["error_m"] for r in rows if r.get("error_m") is not None], dtype=float)
+    if not len(errors):
+        return {"n_features": 0}
+    return {"rms_m": float(np.sqrt(np.mean(errors**2))), "max_abs_error_m": float(np.abs(errors).max()),
+            "n_features": len(errors)}
