@@ -167,6 +167,7 @@ class CellScene:
         self._surface_of_geometry.append(SURFACES[surface])
 
     def _add_table(self, placement: TablePlacement) -> None:
+        """A table's top (upper face at its height) and four legs; :class:`InputError` if it reaches outside."""
         spec = self.layout.table(placement.table)
         corners = table_corners_m(self.layout, placement)
         (sx, sy, _), xy = self.layout.size_m, corners[:, :2]
@@ -275,8 +276,11 @@ class _Trace:
     strength: np.ndarray
     """(N,) return strength (albedo, times the gain on crosses) that sets the noise."""
     depth_m: np.ndarray
+    """(H, W) float32 true depth (m), 0 = no return."""
     amplitude: np.ndarray
+    """(H, W) float32 noise-free amplitude."""
     labels: np.ndarray
+    """(H, W) int8 surface codes (:data:`SURFACES`)."""
 
 
 def _fly_pixels(depth: np.ndarray, rng: np.random.Generator) -> None:
