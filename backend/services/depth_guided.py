@@ -61,16 +61,19 @@ def _save(session: Session, node: str, guided: GuidedNodeState) -> None:
 
 
 def state(session: Session, node: str) -> dict[str, Any]:
-    """Where ``node`` stands: ``{"node", "step"}`` (the step to work on: ``initial`` before :func:`start`, None
-    when every step is done), ``done``, ``pose_row`` and ``T_world_node`` (the current pose; None before start),
-    ``history`` (every pose row, oldest first) and ``result_id`` (of :func:`finish`)."""
+    """Where ``node`` stands: ``{"node", "step"}`` (the step to work on: ``initial`` before :func:`start`, the
+    last step once every step is done), ``complete`` (every step done), ``done``, ``pose_row`` and
+    ``T_world_node`` (the current pose; None before start), ``history`` (every pose row, oldest first) and
+    ``result_id`` (of :func:`finish`)."""
     guided = _node_state(session, node)
+    steps = _steps()
     current = np.array(guided.history[-1]) if guided.history else None
-    return {"node": node, "step": guided.step if guided.history else "initial", "done": list(guided.done),
+    step = "initial" if not guided.history else guided.step or steps[-1]
+    return {"node": node, "step": step, "complete": all(s in guided.done for s in steps), "done": list(guided.done),
             "pose_row": None if current is None else list(pose_row(current)),
             "T_world_node": None if current is None else current.tolist(),
             "history": [list(pose_row(np.array(T))) for T in guided.history], "result_id": guided.result_id,
-            "steps": list(_steps())}
+            "steps": list(steps)}
 
 
 def start(session: Session, node: str, pose: Sequence[float]) -> dict[str, Any]:
@@ -113,15 +116,16 @@ def _observations(session: Session, node: str, step: str) -> list[Any]:
 def advise(session: Session, node: str, step: str, T_world_node: np.ndarray | None = None) -> Any:
     """Step ``step``'s :class:`~backend.solvers.depth_guided.StepAdvice` for ``node`` at ``T_world_node`` (default:
     the procedure's current pose): its residuals, the suggested pose-row fields, whether its criterion holds.
-    What the captures do not show (a table not found, two at the same distance, no depth) is an
-    :class:`InputError` listing it; nothing changes."""
+    When the captures leave the step nothing to suggest (no table found, tables at the same distance, no
+    depth, no line) that is an :class:`InputError` listing why; nothing changes. Lesser problems (one capture's
+    table missing) come in the advice's ``problems``."""
     from backend.solvers.depth_guided import advise as solver_advise
 
     guided = _node_state(session, node)
     _check_step(guided, node, step)
     T = np.array(guided.history[-1]) if T_world_node is None else np.asarray(T_world_node, dtype=float)
     advice = solver_advise(step, _observations(session, node, step), network.layout(session), T)
-    if advice.problems:
+    if advice.problems and not advice.suggestion:
         raise InputError(f"{node}, step {step!r}: {'; '.join(advice.problems)}; the pose is kept", "captures")
     return advice
 
@@ -141,6 +145,9 @@ def apply(session: Session, node: str, step: str) -> dict[str, Any]:
     steps = _steps()
     with session.lock:
         advice = advise(session, node, step)
+        if not advice.suggestion:
+            raise InputError(f"{node}, step {step!r}: nothing to apply ({advice.criterion}: "
+                             f"{'holds' if advice.done else 'does not hold'}); the pose is kept", "step", 409)
         guided = _node_state(session, node)
         T_new = np.asarray(advice.T_suggested, dtype=float)
         after = advise(session, node, step, T_new)
