@@ -9,6 +9,7 @@ from backend.store.session import Session, SessionStore
 from studio.context import StudioContext
 from studio.layers import Layers
 from studio.scene import RigScene
+from studio.wizard.depth_network_step import DepthNetworkStep
 from studio.wizard.intrinsics_step import IntrinsicsStep
 from studio.wizard.lidar_camera_step import LidarCameraStep
 from studio.wizard.lidar_step import LidarStep
@@ -36,8 +37,14 @@ class StudioApp:
         self.lidar_camera_step = LidarCameraStep(self.ctx)
         self.multicam_step = MulticamStep(self.ctx)
         self.rig_step = RigStep(self.ctx)
+        self.depth_network_step = DepthNetworkStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
+
+    def attach_node_network(self, network) -> None:
+        """Let the depth-network step use the server's open :class:`~backend.devices.node_network.NodeNetwork`
+        (the demo cell's agents connect to it) instead of listening on its own."""
+        self.depth_network_step.attach(network)
 
     def close(self) -> None:
         """Stop what the open session streams (every step's closing hook)."""

@@ -6,9 +6,9 @@ Everything is drawn in the cell's ``world`` frame (m, Z up) under the step's lay
 
 - ``cell/``: the floor outline and the walls' top edges, every floor line (tape) with its label
   (``X = 2 m``), every retroreflective cross as an X with its name;
-- ``node/``: the node being tuned at the pose on the editor (a frustum), its capture's points mapped
-  into ``world`` with that pose, and the features found in it coloured by kind (floor grey, tables
-  white, lines yellow, crosses red), so a table top drawn below its known height shows at once;
+- ``node/``: the node being tuned at the pose on the editor (a frustum) and its latest capture mapped
+  into ``world`` with that pose, coloured by height, so a tilted floor or a table top below its known
+  height shows at once as a change of colour;
 - ``map``: the merged voxel map (cube centres, one per occupied voxel), coloured per node or by count;
 - ``picks/``: the two verification points and the segment between them.
 
@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from backend.core.colour_maps import colormap
+from backend.core.colour_maps import colormap, height_colours
 from backend.core.depth import KINECT_V2, DepthIntrinsics
 from backend.core.depth_cell import CellLayout
 from backend.core.transforms import transform_points
@@ -33,15 +33,14 @@ STEP = "depth_network"
 TAPE_COLOUR = (240, 200, 30)
 CROSS_COLOUR = (220, 40, 40)
 OUTLINE_COLOUR = (120, 120, 120)
-FEATURE_COLOURS = {"floor": (150, 150, 150), "table": (250, 250, 250), "line": (240, 200, 30), "point": (220, 40, 40)}
-"""Feature points by kind (:class:`backend.solvers.depth_features.Feature`)."""
 CAPTURE_COLOUR = (60, 140, 220)
+HEIGHT_RANGE_M = (-0.1, 1.0)
+"""World heights (m) at the ends of the capture's colour map: the floor blue, a 0.74 m table top orange-red."""
 PICK_COLOUR = (230, 40, 200)
 LINE_HEIGHT_M = 0.004
 """Floor lines and crosses are drawn this far above the floor (m), so the floor's points do not hide them."""
 CAPTURE_POINT_SIZE_M = 0.025
-FEATURE_POINT_SIZE_M = 0.035
-MAX_CAPTURE_POINTS = 60_000
+MAX_CAPTURE_POINTS = 40_000
 """Most points of one capture drawn (an even stride through it; a Kinect v2 frame has up to 217k)."""
 FRUSTUM_SCALE_M = 0.6
 COUNT_COLOUR_MAX = 30
@@ -107,28 +106,28 @@ class DepthView:
     def root(self) -> str:
         return self.scene.group(STEP)
 
-    def _replace(self, key: str, handles: list) -> None:
+    def _layer(self, key: str) -> list:
+        """Remove what layer ``key`` drew and return its (empty) list of handles to draw it afresh into (removed
+        first: a node added under a drawn one's name replaces it, and removing the old handle then would remove
+        the new node)."""
         self.clear(key)
-        self._handles[key] = handles
+        return self._handles.setdefault(key, [])
 
     def clear(self, key: str | None = None) -> None:
-        """Remove what one layer (``cell``, ``node``, ``features``, ``map``, ``picks``) drew, or all of them."""
+        """Remove what one layer (``cell``, ``node``, ``map``, ``picks``) drew, or all of them."""
         for name in [key] if key else list(self._handles):
             for handle in reversed(self._handles.pop(name, [])):
-                try:
-                    handle.remove()
-                except (RuntimeError, KeyError):  # gone with a redrawn rig (the scene was reset)
-                    pass
+                handle.remove()
 
     def forget(self) -> None:
-        """The scene was reset (another session opened): drop the handles without removing them."""
+        """The session is left and the scene is about to be redrawn afresh: drop the handles without removing them."""
         self._handles = {}
 
     def show_cell(self, layout: CellLayout) -> None:
         """The cell's box, its floor lines with labels and its crosses with names (``cell/``)."""
-        server, root = self.scene.server, f"{self.root}/cell"
-        handles = [server.scene.add_line_segments(f"{root}/outline", cell_outline(layout), OUTLINE_COLOUR,
-                                                  thickness=0.02)]
+        server, root, handles = self.scene.server, f"{self.root}/cell", self._layer("cell")
+        handles.append(server.scene.add_line_segments(f"{root}/outline", cell_outline(layout), OUTLINE_COLOUR,
+                                                      thickness=0.02))
         if layout.lines:
             handles.append(server.scene.add_line_segments(f"{root}/lines", floor_line_segments(layout), TAPE_COLOUR,
                                                           thickness=0.05))
@@ -143,62 +142,44 @@ class DepthView:
             handles.append(server.scene.add_label(f"{root}/cross_labels/{cross.name}", cross.name,
                                                   position=np.add(cross.position_m, (0.0, 0.0, 0.05)),
                                                   font_screen_scale=0.6))
-        self._replace("cell", handles)
 
     def show_node(self, node: str, T_world_node: np.ndarray, points_node: np.ndarray | None,
                   intrinsics: DepthIntrinsics = KINECT_V2) -> None:
         """``node``'s frustum at ``T_world_node`` (the editor's pose) and its capture (N, 3, node frame, m) mapped
-        into ``world`` with it (``node/``); at most :data:`MAX_CAPTURE_POINTS` points."""
-        server, root = self.scene.server, f"{self.root}/node"
+        into ``world`` with it, coloured by height (``node/``); at most :data:`MAX_CAPTURE_POINTS` points."""
+        server, root, handles = self.scene.server, f"{self.root}/node", self._layer("node")
         fov, aspect = frustum_fov_aspect(intrinsics)
         pose = viser_pose(T_world_node)
-        handles = [server.scene.add_camera_frustum(f"{root}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M,
-                                                   color=CAPTURE_COLOUR, thickness=0.02, **pose),
-                   server.scene.add_label(f"{root}/label", f"{node} (editor)", font_screen_scale=0.8,
-                                          position=pose["position"] + (0.0, 0.0, 0.15))]
+        handles += [server.scene.add_camera_frustum(f"{root}/frustum", fov=fov, aspect=aspect, scale=FRUSTUM_SCALE_M,
+                                                    color=CAPTURE_COLOUR, thickness=0.02, **pose),
+                    server.scene.add_label(f"{root}/label", f"{node} (editor)", font_screen_scale=0.8,
+                                           position=pose["position"] + (0.0, 0.0, 0.15))]
         if points_node is not None and len(points_node):
             shown, _ = display_subset(np.asarray(points_node, float), None, MAX_CAPTURE_POINTS)
             handles.append(server.scene.add_point_cloud(
-                f"{root}/capture", transform_points(T_world_node, shown).astype(np.float32), CAPTURE_COLOUR,
-                point_size=CAPTURE_POINT_SIZE_M, precision="float32"))
-        self._replace("node", handles)
-
-    def show_features(self, features: Sequence, T_world_node: np.ndarray) -> None:
-        """The features found in the node's captures (``Feature``: kind, name, points in the node frame), in
-        ``world`` at ``T_world_node``, coloured by kind (``features/<i>``)."""
-        server, root = self.scene.server, f"{self.root}/features"
-        handles = []
-        for i, feature in enumerate(features):
-            points = np.asarray(feature.points, float).reshape(-1, 3)
-            if not len(points):
-                continue
-            shown, _ = display_subset(points, None, MAX_CAPTURE_POINTS // 4)
-            handles.append(server.scene.add_point_cloud(
-                f"{root}/{i}", transform_points(T_world_node, shown).astype(np.float32),
-                FEATURE_COLOURS.get(feature.kind, CAPTURE_COLOUR), point_size=FEATURE_POINT_SIZE_M,
+                f"{root}/capture", transform_points(T_world_node, shown).astype(np.float32),
+                height_colours(shown, T_world_node, *HEIGHT_RANGE_M), point_size=CAPTURE_POINT_SIZE_M,
                 precision="float32"))
-        self._replace("features", handles)
 
     def show_voxel_map(self, centres_m: np.ndarray, counts: np.ndarray, node_index: np.ndarray, voxel_m: float,
                        colour_by: str) -> None:
         """The merged voxel map (``map``): one cube centre per voxel (M, 3, m, world), coloured per node
         (``colour_by="node"``, the index into the network's node list) or by its point count (``"count"``)."""
+        handles = self._layer("map")
         if not len(centres_m):
-            self.clear("map")
             return
         colours = (count_colours(counts) if colour_by == "count"
                    else np.array([sensor_colour(int(i)) for i in range(int(np.max(node_index)) + 1)],
                                  np.uint8)[np.asarray(node_index, int)])
-        self._replace("map", [self.scene.server.scene.add_point_cloud(
+        handles.append(self.scene.server.scene.add_point_cloud(
             f"{self.root}/map", np.asarray(centres_m, np.float32), colours, point_size=float(voxel_m),
-            point_shape="square", precision="float32")])
+            point_shape="square", precision="float32"))
 
     def show_picks(self, points_m: Sequence[np.ndarray]) -> None:
         """The verification points picked so far (m, world) and, once there are two, the segment between them."""
-        server, root = self.scene.server, f"{self.root}/picks"
-        handles = [server.scene.add_icosphere(f"{root}/{i}", radius=0.06, color=PICK_COLOUR,
-                                              position=np.asarray(p, float)) for i, p in enumerate(points_m)]
+        server, root, handles = self.scene.server, f"{self.root}/picks", self._layer("picks")
+        handles += [server.scene.add_icosphere(f"{root}/{i}", radius=0.06, color=PICK_COLOUR,
+                                               position=np.asarray(p, float)) for i, p in enumerate(points_m)]
         if len(points_m) == 2:
             handles.append(server.scene.add_line_segments(f"{root}/segment", np.array([points_m], float),
                                                           PICK_COLOUR, thickness=0.03))
-        self._replace("picks", handles)

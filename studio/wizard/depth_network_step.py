@@ -1,0 +1,611 @@
+"""Step 9: the depth-camera network - nodes over the network, the guided table procedure per node, the automatic
+solve of every node, the merged map and its check against laser-measured distances.
+
+Shown only when the open session's rig has depth nodes (frames of kind ``depth`` under ``world``,
+each ``T_world_node`` in the paper's optical node frame, :mod:`backend.core.depth`). Four folders:
+
+- **Nodes**: who is there (:class:`backend.devices.node_network.NodeNetwork` presence through Zenoh
+  liveliness, live), each node's clock offset, bandwidth and frames/s; *Capture* one node or
+  *Capture all* (what arrived is stored; a node that vanished is named).
+- **Guided procedure** of one node, in its order (:data:`backend.solvers.depth_guided.GUIDED_STEPS`):
+  1 initial pose typed, 2 tables behind each other, 3 tables beside each other, 4 lines and points.
+  Each step says what to place where and why it comes here, holds the node's pose in the transform
+  editor (sliders and nudges), shows the live residuals (table heights measured against known, line
+  distances), offers the solver's suggestion as one button and ticks its *done* criterion. In a
+  simulated cell *Place tables (simulation)* moves the simulated tables for the step.
+- **Automatic solve**: every node's six degrees of freedom from the same evidence (a job), one result
+  card per node (:class:`studio.result_card.ResultCard`), accepted into the rig like any result.
+- **Network**: the merged voxel map in 3D, verification (two points, picked in 3D or chosen among the
+  detected crosses, and the laser-measured distance: measured against estimated) and the pose table.
+
+Logic lives in the services (:mod:`backend.services.depth_network`, :mod:`backend.services.depth_guided`);
+the 3D drawing in :mod:`studio.depth_view`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from backend.core.depth import POSE_COLUMNS, pose_from_row, pose_row
+from backend.core.errors import InputError
+from backend.core.rig import edge_slot
+from backend.services import depth_guided as guided_service
+from backend.services import depth_network as network_service
+from backend.solvers.depth_guided import GUIDED_STEPS, StepAdvice
+from studio.cloud_colours import sensor_colour
+from studio.context import StudioContext
+from studio.depth_view import COUNT_COLOUR_MAX, STEP, DepthView
+from studio.job_panel import JobPanel
+from studio.layers import STEPS
+from studio.result_card import ResultCard
+from studio.result_history import ResultHistory
+from studio.transform_sliders import TransformSliders
+
+NONE = "(no depth node)"
+KIND = "depth_node"
+STEP_LABELS = {"initial": "1 · Initial pose", "tables_behind": "2 · Tables behind each other",
+               "tables_beside": "3 · Tables beside each other", "lines": "4 · Lines and points"}
+"""The guided steps (:data:`GUIDED_STEPS`) as the step dropdown names them."""
+ARRANGEMENTS = {"initial": "free", "tables_behind": "behind", "tables_beside": "beside", "lines": "free"}
+"""The table arrangement a capture taken during each guided step is stored with."""
+SIM_ARRANGEMENTS = {"tables_behind": "behind", "tables_beside": "beside"}
+"""The steps whose tables *Place tables (simulation)* moves, and how."""
+INSTRUCTIONS = {
+    "initial": ("**Measure where the node hangs** with the tape or the laser meter: X and Y from the cell's origin "
+                "corner along its walls, Z above the floor (m), at the IR sensor. Type the rotations you know, or 0; "
+                "a ceiling node looking down has RotZ about its heading and RotX about −150° to −140°.\n\n"
+                "*Why first:* every later step corrects a few degrees and centimetres, and finds the tables and the "
+                "lines near where this pose puts them."),
+    "tables_behind": ("**Place the three tables one behind the other** along the node's view: at the bottom, the "
+                      "middle and the top of its image, all fully in view. Their tops are planes of known height.\n\n"
+                      "*Why now:* a tilt error (RotX) makes the far table come out higher or lower than the near "
+                      "one, while a height error (Z) moves all three alike; so RotX first, then Z. Rotations "
+                      "interact: the roll (step 3) cannot be read while the tilt is still wrong."),
+    "tables_beside": ("**Place the three tables side by side** across the view at mid distance: left, centre and "
+                      "right.\n\n*Why now:* with the tilt right, a roll error (RotY) makes the left and right tops "
+                      "differ in height; then Z is checked again."),
+    "lines": ("**The cell's floor lines and crosses** (drawn in 3D) fix what the tables cannot: horizontal planes "
+              "say nothing about where the node stands in the floor plane or where it looks. Keep the floor lines "
+              "in view (no table on them).\n\n*Why last:* with the node level (steps 2 and 3), its heading (RotZ) "
+              "and then X and Y move the seen lines onto the known ones without disturbing the heights."),
+}
+COLOUR_BY = {"per node": "node", "by count": "count"}
+CLICKED = "(the point picked in 3D)"
+REFRESH_S = 1.0
+"""How often the nodes panel is refreshed (s): bandwidth and frames/s move continuously."""
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+HELP = ("Calibrate every depth node of the cell: capture from each node's computer over the network, then either "
+        "walk a node through the guided table procedure or solve all nodes at once; check the merged map against "
+        "distances measured with the laser meter.")
+
+
+def _metres(value: float | None) -> str:
+    return "–" if value is None or not np.isfinite(value) else f"{value:.3f}"
+
+
+def _mm(value: float | None) -> str:
+    return "–" if value is None or not np.isfinite(value) else f"{1000.0 * value:+.1f}"
+
+
+def nodes_markdown(statuses: list, nodes: list[str], captures: dict[str, int]) -> str:
+    """The presence table: every rig node and every node the network sees, alive or not, with its clock offset
+    (ms, node minus studio) and round trip (ms), its stream's bandwidth (kB/s), frames/s and latency (ms),
+    and the captures stored; then each node's warnings (a clock far off)."""
+    by_name = {s.name: s for s in statuses}
+    rows = ["| node | present | device | clock offset (ms) | RTT (ms) | kB/s | frames/s | latency (ms) | captures |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    warnings = []
+    for name in dict.fromkeys([*nodes, *by_name]):
+        status = by_name.get(name)
+        if status is None:
+            rows.append(f"| {name} | ⚪ not seen | – | – | – | – | – | – | {captures.get(name, 0)} |")
+            continue
+        offset = "–" if status.clock_offset_s is None else f"{1000.0 * status.clock_offset_s:+.1f}"
+        rtt = "–" if status.clock_rtt_s is None else f"{1000.0 * status.clock_rtt_s:.1f}"
+        latency = "–" if status.latency_s is None else f"{1000.0 * status.latency_s:.0f}"
+        rows.append(f"| {name} | {'🟢 alive' if status.alive else '🔴 gone'} | {status.device or '–'} | {offset} | "
+                    f"{rtt} | {status.bandwidth_bps / 1000.0:.0f} | {status.rate_hz:.1f} | {latency} | "
+                    f"{captures.get(name, 0)} |")
+        warnings += [f"- ⚠️ {name}: {warning}" for warning in status.warnings]
+    return "\n".join(rows + ([""] + warnings if warnings else []))
+
+
+def residuals_markdown(residuals: list[dict[str, Any]]) -> str:
+    """The live residual table of a guided step: per feature its capture, points, known and measured value (m)
+    and error (mm)."""
+    if not residuals:
+        return "No feature to measure yet: capture for this step first."
+    rows = ["| feature | capture | points | known (m) | measured (m) | error (mm) | RMS (mm) |",
+            "|---|---|---|---|---|---|---|"]
+    for r in residuals:
+        rows.append(f"| {r['name']} | {r.get('capture_id') or '–'} | {r.get('n_points', 0):,} | "
+                    f"{_metres(r.get('known_m'))} | {_metres(r.get('measured_m'))} | {_mm(r.get('error_m'))} | "
+                    f"{_mm(r.get('rms_m')).lstrip('+')} |")
+    return "\n".join(rows)
+
+
+def suggestion_label(suggestion: dict[str, float]) -> str:
+    """The suggestion button's label: ``Apply RotX -138.61°, then Z 4.898 m`` (pose-row fields in order)."""
+    parts = [f"{name} {value:.2f}°" if name.startswith("Rot") else f"{name} {value:.3f} m"
+             for name, value in suggestion.items()]
+    return "Apply " + ", then ".join(parts) if parts else "Nothing to apply"
+
+
+def criterion_markdown(advice: StepAdvice) -> str:
+    """The step's done criterion with its tick, and the problems the solver met."""
+    tick = "✅ **Done**" if advice.done else "⬜ **Not yet**"
+    lines = [f"{tick}: {advice.criterion}", "", f"*{advice.why}*"] if advice.why else [f"{tick}: {advice.criterion}"]
+    lines += [f"- ⚠️ {problem}" for problem in advice.problems]
+    return "\n".join(lines)
+
+
+def verification_markdown(rows: list[dict[str, Any]]) -> str:
+    """Measured against estimated distances (m) and the error (mm)."""
+    if not rows:
+        return "No distance checked yet."
+    lines = ["| from | to | measured (m) | estimated (m) | error (mm) |", "|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(f"| {row['a']} | {row['b']} | {row['measured_m']:.4f} | {_metres(row.get('estimated_m'))} | "
+                     f"{_mm(row.get('error_m'))} |")
+    return "\n".join(lines)
+
+
+def legend_html(nodes: list[str]) -> str:
+    """The merged map's per-node colours (:func:`studio.cloud_colours.sensor_colour` by the node's index)."""
+    return " ".join(f'<span style="color:rgb{sensor_colour(i)}">■</span>&nbsp;{name}' for i, name in enumerate(nodes))
+
+
+class DepthNetworkStep:
+    """The panel. The node network is the server's when it opened one (:meth:`attach`, the demo cell's), else
+    *Listen for nodes* opens one on the endpoint typed."""
+
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self.network = None
+        self.view = DepthView(ctx.scene)
+        self._advice: StepAdvice | None = None
+        self._wake = threading.Event()
+        self._lock = threading.Lock()
+        """Held by each advice pass, so that leaving a session waits for the one in flight."""
+        self._points: tuple[str, np.ndarray] | None = None
+        """(capture id, points (N, 3) m in the node frame) of the node's latest capture, drawn at the editor pose."""
+        self._crosses: dict[str, dict[str, Any]] = {}
+        self._picked: dict[str, Any] | None = None
+        gui = ctx.server.gui
+        self.folder = gui.add_folder("9 · Depth network", expand_by_default=False, visible=False)
+        with self.folder:
+            gui.add_markdown(HELP)
+            self.node = gui.add_dropdown("Depth node", options=[NONE], hint="the node the panels below work on")
+            with gui.add_folder("Nodes", expand_by_default=True):
+                self.listen = gui.add_text("Listen on", DEFAULT_LISTEN, hint="Zenoh endpoint the node agents connect "
+                                           "to (calib-studio node --connect ...)")
+                self.listen_button = gui.add_button("Listen for nodes")
+                self.nodes_text = gui.add_markdown("No node network yet: *Listen for nodes*.")
+                self.capture_button = gui.add_button("Capture", color="green", hint="one full frame of the node, "
+                                                     "stored with the guided step's table arrangement")
+                self.capture_all_button = gui.add_button("Capture all", hint="every node at once: what arrives is "
+                                                         "kept, a node that does not answer is named")
+                self.capture_jobs = JobPanel(ctx, [self.capture_button, self.capture_all_button])
+            with gui.add_folder("Guided procedure", expand_by_default=True):
+                self.guided_step = gui.add_dropdown("Guided step", options=list(STEP_LABELS.values()))
+                self.instructions = gui.add_markdown(INSTRUCTIONS["initial"])
+                self.pose_inputs = {name: gui.add_number(f"{name} ({'m' if name in 'XYZ' else '°'})", 0.0,
+                                                         step=0.001 if name in "XYZ" else 0.01)
+                                    for name in POSE_COLUMNS}
+                self.start_button = gui.add_button("Start from this pose", color="blue")
+                self.place_button = gui.add_button("Place tables (simulation)", visible=False,
+                                                   hint="move the simulated tables where this step wants them")
+                self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=0.3)
+                self.editor.bind_keys(gui, "Depth node")
+                self.residuals_text = gui.add_markdown("")
+                self.apply_button = gui.add_button("Nothing to apply", disabled=True, color="blue")
+                self.criterion_text = gui.add_markdown("")
+                self.next_button = gui.add_button("Next step")
+                self.finish_button = gui.add_button("Keep this pose as the node's result",
+                                                    hint="a guided result (set by hand: 5 mm, 0.3° sigma), shown on "
+                                                         "the card of *Automatic solve* to accept")
+            with gui.add_folder("Automatic solve", expand_by_default=False):
+                self.solve_button = gui.add_button("Solve all nodes", color="blue")
+                self.solve_node_button = gui.add_button("Solve this node")
+                self.solve_jobs = JobPanel(ctx, [self.solve_button, self.solve_node_button])
+                self.history = ResultHistory(gui, lambda _: self._show_result(),
+                                             hint="every result of this node (guided and automatic), newest first")
+                self.card = ResultCard(ctx, on_accepted=lambda _: self._show_result(),
+                                       empty_text="No result for this node yet.")
+            with gui.add_folder("Network", expand_by_default=False):
+                self.voxel = gui.add_number("Voxel (m)", network_service.DEFAULT_VOXEL_M, min=0.01, max=0.5,
+                                            step=0.01)
+                self.colour_by = gui.add_dropdown("Colour the map", options=list(COLOUR_BY))
+                self.map_button = gui.add_button("Draw the merged map")
+                self.map_jobs = JobPanel(ctx, [self.map_button])
+                self.legend = gui.add_html("")
+                self.point_a = gui.add_dropdown("Point A", options=[CLICKED])
+                self.point_b = gui.add_dropdown("Point B", options=[CLICKED])
+                self.pick_button = gui.add_button("Pick a point in 3D", hint="click the map: a cross near the ray, "
+                                                  "else the nearest cloud point along it")
+                self.pick_text = gui.add_markdown("")
+                self.measured = gui.add_number("Laser distance (m)", 0.0, min=0.0, max=1000.0, step=0.001)
+                self.verify_button = gui.add_button("Add the measured distance")
+                self.verification_text = gui.add_markdown("")
+                self.pose_table_text = gui.add_markdown("")
+        self.node.on_update(lambda _: self._select())
+        self.guided_step.on_update(lambda _: self._show_guided_step())
+        self.listen_button.on_click(lambda _: self._open_network())
+        self.capture_button.on_click(lambda _: self._capture([self.current]))
+        self.capture_all_button.on_click(lambda _: self._capture(self.nodes))
+        self.start_button.on_click(lambda _: self._work(self._start))
+        self.place_button.on_click(lambda _: self._work(self._place_tables))
+        self.apply_button.on_click(lambda _: self._work(self._apply))
+        self.next_button.on_click(lambda _: self._work(self._next_step))
+        self.finish_button.on_click(lambda _: self._work(self._finish))
+        self.solve_button.on_click(lambda _: self._solve(self.nodes))
+        self.solve_node_button.on_click(lambda _: self._solve([self.current]))
+        self.map_button.on_click(lambda _: self._draw_map())
+        self.pick_button.on_click(lambda _: self._arm_pick())
+        self.verify_button.on_click(lambda _: self._work(self._verify))
+        threading.Thread(target=self._advice_loop, name="depth-advice", daemon=True).start()
+        threading.Thread(target=self._refresh_loop, name="depth-nodes", daemon=True).start()
+        ctx.on_session_closing(self._close)
+        ctx.on_session_changed(self._on_session)
+        ctx.on_rig_changed(lambda _: self._show_result())
+
+    # -- session and node -------------------------------------------------------------------------
+    @property
+    def nodes(self) -> list[str]:
+        return [] if self.ctx.session is None else network_service.node_names(self.ctx.session)
+
+    @property
+    def current(self) -> str | None:
+        return None if self.ctx.session is None or self.node.value not in self.nodes else self.node.value
+
+    @property
+    def step(self) -> str:
+        """The guided step on show (a :data:`GUIDED_STEPS` name)."""
+        return next(step for step, label in STEP_LABELS.items() if label == self.guided_step.value)
+
+    def _in_view(self) -> None:
+        """Put this step's layers in view (the layers panel knows the step once studio/layers.py lists it)."""
+        if STEP in STEPS:
+            self.ctx.show_step(STEP)
+
+    def _work(self, action: Callable[[], None]) -> None:
+        """Run what the user asked for with this step's layers in view; an :class:`InputError` becomes a toast
+        (the node's pose and what was captured are kept)."""
+        self._in_view()
+        try:
+            action()
+        except InputError as exc:
+            self.ctx.notify("Depth network", exc.message, error=True)
+
+    def _close(self) -> None:
+        """Leave the open session: the advice in flight ends first, and the scene is redrawn afresh."""
+        with self._lock:
+            self._advice, self._points, self._picked, self._crosses = None, None, None, {}
+            self.view.forget()
+
+    def _on_session(self, session) -> None:
+        nodes = self.nodes
+        self.folder.visible = bool(nodes)
+        self.node.options = nodes or [NONE]
+        self.node.value = self.node.options[0]
+        self.legend.content = ""
+        self.pick_text.content = ""
+        if not nodes:
+            return
+        self.view.show_cell(network_service.layout(session))
+        self._list_crosses()
+        self._select()
+
+    def _select(self) -> None:
+        """The node changed: its guided state, its pose on the editor and the typed row, its results."""
+        node = self.current
+        if node is None:
+            return
+        self.editor.frames = ("world", node)
+        state = guided_service.state(self.ctx.session, node)
+        self.guided_step.value = STEP_LABELS[state["step"] or GUIDED_STEPS[-1]]
+        T = self._node_pose(node)
+        for name, value in zip(POSE_COLUMNS, pose_row(T), strict=True):
+            self.pose_inputs[name].value = round(value, 4)
+        self.editor.set(T, undoable=False)
+        self._show_guided_step()
+        self._show_result()
+
+    def _node_pose(self, node: str) -> np.ndarray:
+        """The pose the guided procedure holds for ``node``, else the rig's (``T_world_node``, m)."""
+        held = guided_service.state(self.ctx.session, node)["T_world_node"]
+        return np.array(held) if held is not None else network_service.T_world_node(self.ctx.session, node)
+
+    # -- nodes over the network -------------------------------------------------------------------
+    def _open_network(self) -> None:
+        from backend.devices.node_network import NodeNetwork
+
+        network = NodeNetwork(listen=[self.listen.value.strip()])
+        try:
+            network.open()
+        except InputError as exc:
+            self.ctx.notify("Cannot listen for nodes", exc.message, error=True)
+            return
+        self.attach(network)
+
+    def attach(self, network) -> None:
+        """Use ``network`` (an open :class:`~backend.devices.node_network.NodeNetwork`) for presence and capture."""
+        self.network = network
+        self.listen.disabled = self.listen_button.disabled = True
+        network.on_change(lambda _: self._show_nodes())
+        self._show_nodes()
+
+    def _refresh_loop(self) -> None:
+        """Bandwidth, frames/s and latency move all the time: refresh the presence table every :data:`REFRESH_S`."""
+        while True:
+            time.sleep(REFRESH_S)
+            try:
+                self._show_nodes()
+            except Exception as exc:  # noqa: BLE001 - the refresher must survive one bad status and say why
+                self.nodes_text.content = f"⚠️ the node status could not be read: {exc}"
+
+    def _show_nodes(self) -> None:
+        """The presence table; *Place tables* shows for a table step when the nodes are simulated."""
+        session, network = self.ctx.session, self.network
+        if session is None or network is None or not self.folder.visible:
+            return
+        statuses = network.nodes()
+        captures = {node: len(network_service.captures(session, node)) for node in self.nodes}
+        self.nodes_text.content = nodes_markdown(statuses, self.nodes, captures)
+        self.place_button.visible = self.step in SIM_ARRANGEMENTS and any(
+            s.alive and str(s.device).startswith("sim") for s in statuses)
+
+    def _capture(self, nodes: list[str | None]) -> None:
+        session, network, nodes = self.ctx.session, self.network, [n for n in nodes if n is not None]
+        if network is None:
+            self.ctx.notify("No node network", "Listen for nodes first (the Nodes folder).", error=True)
+            return
+        if not nodes:
+            return
+        arrangement = ARRANGEMENTS[self.step]
+        tables = network_service.layout(session).tables if arrangement in SIM_ARRANGEMENTS.values() else []
+
+        def work(progress) -> tuple[list[str], dict[str, str]]:
+            progress(0.1, f"capturing {', '.join(nodes)}")
+            frames, failures = network.capture_all(nodes)
+            stored = []
+            for i, (node, sample) in enumerate(frames.items()):
+                progress(0.5 + 0.5 * i / len(frames), f"storing {node}")
+                try:
+                    stored.append(network_service.capture_node(session, node, sample, arrangement, tables).id)
+                except InputError as exc:
+                    failures[node] = exc.message
+            return stored, failures
+
+        self._in_view()
+        self.capture_jobs.run(f"capture of {', '.join(nodes)}", work, self._on_captured)
+
+    def _on_captured(self, result: tuple[list[str], dict[str, str]]) -> None:
+        stored, failures = result
+        text = f"Stored {len(stored)} capture(s) ({', '.join(stored) or 'none'}) as *{ARRANGEMENTS[self.step]}*."
+        if failures:
+            text += "\n\n" + "\n".join(f"- ⚠️ {node}: {why}" for node, why in failures.items())
+            self.ctx.notify("Not every node was captured", "; ".join(f"{n}: {w}" for n, w in failures.items()),
+                            error=True)
+        self.capture_jobs.text.content = text
+        self._show_nodes()
+        self._list_crosses()
+        self._wake.set()
+
+    def _place_tables(self) -> None:
+        """Move the simulated tables where this step wants them in the node's view (the sim cell's nodes)."""
+        from backend.sim.depth_cell import table_placements
+
+        node, arrangement = self.current, SIM_ARRANGEMENTS.get(self.step)
+        if node is None or arrangement is None or self.network is None:
+            raise InputError("tables are placed for step 2 or 3 of a node of a simulated cell", "step")
+        self.network.set_sim_placements(table_placements(node, arrangement, network_service.layout(self.ctx.session)))
+        self.capture_jobs.text.content = f"Tables placed {arrangement} each other in {node}'s view: *Capture* now."
+
+    # -- the guided procedure ---------------------------------------------------------------------
+    def _show_guided_step(self) -> None:
+        step = self.step
+        self.instructions.content = INSTRUCTIONS[step]
+        initial = step == GUIDED_STEPS[0]
+        for handle in self.pose_inputs.values():
+            handle.visible = initial
+        self.start_button.visible = initial
+        self.next_button.visible = step != GUIDED_STEPS[-1]
+        self._show_nodes()
+        self._wake.set()
+
+    def _keep_editor_pose(self, node: str) -> None:
+        """Hand the editor's pose to the procedure (a nudge) when it moved since the procedure's pose."""
+        held = guided_service.state(self.ctx.session, node)["T_world_node"]
+        if held is not None and not np.allclose(held, self.editor.T, rtol=0.0, atol=1e-9):
+            guided_service.nudge(self.ctx.session, node, pose_row(self.editor.T))
+
+    def _start(self) -> None:
+        node = self.current
+        if node is None:
+            return
+        row = [float(self.pose_inputs[name].value) for name in POSE_COLUMNS]
+        guided_service.start(self.ctx.session, node, row)
+        self.editor.set(pose_from_row(row), undoable=False)
+        self.guided_step.value = STEP_LABELS[GUIDED_STEPS[1]]
+
+    def _apply(self) -> None:
+        """Take the step's suggestion from the editor's pose; the editor moves there (one undo step)."""
+        node = self.current
+        if node is None:
+            return
+        self._keep_editor_pose(node)
+        state = guided_service.apply(self.ctx.session, node, self.step)
+        self.editor.set(np.array(state["T_world_node"]))
+
+    def _next_step(self) -> None:
+        node = self.current
+        if node is not None:
+            self._keep_editor_pose(node)
+        index = GUIDED_STEPS.index(self.step)
+        if index + 1 < len(GUIDED_STEPS):
+            self.guided_step.value = STEP_LABELS[GUIDED_STEPS[index + 1]]
+
+    def _finish(self) -> None:
+        node = self.current
+        if node is None:
+            return
+        self._keep_editor_pose(node)
+        record = guided_service.finish(self.ctx.session, node)
+        self.history.fill(self._results(), record["id"])
+        self._show_result()
+        self.ctx.notify("Guided result", f"{record['id']}: {node}'s pose is kept; accept it on the card "
+                        "(*Automatic solve*).")
+
+    def _advice_loop(self) -> None:
+        """Re-measure the step's residuals at the editor's pose after every change (the newest pose only)."""
+        while True:
+            self._wake.wait()
+            self._wake.clear()  # changes from now on wake the next pass; this one measures the newest state
+            try:
+                with self._lock:
+                    self._advise()
+            except InputError as exc:
+                self._advice = None
+                self.residuals_text.content = ""
+                self.criterion_text.content = f"⚠️ {exc.message}"
+                self.apply_button.label, self.apply_button.disabled = "Nothing to apply", True
+            except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
+                self.criterion_text.content = f"⚠️ the residuals could not be measured: {exc}"
+
+    def _advise(self) -> None:
+        session, node, step, T = self.ctx.session, self.current, self.step, self.editor.T
+        if session is None or node is None:
+            return
+        self.view.show_node(node, T, self._latest_points(node))
+        if step == GUIDED_STEPS[0]:
+            self._advice = None
+            self.residuals_text.content = ""
+            self.criterion_text.content = "Type the measured pose, then *Start from this pose*."
+            self.apply_button.label, self.apply_button.disabled = "Nothing to apply", True
+            return
+        advice = guided_service.advise(session, node, step, T_world_node=T)
+        self._advice = advice
+        self.residuals_text.content = residuals_markdown(advice.residuals)
+        self.apply_button.label = suggestion_label(advice.suggestion)
+        self.apply_button.disabled = not advice.suggestion
+        self.criterion_text.content = criterion_markdown(advice)
+
+    def _latest_points(self, node: str) -> np.ndarray | None:
+        """The node's latest capture (N, 3, m, node frame), read once per capture."""
+        session = self.ctx.session
+        latest = network_service.captures(session, node)[-1:]
+        if not latest:
+            return None
+        if self._points is None or self._points[0] != f"{node}/{latest[0].id}":
+            depth, _ = session.depth_capture(node, latest[0].id)
+            points, _ = network_service.capture_intrinsics(latest[0]).unproject(depth)
+            self._points = (f"{node}/{latest[0].id}", points)
+        return self._points[1]
+
+    # -- automatic solve and results --------------------------------------------------------------
+    def _results(self) -> list[str]:
+        node = self.current
+        return [] if node is None else [r["id"] for r in reversed(self.ctx.session.results(node, KIND))]
+
+    def _show_result(self) -> None:
+        session, node = self.ctx.session, self.current
+        if session is None or node is None:
+            self.card.show(None, None)
+            return
+        selected = self.history.fill(self._results(), self.history.selected)
+        accepted = session.accepted(edge_slot(network_service.WORLD, node))
+        self.card.show(None if selected is None else session.result(selected), accepted)
+        self._show_tables()
+
+    def _solve(self, nodes: list[str | None]) -> None:
+        session, nodes = self.ctx.session, [n for n in nodes if n is not None]
+        if not nodes:
+            return
+
+        def work(progress) -> list[str]:
+            ids = []
+            for i, node in enumerate(nodes):
+                ids.append(network_service.solve_node(session, node, progress=lambda f, m, i=i: progress(
+                    (i + f) / len(nodes), f"{nodes[i]}: {m}"))["id"])
+            return ids
+
+        self._in_view()
+        self.solve_jobs.run(f"solve of {', '.join(nodes)}", work, lambda ids: self._on_solved(nodes, ids))
+
+    def _on_solved(self, nodes: list[str], ids: list[str]) -> None:
+        """Show the current node's new result (or the last node's when it was not among them)."""
+        if self.current not in nodes:
+            self.node.value = nodes[-1]
+        self.history.fill(self._results(), ids[nodes.index(self.current)])
+        self._show_result()
+
+    # -- the whole network ------------------------------------------------------------------------
+    def _draw_map(self) -> None:
+        session, voxel_m, colour_by = self.ctx.session, float(self.voxel.value), COLOUR_BY[self.colour_by.value]
+
+        def work(progress) -> network_service.VoxelMap:
+            progress(0.1, "every node's latest capture into the world, on the voxel grid")
+            return network_service.merged_voxel_map(session, voxel_m=voxel_m)
+
+        def done(voxel_map: network_service.VoxelMap) -> None:
+            self.view.show_voxel_map(*voxel_map, voxel_m=voxel_m, colour_by=colour_by)
+            self.legend.content = (legend_html(self.nodes) if colour_by == "node" else
+                                   f"Points per voxel: 1 (blue) to {COUNT_COLOUR_MAX}+ (red), log scale.")
+            self.map_jobs.text.content = f"{len(voxel_map.counts):,} voxels of {voxel_m * 100:g} cm."
+            self._list_crosses()
+
+        self._in_view()
+        self.map_jobs.run("merged voxel map", work, done)
+
+    def _list_crosses(self) -> None:
+        """Offer every cross the nodes see as a verification point (beside a point picked in 3D)."""
+        self._crosses = {c["name"]: c for c in network_service.detected_crosses(self.ctx.session)}
+        names = [*self._crosses, CLICKED]
+        for dropdown, index in ((self.point_a, 0), (self.point_b, 1)):
+            dropdown.options = names
+            dropdown.value = names[min(index, len(names) - 1)]
+
+    def _arm_pick(self) -> None:
+        """The next click in the 3D view picks a point: a detected cross near the ray, else the nearest point."""
+        scene = self.ctx.server.scene
+
+        @scene.on_pointer_event("click")
+        def _(event) -> None:
+            scene.remove_pointer_callback()
+            try:
+                self._picked = network_service.pick(self.ctx.session, event.ray_origin, event.ray_direction)
+            except InputError as exc:
+                self.pick_text.content = f"⚠️ {exc.message}"
+                return
+            self.pick_text.content = (f"Picked **{self._picked['name']}** at "
+                                      f"{', '.join(f'{v:.3f}' for v in self._picked['point_m'])} m (world).")
+            self.view.show_picks([np.asarray(self._picked["point_m"])])
+
+        self._in_view()
+        self.pick_text.content = "Click a point of the map in the 3D view."
+
+    def _target(self, choice: str) -> dict[str, Any]:
+        if choice != CLICKED:
+            return self._crosses[choice]
+        if self._picked is None:
+            raise InputError("no point picked in 3D yet: *Pick a point in 3D* first, or choose a cross", "point")
+        return self._picked
+
+    def _verify(self) -> None:
+        a, b = self._target(self.point_a.value), self._target(self.point_b.value)
+        row = network_service.add_verification(self.ctx.session, a, b, float(self.measured.value))
+        self.view.show_picks([np.asarray(row["a_m"]), np.asarray(row["b_m"])])
+        self._show_tables()
+
+    def _show_tables(self) -> None:
+        """The verification table and the pose table, at the rig's current poses."""
+        summary = network_service.network_summary(self.ctx.session)
+        self.verification_text.content = "**Verification**\n\n" + verification_markdown(summary["verification"])
+        self.pose_table_text.content = ("**Pose table** (X, Y, Z m; RotZ, RotY, RotX °; the rig's current poses)"
+                                        f"\n\n```\n{network_service.pose_table_text(summary)}\n```")
