@@ -19,6 +19,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
 from backend.api import auth, origin
+from backend.api.routes import depth_network as depth_network_routes
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, rig, sessions, sweep
 from backend.api.routes import jobs as job_routes
 from backend.api.routes import report as report_routes
@@ -120,6 +121,6 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
 
     for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, multicam.router,
                    sweep.router, recordings.router, job_routes.router, exports.router, rig.router, targets_router,
-                   report_routes.router):
+                   report_routes.router, depth_network_routes.router):
         app.include_router(router, prefix="/api")
     return app
