@@ -5,8 +5,11 @@ Importing the package registers every built-in driver with :func:`backend.device
 
 from backend.devices import (  # noqa: F401
     cloud_files,
+    depth_files,
     dynamixel_servo,
     image_folder,
+    kinect2,
+    realsense,
     rosbag_source,
     simulated_camera,
     simulated_depth,

@@ -12,6 +12,7 @@ one message per :meth:`RosbagSource.read`:
 message type                              :class:`~backend.devices.base.Sample` field
 ========================================  ==================================================
 ``sensor_msgs/msg/Image``                 ``image`` (uint8 gray or BGR)
+``sensor_msgs/msg/Image`` depth           ``depth`` (H, W) m, ``points`` (N, 3) m: a depth sample (below)
 ``sensor_msgs/msg/CompressedImage``       ``image`` (uint8 gray or BGR)
 ``sensor_msgs/msg/PointCloud2``           ``points`` (N, 3) m, ``intensity`` when present
 ``sensor_msgs/msg/LaserScan``             ``points`` (N, 3) m with z = 0, ``intensity``
@@ -21,7 +22,15 @@ message type                              :class:`~backend.devices.base.Sample` 
 The message conversions are public, vectorised numpy functions usable on any
 deserialised message (:func:`pointcloud2_to_points`, :func:`laserscan_to_points`,
 :func:`image_to_array`, :func:`compressed_image_to_array`,
-:func:`camera_info_to_intrinsics`); :func:`list_topics` lists what a bag holds.
+:func:`camera_info_to_intrinsics`, :func:`depth_image_to_metres`); :func:`list_topics` lists what a bag holds.
+
+Depth images (REP 118: ``16UC1`` in millimetres, ``32FC1`` in metres, 0 or NaN = no return) replay as depth
+samples (:func:`~backend.devices.depth_files.depth_sample`: ``depth``, ``points`` in the camera's optical frame,
+``meta["intrinsics"]``, ``meta["pixel_index"]``) when their camera is known: from the ``camera_info_topic``
+setting, or else the ``camera_info`` topic beside the image topic (``/cam/depth/image_raw`` →
+``/cam/depth/camera_info``). The first CameraInfo message gives K and the plumb_bob distortion (the image is
+undistorted onto K's pinhole); it is taken as constant over the bag. Without a camera a ``16UC1`` image replays as
+a gray image as before and a ``32FC1`` one raises an error saying which CameraInfo topic is missing.
 
 Bad input raises :class:`RosbagError`, which is both an
 :class:`~backend.core.errors.InputError` (so the API and CLI report it as a 4xx /
@@ -35,6 +44,7 @@ is changed anywhere by a failed open.
 from __future__ import annotations
 
 import contextlib
+import posixpath
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -44,8 +54,10 @@ import cv2
 import numpy as np
 
 from backend.core.camera import CameraIntrinsics
+from backend.core.depth import DepthIntrinsics
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.depth_files import MM_PER_M, check_ranges, depth_sample, pinhole_of, undistort_depth
 from backend.devices.image_io import check_pixels, image_size
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -67,6 +79,8 @@ INTENSITY_FIELDS = ("intensity", "intensities", "i")
 
 IMAGE_ENCODINGS = ("mono8", "8UC1", "mono16", "16UC1", "rgb8", "bgr8", "8UC3", "rgba8", "bgra8", "8UC4")
 """sensor_msgs/Image encodings :func:`image_to_array` understands."""
+DEPTH_ENCODINGS = {"16UC1": 1.0 / MM_PER_M, "32FC1": 1.0}
+"""Depth image encodings (REP 118) and the metres per stored unit of each."""
 
 
 class RosbagError(InputError, DeviceError):
@@ -159,6 +173,11 @@ def _open_reader(bag_path: Path) -> Any:
         reader = AnyReader([storage], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     return reader
+
+
+def _sibling_info(topic: str) -> str:
+    """The ``camera_info`` topic beside an image topic, as ROS camera drivers publish it."""
+    return posixpath.join(posixpath.dirname(topic) or "/", "camera_info")
 
 
 def _topics_text(reader: Any) -> str:
@@ -312,6 +331,23 @@ def _to_8bit(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(image.astype(np.float64) * (255.0 / peak)), 0, 255).astype(np.uint8)
 
 
+def _unpack_rows(msg: Any, channels: int, base: np.dtype, where: str, label: str) -> np.ndarray:
+    """The (height, width, channels) pixels of a sensor_msgs/Image of ``channels`` values of type ``base`` (byte
+    order included) per pixel, its row padding (``step`` beyond a row) removed."""
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = width * channels * base.itemsize
+    step = step or row_bytes
+    data = np.asarray(msg.data, dtype=np.uint8).ravel()
+    if step < row_bytes or data.size < (height - 1) * step + row_bytes or height * width == 0:
+        raise InputError(
+            f"{where}: {msg.encoding} image data holds {data.size} bytes, too few for {width}x{height} "
+            f"(step {step})", label)
+    if data.size < height * step:
+        data = np.concatenate([data, np.zeros(height * step - data.size, np.uint8)])
+    rows = data[: height * step].reshape(height, step)[:, :row_bytes]
+    return np.ascontiguousarray(rows).view(base).reshape(height, width, channels)
+
+
 def image_to_array(msg: Any, source: str | None = None, *, to_8bit: bool = False) -> np.ndarray:
     """The pixels of a sensor_msgs/Image: HxW gray or HxWx3 BGR, a copy that owns its memory.
 
@@ -326,7 +362,6 @@ def image_to_array(msg: Any, source: str | None = None, *, to_8bit: bool = False
     where = _where(msg, source, "Image")
     label = source or "Image"
     encoding = str(msg.encoding)
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if encoding in ("mono8", "8UC1"):
         channels, base = 1, np.dtype(np.uint8)
     elif encoding in ("mono16", "16UC1"):
@@ -339,17 +374,7 @@ def image_to_array(msg: Any, source: str | None = None, *, to_8bit: bool = False
         raise InputError(
             f"{where}: image encoding {encoding!r} is not supported; expected one of {', '.join(IMAGE_ENCODINGS)}",
             label)
-    row_bytes = width * channels * base.itemsize
-    step = step or row_bytes
-    data = np.asarray(msg.data, dtype=np.uint8).ravel()
-    if step < row_bytes or data.size < (height - 1) * step + row_bytes or height * width == 0:
-        raise InputError(
-            f"{where}: {encoding} image data holds {data.size} bytes, too few for {width}x{height} "
-            f"(step {step})", label)
-    if data.size < height * step:
-        data = np.concatenate([data, np.zeros(height * step - data.size, np.uint8)])
-    rows = data[: height * step].reshape(height, step)[:, :row_bytes]
-    pixels = np.ascontiguousarray(rows).view(base).reshape(height, width, channels)
+    pixels = _unpack_rows(msg, channels, base, where, label)
     if channels == 1:
         image = pixels[:, :, 0].astype(np.uint16 if base.itemsize == 2 else np.uint8)
         return _to_8bit(image) if to_8bit else image
@@ -360,6 +385,22 @@ def image_to_array(msg: Any, source: str | None = None, *, to_8bit: bool = False
     if channels == 4:
         return cv2.cvtColor(pixels, cv2.COLOR_BGRA2BGR)
     return pixels.copy()
+
+
+def depth_image_to_metres(msg: Any, source: str | None = None) -> np.ndarray:
+    """The depth (H, W) float32 in metres of a ``16UC1`` (mm) or ``32FC1`` (m) sensor_msgs/Image, honouring
+    ``is_bigendian`` and row padding; other encodings raise :class:`~backend.core.errors.InputError` naming
+    ``source``."""
+    where = _where(msg, source, "Image")
+    label = source or "Image"
+    encoding = str(msg.encoding)
+    if encoding not in DEPTH_ENCODINGS:
+        raise InputError(f"{where}: image encoding {encoding!r} is not a depth image; expected "
+                         f"{' or '.join(DEPTH_ENCODINGS)}", label)
+    order = ">" if msg.is_bigendian else "<"
+    base = np.dtype(order + ("u2" if encoding == "16UC1" else "f4"))
+    pixels = _unpack_rows(msg, 1, base, where, label)[:, :, 0]
+    return (pixels.astype(np.float32) * np.float32(DEPTH_ENCODINGS[encoding])).astype(np.float32)
 
 
 def compressed_image_to_array(msg: Any, source: str | None = None) -> np.ndarray:
@@ -443,6 +484,11 @@ class RosbagSource(CaptureDevice):
     CameraInfo samples carry no image or points but ``meta["intrinsics"]``, the
     camera as :meth:`CameraIntrinsics.to_dict`.
 
+    Depth image topics (see the module docs) take ``camera_info_topic`` (default: the
+    ``camera_info`` beside the topic) and ``min_range_m``/``max_range_m`` (m), the depth
+    unprojected into points; their samples carry ``meta["undistorted_from"]`` too (the
+    CameraInfo's camera).
+
     :meth:`open` raises :class:`RosbagError` (an InputError and a DeviceError) for a
     bad bag, a missing topic or an unsupported type. :meth:`read` raises
     :class:`~backend.core.errors.InputError` for one message that cannot be
@@ -453,11 +499,17 @@ class RosbagSource(CaptureDevice):
 
     driver = "rosbag"
 
-    def __init__(self, path: str, topic: str, start_s: float | None = None, end_s: float | None = None):
+    def __init__(self, path: str, topic: str, start_s: float | None = None, end_s: float | None = None,
+                 camera_info_topic: str | None = None, min_range_m: float = DepthIntrinsics.min_range_m,
+                 max_range_m: float = DepthIntrinsics.max_range_m):
         self.path = Path(path)
         self.topic = topic
         self.start_s = None if start_s is None else float(start_s)
         self.end_s = None if end_s is None else float(end_s)
+        self.camera_info_topic = camera_info_topic or None
+        self.min_range_m, self.max_range_m = check_ranges(min_range_m, max_range_m, str(path))
+        self.depth_camera: CameraIntrinsics | None = None
+        """The camera of a depth image topic, from its CameraInfo (known once open; None without one)."""
         self.msgtype: str | None = None
         self.message_count: int | None = None
         """Messages on the topic in the whole bag (known once open)."""
@@ -483,6 +535,8 @@ class RosbagSource(CaptureDevice):
                     raise RosbagError(
                         f"topic {self.topic!r} in bag {name} has message type {', '.join(unsupported)}, which "
                         f"cannot be replayed; supported types: {', '.join(SUPPORTED_TYPES)}", name)
+                self.depth_camera = (self._depth_camera(reader, self.camera_info_topic or _sibling_info(self.topic))
+                                     if IMAGE in msgtypes else None)
                 bag_start = reader.start_time
                 start = None if self.start_s is None else bag_start + round(self.start_s * 1e9)
                 stop = None if self.end_s is None else bag_start + round(self.end_s * 1e9) + 1
@@ -528,6 +582,9 @@ class RosbagSource(CaptureDevice):
         }
         sample = Sample(timestamp_s=stamp_s if stamp_s > 0 else bag_time_s, meta=meta)
         source = self.topic
+        if connection.msgtype == IMAGE and str(msg.encoding) in DEPTH_ENCODINGS and (
+                self.depth_camera is not None or str(msg.encoding) == "32FC1"):
+            return self._depth_sample(msg, sample)
         if connection.msgtype == IMAGE:
             sample.image = image_to_array(msg, source, to_8bit=True)
         elif connection.msgtype == COMPRESSED_IMAGE:
@@ -539,6 +596,39 @@ class RosbagSource(CaptureDevice):
         elif connection.msgtype == CAMERA_INFO:
             meta["intrinsics"] = camera_info_to_intrinsics(msg, source).to_dict()
         return sample
+
+    def _depth_camera(self, reader: Any, info_topic: str) -> CameraIntrinsics | None:
+        """The camera of the first message on ``info_topic``; None when the bag has no such CameraInfo topic
+        and none was asked for (a :class:`RosbagError` when ``camera_info_topic`` names one it lacks)."""
+        name = str(self.path)
+        connections = [c for c in reader.connections if c.topic == info_topic and c.msgtype == CAMERA_INFO]
+        if not connections:
+            if self.camera_info_topic is None:
+                return None
+            raise RosbagError(f"bag {name} has no CameraInfo topic {info_topic!r} for the depth images on "
+                              f"{self.topic}; {_topics_text(reader)}", name)
+        for connection, _, raw in reader.messages(connections=connections):
+            try:
+                return camera_info_to_intrinsics(reader.deserialize(raw, connection.msgtype), info_topic)
+            except InputError as exc:  # a camera it cannot use, not a damaged bag
+                raise RosbagError(f"bag {name}: {exc.message}", name) from None
+        raise RosbagError(f"CameraInfo topic {info_topic!r} in bag {name} holds no message", name)
+
+    def _depth_sample(self, msg: Any, sample: Sample) -> Sample:
+        """The depth sample of a depth image, ``sample``'s time stamp and meta kept."""
+        where = _where(msg, self.topic, "Image")
+        camera = self.depth_camera
+        if camera is None:
+            raise InputError(f"{where}: a {msg.encoding} depth image needs its camera: the bag has no CameraInfo "
+                             f"topic {_sibling_info(self.topic)!r}; set camera_info_topic", self.topic)
+        depth = depth_image_to_metres(msg, self.topic)
+        if depth.shape != (camera.height, camera.width):
+            raise InputError(f"{where}: the depth image is {depth.shape[1]}x{depth.shape[0]} px, its CameraInfo "
+                             f"{camera.width}x{camera.height}", self.topic)
+        depth, _ = undistort_depth(depth, None, camera)
+        meta = {**sample.meta, "undistorted_from": camera.to_dict()}
+        return depth_sample(depth, pinhole_of(camera, self.min_range_m, self.max_range_m), sample.timestamp_s,
+                            self.topic, None, meta)
 
     def _end_text(self) -> str:
         window = ""
