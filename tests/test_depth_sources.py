@@ -135,6 +135,7 @@ def test_depth_sample_cleans_and_refuses() -> None:
     assert sample.depth[0, :3].tolist() == [0, 0, 0] and sample.depth[1, 1] == 7.0  # beyond range: kept, no point
     assert sample.meta["pixel_index"].tolist() == [3, 4, 6, 7, 8, 9, 10, 11]
     np.testing.assert_array_equal(sample.intensity, [3, 4, 6, 7, 8, 9, 10, 11])
+    np.testing.assert_array_equal(sample.meta["amplitude"].ravel(), np.arange(12))  # pixels without depth too
     assert "pixel_index" not in sample.storable_meta() and sample.storable_meta()["intrinsics"]["width"] == 4
     with pytest.raises(InputError, match="cam: no pixel .* within 0.5 to 5 m"):
         depth_sample(np.zeros((3, 4)), pinhole, 0.0, "cam")
@@ -288,6 +289,89 @@ def test_realsense_missing_library_and_settings(monkeypatch: pytest.MonkeyPatch)
         with pytest.raises(DeviceError, match=words):
             RealSenseCamera(**settings)
     assert RealSenseCamera(serial="123").describe() == "realsense 123 848x480 at 30 Hz"
+
+
+def fake_pyrealsense2(frame_sets: list[tuple[np.ndarray, np.ndarray]], connected: bool = True) -> SimpleNamespace:
+    """pyrealsense2's calls the driver makes: ``frame_sets`` of (z16, infrared) then timeouts; ``calls`` records
+    the configuration and the stop."""
+    calls: list[str] = []
+
+    class Frame:
+        def __init__(self, data: np.ndarray, number: int):
+            self.data, self.number = data, number
+
+        def get_data(self) -> np.ndarray:
+            return self.data
+
+        def get_timestamp(self) -> float:
+            return 1000.0 + self.number
+
+        def get_frame_number(self) -> int:
+            return self.number
+
+    class FrameSet:
+        def __init__(self, z16: np.ndarray, infrared: np.ndarray, number: int):
+            self.depth, self.infrared = Frame(z16, number), Frame(infrared, number)
+
+        def get_depth_frame(self) -> Frame:
+            return self.depth
+
+        def get_infrared_frame(self, index: int) -> Frame:
+            calls.append(f"infrared {index}")
+            return self.infrared
+
+    class Profile:
+        def get_device(self) -> SimpleNamespace:
+            sensor = SimpleNamespace(get_depth_scale=lambda: 0.001)
+            return SimpleNamespace(first_depth_sensor=lambda: sensor, get_info=lambda key: f"SN-{key}")
+
+        def get_stream(self, stream: str) -> SimpleNamespace:
+            video = SimpleNamespace(get_intrinsics=realsense_intrinsics)
+            return SimpleNamespace(as_video_stream_profile=lambda: video)
+
+    class Pipeline:
+        def start(self, config: object) -> Profile:
+            if not connected:
+                raise RuntimeError("No device connected")
+            return Profile()
+
+        def try_wait_for_frames(self, timeout_ms: int) -> tuple[bool, FrameSet | None]:
+            if not frame_sets:
+                return False, None
+            return True, FrameSet(*frame_sets.pop(0), number=7)
+
+        def stop(self) -> None:
+            calls.append("stop")
+
+    class Config:
+        def enable_device(self, serial: str) -> None:
+            calls.append(f"device {serial}")
+
+        def enable_stream(self, *args: object) -> None:
+            calls.append("stream " + " ".join(str(a) for a in args))
+
+    return SimpleNamespace(pipeline=Pipeline, config=Config, calls=calls,
+                           stream=SimpleNamespace(depth="depth", infrared="infrared"),
+                           format=SimpleNamespace(z16="z16", y8="y8"), camera_info=SimpleNamespace(serial_number="sn"))
+
+
+def test_realsense_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch) -> None:
+    depth_m, ir = render(realsense_camera(realsense_intrinsics()))
+    library = fake_pyrealsense2([(np.rint(depth_m * 1000).astype(np.uint16), ir.astype(np.uint16))])
+    monkeypatch.setitem(sys.modules, "pyrealsense2", library)
+    with create_device({"driver": "realsense", "serial": "42", "timeout_s": 0.1}) as device:
+        sample = device.read()
+        with pytest.raises(DeviceDisconnected, match="no frame within 0.1 s"):
+            device.read()
+        assert device.describe() == "realsense SN-sn 848x480 at 30 Hz"
+    check_scene(sample, tolerance_m=0.0006, min_fraction=0.999)
+    assert sample.meta["serial"] == "SN-sn" and sample.meta["frame_number"] == 7
+    assert sample.meta["device_timestamp_ms"] == 1007.0 and sample.meta["depth_scale_m"] == 0.001
+    assert library.calls == ["device 42", "stream depth 848 480 z16 30", "stream infrared 1 848 480 y8 30",
+                             "infrared 1", "stop"]
+    monkeypatch.setitem(sys.modules, "pyrealsense2", fake_pyrealsense2([], connected=False))
+    with pytest.raises(DeviceError, match="cannot start 848x480 depth at 30 Hz: No device connected"):
+        RealSenseCamera().open()
 
 
 # --- depth_files ----------------------------------------------------------------------------

@@ -6,7 +6,9 @@ ends in :func:`depth_sample`, so their samples look alike: ``depth`` (H, W) floa
 (0 = no return), ``points`` (N, 3) the valid pixels unprojected into the node frame (optical: X right, Y down,
 Z out, m), ``intensity`` (N,) the IR amplitude of those pixels (or None), ``meta["intrinsics"]``
 (:meth:`DepthIntrinsics.to_dict`, the pinhole that reproduces ``points`` from ``depth``) and
-``meta["pixel_index"]`` (N,) the flat row-major pixel index of every point (a numpy array, so not stored).
+``meta["pixel_index"]`` (N,) the flat row-major pixel index of every point and ``meta["amplitude"]`` (H, W) the
+whole amplitude image (numpy arrays, so not stored with a capture's meta): a Kinect v2 reports a saturated pixel (a
+retroreflective cross) with amplitude 65535 but no depth, so the crosses show only in the whole image.
 
 A source whose lens has distortion first resamples its image onto the undistorted pinhole grid
 (:func:`undistort_depth`), so the stored depth image and its pinhole alone give back the same points.
@@ -133,7 +135,7 @@ def depth_sample(depth_m: np.ndarray, intrinsics: DepthIntrinsics, timestamp_s: 
 
     NaN, infinite and negative depths become 0 (no return); pixels outside the intrinsics' range are kept in
     ``depth`` but not unprojected. ``amplitude`` (H, W, the sensor's units) gives the points' ``intensity``.
-    ``meta`` is extended with ``intrinsics`` and ``pixel_index`` (see the module docs). Raises
+    ``meta`` is extended with ``intrinsics``, ``pixel_index`` and ``amplitude`` (see the module docs). Raises
     :class:`InputError` naming ``source`` when a size does not match the intrinsics or no pixel has a depth
     within range (an empty or covered view).
     """
@@ -155,6 +157,8 @@ def depth_sample(depth_m: np.ndarray, intrinsics: DepthIntrinsics, timestamp_s: 
                              f"{depth.shape}", source)
         intensity = amplitude.ravel()[index]
     meta = {**(meta or {}), "intrinsics": intrinsics.to_dict(), "pixel_index": index}
+    if amplitude is not None:
+        meta["amplitude"] = amplitude
     return Sample(timestamp_s=timestamp_s, depth=depth, points=points, intensity=intensity, meta=meta)
 
 
