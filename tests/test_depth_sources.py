@@ -61,7 +61,11 @@ def render(camera: CameraIntrinsics, mirror: bool = False) -> tuple[np.ndarray, 
     ``mirror`` the image is what libfreenect2 delivers: ``camera`` is the mirrored image's own model and each
     pixel sees the mirror image of its ray (x negated)."""
     v, u = np.mgrid[0:camera.height, 0:camera.width]
-    xy = camera.undistort_points(np.column_stack([u.ravel(), v.ravel()]).astype(float))
+    pixels = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    if np.any(camera.dist):
+        xy = camera.undistort_points(pixels)
+    else:
+        xy = (pixels - camera.K[:2, 2]) / np.diag(camera.K)[:2]
     if mirror:
         xy[:, 0] *= -1
     depth, amplitude = ray_cast(np.column_stack([xy, np.ones(len(xy))]))
@@ -106,18 +110,24 @@ def check_scene(sample: Sample, tolerance_m: float = 0.0015, min_fraction: float
 # --- the shared conversion ------------------------------------------------------------------
 
 
+KINECT_LIKE = CameraIntrinsics("pinhole-radtan", 512, 424, [[KINECT_PARAMS.fx, 0, KINECT_PARAMS.cx],
+                                                              [0, KINECT_PARAMS.fy, KINECT_PARAMS.cy], [0, 0, 1]],
+                               [KINECT_PARAMS.k1, KINECT_PARAMS.k2, KINECT_PARAMS.p1, KINECT_PARAMS.p2,
+                                KINECT_PARAMS.k3])
+"""The Kinect v2's IR lens as OpenCV states it for the image libfreenect2 delivers."""
+
+
 @pytest.fixture(scope="module")
-def kinect_like() -> CameraIntrinsics:
-    """The Kinect v2's IR lens as OpenCV states it (no mirroring)."""
-    p = KINECT_PARAMS
-    return CameraIntrinsics("pinhole-radtan", 512, 424, [[p.fx, 0, p.cx], [0, p.fy, p.cy], [0, 0, 1]],
-                            [p.k1, p.k2, p.p1, p.p2, p.k3])
+def kinect_views() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Depth (m) and amplitude through :data:`KINECT_LIKE`: ``plain`` as an optical camera sees the scene,
+    ``mirrored`` as libfreenect2 delivers it (rendered once: 217k rays each)."""
+    return {"plain": render(KINECT_LIKE), "mirrored": render(KINECT_LIKE, mirror=True)}
 
 
-def test_undistorted_depth_lies_on_the_scene_and_the_pinhole_alone_does_not(kinect_like: CameraIntrinsics) -> None:
-    depth, amplitude = render(kinect_like)
-    pinhole = pinhole_of(kinect_like, 0.5, 9.0)
-    undistorted, undistorted_amplitude = undistort_depth(depth, amplitude, kinect_like)
+def test_undistorted_depth_lies_on_the_scene_and_the_pinhole_alone_does_not(kinect_views: dict) -> None:
+    depth, amplitude = kinect_views["plain"]
+    pinhole = pinhole_of(KINECT_LIKE, 0.5, 9.0)
+    undistorted, undistorted_amplitude = undistort_depth(depth, amplitude, KINECT_LIKE)
     sample = depth_sample(undistorted, pinhole, 1.5, "test", undistorted_amplitude, {"source": "x"})
     check_scene(sample)
     assert sample.timestamp_s == 1.5 and sample.meta["source"] == "x"
@@ -148,8 +158,8 @@ def test_depth_sample_cleans_and_refuses() -> None:
 # --- Kinect v2 ------------------------------------------------------------------------------
 
 
-def test_kinect_frame_is_flipped_undistorted_and_on_the_scene(kinect_like: CameraIntrinsics) -> None:
-    depth_m, ir = render(kinect_like, mirror=True)  # what libfreenect2 delivers: mirrored, mm
+def test_kinect_frame_is_flipped_undistorted_and_on_the_scene(kinect_views: dict) -> None:
+    depth_m, ir = kinect_views["mirrored"]  # what libfreenect2 delivers (in mm)
     camera = kinect_ir_camera(KINECT_PARAMS)
     assert camera.K[0, 2] == pytest.approx(511 - KINECT_PARAMS.cx) and camera.dist[3] == -KINECT_PARAMS.p2
     sample = kinect_frame_to_sample(depth_m * 1000, ir, camera, 2.0, meta={"serial": "007"})
@@ -235,9 +245,8 @@ def fake_pylibfreenect2(frames: list[dict], serials: tuple[bytes, ...] = (b"007"
     return library
 
 
-def test_kinect_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch,
-                                                 kinect_like: CameraIntrinsics) -> None:
-    depth_m, ir = render(kinect_like, mirror=True)
+def test_kinect_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch, kinect_views: dict) -> None:
+    depth_m, ir = kinect_views["mirrored"]
     library = fake_pylibfreenect2([{"depth": FakeFrame(depth_m * 1000, 1230), "ir": FakeFrame(ir, 1230)}])
     monkeypatch.setitem(sys.modules, "pylibfreenect2", library)
     with pytest.raises(DeviceError, match="no Kinect v2 with serial 999; found 007"):
@@ -263,17 +272,23 @@ def test_kinect_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch
 
 
 def realsense_intrinsics(coeffs: list[float] | None = None) -> SimpleNamespace:
-    return SimpleNamespace(width=848, height=480, fx=421.3, fy=421.3, ppx=424.7, ppy=239.1,
+    return SimpleNamespace(width=424, height=240, fx=210.7, fy=210.7, ppx=212.4, ppy=119.6,
                            model=SimpleNamespace(name="brown_conrady"), coeffs=coeffs or [0.0] * 5)
 
 
-def test_realsense_frame_to_sample_and_refused_lens() -> None:
+@pytest.fixture(scope="module")
+def realsense_view() -> tuple[np.ndarray, np.ndarray]:
+    """Depth (m) and amplitude of the scene through a RealSense's 424x240 pinhole."""
+    return render(realsense_camera(realsense_intrinsics()))
+
+
+def test_realsense_frame_to_sample_and_refused_lens(realsense_view: tuple[np.ndarray, np.ndarray]) -> None:
     camera = realsense_camera(realsense_intrinsics())
-    depth_m, ir = render(camera)
+    depth_m, ir = realsense_view
     z16 = np.rint(depth_m / 0.001).astype(np.uint16)  # D400 depth units: 1 mm
     sample = realsense_frame_to_sample(z16, 0.001, ir.astype(np.uint16), camera, 3.0, meta={"frame_number": 5})
     check_scene(sample, tolerance_m=0.0006, min_fraction=0.999)  # half a depth unit, no lens
-    assert sample.meta["depth_scale_m"] == 0.001 and sample.meta["intrinsics"]["cx"] == 424.7
+    assert sample.meta["depth_scale_m"] == 0.001 and sample.meta["intrinsics"]["cx"] == 212.4
     assert realsense_frame_to_sample(z16, 0.001, None, camera, 3.0).intensity is None
     with pytest.raises(DeviceError, match=r"brown_conrady distortion \[0.1, 0.0"):
         realsense_camera(realsense_intrinsics([0.1, 0, 0, 0, 0]), "realsense 123")
@@ -355,19 +370,21 @@ def fake_pyrealsense2(frame_sets: list[tuple[np.ndarray, np.ndarray]], connected
                            format=SimpleNamespace(z16="z16", y8="y8"), camera_info=SimpleNamespace(serial_number="sn"))
 
 
-def test_realsense_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch) -> None:
-    depth_m, ir = render(realsense_camera(realsense_intrinsics()))
+def test_realsense_driver_through_the_library_calls(monkeypatch: pytest.MonkeyPatch,
+                                                   realsense_view: tuple[np.ndarray, np.ndarray]) -> None:
+    depth_m, ir = realsense_view
     library = fake_pyrealsense2([(np.rint(depth_m * 1000).astype(np.uint16), ir.astype(np.uint16))])
     monkeypatch.setitem(sys.modules, "pyrealsense2", library)
-    with create_device({"driver": "realsense", "serial": "42", "timeout_s": 0.1}) as device:
+    with create_device({"driver": "realsense", "serial": "42", "width": 424, "height": 240,
+                        "timeout_s": 0.1}) as device:
         sample = device.read()
         with pytest.raises(DeviceDisconnected, match="no frame within 0.1 s"):
             device.read()
-        assert device.describe() == "realsense SN-sn 848x480 at 30 Hz"
+        assert device.describe() == "realsense SN-sn 424x240 at 30 Hz"
     check_scene(sample, tolerance_m=0.0006, min_fraction=0.999)
     assert sample.meta["serial"] == "SN-sn" and sample.meta["frame_number"] == 7
     assert sample.meta["device_timestamp_ms"] == 1007.0 and sample.meta["depth_scale_m"] == 0.001
-    assert library.calls == ["device 42", "stream depth 848 480 z16 30", "stream infrared 1 848 480 y8 30",
+    assert library.calls == ["device 42", "stream depth 424 240 z16 30", "stream infrared 1 424 240 y8 30",
                              "infrared 1", "stop"]
     monkeypatch.setitem(sys.modules, "pyrealsense2", fake_pyrealsense2([], connected=False))
     with pytest.raises(DeviceError, match="cannot start 848x480 depth at 30 Hz: No device connected"):

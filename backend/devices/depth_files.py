@@ -333,7 +333,7 @@ class DepthFiles(FileSequence):
         """List the depth images (amplitude images beside them are not replayed themselves) and read the
         intrinsics; :class:`DeviceError` saying what is missing or wrong."""
         super().open()
-        self._files = [f for f in self.files if amplitude_file_stem(f) is None]
+        self._files = [f for f in self.files if not is_amplitude_file(f)]
         if not self._files:
             raise DeviceError(f"{self.path} holds amplitude images but no depth images", str(self.path))
         try:
@@ -371,10 +371,6 @@ class DepthFiles(FileSequence):
         return super().describe() + size
 
 
-def amplitude_file_stem(path: Path) -> str | None:
-    """The depth image's stem if ``path`` is an amplitude image (its stem ends in an :data:`AMPLITUDE_SUFFIXES`
-    ending), else None."""
-    for suffix in AMPLITUDE_SUFFIXES:
-        if path.stem.endswith(suffix) and len(path.stem) > len(suffix):
-            return path.stem[: -len(suffix)]
-    return None
+def is_amplitude_file(path: Path) -> bool:
+    """Whether ``path`` is an amplitude image: its stem ends in an :data:`AMPLITUDE_SUFFIXES` ending."""
+    return any(path.stem.endswith(suffix) and len(path.stem) > len(suffix) for suffix in AMPLITUDE_SUFFIXES)
