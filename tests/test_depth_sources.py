@@ -179,7 +179,8 @@ def test_kinect_missing_library_and_settings(monkeypatch: pytest.MonkeyPatch) ->
         device.read()
     device.close()
     for settings, words in [({"pipeline": "vulkan"}, "pipeline must be one of auto, cuda"),
-                            ({"timeout_s": 0}, "timeout_s"), ({"min_range_m": 5, "max_range_m": 1}, "min < max"),
+                            ({"timeout_s": 0}, "timeout_s"), ({"timeout_s": True}, "timeout_s"),
+                            ({"min_range_m": 5, "max_range_m": 1}, "min < max"),
                             ({"max_range_m": "far"}, "max_range_m"), ({"colour": True}, "bad settings")]:
         with pytest.raises(DeviceError, match=words):
             create_device({"driver": "kinect2", **settings})

@@ -98,7 +98,7 @@ class Kinect2Camera(CaptureDevice):
         self.name = f"kinect2 {self.serial or '(first found)'}"
         if pipeline not in PIPELINES:
             raise DeviceError(f"pipeline must be one of {', '.join(PIPELINES)}, got {pipeline!r}", self.name)
-        if not isinstance(timeout_s, int | float) or not 0 < timeout_s < 60:
+        if isinstance(timeout_s, bool) or not isinstance(timeout_s, int | float) or not 0 < timeout_s < 60:
             raise DeviceError(f"timeout_s must be seconds between 0 and 60, got {timeout_s!r}", self.name)
         self.pipeline = pipeline
         self.timeout_s = float(timeout_s)

@@ -73,7 +73,7 @@ class RealSenseCamera(CaptureDevice):
         for key, value, low, high in (("width", width, 1, 4096), ("height", height, 1, 4096), ("fps", fps, 1, 300)):
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise DeviceError(f"{key} must be an integer from {low} to {high}, got {value!r}", self.name)
-        if not isinstance(timeout_s, int | float) or not 0 < timeout_s < 60:
+        if isinstance(timeout_s, bool) or not isinstance(timeout_s, int | float) or not 0 < timeout_s < 60:
             raise DeviceError(f"timeout_s must be seconds between 0 and 60, got {timeout_s!r}", self.name)
         self.width, self.height, self.fps = width, height, fps
         self.infrared = bool(infrared)
