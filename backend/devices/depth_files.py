@@ -23,8 +23,8 @@ the :class:`~backend.core.depth.DepthIntrinsics` fields (and optional ``dist``, 
 
 from __future__ import annotations
 
+import functools
 import json
-import logging
 import time
 from pathlib import Path
 from typing import Any
@@ -42,8 +42,6 @@ from backend.devices.image_io import check_pixels
 from backend.exports.ros_camera_info import load_camera_info
 from backend.exports.text_file import read_text
 from backend.exports.yaml_fields import YamlFields
-
-log = logging.getLogger(__name__)
 
 DEPTH_EXTENSIONS = (".png", ".npy")
 """Depth image files: 16-bit PNG in millimetres, ``.npy`` (float) in metres."""
@@ -94,6 +92,18 @@ def _no_return_as_zero(depth_m: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(0)))
 
 
+@functools.lru_cache(maxsize=16)
+def _undistortion_maps(K: tuple[float, ...], dist: tuple[float, ...],
+                       size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel of the undistorted pinhole (K, px), where it lies in the distorted image (x and y maps,
+    px), kept per camera: a live camera's every frame uses the same (read-only) maps."""
+    K_matrix = np.array(K).reshape(3, 3)
+    maps = cv2.initUndistortRectifyMap(K_matrix, np.array(dist), None, K_matrix, size, cv2.CV_32FC1)
+    for image in maps:
+        image.setflags(write=False)
+    return maps
+
+
 def undistort_depth(depth_m: np.ndarray, amplitude: np.ndarray | None,
                     camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray | None]:
     """``depth_m`` (H, W, m along the optical axis; 0, NaN or negative = no return) and ``amplitude`` (H, W or
@@ -110,8 +120,7 @@ def undistort_depth(depth_m: np.ndarray, amplitude: np.ndarray | None,
     if not np.any(camera.dist):
         return depth_m, amplitude
     depth = _no_return_as_zero(depth_m)
-    map_x, map_y = cv2.initUndistortRectifyMap(camera.K, camera.dist, None, camera.K, camera.image_size,
-                                               cv2.CV_32FC1)
+    map_x, map_y = _undistortion_maps(tuple(camera.K.ravel()), tuple(camera.dist), camera.image_size)
 
     def remap(image: np.ndarray, interpolation: int) -> np.ndarray:
         return cv2.remap(image, map_x, map_y, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
