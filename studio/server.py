@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+from typing import TYPE_CHECKING
 
 import uvicorn
+from fastapi import FastAPI
 
 from backend.api.app import create_app
 from backend.api.auth import is_loopback, new_token
@@ -18,13 +21,44 @@ from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
 from studio.app import StudioApp
 
+if TYPE_CHECKING:
+    from backend.services.demo_depth_cell import DepthCellNodes
+
 
 def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRunner, app: FastAPI,
+                      studio: StudioApp) -> DepthCellNodes:
+    """``demo --rig depth-cell``: the six simulated nodes' agent processes, connected to the studio's network (the
+    app's ``state.node_network``), and the session's build; the studio opens the session when it is ready.
+
+    Run on the main thread: the agents are told to stop when the thread that started them ends (so a studio
+    killed outright leaves none behind).
+    """
+    from backend.services import demo_depth_cell as cell  # zenoh and the simulator only for this demo
+
+    nodes = cell.start_depth_cell_nodes(store.root / cell.NODE_LOG_DIR,
+                                        lambda name, why: _log(f"node agent {name} {why}"))
+    app.state.node_network = nodes.network
+    studio.attach_node_network(nodes.network)
+    _log(f"node agents {', '.join(nodes.agents.agents)} connect to {nodes.endpoint} (logs in {nodes.agents.log_dir})")
+    _log(f"preparing the depth-cell session in {store.root}/{cell.DEPTH_CELL_NAME} ...")
+    studio.session_step.open_when_built(cell.start_depth_cell_build(store, jobs, fresh=args.fresh))
+    return nodes
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    """SIGTERM ends the server as Ctrl-C does. Uvicorn shuts down on it and then raises it again under the handler
+    it found; with this one that is :class:`SystemExit`, so :func:`serve`'s cleanup (the studio's streams, the
+    jobs, a demo's node agents) runs and the exit code is 0 (without it the process died of the signal)."""
+    sys.exit(0)
+
+
 def serve(args: argparse.Namespace) -> int:
-    """Run until interrupted. The first stdout line is the URL to open."""
+    """Run until interrupted (Ctrl-C or SIGTERM). The first stdout line is the URL to open."""
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     store = SessionStore(args.sessions)
     loopback = is_loopback(args.host)
     token = args.token or (None if loopback else new_token())
@@ -45,7 +79,10 @@ def serve(args: argparse.Namespace) -> int:
         mount_viewer_proxy(app, viewer_port, token, viewer_secret)
     host = f"[{args.host}]" if ":" in args.host else args.host
     studio = StudioApp(viewer, store, jobs, api_url=f"http://{host}:{args.port}" if token is None else "")
-    if args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
+    nodes = None
+    if args.command == "demo" and args.rig == "depth-cell":
+        nodes = _start_depth_cell(args, store, jobs, app, studio)
+    elif args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
         _log(f"preparing the demo session in {store.root}/demo ...")
         studio.session_step.open_when_built(start_demo_build(store, jobs, fresh=args.fresh))
     print(studio_url, flush=True)
@@ -56,6 +93,8 @@ def serve(args: argparse.Namespace) -> int:
                     ws_per_message_deflate=False)
     finally:
         studio.close()
+        if nodes is not None:
+            nodes.close()
         jobs.shutdown()
         viewer.stop()
     return 0

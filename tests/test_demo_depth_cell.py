@@ -1,0 +1,175 @@
+"""``calib-studio demo --rig depth-cell``: the session of six tape-measured depth nodes, the simulator's truth beside
+it, six node-agent processes connected to the studio, an agent that dies named, and none left when the studio stops.
+
+One studio process for the module (its agents take a few seconds to start on two cores)."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from backend.core.depth import pose_row
+from backend.core.depth_cell import PAPER_NODE_POSES
+from backend.core.transforms import transform_error
+from backend.services.demo_depth_cell import DEPTH_CELL_NAME, MOUNT_SIGMA, TAPE_ERROR_DEG, TAPE_ERROR_M, TRUTH_FILE
+from backend.services.node_processes import NodeProcesses, free_tcp_port
+from tests.conftest import ROOT, stop_process, wait_health
+
+pytestmark = pytest.mark.slow
+
+NODES = sorted(PAPER_NODE_POSES)
+START_TIMEOUT_S = 120.0
+"""How long (s) the studio, the session build and the six agents may take to start on a loaded machine (about
+20 s on two idle cores)."""
+
+
+@dataclass
+class CellStudio:
+    process: subprocess.Popen
+    api: str
+    url: str
+    viewer_port: int
+    sessions: Path
+    log: Path
+
+    def log_text(self) -> str:
+        return self.log.read_text(errors="replace")
+
+    def get(self, path: str) -> dict | list:
+        response = httpx.get(f"{self.api}{path}", timeout=10)
+        assert response.status_code == 200, f"GET {path}: {response.status_code} {response.text}"
+        return response.json()
+
+
+def agent_processes(parent: int) -> dict[str, int]:
+    """``{node name: pid}`` of the ``studio.cli node`` processes whose parent is ``parent`` (read from /proc)."""
+    agents = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+        except (OSError, IndexError, ValueError):
+            continue  # gone meanwhile
+        if ppid == parent and "studio.cli" in argv and "node" in argv and "--name" in argv:
+            agents[argv[argv.index("--name") + 1]] = int(entry.name)
+    return agents
+
+
+def wait_for(check: Callable[[], bool], timeout_s: float, what: Callable[[], str]) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        assert time.monotonic() < deadline, what()
+        time.sleep(0.2)
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[CellStudio]:
+    tmp = tmp_path_factory.mktemp("depth_cell")
+    api_port, viewer_port = free_port(), free_port()
+    while viewer_port == api_port:
+        viewer_port = free_port()
+    log = tmp / "studio.log"
+    with log.open("wb") as stderr:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "studio.cli", "demo", "--rig", "depth-cell", "--sessions", str(tmp / "sessions"),
+             "--port", str(api_port), "--viewer-port", str(viewer_port)],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
+    studio = CellStudio(process, f"http://127.0.0.1:{api_port}", "", viewer_port, tmp / "sessions", log)
+    try:
+        try:
+            studio.url = lines.get(timeout=START_TIMEOUT_S).strip()
+        except queue.Empty:
+            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_text()[-3000:]}")
+        wait_health(studio.api, process, lambda: studio.log_text()[-3000:])
+        yield studio
+    finally:
+        stop_process(process)
+
+
+def test_first_line_is_the_url_and_the_api_answers(cell: CellStudio) -> None:
+    assert cell.url == f"http://127.0.0.1:{cell.viewer_port}/"
+    assert cell.get("/api/health") == {"status": "ok"}
+
+
+@pytest.fixture(scope="module")
+def built(cell: CellStudio) -> CellStudio:
+    """The studio once its depth-cell session is built (listed by the API)."""
+    wait_for(lambda: DEPTH_CELL_NAME in [s["name"] for s in cell.get("/api/sessions")], START_TIMEOUT_S,
+             lambda: f"the depth-cell session was never built:\n{cell.log_text()[-3000:]}")
+    return cell
+
+
+def test_the_session_holds_six_tape_measured_depth_nodes(built: CellStudio) -> None:
+    cell = built
+    rig = cell.get(f"/api/sessions/{DEPTH_CELL_NAME}/rig")
+    assert rig["root"] == "world"
+    frames = {frame["name"]: frame for frame in rig["frames"] if frame["name"] != "world"}
+    assert sorted(frames) == NODES
+    for name, frame in frames.items():
+        assert frame["kind"] == "depth" and frame["parent"] == "world", frame
+        assert frame["device"] == {"driver": "node", "node": name}
+        assert tuple(frame["mount_sigma"]) == MOUNT_SIGMA
+        # The tape-measured guess: off the truth by what a tape and a protractor leave (and not the truth itself).
+        dt, dr_deg = transform_error(np.array(frame["T_parent_child"]), np.array(
+            json.loads((cell.sessions / DEPTH_CELL_NAME / TRUTH_FILE).read_text())["nodes"][name]["T_world_node"]))
+        assert TAPE_ERROR_M[0] - 1e-9 <= np.linalg.norm(dt) <= TAPE_ERROR_M[1] + 1e-9, (name, dt)
+        assert TAPE_ERROR_DEG[0] - 1e-6 <= np.linalg.norm(dr_deg) <= TAPE_ERROR_DEG[1] + 1e-6, (name, dr_deg)
+
+
+def test_truth_json_holds_the_paper_poses(built: CellStudio) -> None:
+    truth = json.loads((built.sessions / DEPTH_CELL_NAME / TRUTH_FILE).read_text())
+    assert sorted(truth["nodes"]) == NODES
+    for name, row in PAPER_NODE_POSES.items():
+        np.testing.assert_allclose(truth["nodes"][name]["pose_row"], row, atol=1e-9)
+        np.testing.assert_allclose(pose_row(np.array(truth["nodes"][name]["T_world_node"])), row, atol=1e-9)
+    assert set(truth["crosses"]) >= {"gantry_a1", "gantry_a2", "robot_b1", "robot_b2"}
+
+
+def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:
+    wait_for(lambda: sorted(agent_processes(cell.process.pid)) == NODES, START_TIMEOUT_S,
+             lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_text()[-3000:]}")
+    os.kill(agent_processes(cell.process.pid)["sn6"], signal.SIGKILL)
+    wait_for(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), 10.0, lambda: cell.log_text()[-3000:])
+    assert sorted(agent_processes(cell.process.pid)) == NODES[:5]
+
+
+def test_stopping_the_studio_stops_its_agents(cell: CellStudio) -> None:
+    agents = agent_processes(cell.process.pid)
+    assert agents, "no agents to stop"
+    stop_process(cell.process)
+    assert cell.process.returncode == 0, cell.log_text()[-3000:]
+
+    def gone(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie has stopped
+
+    wait_for(lambda: all(gone(pid) for pid in agents.values()), 10.0, lambda: f"agents left running: {agents}")
+
+
+def test_an_agent_that_cannot_start_is_named_with_its_reason(tmp_path: Path) -> None:
+    with NodeProcesses(f"tcp/127.0.0.1:{free_tcp_port()}", tmp_path) as agents:
+        agents.start({"sn9": "no-such-device"})
+        wait_for(lambda: bool(agents.dead()), 30.0, lambda: f"still running: {agents.status()}")
+        why = agents.dead()["sn9"]
+    assert why.startswith("exited with code 2") and "unknown device spec" in why, why
+    assert agents.alive() == []
