@@ -17,9 +17,11 @@ from studio.wizard.sensors_step import DRIVERS, RANGE_KINDS, device_settings, dr
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
     assert sorted(DRIVERS) == driver_names()
     assert drivers_for("camera") == ["uvc", "folder", "simulated", "rosbag"]
+    range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "swept_scanner", "cloud_files",
+                     "rosbag"}
     for kind in RANGE_KINDS:
-        assert {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "swept_scanner", "cloud_files",
-                "rosbag"} == set(drivers_for(kind))
+        depth_drivers = {"kinect2", "realsense", "depth_files", "sim_depth"} if kind == "depth" else set()
+        assert set(drivers_for(kind)) == range_drivers | depth_drivers
     assert drivers_for("imu") == [] and drivers_for("frame") == []
 
 
@@ -35,6 +37,9 @@ def test_settings_from_the_form(tmp_path):
     assert device_settings("velodyne", "192.168.1.77:2369") == {"driver": "velodyne", "host": "192.168.1.77",
                                                                 "port": 2369}
     assert device_settings("ydlidar", "/dev/ttyUSB0") == {"driver": "ydlidar", "port": "/dev/ttyUSB0"}
+    assert device_settings("kinect2", "") == {"driver": "kinect2", "serial": None}
+    assert device_settings("realsense", " 123 ") == {"driver": "realsense", "serial": "123"}
+    assert device_settings("sim_depth", "sn4") == {"driver": "sim_depth", "node": "sn4", "seed": 0}
     assert device_settings("swept_scanner", "sim") == {"driver": "swept_scanner", "servo_port": "sim",
                                                        "scanner": {"driver": "sim"}}
     assert device_settings("swept_scanner", "/dev/ttyUSB1", scanner_port="/dev/ttyUSB0") == {

@@ -10,6 +10,7 @@ before it is turned towards the cell (``backend.core.depth_cell.PAPER_NODE_POSES
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,9 +37,9 @@ class DepthIntrinsics:
     """Depth beyond this is dropped as unreliable (the Kinect v2's noise rises quickly past it)."""
 
     def rays(self) -> np.ndarray:
-        """(H, W, 3) direction of every pixel with Z = 1 (node frame), row-major like the image."""
-        v, u = np.mgrid[0:self.height, 0:self.width].astype(float)
-        return np.dstack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)])
+        """(H, W, 3) direction of every pixel with Z = 1 (node frame), row-major like the image (read-only: one
+        grid per pinhole, kept, since a node unprojects every frame at its camera's rate)."""
+        return _rays(self)
 
     def unproject(self, depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points (N, 3, m, node frame) of the valid pixels of ``depth_m`` (H, W; Z in metres; 0 or NaN = no
@@ -71,6 +72,14 @@ class DepthIntrinsics:
     def from_dict(cls, data: dict[str, float]) -> DepthIntrinsics:
         return cls(int(data["width"]), int(data["height"]), float(data["fx"]), float(data["fy"]), float(data["cx"]),
                    float(data["cy"]), float(data.get("min_range_m", 0.5)), float(data.get("max_range_m", 9.0)))
+
+
+@functools.lru_cache(maxsize=16)
+def _rays(intrinsics: DepthIntrinsics) -> np.ndarray:
+    v, u = np.mgrid[0:intrinsics.height, 0:intrinsics.width].astype(float)
+    rays = np.dstack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones_like(u)])
+    rays.flags.writeable = False
+    return rays
 
 
 KINECT_V2 = DepthIntrinsics(512, 424, fx=365.6, fy=365.6, cx=255.5, cy=211.5)

@@ -21,6 +21,7 @@ from studio.context import StudioContext
 
 CAMERA_KINDS = ("camera",)
 RANGE_KINDS = ("lidar3d", "lidar2d", "depth")
+DEPTH_KINDS = ("depth",)
 KINDS = ("camera", "lidar3d", "lidar2d", "depth", "imu", "frame")
 
 
@@ -50,8 +51,15 @@ DRIVERS: dict[str, DriverChoice] = {
                                 RANGE_KINDS, ""),
     "rosbag": DriverChoice("ROS 2 bag (folder, .mcap or .db3): its path; the topic below",
                            CAMERA_KINDS + RANGE_KINDS, ""),
+    "kinect2": DriverChoice("Kinect v2 through pylibfreenect2 (pip extra kinect2): its serial, or empty for the "
+                            "first found", DEPTH_KINDS, ""),
+    "realsense": DriverChoice("RealSense through pyrealsense2 (pip extra realsense): its serial, or empty for the "
+                              "first found", DEPTH_KINDS, ""),
+    "depth_files": DriverChoice("depth images (16-bit PNG in mm or .npy in m, *_ir beside, intrinsics .json or "
+                                "camera_info .yaml): the folder", DEPTH_KINDS, ""),
+    "sim_depth": DriverChoice("simulated Kinect v2 node of the depth cell: sn1 to sn6", DEPTH_KINDS, "sn1"),
 }
-PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "rosbag")
+PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "rosbag", "depth_files")
 VELODYNE_LISTEN_HOST = "0.0.0.0"
 """Where a Velodyne given only a port is listened for: the sensor sends to the broadcast or the host's address."""
 
@@ -98,6 +106,10 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
         return _velodyne(text)
     if driver == "ydlidar":
         return {"driver": "ydlidar", "port": text or "sim"}
+    if driver in ("kinect2", "realsense"):
+        return {"driver": driver, "serial": text or None}
+    if driver == "sim_depth":
+        return {"driver": "sim_depth", "node": text or "sn1", "seed": 0}
     if driver == "swept_scanner":
         servo_port = text or "sim"
         scanner = {"driver": "sim"} if servo_port == "sim" else {"driver": "ydlidar", "port": scanner_port.strip()}
