@@ -129,18 +129,17 @@ def run_agent(name: str, device: str, connect: list[str] | None = None, listen: 
     settings = parse_device_spec(device)
     stop = stop or threading.Event()
     restore = _stop_on_signals(stop)
-    sensor = _open_device(settings, device)
+    session = open_session(list(listen or []), list(connect or []), "connect")
     try:
-        first = _read(sensor, device)
-        session = open_session(list(listen or []), list(connect or []), "connect")
+        sensor = _open_device(settings, device)
         try:
-            agent = _Agent(name, device, sensor, session, rate_hz, voxel_m, clock, first)
+            agent = _Agent(name, device, sensor, session, rate_hz, voxel_m, clock, _read(sensor, device))
             _log(name, f"serving {sensor.describe()} ({agent.info['kind']}) on {agent.endpoints()}")
             agent.serve(stop)
         finally:
-            session.close()
+            sensor.close()
     finally:
-        sensor.close()
+        session.close()
         restore()
     _log(name, "stopped")
     return 0

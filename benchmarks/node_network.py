@@ -1,0 +1,209 @@
+#!/usr/bin/env python
+"""Node-network benchmark: how many depth nodes streaming at the Kinect's 30 Hz one studio takes.
+
+What it measures, in one run:
+
+- Per frame, once: a simulated cell node's Kinect v2 frame (``sim_depth``), encoded as an agent streams it
+  (voxelised to 2 cm, quantised, zlib: ``frame_bytes``, ``compression_ratio`` against its float32 arrays) and as
+  a capture (the full depth image: ``capture_bytes``); ``encode_stream_ms`` (the node computer's work per frame),
+  ``decode_stream_ms`` (what the studio spends to look at one, only when a preview is drawn).
+- For N = 1, 2, 4, 6, 8, 12 node processes on 127.0.0.1, each publishing its node's encoded frame at 30 Hz for
+  ``SECONDS`` through the agent's wire (liveliness token, info and clock queryables, the ``frames`` key and
+  its sequence/send-time attachment) into one studio :class:`NodeNetwork`: received ``frames_per_s`` and
+  ``mb_per_s``, latency ``p50_ms``/``p95_ms`` (studio receive time minus the node's send stamp; one host, one
+  clock), ``dropped`` (sent but not received), ``sent_hz`` (what the publishers managed), the studio's CPU
+  (``studio_cpu``: cores busy receiving) and ``scaling`` = frames/s against N times the in-run baseline N = 1.
+- ``estimate``: the nodes at 30 Hz one studio core receives (from its CPU per frame), one Gigabit link carries
+  (from the frame size), and where it broke here.
+
+The publishers send frames encoded beforehand: on a real network the encoding runs on each node's own
+computer (``encode_stream_ms`` of it), and 12 encoders at 30 Hz would need about 20 cores here, not 2.
+The machine is shared: ``load_average`` says how busy it was.
+
+Prints exactly one JSON object on stdout; progress goes to stderr.
+
+Usage:
+    .venv/bin/python benchmarks/node_network.py [--counts 1,2,4,6,8,12] [--seconds 6]
+"""
+
+import argparse
+import json
+import os
+import resource
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_util import log, median_time
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from backend.devices.cloud_codec import decode_frame, encode_frame  # noqa: E402
+from backend.devices.node_agent import CLOCK_REPLY, FRAME_STAMP, node_key, open_session  # noqa: E402
+from backend.devices.node_network import NodeNetwork  # noqa: E402
+
+RATE_HZ = 30.0
+"""The Kinect v2's frame rate."""
+VOXEL_M = 0.02
+"""The agent's default voxel (m)."""
+GIGABIT_BYTES_S = 125e6
+CELL_NODES = [f"sn{i}" for i in range(1, 7)]
+
+
+def publish(name: str, endpoint: str, frame_file: str, start_s: float, seconds: float) -> None:
+    """One node process: present itself as an agent does, then put its frame at RATE_HZ from ``start_s``."""
+    payload = Path(frame_file).read_bytes()
+    session = open_session([], [endpoint], "connect")
+    info = json.dumps({"name": name, "kind": "depth", "device": "benchmark", "rate_hz": RATE_HZ, "voxel_m": VOXEL_M})
+    entities = [session.declare_queryable(node_key(name, "info"), lambda q: q.reply(q.key_expr, info)),
+                session.declare_queryable(node_key(name, "clock"),
+                                          lambda q: q.reply(q.key_expr, CLOCK_REPLY.pack(time.time())))]
+    publisher = session.declare_publisher(node_key(name, "frames"))
+    token = session.liveliness().declare_token(node_key(name, "alive"))
+    time.sleep(max(0.0, start_s - time.time()))
+    sent, next_s, end_s = 0, time.monotonic(), time.monotonic() + seconds
+    cpu_start = time.process_time()
+    while next_s < end_s:
+        publisher.put(payload, attachment=FRAME_STAMP.pack(sent, time.time()))
+        sent += 1
+        next_s += 1.0 / RATE_HZ
+        time.sleep(max(0.0, next_s - time.monotonic()))
+    cpu_s = time.process_time() - cpu_start
+    time.sleep(1.0)  # let the last frames drain before the token goes
+    token.undeclare()
+    for entity in (*entities, publisher):
+        entity.undeclare()
+    session.close()
+    print(json.dumps({"name": name, "sent": sent, "cpu_s": cpu_s}), flush=True)
+
+
+def render_frames() -> dict[str, bytes]:
+    """Each cell node's stream frame, and the figures of one."""
+    from backend.devices.base import create_device
+
+    frames, figures = {}, {}
+    for node in CELL_NODES:
+        device = create_device({"driver": "sim_depth", "node": node, "rate_hz": 0})
+        device.open()
+        sample = device.read()
+        device.close()
+        frames[node] = encode_frame(sample, VOXEL_M)
+        if node == "sn1":
+            raw = 2 * sample.depth.size * 4 + sample.points.size * 4 + sample.intensity.size * 4
+            capture = encode_frame(sample, None)
+            figures = {"points": len(sample.points), "raw_bytes": raw, "frame_bytes": len(frames[node]),
+                       "frame_points": len(decode_frame(frames[node]).points),
+                       "compression_ratio": round(raw / len(frames[node]), 1),
+                       "capture_bytes": len(capture), "capture_ratio": round(raw / len(capture), 1),
+                       "encode_stream_ms": round(1000 * median_time(lambda s=sample: encode_frame(s, VOXEL_M), 5), 1),
+                       "encode_capture_ms": round(1000 * median_time(lambda s=sample: encode_frame(s, None), 5), 1),
+                       "decode_stream_ms": round(1000 * median_time(lambda f=frames[node]: decode_frame(f), 5), 1),
+                       "decode_capture_ms": round(1000 * median_time(lambda c=capture: decode_frame(c), 5), 1)}
+    return frames, figures
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
+    """N publisher processes into one NodeNetwork: what the studio received."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    received: list[tuple[float, int, float | None]] = []
+    lock = threading.Lock()
+    window = {"open": False}
+
+    def on_frame(node: str, n_bytes: int, latency_s: float | None) -> None:
+        if window["open"]:
+            with lock:
+                received.append((time.time(), n_bytes, latency_s))
+
+    network = NodeNetwork(listen=[endpoint])
+    network.open()
+    network.on_frame(on_frame)
+    names = [f"n{k:02d}" for k in range(count)]
+    start_s = time.time() + 4.0 + 0.6 * count  # every process up and seen before the first frame
+    processes = [subprocess.Popen([sys.executable, __file__, "--publish", name, "--endpoint", endpoint,
+                                   "--frame", files[CELL_NODES[k % len(CELL_NODES)]], "--start", repr(start_s),
+                                   "--seconds", repr(seconds)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                 for k, name in enumerate(names)]
+    while time.time() < start_s:
+        time.sleep(0.05)
+    present = sum(s.alive and s.clock_offset_s is not None for s in network.nodes())
+    warm_s = 0.5  # skip the first half second (links and callbacks warming up)
+    time.sleep(warm_s)
+    cpu_start, wall_start = resource.getrusage(resource.RUSAGE_SELF), time.time()
+    window["open"] = True
+    time.sleep(seconds - warm_s - 0.2)
+    window["open"] = False
+    cpu_end, wall_s = resource.getrusage(resource.RUSAGE_SELF), time.time() - wall_start
+    reports = [json.loads(p.communicate(timeout=60)[0].strip().splitlines()[-1]) for p in processes]
+    statuses = {s.name: s for s in network.nodes()}
+    network.close()
+    sent = sum(r["sent"] for r in reports)
+    frames_total = sum(statuses[name].frames for name in names if name in statuses)
+    latencies = np.array([lat for _, _, lat in received if lat is not None]) * 1000
+    studio_cpu_s = (cpu_end.ru_utime + cpu_end.ru_stime) - (cpu_start.ru_utime + cpu_start.ru_stime)
+    return {"nodes": count, "present": present, "frames_per_s": round(len(received) / wall_s, 1),
+            "mb_per_s": round(sum(n for _, n, _ in received) / wall_s / 1e6, 2),
+            "p50_ms": round(float(np.percentile(latencies, 50)), 2) if len(latencies) else None,
+            "p95_ms": round(float(np.percentile(latencies, 95)), 2) if len(latencies) else None,
+            "sent": sent, "received": frames_total, "dropped": sent - frames_total,
+            "sent_hz": round(sent / seconds / count, 1),
+            "studio_cpu": round(studio_cpu_s / wall_s, 2),
+            "studio_cpu_ms_per_frame": round(1000 * studio_cpu_s / max(len(received), 1), 3),
+            "publisher_cpu": round(sum(r["cpu_s"] for r in reports) / seconds, 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--counts", default="1,2,4,6,8,12")
+    parser.add_argument("--seconds", type=float, default=6.0)
+    parser.add_argument("--publish", help=argparse.SUPPRESS)
+    parser.add_argument("--endpoint", help=argparse.SUPPRESS)
+    parser.add_argument("--frame", help=argparse.SUPPRESS)
+    parser.add_argument("--start", type=float, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.publish:
+        publish(args.publish, args.endpoint, args.frame, args.start, args.seconds)
+        return
+    log("rendering and encoding one frame per cell node")
+    frames, figures = render_frames()
+    runs = []
+    with tempfile.TemporaryDirectory() as folder:
+        files = {}
+        for node, payload in frames.items():
+            files[node] = os.path.join(folder, f"{node}.frame")
+            Path(files[node]).write_bytes(payload)
+        for count in [int(c) for c in args.counts.split(",")]:
+            log(f"{count} node(s) at {RATE_HZ:g} Hz for {args.seconds:g} s")
+            runs.append(run_network(count, files, args.seconds))
+            log(json.dumps(runs[-1]))
+    base = runs[0]["frames_per_s"] / runs[0]["nodes"]
+    for run in runs:
+        run["scaling"] = round(run["frames_per_s"] / (base * run["nodes"]), 2) if base else None
+    cpu_ms = float(np.median([r["studio_cpu_ms_per_frame"] for r in runs]))
+    mean_frame = float(np.mean([len(f) for f in frames.values()]))
+    broke = next((r for r in runs if r["scaling"] is not None and (r["scaling"] < 0.9 or r["dropped"] > 0.05 *
+                                                                   r["sent"])), None)
+    estimate = {
+        "nodes_per_studio_core_receiving": int(1000 / (cpu_ms * RATE_HZ)) if cpu_ms else None,
+        "nodes_per_studio_core_decoding_every_frame": int(1000 / ((cpu_ms + figures["decode_stream_ms"]) * RATE_HZ)),
+        "nodes_per_gigabit_link": int(GIGABIT_BYTES_S / (mean_frame * RATE_HZ)),
+        "first_count_not_scaling_here": None if broke is None else broke["nodes"],
+    }
+    print(json.dumps({"frame": figures, "rate_hz": RATE_HZ, "voxel_m": VOXEL_M, "seconds": args.seconds,
+                      "runs": runs, "estimate": estimate, "load_average": os.getloadavg(),
+                      "cores": os.cpu_count()}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
