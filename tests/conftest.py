@@ -285,6 +285,44 @@ def unfold(page: Page, folder: str, inside: Locator) -> None:
     expect(inside).to_be_visible()
 
 
+COVERED_JS = """el => { el.scrollIntoView({block: "center"}); const r = el.getBoundingClientRect();
+    const hit = document.elementFromPoint(r.x + r.width / 2, r.y + r.height / 2);
+    return hit === null || !(el === hit || el.contains(hit)); }"""
+"""Whether something else than the element (or a child of it) is under the element's centre (scrolled into view)."""
+
+
+def reopen_if_covered(page: Page, folder: str, row: Locator, settle_s: float = 5.0, timeout_s: float = 15.0) -> bool:
+    """Make ``row``, inside the GUI folder titled ``folder``, clickable; True if it stayed covered and the folder
+    was closed and opened again.
+
+    A viser 1.1.1 folder (Mantine 9's ``Collapse``) that went empty and was filled again while a folder around it
+    was closed stays at height 0 for good: its opening transition ran under ``display: none``, so no
+    ``transitionend`` came to let it grow. Its rows are then "visible" to Playwright (they keep their own size) but
+    the folder's frame covers them ("... mantine-Paper-root intercepts pointer events"). This hits a user too:
+    adding a sensor re-opens the session and refills the LiDAR step's *Show live* boxes while that step is closed.
+    A folder still opening covers its rows for a moment too (seconds on a loaded machine): ``settle_s`` tells the
+    two apart. Then, like the user, close the folder and open it again."""
+    expect(row).to_be_visible()
+    if _uncovered(row, settle_s):
+        return False
+    title = page.get_by_text(folder, exact=True)
+    title.click()
+    expect(row).to_be_hidden()  # a closed folder's rows are display: none once its closing transition ended
+    title.click()
+    assert _uncovered(row, timeout_s), f"{folder!r} closed and opened again, but its row is still covered"
+    return True
+
+
+def _uncovered(row: Locator, timeout_s: float) -> bool:
+    """Poll until nothing covers ``row``'s centre; False if something still does after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while row.evaluate(COVERED_JS):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.2)
+    return True
+
+
 def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
