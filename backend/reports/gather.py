@@ -98,7 +98,8 @@ class ReportData:
     """Everything the report shows."""
 
     session: dict[str, Any]
-    """:meth:`Session.info`."""
+    """:meth:`Session.info`, with ``depth_network``: the depth nodes' :func:`~backend.services.depth_network.
+    network_summary` (None when the rig has no depth node), which the template reads from here."""
     generated_at: float
     """s since the epoch."""
     frames: list[dict[str, Any]]
@@ -122,6 +123,7 @@ def gather(session: Session) -> ReportData:
         tree = solve_rig(session)
         rig = copy.deepcopy(session.rig)
         info, acceptance_log = session.info(), session.acceptance_log
+        info["depth_network"] = depth_network_summary(session) if rig.sensors("depth") else None
     frames = [{"name": f.name, "kind": f.kind, "parent": f.parent,
                "captures": len(session.captures(f.name)) if f.kind != "frame" else 0}
               for f in rig.frames.values() if f.parent is not None]
@@ -142,6 +144,14 @@ def gather(session: Session) -> ReportData:
     return ReportData(session=info, generated_at=time.time(), frames=frames, tree=tree, cameras=cameras,
                       cameras_without_intrinsics=missing, edges=edges, geometries=geometries,
                       acceptance_log=acceptance_log)
+
+
+def depth_network_summary(session: Session) -> dict[str, Any]:
+    """The depth network as the report shows it: :func:`~backend.services.depth_network.network_summary` (each
+    node's pose, sigma and verdict; the verification table) with the pose table's rows."""
+    from backend.services.depth_network import network_summary
+
+    return network_summary(session)
 
 
 def camera_report(session: Session, record: dict[str, Any]) -> CameraReport:

@@ -213,7 +213,8 @@ TEMPLATE = """<!DOCTYPE html>
 <p>Generated {{ generated_at | utc }} &middot; board {{ session.board or "none" }} &middot; rig root
 <code>{{ tree.root }}</code></p>
 </header>
-<nav>{% for id, title in sections %}<a href="#{{ id }}">{{ title }}</a>{% endfor %}</nav>
+<nav>{% for id, title in sections if id != "depth" or session.depth_network %}<a href="#{{ id }}">{{ title }}</a>
+{% endfor %}</nav>
 
 <section id="overview">
 <h2>Overview</h2>
@@ -317,6 +318,41 @@ graph.</p>
 {% endif %}
 </section>
 
+{% set depth = session.depth_network %}{% if depth %}
+<section id="depth">
+<h2>Depth network</h2>
+<p class="note">Every depth node's pose in the cell's world frame in the paper's order: X, Y, Z (m) and RotZ, RotY,
+RotX (deg, R = Rz Ry Rx about the node's axes), with the largest 1-sigma of the fused rig (translation in mm,
+rotation in deg) and the verdict of its accepted result.</p>
+{% if depth.problems %}<ul class="problems">{% for line in depth.problems %}<li>{{ line }}</li>{% endfor %}</ul>
+{% endif %}
+<table>
+<tr><th>node</th><th>X</th><th>Y</th><th>Z</th><th>RotZ</th><th>RotY</th><th>RotX</th><th>sigma (mm)</th>
+<th>sigma (deg)</th><th>verdict</th><th>result</th></tr>
+{% for row in depth.pose_table %}{% set n = depth.nodes[row.node] %}
+<tr><td><b>{{ row.node }}</b></td><td class="n">{{ row.X | fixed(4) }}</td><td class="n">{{ row.Y | fixed(4) }}</td>
+<td class="n">{{ row.Z | fixed(4) }}</td><td class="n">{{ row.RotZ | fixed(3) }}</td>
+<td class="n">{{ row.RotY | fixed(3) }}</td><td class="n">{{ row.RotX | fixed(3) }}</td>
+<td class="n">{{ row.sigma_mm | fixed(2) }}</td><td class="n">{{ row.sigma_deg | fixed(4) }}</td>
+<td>{{ badge(n.verdict) }}</td><td>{{ n.result_id or "—" }}</td></tr>
+{% endfor %}
+</table>
+{% for row in depth.pose_table %}{% set n = depth.nodes[row.node] %}<h4>{{ row.node }}: {{ n.verdict.level }}</h4>
+{{ reasons(n.verdict) }}{% endfor %}
+<h3>Verification against laser-measured distances</h3>
+{% if depth.verification %}
+<table><tr><th>from</th><th>to</th><th>measured (mm)</th><th>estimated (mm)</th><th>error (mm)</th></tr>
+{% for r in depth.verification %}<tr><td>{{ r.a }}</td><td>{{ r.b }}</td>
+<td class="n">{{ r.measured_m | fixed(1, 1000) }}</td><td class="n">{{ r.estimated_m | fixed(1, 1000) }}</td>
+<td class="n">{{ r.error_m | fixed(1, 1000) }}</td></tr>
+{% endfor %}</table>
+<p class="note">Estimated: the distance between the two picked points at the nodes' current poses (a point seen by
+several nodes is their weighted mean); error = estimated - measured.</p>
+{% else %}<p>No verification distance yet: pick two points (the crosses) and type their laser-measured distance.</p>
+{% endif %}
+</section>
+{% endif %}
+
 <section id="graph">
 <h2>Observation graph</h2>
 <figure><img src="{{ graph_plot }}" alt="observation graph"><figcaption>Which frames were calibrated against which:
@@ -359,5 +395,6 @@ graph.</p>
 """
 
 SECTIONS = [("overview", "Overview"), ("sensors", "Sensors"), ("intrinsics", "Camera intrinsics"),
-            ("edges", "Rig edges"), ("graph", "Observation graph"), ("rig", "The rig"), ("log", "Acceptance log")]
-"""Section ids and headings, in page order."""
+            ("edges", "Rig edges"), ("depth", "Depth network"), ("graph", "Observation graph"), ("rig", "The rig"),
+            ("log", "Acceptance log")]
+"""Section ids and headings, in page order (``depth`` only for a rig with depth nodes)."""

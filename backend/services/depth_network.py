@@ -25,7 +25,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 
 from backend.core.depth import KINECT_V2, DepthIntrinsics, pose_from_row
-from backend.core.depth_cell import CellLayout, TableSpec, default_cell_layout
+from backend.core.depth_cell import CellLayout, Cross, TableSpec, default_cell_layout
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, edge_slot
 from backend.core.transforms import invert, transform_points
@@ -49,6 +49,9 @@ CROSS_REFLECTIVITY = 3.0
 diffuse surface stays below its albedo (< 1), a retroreflective cross returns far more."""
 MIN_CROSS_PIXELS = 8
 """Fewest connected retroreflective pixels that make a cross."""
+WHOLE_CROSS_EXTENT = 1.5
+"""A cross is seen whole when its pixels span this many arm lengths (``Cross.size_m``) along world X and Y (both
+bars end to end span two)."""
 CROSS_NAME_RADIUS_M = 0.5
 """A cross found within this distance (m, world) of a cross of the layout takes its name."""
 PARTIAL_CROSS_AREA = 0.6
@@ -399,7 +402,8 @@ def merged_voxel_map(session: Session, voxel_m: float = DEFAULT_VOXEL_M, nodes: 
 
 def cross_sightings(session: Session, nodes: Sequence[str] | None = None) -> list[dict[str, Any]]:
     """The retroreflective crosses each node's latest capture sees: connected pixels whose range-normalised
-    amplitude exceeds :data:`CROSS_REFLECTIVITY` (clusters touching the image border are left out: cut, their
+    amplitude exceeds :data:`CROSS_REFLECTIVITY`, seen whole (clusters touching the image border, or whose extent
+    along world X or Y is under :data:`WHOLE_CROSS_EXTENT` arm lengths, are left out: cut or hidden in part, their
     centre would be biased). Each centre is the solvers' :func:`~backend.solvers.depth_features.cross_centre`
     of its points at the node's current pose (bars along world X and Y) and ``area_m2`` the floor area its pixels
     cover (a pixel's footprint grows as range^2 / cos(incidence)). ``[{"name" (the layout's cross within
@@ -440,9 +444,14 @@ def cross_sightings(session: Session, nodes: Sequence[str] | None = None) -> lis
         for k in range(1, count + 1):
             if n_pixels[k] < MIN_CROSS_PIXELS or k in border:
                 continue
-            centre = cross_centre(points_world[label == k])
+            blob = points_world[label == k]
+            centre = cross_centre(blob)
+            name = _cross_name(cell, centre, f"cross@{node}#{k}")
+            size_m = next((c.size_m for c in cell.crosses if c.name == name), Cross.size_m)
+            if (np.ptp(blob[:, :2], axis=0) < WHOLE_CROSS_EXTENT * size_m).any():
+                continue  # a bar not seen end to end: hidden in part (a table) or cut by the range limit
             centre_node = transform_points(T_node_world, centre[None])[0]
-            found.append({"name": _cross_name(cell, centre, f"cross@{node}#{k}"), "node": node,
+            found.append({"name": name, "node": node,
                           "point_m": centre.tolist(), "point_node_m": centre_node.tolist(),
                           "n_pixels": int(n_pixels[k]), "area_m2": float(total[k])})
     return found
@@ -452,16 +461,22 @@ def detected_crosses(session: Session, nodes: Sequence[str] | None = None) -> li
     """Every cross the nodes see, as a pick target: ``{"name", "point_m" (world, m), "views": [{"node",
     "point_node_m", "weight"}], "n_pixels"}``, its position the pixel-weighted mean of its sightings
     (:func:`cross_sightings`) at the nodes' current poses. A sighting covering less than
-    :data:`PARTIAL_CROSS_AREA` of the cross's best-seen area is left out (part of it hidden or out of range:
-    its centre would be biased). Several nodes' sightings average each one's pixel aliasing (a bar of a cross
-    is about two pixels wide from the ceiling)."""
+    :data:`PARTIAL_CROSS_AREA` of the cross's best-seen area (or of the median sighting's, crosses being alike)
+    is left out (part of it hidden or out of range: its centre would be biased). Several nodes' sightings average
+    each one's pixel aliasing (a bar of a cross is about two pixels wide from the ceiling)."""
+    sightings_all = cross_sightings(session, nodes)
+    if not sightings_all:
+        return []
+    typical_area = float(np.median([s["area_m2"] for s in sightings_all]))
     by_name: dict[str, list[dict[str, Any]]] = {}
-    for sighting in cross_sightings(session, nodes):
+    for sighting in sightings_all:
         by_name.setdefault(sighting["name"], []).append(sighting)
     targets = []
     for name, sightings in sorted(by_name.items()):
-        best_area = max(s["area_m2"] for s in sightings)
-        kept = [s for s in sightings if s["area_m2"] >= PARTIAL_CROSS_AREA * best_area]
+        whole_area = max(typical_area, *(s["area_m2"] for s in sightings))
+        kept = [s for s in sightings if s["area_m2"] >= PARTIAL_CROSS_AREA * whole_area]
+        if not kept:
+            continue
         views = [{"node": s["node"], "point_node_m": s["point_node_m"], "weight": float(s["n_pixels"])} for s in kept]
         weights = np.array([v["weight"] for v in views])
         centre = (np.array([s["point_m"] for s in kept]) * weights[:, None]).sum(0) / weights.sum()
