@@ -142,6 +142,26 @@ def test_truth_json_holds_the_paper_poses(built: CellStudio) -> None:
     assert set(truth["crosses"]) >= {"gantry_a1", "gantry_a2", "robot_b1", "robot_b2"}
 
 
+def test_every_node_captures_over_the_network_through_the_api(built: CellStudio) -> None:
+    """A full frame from each of the six agents, through the studio's node network (``capture-live``)."""
+    base = f"{built.api}/api/sessions/{DEPTH_CELL_NAME}/depth-network/nodes"
+
+    def capture(node: str) -> httpx.Response:
+        return httpx.post(f"{base}/{node}/capture-live", json={"arrangement": "free", "timeout_s": 20}, timeout=30)
+
+    for node in NODES:
+        response = capture(node)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while response.status_code != 201 and time.monotonic() < deadline:  # the agent not yet seen: 4xx naming it
+            assert response.status_code < 500, response.text
+            time.sleep(0.5)
+            response = capture(node)
+        assert response.status_code == 201, f"{node}: {response.text}\n{built.log_text()[-3000:]}"
+        record = response.json()
+        assert record["image_size"] == [512, 424] and record["n_points"] > 100_000, record
+    assert all(len(built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/nodes/{n}/captures")) == 3 for n in NODES)
+
+
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:
     wait_for(lambda: sorted(agent_processes(cell.process.pid)) == NODES, START_TIMEOUT_S,
              lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_text()[-3000:]}")
