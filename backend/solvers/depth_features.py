@@ -164,19 +164,26 @@ def check_observation(obs: DepthObservation) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares plane ``n . p + d = 0`` (unit ``n``) through (M, 3) points: the smallest singular vector."""
+    """Least-squares plane ``n . p + d = 0`` (unit ``n``) through (M, 3) points: the scatter matrix's eigenvector
+    of the smallest eigenvalue (a 3x3 problem, where an SVD of the M x 3 points costs far more)."""
     centre = points.mean(axis=0)
-    normal = np.linalg.svd(points - centre, full_matrices=False)[2][2]
+    spread = points - centre
+    normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]
     return normal, float(-normal @ centre)
 
 
-def _find_floor(points: np.ndarray, T_guess: np.ndarray, settings: DepthNodeSettings,
+def ranges_m(points: np.ndarray) -> np.ndarray:
+    """(N,) distance (m) of each point (N, 3, node frame) from the sensor."""
+    return np.sqrt(np.einsum("ij,ij->i", points, points))
+
+
+def _find_floor(points: np.ndarray, ranges: np.ndarray, T_guess: np.ndarray, settings: DepthNodeSettings,
                 rng: np.random.Generator) -> _Floor | None:
-    """The floor plane (node frame) near ``z = 0`` under ``T_guess``, or None when there is none near enough."""
+    """The floor plane (node frame) near ``z = 0`` under ``T_guess``, or None when there is none near enough;
+    ``ranges`` (N,, m) are the points' :func:`ranges_m`."""
     import open3d as o3d
 
-    ranges = np.linalg.norm(points, axis=1)
-    z = transform_points(T_guess, points)[:, 2]
+    z = points @ T_guess[2, :3] + T_guess[2, 3]
     band = settings.floor_band_m + ranges * np.sin(np.radians(settings.guess_rot_deg))
     candidates = np.flatnonzero(np.abs(z) < band)
     if len(candidates) < 3 * settings.min_table_points:
@@ -216,23 +223,22 @@ def levelled_pose(T_guess: np.ndarray, floor_normal: np.ndarray, floor_offset_m:
     return make_T(turn @ T_guess[:3, :3], [T_guess[0, 3], T_guess[1, 3], floor_offset_m])
 
 
-def _amplitude_ratio(points: np.ndarray, amplitude: np.ndarray, floor: _Floor) -> np.ndarray:
+def _amplitude_ratio(points: np.ndarray, ranges: np.ndarray, amplitude: np.ndarray, floor: _Floor) -> np.ndarray:
     """(N,) each point's amplitude over the floor's fitted amplitude at its range and incidence.
 
     The floor's amplitude is modelled as ``log a = c0 + c1 log r + c2 log cos(incidence)`` (the
     inverse-square fall-off and Lambert's cosine, with fitted exponents), fitted by least squares on
     the floor inliers with two rounds of rejecting outliers (the tape and crosses are few)."""
-    ranges = np.linalg.norm(points, axis=1)
     cosine = np.clip(np.abs(points @ floor.normal) / np.maximum(ranges, 1e-9), 1e-3, 1.0)
     design = np.column_stack([np.ones(len(points)), np.log(np.maximum(ranges, 1e-3)), np.log(cosine)])
     log_a = np.log(np.maximum(amplitude, 1e-9))
-    fit = floor.inliers & (amplitude > 0)
-    coef = np.zeros(3)
+    rows = np.flatnonzero(floor.inliers & (amplitude > 0))
+    X, y = design[rows], log_a[rows]
+    keep = np.ones(len(rows), dtype=bool)
     for _ in range(3):
-        coef = np.linalg.lstsq(design[fit], log_a[fit], rcond=None)[0]
-        residual = log_a - design @ coef
-        spread = 1.4826 * np.median(np.abs(residual[fit]))
-        fit = floor.inliers & (amplitude > 0) & (np.abs(residual) < 2.5 * max(spread, 1e-3))
+        coef = np.linalg.solve(X[keep].T @ X[keep], X[keep].T @ y[keep])  # the normal equations (3 x 3)
+        residual = y - X @ coef
+        keep = np.abs(residual) < 2.5 * max(1.4826 * np.median(np.abs(residual[keep])), 1e-3)
     return np.exp(log_a - design @ coef)
 
 
@@ -413,17 +419,19 @@ def extract_features(obs: DepthObservation, T_world_node_guess: np.ndarray, layo
                   pixel_index=None if obs.pixel_index is None else np.asarray(obs.pixel_index)[keep])
     points = obs.points
     rng = np.random.default_rng(settings.seed)
-    floor = _find_floor(points, T_guess, settings, rng)
+    ranges = ranges_m(points)
+    floor = _find_floor(points, ranges, T_guess, settings, rng)
     if floor is None:
         return [], [f"no floor plane found in capture {obs.capture_id} within {settings.max_floor_tilt_deg:g} deg "
                     "of level near z = 0 under the pose guess: check the initial pose (RotX about -140 deg for a "
                     "ceiling node) and that the floor is in view"]
-    ranges = np.linalg.norm(points, axis=1)
-    world = transform_points(levelled_pose(T_guess, floor.normal, floor.offset_m), points)
-    ratio = _amplitude_ratio(points, obs.amplitude, floor)
+    ratio = _amplitude_ratio(points, ranges, obs.amplitude, floor)
     near_floor = np.abs(points @ floor.normal + floor.offset_m) < 0.05
     bright = near_floor & (ratio > settings.cross_ratio)
     tape = floor.inliers & (ratio > settings.tape_ratio) & ~bright
+    world = np.zeros_like(points)  # world positions under the levelled guess, of the markings only (few)
+    world[tape | bright] = transform_points(levelled_pose(T_guess, floor.normal, floor.offset_m),
+                                            points[tape | bright])
     # tape points are moved along their rays onto the capture's floor plane (fitted to thousands of points):
     # their range noise goes, and only the tape's width spreads them about the line
     on_plane = points.copy()

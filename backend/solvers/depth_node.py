@@ -43,6 +43,7 @@ from backend.solvers.depth_features import (
     Feature,
     extract_features,
     feature_residuals,
+    ranges_m,
 )
 from backend.solvers.result import (
     ProgressCallback,
@@ -89,7 +90,7 @@ def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSetti
         n = len(feature.points)
         axis = np.zeros(3)
         axis[AXES[feature.axis or "z"]] = 1.0
-        sigma = settings.sigma_m(np.linalg.norm(feature.points, axis=1))
+        sigma = settings.sigma_m(ranges_m(feature.points))
         if feature.kind == "line":
             sigma = np.hypot(sigma, settings.line_sigma_m)
         points.append(feature.points)
@@ -106,23 +107,28 @@ def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSetti
 def fit_features(features: list[Feature], T_world_node: np.ndarray, layout: CellLayout,
                  settings: DepthNodeSettings) -> tuple[np.ndarray, Any]:
     """``T_world_node`` (4x4, m) that best fits ``features`` from ``T_world_node``, and SciPy's result (its ``x`` the
-    :func:`apply_params` step, its ``jac`` the loss-scaled Jacobian in sigma units)."""
+    :func:`apply_params` step, its ``jac`` the loss-scaled Jacobian in sigma units with respect to the solution's
+    own :data:`~backend.solvers.result.TRANSFORM_PARAMETERS`)."""
     P, A, K, W, _ = _stack(features, layout, settings)
     if len(P) < 6:
         raise InputError(f"{len(P)} constraints from the features seen; a pose needs at least 6", "features")
     R0 = T_world_node[:3, :3]
 
+    # (M, 3) @ (3, 3) products go through einsum: OpenBLAS takes 20x longer for such thin matrices here
     def residuals(p: np.ndarray) -> np.ndarray:
         T = apply_params(T_world_node, p)
-        return W * (np.einsum("ij,ij->i", A, P @ T[:3, :3].T + T[:3, 3]) - K)
+        return W * (np.einsum("ij,jk,ik->i", A, T[:3, :3], P) + A @ T[:3, 3] - K)
 
     def jacobian(p: np.ndarray) -> np.ndarray:
         # d/d dt: the axis; d/d dr (child axes): p x (M^T a) J_r(dr), M = R0 Exp(dr) (a . M (v x p) = v . (p x M^T a))
         M = R0 @ Rotation.from_rotvec(p[3:]).as_matrix()
-        return W[:, None] * np.hstack([A, np.cross(P, A @ M) @ right_jacobian(p[3:])])
+        arms = np.cross(P, np.einsum("ij,jk->ik", A, M))
+        return W[:, None] * np.hstack([A, np.einsum("ij,jk->ik", arms, right_jacobian(p[3:]))])
 
     fit = least_squares(residuals, np.zeros(6), jac=jacobian, loss="soft_l1", f_scale=settings.robust_scale,
                         x_scale="jac", method="trf")
+    # the Jacobian in the solution's own parameters (rotation about its axes): J_r(x)^-1 turns the step's
+    fit.jac = np.hstack([fit.jac[:, :3], fit.jac[:, 3:] @ np.linalg.inv(right_jacobian(fit.x[3:]))])
     return apply_params(T_world_node, fit.x), fit
 
 
@@ -250,13 +256,13 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
                              "observations")
         T_previous = T
         T, fit = fit_features(features, T, layout, settings)
+        missing = undetermined_parameters(fit, T)
+        if missing:  # checked every round: an open direction lets the solve wander, and the next round see nothing
+            raise InputError(_undetermined_message(node, missing, features, layout), "observations")
         step_m, step_deg = np.split(params_between(T_previous, T), 2)
         if rounds > 1 and np.linalg.norm(step_m) < CONVERGED_TRANS_M and \
                 np.degrees(np.linalg.norm(step_deg)) < CONVERGED_ROT_DEG:
             break
-    missing = undetermined_parameters(fit, T)
-    if missing:
-        raise InputError(_undetermined_message(node, missing, features, layout), "observations")
     progress(0.75, "leave-one-capture-out solves")
     cov_jacobian = jacobian_covariance(fit)
     spread, held = _held_out(observations, features, T, layout, settings)
@@ -264,7 +270,7 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
     rows = feature_residuals(features, T)
     crosses = [row for row in rows if row["kind"] == "point"]
     P, A, K, _, kinds = _stack(features, layout, settings)
-    offsets = np.einsum("ij,ij->i", A, P @ T[:3, :3].T + T[:3, 3]) - K
+    offsets = np.einsum("ij,jk,ik->i", A, T[:3, :3], P) + A @ T[:3, 3] - K
     is_line, is_plane = kinds == "line", np.isin(kinds, ("floor", "table"))
     n_captures = len({obs.capture_id for obs in observations})
     verdict = _verdict(transform_std(covariance), bool(fit.status > 0), held, crosses, n_captures, settings)
