@@ -193,3 +193,31 @@ def test_an_agent_that_cannot_start_is_named_with_its_reason(tmp_path: Path) -> 
         why = agents.dead()["sn9"]
     assert why.startswith("exited with code 2") and "unknown device spec" in why, why
     assert agents.alive() == []
+
+
+def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path) -> None:
+    """SIGKILL runs no cleanup: the kernel stops the agent (its parent-death signal)."""
+    parent = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\n"
+         "from backend.services.node_processes import NodeProcesses\n"
+         "agents = NodeProcesses(sys.argv[1], sys.argv[2])\n"
+         "agents.start({'sn1': 'sim-cell:sn1'})\n"
+         "print(agents.agents['sn1'].process.pid, flush=True)\n"
+         "time.sleep(120)\n", f"tcp/127.0.0.1:{free_tcp_port()}", str(tmp_path)],
+        cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        agent = int(parent.stdout.readline())
+        # Once the agent runs Python (setpriv has set its death signal and executed it), kill its parent.
+        wait_for(lambda: b"studio.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(), START_TIMEOUT_S,
+                 lambda: (tmp_path / "sn1.log").read_text())
+    finally:
+        parent.kill()
+        parent.wait(timeout=10)
+
+    def gone() -> bool:
+        try:
+            return Path(f"/proc/{agent}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+        except FileNotFoundError:
+            return True
+
+    wait_for(gone, 10.0, lambda: f"agent {agent} outlived its killed parent")
