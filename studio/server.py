@@ -9,7 +9,6 @@ import sys
 from typing import TYPE_CHECKING
 
 import uvicorn
-from fastapi import FastAPI
 
 from backend.api.app import create_app
 from backend.api.auth import is_loopback, new_token
@@ -22,6 +21,8 @@ from backend.store.session import SessionStore
 from studio.app import StudioApp
 
 if TYPE_CHECKING:
+    from fastapi import FastAPI
+
     from backend.services.demo_depth_cell import DepthCellNodes
 
 
