@@ -83,7 +83,7 @@ def publish(name: str, endpoint: str, frame_file: str, start_s: float, seconds: 
     print(json.dumps({"name": name, "sent": sent, "cpu_s": cpu_s}), flush=True)
 
 
-def render_frames() -> dict[str, bytes]:
+def render_frames() -> tuple[dict[str, bytes], dict]:
     """Each cell node's stream frame, and the figures of one."""
     from backend.devices.base import create_device
 

@@ -116,7 +116,7 @@ def test_presence_lists_every_node_with_its_info(cell) -> None:
     for name in NODES:
         assert status[name].kind == "depth" and status[name].device == f"sim-cell:{name}"
         assert status[name].info["intrinsics"] == KINECT_V2.to_dict()
-        assert abs(status[name].clock_offset_s) < 0.005  # same host, same clock
+        assert abs(status[name].clock_offset_s) <= status[name].clock_rtt_s / 2 + 1e-4  # one host: truth 0
     assert status["big1"].kind == "lidar"
 
 
@@ -187,7 +187,8 @@ def test_a_node_killed_mid_capture_is_named_and_the_rest_kept(cell) -> None:
     with pytest.raises(InputError, match=r"node sn6 left the network .* ago") as gone:
         network.capture("sn6")
     assert gone.value.input == "sn6"
-    with pytest.raises(InputError, match="node sn9 is not on the network; nodes present: "):
+    present = "big1, big10, sn1, sn2, sn3, sn4, sn5"
+    with pytest.raises(InputError, match=f"node sn9 is not on the network; nodes present: {present}$"):
         network.capture("sn9")
 
 

@@ -34,7 +34,7 @@ import numpy as np
 import zenoh
 
 from backend.core.depth_cell import TablePlacement
-from backend.core.errors import InputError, shorten
+from backend.core.errors import InputError, clip, shorten
 from backend.devices.base import Sample
 from backend.devices.cloud_codec import decode_frame
 from backend.devices.node_agent import (
@@ -307,8 +307,8 @@ class NodeNetwork:
             status = self._nodes.get(node)
             known = sorted(name for name, s in self._nodes.items() if s.alive)
         if status is None:
-            raise InputError(f"node {shorten(node)} is not on the network; nodes present: {known or 'none'}",
-                             str(node), status_code=404)
+            raise InputError(f"node {clip(str(node), 64)} is not on the network; nodes present: "
+                             f"{', '.join(known) or 'none'}", str(node), status_code=404)
         if not status.alive:
             raise InputError(f"node {node} left the network {time.time() - status.last_seen_s:.1f} s ago", node,
                              status_code=503)
