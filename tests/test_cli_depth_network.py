@@ -1,0 +1,64 @@
+"""``calib-studio depth-network SESSION_DIR [--solve] [--json]`` as a subprocess on a simulated one-node session: the
+JSON contract of ../shared/conventions.md, the solve it runs, the verification rows, the text table and errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from test_depth_network_service import build_cell_session, pose_error
+
+from backend.services import depth_network as service
+from backend.store.session import Session
+
+REPO = Path(__file__).resolve().parents[1]
+NODE = "sn4"
+
+
+def cli(*args: str | Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "studio.cli", "depth-network", *map(str, args)], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    folder = tmp_path_factory.mktemp("cli") / "cell"
+    build_cell_session(folder, [NODE], seed=11)
+    run = cli(folder, "--solve", "--json")
+    assert run.returncode == 0, run.stderr
+    return folder, json.loads(run.stdout)
+
+
+def test_solve_prints_the_contract(solved) -> None:
+    _, body = solved
+    assert {"nodes", "verification"} <= set(body)
+    node = body["nodes"][NODE]
+    assert {"T_world_node", "std", "verdict"} <= set(node)
+    assert set(node["std"]) == {"trans_m", "rot_deg"} and all(len(v) == 3 for v in node["std"].values())
+    assert set(node["verdict"]) == {"level", "reasons"} and node["verdict"]["level"] in ("trusted", "check")
+    assert len(node["T_world_node"]) == 4 and all(len(row) == 4 for row in node["T_world_node"])
+    trans_m, rot_deg = pose_error(node["T_world_node"], NODE)
+    assert trans_m < 0.005 and rot_deg < 0.05, (trans_m, rot_deg)
+    assert body["verification"] == []
+
+
+def test_verification_rows_and_the_text_table(solved) -> None:
+    folder, _ = solved
+    added = service.verify_layout_distances(Session.load(folder))
+    assert added, "sn4 sees both crosses of at least one measured distance"
+    body = json.loads(cli(folder, "--json").stdout)
+    assert [set(r) >= {"a", "b", "measured_m", "estimated_m", "error_m"} for r in body["verification"]] == \
+        [True] * len(added)
+    assert all(abs(r["error_m"]) < 0.010 for r in body["verification"]), body["verification"]
+    text = cli(folder)
+    assert text.returncode == 0 and text.stdout.splitlines()[1].startswith(NODE)
+    assert f"{added[0]['a']:<14}{added[0]['b']:<14}" in text.stdout
+
+
+def test_a_missing_session_is_a_json_error(tmp_path: Path) -> None:
+    run = cli(tmp_path / "nope", "--json")
+    assert run.returncode != 0 and run.stderr.strip().splitlines()[-1].startswith("error:")
+    assert set(json.loads(run.stdout)["error"]) == {"message", "input"}
