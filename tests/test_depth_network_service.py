@@ -141,6 +141,9 @@ def test_the_pose_table_export_and_report(solved) -> None:
         assert row["node"] == table_row["node"]
         assert float(row["RotX_deg"]) == pytest.approx(table_row["RotX"], abs=1e-3)
         assert float(row["X_m"]) == pytest.approx(table_row["X"], abs=1e-4)
+    for fmt in ("rig", "urdf", "launch"):  # the rig exports on a rig rooted at world
+        _, exported = export_text(session, fmt)
+        assert "world" in exported and all(node in exported for node in PAPER_NODE_POSES), fmt
     html = render_report(session)
     assert "Depth network" in html and "gantry_a1" in html and "sn6" in html
 
