@@ -122,8 +122,10 @@ def test_presence_lists_every_node_with_its_info(cell) -> None:
 
 def test_capture_from_all_six(cell) -> None:
     network, _ = cell
-    network.set_sim_placements([TablePlacement("table1", (9.0, 1.5))])
-    time.sleep(0.5)
+    assert network.set_sim_placements([TablePlacement("table1", (9.0, 1.5))]) == NODES
+    with pytest.raises(InputError, match="node sn1: table placements refused: .*table9") as refused:
+        network.set_sim_placements([TablePlacement("table9", (9.0, 1.5))])
+    assert refused.value.input == "placements"
     frames, failures = network.capture_all(NODES)
     assert failures == {} and sorted(frames) == NODES
     for name, frame in frames.items():

@@ -13,10 +13,11 @@ reaches only the endpoints it is given), declares under ``calib/node/sn1/``:
 - ``clock``: a queryable answering the node's time (float64 seconds, little-endian), for the studio's
   request/reply clock-offset estimate.
 
-A simulated device also follows ``calib/sim/placements`` (JSON list of table placements) through its
-``set_placements``. SIGTERM or SIGINT end the agent cleanly (exit 0); a bad device spec, a device that fails to
-open or an endpoint Zenoh refuses is an :class:`InputError` (the CLI's one-line error, exit 2). Log lines go to
-stderr.
+A simulated device also answers ``calib/sim/placements`` (a query whose payload is the JSON list of table
+placements) by moving its tables (``set_placements``) before it replies.
+
+SIGTERM or SIGINT end the agent cleanly (exit 0); a bad device spec, a device that fails to open or an endpoint
+Zenoh refuses is an :class:`InputError` (the CLI's one-line error, exit 2). Log lines go to stderr.
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ from typing import Any
 
 import zenoh
 
-from backend.core.depth_cell import TablePlacement
 from backend.core.errors import InputError, shorten
 from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device
 from backend.devices.cloud_codec import encode_frame, frame_intrinsics
@@ -95,7 +95,6 @@ class _Pending:
 
     lock: threading.Lock = field(default_factory=threading.Lock)
     queries: list[zenoh.Query] = field(default_factory=list)
-    placements: list[TablePlacement] | None = None
     wake: threading.Event = field(default_factory=threading.Event)
     """Set when a capture request arrives, so an idle loop answers at once."""
 
@@ -129,17 +128,19 @@ def run_agent(name: str, device: str, connect: list[str] | None = None, listen: 
     settings = parse_device_spec(device)
     stop = stop or threading.Event()
     restore = _stop_on_signals(stop)
-    session = open_session(list(listen or []), list(connect or []), "connect")
     try:
-        sensor = _open_device(settings, device)
+        session = open_session(list(listen or []), list(connect or []), "connect")
         try:
-            agent = _Agent(name, device, sensor, session, rate_hz, voxel_m, clock, _read(sensor, device))
-            _log(name, f"serving {sensor.describe()} ({agent.info['kind']}) on {agent.endpoints()}")
-            agent.serve(stop)
+            sensor = _open_device(settings, device)
+            try:
+                agent = _Agent(name, device, sensor, session, rate_hz, voxel_m, clock, _read(sensor, device))
+                _log(name, f"serving {sensor.describe()} ({agent.info['kind']}) on {agent.endpoints()}")
+                agent.serve(stop)
+            finally:
+                sensor.close()
         finally:
-            sensor.close()
+            session.close()
     finally:
-        session.close()
         restore()
     _log(name, "stopped")
     return 0
@@ -197,7 +198,7 @@ class _Agent:
             session.declare_queryable(node_key(name, "capture"), self._queue_capture),
         ]
         if hasattr(sensor, "set_placements"):
-            self.entities.append(session.declare_subscriber(SIM_PLACEMENTS_KEY, self._take_placements))
+            self.entities.append(session.declare_queryable(SIM_PLACEMENTS_KEY, self._apply_placements))
         self.token = session.liveliness().declare_token(node_key(name, "alive"))
 
     def endpoints(self) -> str:
@@ -212,11 +213,7 @@ class _Agent:
             while not stop.is_set():
                 with self.pending.lock:
                     queries, self.pending.queries = self.pending.queries, []
-                    placements, self.pending.placements = self.pending.placements, None
                     self.pending.wake.clear()
-                if placements is not None:
-                    self.sensor.set_placements(placements)
-                    _log(self.name, f"tables moved: {[p.table for p in placements]}")
                 streaming = self.publisher.matching_status
                 if queries or streaming:
                     self._read_and_send(queries, streaming)
@@ -276,19 +273,21 @@ class _Agent:
         finally:
             query.drop()
 
-    def _take_placements(self, message: zenoh.Sample) -> None:
-        """Parse the studio's table placements (JSON list of ``{table, centre_xy_m, yaw_deg}``) for the loop."""
+    def _apply_placements(self, query: zenoh.Query) -> None:
+        """Move a simulated device's tables (the query's payload: a JSON list of ``{table, centre_xy_m,
+        yaw_deg}``) before answering, so a capture asked after the studio's request returns sees them."""
         try:
-            rows = json.loads(message.payload.to_bytes())
-            placements = [TablePlacement(str(row["table"]), (float(row["centre_xy_m"][0]),
-                                                             float(row["centre_xy_m"][1])),
-                                         float(row.get("yaw_deg", 0.0))) for row in rows]
-        except (ValueError, TypeError, KeyError, IndexError):
-            _log(self.name, f"ignored table placements that are not a JSON list of tables: "
-                            f"{shorten(message.payload.to_bytes()[:200])}")
-            return
-        with self.pending.lock:
-            self.pending.placements = placements
+            rows = json.loads(query.payload.to_bytes() if query.payload is not None else b"null")
+            if not isinstance(rows, list):
+                raise ValueError("expected a JSON list of table placements")
+            self.sensor.set_placements(rows)
+        except (InputError, DeviceError, ValueError, TypeError, KeyError) as exc:
+            query.reply_err(f"node {self.name}: table placements refused: {exc}")
+        else:
+            _log(self.name, f"tables moved: {[row.get('table') for row in rows if isinstance(row, dict)]}")
+            query.reply(query.key_expr, self.name)
+        finally:
+            query.drop()
 
 
 def _log(name: str, message: str) -> None:

@@ -289,10 +289,23 @@ class NodeNetwork:
                     failures[name] = exc.message
         return frames, failures
 
-    def set_sim_placements(self, placements: list[TablePlacement]) -> None:
-        """Tell every simulated node where the tables stand (``calib/sim/placements``)."""
+    def set_sim_placements(self, placements: list[TablePlacement], timeout_s: float = 10.0) -> list[str]:
+        """Move the tables of every simulated node (a ``calib/sim/placements`` query to all of them); returns
+        once each has moved them (so a capture asked next sees them): the names of the nodes that did.
+        :class:`InputError` (``placements``) naming the nodes that refused them."""
         rows = [dataclasses.asdict(placement) for placement in placements]
-        self._open_session().put(SIM_PLACEMENTS_KEY, json.dumps(rows))
+        replies = self._open_session().get(SIM_PLACEMENTS_KEY, payload=json.dumps(rows), timeout=timeout_s,
+                                           target=zenoh.QueryTarget.ALL,
+                                           consolidation=zenoh.ConsolidationMode.NONE)
+        moved, refused = [], []
+        for reply in replies:
+            if reply.ok is not None:
+                moved.append(reply.ok.payload.to_string())
+            else:
+                refused.append(reply.err.payload.to_string())
+        if refused:
+            raise InputError("; ".join(refused), "placements")
+        return sorted(moved)
 
     # -- internals
 
