@@ -26,7 +26,7 @@ from backend.core.depth import KINECT_V2, DepthIntrinsics
 from backend.core.depth_cell import CellLayout
 from backend.core.transforms import transform_points
 from studio.cloud_colours import display_subset, sensor_colour
-from studio.scene import RigScene, viser_pose
+from studio.scene import INITIAL_CAMERA_POSITION_M, INITIAL_LOOK_AT_M, RigScene, viser_pose
 
 STEP = "depth_network"
 """The step's layer group (:meth:`studio.scene.RigScene.group`)."""
@@ -43,6 +43,9 @@ CAPTURE_POINT_SIZE_M = 0.025
 MAX_CAPTURE_POINTS = 40_000
 """Most points of one capture drawn (an even stride through it; a Kinect v2 frame has up to 217k)."""
 FRUSTUM_SCALE_M = 0.6
+OVERVIEW_FROM = (-0.25, -0.3, 2.2)
+"""Where the cell's overview is seen from, in fractions of the cell's size (x, y, z): beyond its origin corner and
+above it, so that the whole floor and every node on the ceiling are in view."""
 COUNT_COLOUR_MAX = 30
 """Voxel counts at or above this are drawn at the colour map's hot end (TURBO, from 1)."""
 
@@ -122,6 +125,19 @@ class DepthView:
     def forget(self) -> None:
         """The session is left and the scene is about to be redrawn afresh: drop the handles without removing them."""
         self._handles = {}
+
+    def look_at(self, layout: CellLayout | None) -> None:
+        """Put every page's view (and a new page's) on the cell's overview, or with ``None`` back on the rig's
+        close-up (:data:`studio.scene.INITIAL_CAMERA_POSITION_M`)."""
+        if layout is None:
+            position, target = np.array(INITIAL_CAMERA_POSITION_M), np.array(INITIAL_LOOK_AT_M)
+        else:
+            size = np.array(layout.size_m)
+            position, target = size * OVERVIEW_FROM, size * (0.5, 0.5, 0.0)
+        server = self.scene.server
+        server.initial_camera.position, server.initial_camera.look_at = position, target
+        for client in server.get_clients().values():
+            client.camera.position, client.camera.look_at = position, target
 
     def show_cell(self, layout: CellLayout) -> None:
         """The cell's box, its floor lines with labels and its crosses with names (``cell/``)."""

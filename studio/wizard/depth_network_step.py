@@ -34,9 +34,10 @@ import numpy as np
 from backend.core.depth import POSE_COLUMNS, pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot
+from backend.core.verdict import Verdict
 from backend.services import depth_guided as guided_service
 from backend.services import depth_network as network_service
-from backend.solvers.depth_guided import GUIDED_STEPS, StepAdvice
+from backend.solvers.depth_guided import GUIDED_STEPS
 from studio.cloud_colours import sensor_colour
 from studio.context import StudioContext
 from studio.depth_view import COUNT_COLOUR_MAX, STEP, DepthView
@@ -136,12 +137,12 @@ def suggestion_label(suggestion: dict[str, float]) -> str:
     return "Apply " + ", then ".join(parts) if parts else "Nothing to apply"
 
 
-def criterion_markdown(advice: StepAdvice) -> str:
-    """The step's done criterion with its tick, and the problems the solver met."""
-    tick = "✅ **Done**" if advice.done else "⬜ **Not yet**"
-    lines = [f"{tick}: {advice.criterion}", "", f"*{advice.why}*"] if advice.why else [f"{tick}: {advice.criterion}"]
-    lines += [f"- ⚠️ {problem}" for problem in advice.problems]
-    return "\n".join(lines)
+def criterion_markdown(advice: dict[str, Any]) -> str:
+    """The step's done criterion with its tick, why the step comes here, and the problems the solver met
+    (``advice``: :func:`backend.services.depth_guided.advice_dict`)."""
+    tick = "✅ **Done**" if advice["done"] else "⬜ **Not yet**"
+    lines = [f"{tick}: {advice['criterion']}"] + (["", f"*{advice['why']}*"] if advice["why"] else [])
+    return "\n".join(lines + [f"- ⚠️ {problem}" for problem in advice["problems"]])
 
 
 def verification_markdown(rows: list[dict[str, Any]]) -> str:
@@ -168,7 +169,8 @@ class DepthNetworkStep:
         self.ctx = ctx
         self.network = None
         self.view = DepthView(ctx.scene)
-        self._advice: StepAdvice | None = None
+        self._measured: tuple[str, str, np.ndarray] | None = None
+        """(node, step, T_world_node) of the advice on show: a pass at the same pose shows it again unmeasured."""
         self._wake = threading.Event()
         self._lock = threading.Lock()
         """Held by each advice pass, so that leaving a session waits for the one in flight."""
@@ -186,8 +188,8 @@ class DepthNetworkStep:
                                            "to (calib-studio node --connect ...)")
                 self.listen_button = gui.add_button("Listen for nodes")
                 self.nodes_text = gui.add_markdown("No node network yet: *Listen for nodes*.")
-                self.capture_button = gui.add_button("Capture", color="green", hint="one full frame of the node, "
-                                                     "stored with the guided step's table arrangement")
+                self.capture_button = gui.add_button("Capture this node", color="green", hint="one full frame of the "
+                                                     "node, stored with the guided step's table arrangement")
                 self.capture_all_button = gui.add_button("Capture all", hint="every node at once: what arrives is "
                                                          "kept, a node that does not answer is named")
                 self.capture_jobs = JobPanel(ctx, [self.capture_button, self.capture_all_button])
@@ -209,6 +211,7 @@ class DepthNetworkStep:
                 self.finish_button = gui.add_button("Keep this pose as the node's result",
                                                     hint="a guided result (set by hand: 5 mm, 0.3° sigma), shown on "
                                                          "the card of *Automatic solve* to accept")
+                self.finish_text = gui.add_markdown("")
             with gui.add_folder("Automatic solve", expand_by_default=False):
                 self.solve_button = gui.add_button("Solve all nodes", color="blue")
                 self.solve_node_button = gui.add_button("Solve this node")
@@ -285,7 +288,7 @@ class DepthNetworkStep:
     def _close(self) -> None:
         """Leave the open session: the advice in flight ends first, and the scene is redrawn afresh."""
         with self._lock:
-            self._advice, self._points, self._picked, self._crosses = None, None, None, {}
+            self._measured, self._points, self._picked, self._crosses = None, None, None, {}
             self.view.forget()
 
     def _on_session(self, session) -> None:
@@ -293,11 +296,13 @@ class DepthNetworkStep:
         self.folder.visible = bool(nodes)
         self.node.options = nodes or [NONE]
         self.node.value = self.node.options[0]
-        self.legend.content = ""
-        self.pick_text.content = ""
+        self.legend.content = self.pick_text.content = self.finish_text.content = ""
         if not nodes:
+            self.view.look_at(None)
             return
-        self.view.show_cell(network_service.layout(session))
+        cell = network_service.layout(session)
+        self.view.look_at(cell)
+        self.view.show_cell(cell)
         self._list_crosses()
         self._select()
 
@@ -395,6 +400,7 @@ class DepthNetworkStep:
         self.capture_jobs.text.content = text
         self._show_nodes()
         self._list_crosses()
+        self._measured = None  # a new capture: measure again
         self._wake.set()
 
     def _place_tables(self) -> None:
@@ -405,7 +411,8 @@ class DepthNetworkStep:
         if node is None or arrangement is None or self.network is None:
             raise InputError("tables are placed for step 2 or 3 of a node of a simulated cell", "step")
         self.network.set_sim_placements(table_placements(node, arrangement, network_service.layout(self.ctx.session)))
-        self.capture_jobs.text.content = f"Tables placed {arrangement} each other in {node}'s view: *Capture* now."
+        self.capture_jobs.text.content = (f"Tables placed {arrangement} each other in {node}'s view: *Capture this "
+                                          "node* now.")
 
     # -- the guided procedure ---------------------------------------------------------------------
     def _show_guided_step(self) -> None:
@@ -416,8 +423,16 @@ class DepthNetworkStep:
             handle.visible = initial
         self.start_button.visible = initial
         self.next_button.visible = step != GUIDED_STEPS[-1]
+        self._no_advice("Measuring at the editor's pose …")
         self._show_nodes()
         self._wake.set()
+
+    def _no_advice(self, message: str) -> None:
+        """No residuals on show (none yet, or what stops them): ``message`` instead, nothing to apply."""
+        self._measured = None
+        self.residuals_text.content = ""
+        self.criterion_text.content = message
+        self.apply_button.label, self.apply_button.disabled = "Nothing to apply", True
 
     def _keep_editor_pose(self, node: str) -> None:
         """Hand the editor's pose to the procedure (a nudge) when it moved since the procedure's pose."""
@@ -439,9 +454,17 @@ class DepthNetworkStep:
         node = self.current
         if node is None:
             return
-        self._keep_editor_pose(node)
-        state = guided_service.apply(self.ctx.session, node, self.step)
-        self.editor.set(np.array(state["T_world_node"]))
+        step = self.step
+        self._no_advice("Applying the suggestion …")
+        try:
+            self._keep_editor_pose(node)
+            state = guided_service.apply(self.ctx.session, node, step)
+            T = np.array(state["T_world_node"])
+            with self._lock:  # the advice at the new pose came with it: the editor's move need not measure it again
+                self._show_advice(node, step, T, state["advice"])
+            self.editor.set(T)
+        finally:
+            self._wake.set()  # a refused suggestion: the residuals at the pose kept come back
 
     def _next_step(self) -> None:
         node = self.current
@@ -459,8 +482,9 @@ class DepthNetworkStep:
         record = guided_service.finish(self.ctx.session, node)
         self.history.fill(self._results(), record["id"])
         self._show_result()
-        self.ctx.notify("Guided result", f"{record['id']}: {node}'s pose is kept; accept it on the card "
-                        "(*Automatic solve*).")
+        level = Verdict.from_record(record).level
+        self.finish_text.content = (f"Kept as **{record['id']}** (guided, verdict {level}): accept it on the card "
+                                    "in *Automatic solve*.")
 
     def _advice_loop(self) -> None:
         """Re-measure the step's residuals at the editor's pose after every change (the newest pose only)."""
@@ -471,10 +495,7 @@ class DepthNetworkStep:
                 with self._lock:
                     self._advise()
             except InputError as exc:
-                self._advice = None
-                self.residuals_text.content = ""
-                self.criterion_text.content = f"⚠️ {exc.message}"
-                self.apply_button.label, self.apply_button.disabled = "Nothing to apply", True
+                self._no_advice(f"⚠️ {exc.message}")
             except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
                 self.criterion_text.content = f"⚠️ the residuals could not be measured: {exc}"
 
@@ -484,16 +505,21 @@ class DepthNetworkStep:
             return
         self.view.show_node(node, T, self._latest_points(node))
         if step == GUIDED_STEPS[0]:
-            self._advice = None
-            self.residuals_text.content = ""
-            self.criterion_text.content = "Type the measured pose, then *Start from this pose*."
-            self.apply_button.label, self.apply_button.disabled = "Nothing to apply", True
+            self._no_advice("Type the measured pose, then *Start from this pose*.")
             return
-        advice = guided_service.advise(session, node, step, T_world_node=T)
-        self._advice = advice
-        self.residuals_text.content = residuals_markdown(advice.residuals)
-        self.apply_button.label = suggestion_label(advice.suggestion)
-        self.apply_button.disabled = not advice.suggestion
+        measured = self._measured
+        if measured is not None and measured[:2] == (node, step) and np.allclose(measured[2], T, rtol=0, atol=1e-12):
+            return
+        advice = guided_service.advice_dict(guided_service.advise(session, node, step, T_world_node=T))
+        if step == self.step and node == self.current:  # else the user went on: the next pass measures that
+            self._show_advice(node, step, T, advice)
+
+    def _show_advice(self, node: str, step: str, T: np.ndarray, advice: dict[str, Any]) -> None:
+        """Show ``advice`` (:func:`backend.services.depth_guided.advice_dict`) of ``step`` at pose ``T``."""
+        self._measured = (node, step, T)
+        self.residuals_text.content = residuals_markdown(advice["residuals"])
+        self.apply_button.label = suggestion_label(advice["suggestion"])
+        self.apply_button.disabled = not advice["suggestion"]
         self.criterion_text.content = criterion_markdown(advice)
 
     def _latest_points(self, node: str) -> np.ndarray | None:
