@@ -103,6 +103,7 @@ def test_the_verification_distances_are_within_10_mm(solved) -> None:
         assert abs(row["error_m"]) < 0.010, row
         assert row["estimated_m"] == pytest.approx(row["measured_m"] + row["error_m"])
     assert [r["a"] for r in service.network_summary(session)["verification"]] == [r["a"] for r in rows]
+    assert service.verify_layout_distances(session) == []  # each distance once
     for target in service.detected_crosses(session):  # every cross, averaged over the nodes that see it whole
         assert np.linalg.norm(np.subtract(target["point_m"], layout.cross(target["name"]).position_m)) < 0.008
 
@@ -171,3 +172,5 @@ def test_bad_input_is_refused_and_nothing_is_lost(solved, tmp_path: Path) -> Non
     assert (copy.path / "quarantine" / "depth_network.json").read_text() == "{broken"
     assert [q["file"] for q in copy.quarantined()] == ["depth_network.json"]
     assert service.network_summary(copy)["problems"] == []  # afresh after the quarantine
+    service.capture_node(copy, "sn1", frame_sample(render_captures("sn1", 0)[0][2]), clock_offset_s=3.0)
+    assert "sn1: its clock is +3.00 s off the studio's (capture 00003)" in service.network_summary(copy)["problems"][0]

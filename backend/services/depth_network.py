@@ -64,6 +64,8 @@ ICP_OVERLAP_VOXEL_M = 0.25
 """Voxel (m) on which two nodes' world clouds are compared to decide whether they overlap."""
 ICP_MIN_OVERLAP_VOXELS = 150
 """Shared voxels of :data:`ICP_OVERLAP_VOXEL_M` two nodes need before pairwise ICP is tried between them."""
+MAX_CLOCK_OFFSET_S = 0.5
+"""A node whose clock is further than this (s) off the studio's is named in the summary's problems."""
 DEFAULT_VOXEL_M = 0.04
 """The merged map's voxel (m), as the paper shows it."""
 MAX_UPLOAD_DEPTH_BYTES = 64 << 20
@@ -616,10 +618,11 @@ def remove_verification(session: Session, index: int) -> None:
 
 def verify_layout_distances(session: Session) -> list[dict[str, Any]]:
     """Add a verification row for every laser-measured distance of the layout whose two crosses the nodes see
-    (:func:`detected_crosses`); the rows added."""
+    (:func:`detected_crosses`) and that the table does not hold yet; the rows added."""
     targets = {t["name"]: t for t in detected_crosses(session)}
-    return [add_verification(session, targets[d.a], targets[d.b], d.measured_m)
-            for d in layout(session).distances if d.a in targets and d.b in targets]
+    present = {(e.a.name, e.b.name, e.measured_m) for e in state(session).verification}
+    return [add_verification(session, targets[d.a], targets[d.b], d.measured_m) for d in layout(session).distances
+            if d.a in targets and d.b in targets and (d.a, d.b, d.measured_m) not in present]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -660,8 +663,12 @@ def network_summary(session: Session, solve: bool = False, progress: ProgressCal
         nodes[node] = {"T_world_node": T_world_node(session, node).tolist(),
                        "std": transform_std(np.full((6, 6), np.nan) if covariance is None else covariance),
                        "verdict": verdict, "result_id": result_id, "captures": len(captures(session, node))}
-        if not nodes[node]["captures"]:
+        latest = captures(session, node)[-1:]
+        if not latest:
             problems.append(f"{node}: no depth captures yet")
+        elif abs(offset := latest[0].meta.get("clock_offset_s") or 0.0) > MAX_CLOCK_OFFSET_S:
+            problems.append(f"{node}: its clock is {offset:+.2f} s off the studio's (capture {latest[0].id}); set "
+                            "its clock (NTP or PTP): frames of several nodes are matched by time")
     if not nodes:
         problems.append("the rig has no depth nodes")
     rows = pose_table_rows({n: np.array(v["T_world_node"]) for n, v in nodes.items()},
