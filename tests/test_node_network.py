@@ -23,7 +23,7 @@ from backend.core.depth import KINECT_V2, pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, TablePlacement
 from backend.core.errors import InputError
 from backend.core.transforms import transform_points
-from backend.devices.base import CaptureDevice, Sample, register_driver
+from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device, register_driver
 from backend.devices.device_spec import parse_device_spec
 from backend.devices.node_agent import run_agent
 from backend.devices.node_network import NodeNetwork
@@ -214,3 +214,12 @@ def test_device_specs() -> None:
         with pytest.raises(InputError, match=message) as error:
             parse_device_spec(bad)
         assert error.value.input == "device"
+
+
+def test_a_node_is_a_rig_sensor_through_the_node_driver(cell) -> None:
+    with create_device({"driver": "node", "node": "sn2"}) as device:  # the studio's open network
+        sample = device.read()
+    assert sample.depth.shape == (KINECT_V2.height, KINECT_V2.width) and sample.meta["node"] == "sn2"
+    assert sample.timestamp_s == sample.meta["studio_time_s"]
+    with pytest.raises(DeviceError, match="node sn7 did not appear within 0.2 s; nodes present: big1"):
+        create_device({"driver": "node", "node": "sn7", "timeout_s": 0.2}).open()

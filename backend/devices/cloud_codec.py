@@ -54,9 +54,9 @@ DEPTH_STEP_M = 0.001
 """Quantisation step (m) of a depth image: uint16 millimetres."""
 JPEG_QUALITY = 85
 """JPEG quality of a camera's streamed (previewed) images; captures are PNG."""
-STREAM_ZLIB_LEVEL = 1
-"""zlib level of streamed frames: level 1 is about 4x faster than 6 and within 10 % of its size here."""
-CAPTURE_ZLIB_LEVEL = 6
+ZLIB_LEVEL = 1
+"""zlib level: on a Kinect frame after the delta and shuffle filters, level 6 takes 1.6x the time of level 1 for
+frames 2-3 % smaller."""
 STREAM_INTENSITY_BITS = 4
 """Mantissa bits a streamed frame keeps of each intensity (of float16's 10): within 3 %, enough to shade a preview
 and a third of the bytes of the full value."""
@@ -116,16 +116,15 @@ def _unfilter(raw: bytes, spec: dict[str, Any]) -> np.ndarray:
     return _undelta(values) if "delta" in spec.get("filters", ()) else values
 
 
-def encode_frame(sample: Sample, voxel_m: float | None, level: int | None = None) -> bytes:
+def encode_frame(sample: Sample, voxel_m: float | None) -> bytes:
     """The bytes of one frame of ``sample``: its full resolution when ``voxel_m`` is None (a capture), else its
     cloud voxel-downsampled to ``voxel_m`` (m; one centroid per voxel) for the live stream.
 
     A depth image (``sample.depth``) travels as itself in a full frame, as its voxelised cloud in the stream;
-    a camera image as PNG (full) or JPEG (stream); a LiDAR's points as they are (full) or voxelised. ``level`` is
-    the zlib level (default: 1 for the stream, 6 for a capture).
+    a camera image as PNG (full) or JPEG (stream); a LiDAR's points as they are (full) or voxelised.
     """
     full = voxel_m is None
-    level = (CAPTURE_ZLIB_LEVEL if full else STREAM_ZLIB_LEVEL) if level is None else level
+    level = ZLIB_LEVEL
     meta = sample.storable_meta()
     if sample.depth is not None and full:
         kind, arrays = "depth", _depth_arrays(sample, meta)

@@ -14,7 +14,7 @@ multicast scouting off) that the node agents (:mod:`backend.devices.node_agent`)
 
 :meth:`NodeNetwork.capture` asks one node for a full frame; a node that is gone, or goes during the request,
 is an :class:`InputError` naming it; :meth:`NodeNetwork.capture_all` keeps every frame that arrived and names
-each node that failed.
+each node that failed. :class:`NetworkNode` (driver ``node``) makes a node's sensor a rig sensor like a local one.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import zenoh
 
 from backend.core.depth_cell import TablePlacement
 from backend.core.errors import InputError, clip, shorten
-from backend.devices.base import Sample
+from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
 from backend.devices.cloud_codec import decode_frame
 from backend.devices.node_agent import (
     CLOCK_REPLY,
@@ -142,6 +142,7 @@ class NodeNetwork:
         if self._session is not None:
             return
         self._session = open_session(self.listen, self.connect, "listen")
+        _OPEN.append(self)
         self._worker = threading.Thread(target=self._work, name="node-network", daemon=True)
         self._worker.start()
         liveliness = self._session.liveliness()
@@ -161,6 +162,8 @@ class NodeNetwork:
             self._worker.join(timeout=5)
         self._session.close()
         self._session, self._entities, self._worker = None, [], None
+        if self in _OPEN:
+            _OPEN.remove(self)
 
     def __enter__(self) -> NodeNetwork:
         self.open()
@@ -176,6 +179,12 @@ class NodeNetwork:
         now = time.time()
         with self._lock:
             return [self._status(name, now) for name in sorted(self._nodes)]
+
+    def is_alive(self, node: str) -> bool:
+        """Whether ``node`` is on the network now."""
+        with self._lock:
+            status = self._nodes.get(node)
+            return status is not None and status.alive
 
     def on_change(self, callback: Callable[[NodeStatus], None]) -> None:
         """Call ``callback(status)`` when a node appears, disappears, or its info or clock estimate arrives (from a
@@ -240,8 +249,9 @@ class NodeNetwork:
 
         ``meta`` gets ``node``, ``node_time_s`` (the node's clock when it read the frame), ``studio_time_s``
         (the same instant on the studio's clock, by the clock offset), ``clock_offset_s`` and ``capture_s``
-        (request to decoded frame). Raises :class:`InputError` naming the node when it is not on the network,
-        disappears while asked, refuses, or does not answer within ``timeout_s``.
+        (request to decoded frame); ``timestamp_s`` is ``studio_time_s``. Raises :class:`InputError` naming the
+        node when it is not on the network, disappears while asked, refuses, or does not answer within
+        ``timeout_s``.
         """
         session = self._require_node(node)
         with self._lock:
@@ -254,7 +264,7 @@ class NodeNetwork:
         session.get(node_key(node, "capture"), zenoh.handlers.Callback(replies.append, done.set),
                     timeout=timeout_s)
         while not done.wait(QUERY_POLL_S):
-            if not self._alive(node):
+            if not self.is_alive(node):
                 raise InputError(f"node {node} disappeared during the capture", node, status_code=503)
         ok = [reply.ok for reply in replies if reply.ok is not None]
         if not ok:
@@ -269,6 +279,7 @@ class NodeNetwork:
         node_time_s = float(sample.meta.get("node_time_s", sample.timestamp_s))
         sample.meta.update(node=node, node_time_s=node_time_s, studio_time_s=node_time_s - offset_s,
                            clock_offset_s=offset_s, capture_s=time.time() - started_s)
+        sample.timestamp_s = node_time_s - offset_s  # on the studio's clock, like every local sensor's
         return sample
 
     def capture_all(self, nodes: Iterable[str], timeout_s: float = 10.0
@@ -326,11 +337,6 @@ class NodeNetwork:
             raise InputError(f"node {node} left the network {time.time() - status.last_seen_s:.1f} s ago", node,
                              status_code=503)
         return session
-
-    def _alive(self, node: str) -> bool:
-        with self._lock:
-            status = self._nodes.get(node)
-            return status is not None and status.alive
 
     def _status(self, name: str, now: float) -> NodeStatus:
         """A copy of the node's status with its window's bandwidth, rate and latency (lock held)."""
@@ -392,7 +398,7 @@ class NodeNetwork:
     def _work(self) -> None:
         """Background: fetch each new node's info and clock offset, then report the change."""
         while (name := self._jobs.get()) is not None:
-            if not self._alive(name):
+            if not self.is_alive(name):
                 continue
             try:
                 info = self._fetch_info(name)
@@ -424,6 +430,74 @@ class NodeNetwork:
             status = self._status(name, time.time())
         for callback in self._change_callbacks:
             callback(status)
+
+
+@register_driver
+class NetworkNode(CaptureDevice):
+    """A sensor on another computer, read through its node agent: each :meth:`read` is a full-frame capture.
+
+    A rig sensor whose ``device`` is ``{"driver": "node", "node": "sn1"}`` is captured by every studio service
+    (live view, captures, recordings) like a local one. It uses the studio's open :class:`NodeNetwork` (the
+    last one opened in this process), or its own when ``listen``/``connect`` endpoints are given.
+    """
+
+    driver = "node"
+
+    def __init__(self, node: str, timeout_s: float = 10.0, listen: list[str] | None = None,
+                 connect: list[str] | None = None):
+        """Args:
+        node: the node agent's name (``--name``).
+        timeout_s: how long a read waits for the node's frame, and :meth:`open` for the node to appear (s).
+        listen, connect: endpoints of a network of this device's own (default: the studio's open one).
+        """
+        self.node, self.timeout_s = str(node), float(timeout_s)
+        self.listen, self.connect = listen, connect
+        self._network: NodeNetwork | None = None
+        self._own: NodeNetwork | None = None
+
+    def open(self) -> None:
+        """Find the network and wait (up to ``timeout_s``) for the node to be present."""
+        if self.listen is not None or self.connect is not None:
+            self._own = NodeNetwork(self.listen if self.listen is not None else [], self.connect)
+            try:
+                self._own.open()
+            except InputError as exc:
+                raise DeviceError(exc.message, self.describe()) from None
+        self._network = self._own or (_OPEN[-1] if _OPEN else None)
+        if self._network is None:
+            raise DeviceError("no node network is open in this studio (open one in the depth-network step, or "
+                              "give this device listen or connect endpoints)", self.describe())
+        deadline_s = time.monotonic() + self.timeout_s
+        while not self._network.is_alive(self.node):
+            if time.monotonic() > deadline_s:
+                present = [s.name for s in self._network.nodes() if s.alive]
+                self.close()
+                raise DeviceError(f"node {self.node} did not appear within {self.timeout_s:g} s; nodes present: "
+                                  f"{', '.join(present) or 'none'}", self.describe())
+            time.sleep(QUERY_POLL_S)
+
+    def read(self) -> Sample:
+        """A full frame of the node; :class:`DeviceDisconnected` once the node has left the network."""
+        if self._network is None:
+            raise DeviceError("read() before open()", self.describe())
+        try:
+            return self._network.capture(self.node, self.timeout_s)
+        except InputError as exc:
+            if not self._network.is_alive(self.node):
+                raise DeviceDisconnected(exc.message, self.describe()) from None
+            raise DeviceError(exc.message, self.describe()) from None
+
+    def close(self) -> None:
+        if self._own is not None:
+            self._own.close()
+        self._network = self._own = None
+
+    def describe(self) -> str:
+        return f"node {self.node}"
+
+
+_OPEN: list[NodeNetwork] = []
+"""The networks open in this process, oldest first (:class:`NetworkNode` uses the last)."""
 
 
 def _trim(window: collections.deque, now: float) -> None:
