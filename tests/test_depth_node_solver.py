@@ -73,6 +73,8 @@ def test_every_node_within_5_mm_and_0_05_deg(cell, solved):
                                                                              node)
         assert result.converged and result.verdict.level != "reject", result.verdict.reasons
         assert all(s is not None and s < TOLERANCE_M for s in result.std["trans_m"])
+        # honest sigmas: every axis's error within 4 of its 1-sigma (the tape lines' pixel sampling included)
+        assert (np.abs(np.r_[error_m, np.radians(error_deg)]) < 4 * result.std_vector).all(), (node, error_m)
         # the floor and tables fit to their known heights within the noise, every capture's
         rows = result.diagnostics["features"]
         assert all(abs(r["error_m"]) < 0.003 for r in rows if r["kind"] in ("floor", "table")), node

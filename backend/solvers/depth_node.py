@@ -10,8 +10,9 @@ a soft-L1 loss, with an analytic Jacobian. The features are found again at the s
 (:func:`~backend.solvers.depth_features.extract_features` with tight gates), as the association of tape
 pixels to lines may change once the pose moves, and solved again.
 
-Uncertainty: the Jacobian's covariance widened by the leave-one-capture-out jackknife spread
-(:func:`~backend.solvers.result.widen_covariance`). Verdict: those sigmas against
+Uncertainty: the Jacobian's covariance (the range noise and the tapes' width), plus what the pixel grid's
+sampling of each tape line leaves open (:func:`_line_sampling_covariance`), widened by the leave-one-capture-out
+jackknife spread (:func:`~backend.solvers.result.widen_covariance`). Verdict: those sigmas against
 ``translation_tolerance_m`` / ``rotation_tolerance_deg`` and, as the independent cross-checks, each held-out
 capture's tables and lines at the pose solved without it, and the crosses seen (not used by the solve unless
 surveyed) against their known positions.
@@ -64,9 +65,8 @@ POSE_PARAMETERS = ("X", "Y", "Z", "RotX", "RotY", "RotZ")
 UNDETERMINED_TRANS_M = 0.05
 UNDETERMINED_ROT_DEG = 0.5
 """A degree of freedom whose 1-sigma (from the evidence's information alone) exceeds these is not determined."""
-CONVERGED_TRANS_M = 1e-4
-CONVERGED_ROT_DEG = 1e-3
-"""Extract-and-solve rounds stop once the pose moves less than these between rounds."""
+CONVERGED_SHARE = 0.1
+"""Extract-and-solve rounds stop once the pose moves less than this share of the tolerances between rounds."""
 HELD_OUT_FACTOR = 2.0
 """A held-out capture's tables and lines pass the cross-check within this many times the translation tolerance."""
 
@@ -74,9 +74,10 @@ HELD_OUT_FACTOR = 2.0
 def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSettings
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every point residual's node-frame point (M, 3), world axis (M, 3, unit), known value (M,, m), weight
-    (M,, 1/m) and feature kind (M,): planes constrain world z, lines x or y, a surveyed cross's centre all three."""
-    points, axes, known, weights, kinds = [], [], [], [], []
-    for feature in features:
+    (M,, 1/m) and feature (M,, index into ``features``): planes constrain world z, lines x or y, a surveyed
+    cross's centre all three."""
+    points, axes, known, weights, owner = [], [], [], [], []
+    for k, feature in enumerate(features):
         if feature.kind == "point":
             if not layout.cross(feature.name.removeprefix("cross ")).surveyed:
                 continue  # a cross checks the solve; it constrains it only when surveyed
@@ -85,7 +86,7 @@ def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSetti
             axes.append(np.eye(3))
             known.append(np.asarray(feature.known, dtype=float))
             weights.append(np.full(3, 1 / settings.point_sigma_m))
-            kinds.append(np.full(3, feature.kind))
+            owner.append(np.full(3, k))
             continue
         n = len(feature.points)
         axis = np.zeros(3)
@@ -97,11 +98,11 @@ def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSetti
         axes.append(np.repeat(axis[None], n, axis=0))
         known.append(np.full(n, float(feature.known)))
         weights.append(1 / sigma)
-        kinds.append(np.full(n, feature.kind))
+        owner.append(np.full(n, k))
     if not points:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=str)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)
     return (np.vstack(points), np.vstack(axes), np.concatenate(known), np.concatenate(weights),
-            np.concatenate(kinds))
+            np.concatenate(owner))
 
 
 def fit_features(features: list[Feature], T_world_node: np.ndarray, layout: CellLayout,
@@ -188,6 +189,35 @@ def _undetermined_message(node: str, missing: list[str], features: list[Feature]
     return f"node {node}: {'; '.join(reasons) or 'the evidence is degenerate'}: {names} {verb} not determined"
 
 
+def _line_sampling_covariance(features: list[Feature], layout: CellLayout, J: np.ndarray, W: np.ndarray,
+                              owner: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """6x6 covariance (TRANSFORM_PARAMETERS) of the pose from where the pixels fell on each tape line.
+
+    A line's pixels sample its width at the pixel grid's phase; when the line runs along the image's
+    rows or columns that phase hardly changes along it, and its points' mean is off the centre by up to
+    a pixel's footprint, the same for every point (no averaging takes it out). The points' offsets then
+    span less than the tape's width: the centre is known only within the gap, ``width - span``, uniformly
+    (1-sigma ``gap / sqrt(12)``). Each line's such shift moves the pose by ``(J^T J)^-1 J_f^T W_f`` per metre
+    (``J`` the fit's Jacobian in sigma units, ``W`` the rows' weights, 1/m, ``offsets`` their residuals, m)."""
+    covariance = np.zeros((6, 6))
+    if not any(f.kind == "line" for f in features):
+        return covariance
+    try:
+        inverse = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return covariance
+    widths = {line.name: line.width_m for line in layout.lines}
+    for k, feature in enumerate(features):
+        mine = owner == k
+        if feature.kind != "line" or mine.sum() < 2:
+            continue
+        low, high = np.percentile(offsets[mine], [0.5, 99.5])
+        sigma_m = max(widths[feature.name] - (high - low), 0.0) / np.sqrt(12)
+        shift = inverse @ (J[mine].T @ W[mine])
+        covariance += sigma_m**2 * np.outer(shift, shift)
+    return covariance
+
+
 def _held_out(observations: list[DepthObservation], features: list[Feature], T: np.ndarray, layout: CellLayout,
               settings: DepthNodeSettings) -> tuple[np.ndarray | None, list[dict]]:
     """Leave-one-capture-out: the jackknife 1-sigma (6,, m and rad) of the solves without each capture, and each
@@ -260,17 +290,19 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
         if missing:  # checked every round: an open direction lets the solve wander, and the next round see nothing
             raise InputError(_undetermined_message(node, missing, features, layout), "observations")
         step_m, step_deg = np.split(params_between(T_previous, T), 2)
-        if rounds > 1 and np.linalg.norm(step_m) < CONVERGED_TRANS_M and \
-                np.degrees(np.linalg.norm(step_deg)) < CONVERGED_ROT_DEG:
+        if rounds > 1 and np.linalg.norm(step_m) < CONVERGED_SHARE * settings.translation_tolerance_m and \
+                np.degrees(np.linalg.norm(step_deg)) < CONVERGED_SHARE * settings.rotation_tolerance_deg:
             break
     progress(0.75, "leave-one-capture-out solves")
+    P, A, K, W, owner = _stack(features, layout, settings)
+    offsets = np.einsum("ij,jk,ik->i", A, T[:3, :3], P) + A @ T[:3, 3] - K
+    kinds = np.array([f.kind for f in features])[owner]
     cov_jacobian = jacobian_covariance(fit)
+    cov_sampling = _line_sampling_covariance(features, layout, fit.jac, W, owner, offsets)
     spread, held = _held_out(observations, features, T, layout, settings)
-    covariance = widen_covariance(cov_jacobian, spread)
+    covariance = widen_covariance(cov_jacobian + cov_sampling, spread)
     rows = feature_residuals(features, T)
     crosses = [row for row in rows if row["kind"] == "point"]
-    P, A, K, _, kinds = _stack(features, layout, settings)
-    offsets = np.einsum("ij,jk,ik->i", A, T[:3, :3], P) + A @ T[:3, 3] - K
     is_line, is_plane = kinds == "line", np.isin(kinds, ("floor", "table"))
     n_captures = len({obs.capture_id for obs in observations})
     verdict = _verdict(transform_std(covariance), bool(fit.status > 0), held, crosses, n_captures, settings)
@@ -285,6 +317,7 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
         diagnostics={"features": rows, "initial": list(pose_row(T_init)), "pose_row": list(pose_row(T)),
                      "held_out": held, "crosses": crosses, "problems": problems, "rounds": rounds,
                      "std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_jacobian), 0, None))),
+                     "std_line_sampling": finite_or_none(np.sqrt(np.clip(np.diag(cov_sampling), 0, None))),
                      "std_spread": finite_or_none(spread)},
         settings=asdict(settings), converged=bool(fit.status > 0), verdict=verdict, warnings=list(problems),
         seconds=time.perf_counter() - started)
