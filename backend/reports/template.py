@@ -213,8 +213,7 @@ TEMPLATE = """<!DOCTYPE html>
 <p>Generated {{ generated_at | utc }} &middot; board {{ session.board or "none" }} &middot; rig root
 <code>{{ tree.root }}</code></p>
 </header>
-<nav>{% for id, title in sections if id != "depth" or session.depth_network %}<a href="#{{ id }}">{{ title }}</a>
-{% endfor %}</nav>
+<nav>{% for id, title in sections %}<a href="#{{ id }}">{{ title }}</a>{% endfor %}</nav>
 
 <section id="overview">
 <h2>Overview</h2>
@@ -318,9 +317,9 @@ graph.</p>
 {% endif %}
 </section>
 
-{% set depth = session.depth_network %}{% if depth %}
 <section id="depth">
 <h2>Depth network</h2>
+{% set depth = session.depth_network %}{% if depth %}
 <p class="note">Every depth node's pose in the cell's world frame in the paper's order: X, Y, Z (m) and RotZ, RotY,
 RotX (deg, R = Rz Ry Rx about the node's axes), with the largest 1-sigma of the fused rig (translation in mm,
 rotation in deg) and the verdict of its accepted result.</p>
@@ -350,8 +349,8 @@ rotation in deg) and the verdict of its accepted result.</p>
 several nodes is their weighted mean); error = estimated - measured.</p>
 {% else %}<p>No verification distance yet: pick two points (the crosses) and type their laser-measured distance.</p>
 {% endif %}
+{% else %}<p>The rig has no depth nodes.</p>{% endif %}
 </section>
-{% endif %}
 
 <section id="graph">
 <h2>Observation graph</h2>
@@ -397,4 +396,4 @@ several nodes is their weighted mean); error = estimated - measured.</p>
 SECTIONS = [("overview", "Overview"), ("sensors", "Sensors"), ("intrinsics", "Camera intrinsics"),
             ("edges", "Rig edges"), ("depth", "Depth network"), ("graph", "Observation graph"), ("rig", "The rig"),
             ("log", "Acceptance log")]
-"""Section ids and headings, in page order (``depth`` only for a rig with depth nodes)."""
+"""Section ids and headings, in page order."""
