@@ -135,6 +135,19 @@ def test_undetermined_solve_names_what_is_missing(cell, lines, message):
         solve_depth_node("sn4", data["observations"][2:], partial, data["guess"])
 
 
+def test_surveyed_crosses_fix_the_position_without_lines(cell):
+    """Crosses surveyed in the cell's frame are known points: with no tape line, they fix X, Y and RotZ."""
+    layout = cell["layout"]
+    surveyed = replace(layout, lines=[], crosses=[replace(c, surveyed=True) for c in layout.crosses])
+    data = cell["nodes"]["sn4"]
+    result = solve_depth_node("sn4", data["observations"][2:], surveyed, data["guess"])
+    error_m, error_deg = transform_error(result.T_parent_child, data["truth"])
+    assert np.linalg.norm(error_m) < 0.01 and np.linalg.norm(error_deg) < 0.05, (error_m, error_deg)
+    assert (np.abs(np.r_[error_m, np.radians(error_deg)]) < 4 * result.std_vector).all()
+    assert len(result.diagnostics["crosses"]) >= 3 and result.verdict.level != "reject"
+    assert not any("cross-check crosses" in reason for reason in result.verdict.reasons)  # used, so no check
+
+
 def test_pairwise_icp_alone_is_far_worse(cell, solved):
     """The paper's finding: the nodes' views share mostly floor, so ICP chained from sn1 (held at the truth)
     slides; the constraint solve of the same nodes is millimetres. Its edges' verdicts say they are undetermined."""

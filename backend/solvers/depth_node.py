@@ -35,13 +35,21 @@ from scipy.spatial.transform import Rotation
 from backend.core.depth import pose_row
 from backend.core.depth_cell import CellLayout
 from backend.core.errors import InputError
-from backend.core.transforms import apply_params, check_transform, params_between, right_jacobian
+from backend.core.transforms import (
+    apply_params,
+    check_transform,
+    invert,
+    params_between,
+    right_jacobian,
+    transform_points,
+)
 from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 from backend.solvers.depth_features import (
     AXES,
     DepthNodeSettings,
     DepthObservation,
     Feature,
+    cross_centre,
     extract_features,
     feature_residuals,
     ranges_m,
@@ -71,17 +79,18 @@ HELD_OUT_FACTOR = 2.0
 """A held-out capture's tables and lines pass the cross-check within this many times the translation tolerance."""
 
 
-def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSettings
+def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSettings, T_world_node: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every point residual's node-frame point (M, 3), world axis (M, 3, unit), known value (M,, m), weight
     (M,, 1/m) and feature (M,, index into ``features``): planes constrain world z, lines x or y, a surveyed
-    cross's centre all three."""
+    cross's centre all three (its :func:`cross_centre` found at ``T_world_node``, taken back to the node frame)."""
     points, axes, known, weights, owner = [], [], [], [], []
     for k, feature in enumerate(features):
         if feature.kind == "point":
             if not layout.cross(feature.name.removeprefix("cross ")).surveyed:
                 continue  # a cross checks the solve; it constrains it only when surveyed
-            centre = feature.points.mean(axis=0)
+            centre = transform_points(invert(T_world_node), cross_centre(transform_points(T_world_node,
+                                                                                          feature.points))[None])[0]
             points.append(np.repeat(centre[None], 3, axis=0))
             axes.append(np.eye(3))
             known.append(np.asarray(feature.known, dtype=float))
@@ -110,7 +119,7 @@ def fit_features(features: list[Feature], T_world_node: np.ndarray, layout: Cell
     """``T_world_node`` (4x4, m) that best fits ``features`` from ``T_world_node``, and SciPy's result (its ``x`` the
     :func:`apply_params` step, its ``jac`` the loss-scaled Jacobian in sigma units with respect to the solution's
     own :data:`~backend.solvers.result.TRANSFORM_PARAMETERS`)."""
-    P, A, K, W, _ = _stack(features, layout, settings)
+    P, A, K, W, _ = _stack(features, layout, settings, T_world_node)
     if len(P) < 6:
         raise InputError(f"{len(P)} constraints from the features seen; a pose needs at least 6", "features")
     R0 = T_world_node[:3, :3]
@@ -255,8 +264,9 @@ def _verdict(std: dict, converged: bool, held: list[dict], crosses: list[dict], 
     if crosses:
         far = max(c["error_m"] for c in crosses)
         judge.cross_check("crosses", far <= settings.cross_tolerance_m,
-                          f"{len(crosses)} crosses seen, the furthest {1e3 * far:.1f} mm from its known position "
-                          f"(limit {1e3 * settings.cross_tolerance_m:.0f} mm)")
+                          f"{len(crosses)} crosses seen (not surveyed, so not used by the solve), the furthest "
+                          f"{1e3 * far:.1f} mm from its known position (limit {1e3 * settings.cross_tolerance_m:.0f} "
+                          "mm)")
     return judge.verdict()
 
 
@@ -294,7 +304,7 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
                 np.degrees(np.linalg.norm(step_deg)) < CONVERGED_SHARE * settings.rotation_tolerance_deg:
             break
     progress(0.75, "leave-one-capture-out solves")
-    P, A, K, W, owner = _stack(features, layout, settings)
+    P, A, K, W, owner = _stack(features, layout, settings, T)
     offsets = np.einsum("ij,jk,ik->i", A, T[:3, :3], P) + A @ T[:3, 3] - K
     kinds = np.array([f.kind for f in features])[owner]
     cov_jacobian = jacobian_covariance(fit)
@@ -305,7 +315,8 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
     crosses = [row for row in rows if row["kind"] == "point"]
     is_line, is_plane = kinds == "line", np.isin(kinds, ("floor", "table"))
     n_captures = len({obs.capture_id for obs in observations})
-    verdict = _verdict(transform_std(covariance), bool(fit.status > 0), held, crosses, n_captures, settings)
+    unsurveyed = [row for row in crosses if not layout.cross(row["name"].removeprefix("cross ")).surveyed]
+    verdict = _verdict(transform_std(covariance), bool(fit.status > 0), held, unsurveyed, n_captures, settings)
     progress(1.0, "done")
     return TransformResult(
         kind="depth_node", method="constraints", parent="world", child=node, T_parent_child=T,
