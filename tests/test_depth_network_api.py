@@ -116,6 +116,10 @@ def test_the_solve_job_and_accept(client: TestClient) -> None:
     assert trans_m < 0.005 and rot_deg < 0.05, (trans_m, rot_deg)
     assert error(client.post(f"{BASE}/nodes/sn2/accept", json={"result_id": record["id"]}), 422)["input"] == "result"
     assert error(client.post(f"{BASE}/nodes/sn9/solve", json={}), 404)["input"] == "sensor"
+    assert error(client.post(f"{BASE}/solve", json={"nodes": ["sn1", "sn9"]}), 404)["input"] == "sensor"
+    network = wait_job(client, client.post(f"{BASE}/solve", json={"nodes": ["sn2"]}).json()["id"], timeout_s=240)
+    assert network["state"] == "done" and set(network["summary"]) == {"results", "accepted", "icp", "problems"}
+    assert "sn2" in network["summary"]["results"] or network["summary"]["problems"][0].startswith("sn2: ")
 
 
 def test_verification_map_and_tables(client: TestClient) -> None:
