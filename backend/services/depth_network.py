@@ -23,10 +23,12 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
+from pydantic import ValidationError
 
 from backend.core.depth import KINECT_V2, DepthIntrinsics, pose_from_row
 from backend.core.depth_cell import CellLayout, Cross, TableSpec, default_cell_layout
 from backend.core.errors import InputError, shorten
+from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.rig import Frame, edge_slot
 from backend.core.transforms import invert, transform_points
 from backend.core.verdict import Verdict
@@ -140,13 +142,14 @@ def T_world_node(session: Session, node: str) -> np.ndarray:
 
 def capture_node(session: Session, node: str, sample: Sample, arrangement: Arrangement = "free",
                  tables: Sequence[str | TableSpec] = (), *, device: str = "node", source: str | None = None,
-                 clock_offset_s: float | None = None, intrinsics: DepthIntrinsics = KINECT_V2) -> CaptureRecord:
+                 clock_offset_s: float | None = None, intrinsics: DepthIntrinsics | None = None) -> CaptureRecord:
     """Keep one depth frame of ``node``: ``sample.depth`` (H, W, m along the optical axis, 0 = no return) and
-    its IR amplitude (the image from ``sample.intensity`` at ``sample.meta["pixel_index"]``, or at the valid
-    pixels when the counts agree; zeros when the sample has none), with the ``arrangement`` and the ``tables``
-    (names or specs, of the layout) that stood in view. ``record.meta`` holds ``arrangement``, ``tables``,
-    ``node_time_s`` and ``clock_offset_s`` beside the driver's own facts. An empty or wrongly sized depth image
-    is refused and nothing is stored."""
+    its IR amplitude (``sample.meta["amplitude"]`` (H, W), else the image from ``sample.intensity`` at
+    ``sample.meta["pixel_index"]``, or at the valid pixels when the counts agree; zeros when the sample has
+    none), with the ``arrangement`` and the ``tables`` (names or specs, of the layout) that stood in view. The
+    pinhole is ``intrinsics``, else the sample's ``meta["intrinsics"]``, else the Kinect v2's. ``record.meta``
+    holds ``arrangement``, ``tables``, ``node_time_s``, ``clock_offset_s`` and ``intrinsics`` beside the driver's
+    own facts. An empty or wrongly sized depth image is refused and nothing is stored."""
     check_node(session, node)
     if arrangement not in ARRANGEMENTS:
         raise InputError(f"arrangement {shorten(arrangement)}: expected one of {list(ARRANGEMENTS)}", "arrangement")
@@ -159,6 +162,7 @@ def capture_node(session: Session, node: str, sample: Sample, arrangement: Arran
     if sample.depth is None:
         raise InputError(f"{source or node}: the frame holds no depth image (is the node a depth camera?)", "depth")
     depth = np.asarray(sample.depth, dtype=np.float32)
+    intrinsics = intrinsics or _sample_intrinsics(sample)
     _, index = intrinsics.unproject(depth)  # checks the size
     if not len(index):
         raise InputError(f"{source or node}: the depth image holds no return within {intrinsics.min_range_m:g}-"
@@ -176,8 +180,24 @@ def capture_node(session: Session, node: str, sample: Sample, arrangement: Arran
                                                              "source": source, "meta": meta})
 
 
+def _sample_intrinsics(sample: Sample) -> DepthIntrinsics:
+    """The pinhole a source put in ``sample.meta["intrinsics"]``, else the Kinect v2's."""
+    stored = sample.meta.get("intrinsics")
+    if not isinstance(stored, dict):
+        return KINECT_V2
+    try:
+        return DepthIntrinsics.from_dict(stored)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"the frame's intrinsics {shorten(stored)}: expected width, height, fx, fy, cx, cy",
+                         "intrinsics") from None
+
+
 def _amplitude_image(sample: Sample, shape: tuple[int, ...], valid_index: np.ndarray) -> np.ndarray | None:
-    """The (H, W) IR amplitude image of a sample whose ``intensity`` holds the amplitude of its points, or None."""
+    """The (H, W) IR amplitude image of a sample (its ``meta["amplitude"]``, or its ``intensity`` placed at its
+    points' pixels), or None."""
+    image = sample.meta.get("amplitude")
+    if isinstance(image, np.ndarray) and image.shape == shape:
+        return image.astype(np.float32)
     if sample.intensity is None:
         return None
     values = np.asarray(sample.intensity, dtype=np.float32).ravel()
@@ -198,8 +218,6 @@ def read_depth_upload(name: str, data: bytes, what: Literal["depth", "amplitude"
     if len(data) > MAX_UPLOAD_DEPTH_BYTES:
         raise InputError(f"{name}: {len(data):,} bytes, more than the {MAX_UPLOAD_DEPTH_BYTES:,}-byte limit on a "
                          f"{what} image", name, 413)
-    from backend.core.limits import MAX_IMAGE_PIXELS
-
     if suffix == "npy":
         try:
             image = read_bounded_npy(io.BytesIO(data), name, MAX_IMAGE_PIXELS.value())
@@ -578,8 +596,6 @@ def verification_rows(session: Session, network: DepthNetworkFile | None = None)
 
 def _verification_point(session: Session, data: Mapping[str, Any], field: str) -> VerificationPoint:
     """A verification end from a request (or :func:`pick`'s answer: extra keys are ignored)."""
-    from pydantic import ValidationError
-
     try:
         point = VerificationPoint.model_validate({k: data[k] for k in ("name", "point_m", "views") if k in data})
     except (ValidationError, TypeError, ValueError) as exc:
