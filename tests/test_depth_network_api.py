@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 from collections.abc import Iterator
 
+import cv2
 import numpy as np
 import pytest
 from conftest import wait_job
@@ -171,3 +172,21 @@ def test_bad_input_is_a_4xx_and_keeps_everything(client: TestClient) -> None:
     assert error(client.put(f"{BASE}/layout", json=layout), 422)["input"].endswith("axis")
     assert client.get(f"{BASE}/layout").json()["lines"][0]["axis"] == "x"
     assert error(client.post(f"{BASE}/nodes/sn1/capture-live", json={}), 409)["input"] == "node_network"
+
+
+def test_png_and_integer_uploads_are_millimetres(client: TestClient) -> None:
+    frame = render_captures("sn2", seed=5)[0][2]
+    millimetres = np.round(frame.depth_m * 1000).astype(np.uint16)
+    ok, png = cv2.imencode(".png", millimetres)
+    assert ok
+    for name, data in (("depth.png", png.tobytes()), ("depth.npy", npy(millimetres))):
+        response = client.post(f"{BASE}/nodes/sn2/captures", files=[("depth", (name, data, "image/png"))])
+        assert response.status_code == 201, response.text
+        assert response.json()["meta"]["amplitude_missing"] is True
+    session = client.app.state.studio.store.get("cell")
+    depth, _ = session.depth_capture("sn2", response.json()["id"])
+    assert np.abs(depth - frame.depth_m).max() <= 0.0005 + 1e-6  # rounded to the millimetre
+    ok, gray = cv2.imencode(".png", (frame.depth_m * 20).astype(np.uint8))
+    files = [("depth", ("d.png", gray.tobytes(), "image/png"))]
+    refused = error(client.post(f"{BASE}/nodes/sn2/captures", files=files), 422)
+    assert "expected a 16-bit PNG of millimetres" in refused["message"]
