@@ -27,32 +27,25 @@ from backend.core.depth_cell import PAPER_NODE_POSES
 from backend.core.transforms import transform_error
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, MOUNT_SIGMA, TAPE_ERROR_DEG, TAPE_ERROR_M, TRUTH_FILE
 from backend.services.node_processes import NodeProcesses, free_tcp_port
-from tests.conftest import ROOT, stop_process, wait_health
+from tests.conftest import ROOT, Studio, stop_process, wait_health
 
 pytestmark = pytest.mark.slow
 
 NODES = sorted(PAPER_NODE_POSES)
 START_TIMEOUT_S = 120.0
-"""How long (s) the studio, the session build and the six agents may take to start on a loaded machine (about
-20 s on two idle cores)."""
+"""How long (s) the studio, the session build and the six agents may take to start on a loaded machine (the build
+alone takes about 5 s on a quiet one; with the shared cores at a load of 20-50 everything took 50-90 s)."""
 
 
 @dataclass
-class CellStudio:
-    process: subprocess.Popen
-    api: str
-    url: str
+class CellStudio(Studio):
+    """The studio of ``demo --rig depth-cell``, with its viewer's port and its sessions folder."""
+
     viewer_port: int
     sessions: Path
-    log: Path
 
     def log_text(self) -> str:
         return self.log.read_text(errors="replace")
-
-    def get(self, path: str) -> dict | list:
-        response = httpx.get(f"{self.api}{path}", timeout=10)
-        assert response.status_code == 200, f"GET {path}: {response.status_code} {response.text}"
-        return response.json()
 
 
 def agent_processes(parent: int) -> dict[str, int]:
@@ -92,13 +85,13 @@ def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int])
             cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
-    studio = CellStudio(process, f"http://127.0.0.1:{api_port}", "", viewer_port, tmp / "sessions", log)
+    studio = CellStudio("", f"http://127.0.0.1:{api_port}", process, log, viewer_port, tmp / "sessions")
     try:
         try:
             studio.url = lines.get(timeout=START_TIMEOUT_S).strip()
         except queue.Empty:
-            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_text()[-3000:]}")
-        wait_health(studio.api, process, lambda: studio.log_text()[-3000:])
+            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
+        wait_health(studio.api, process, studio.log_tail)
         yield studio
     finally:
         stop_process(process)
@@ -113,7 +106,7 @@ def test_first_line_is_the_url_and_the_api_answers(cell: CellStudio) -> None:
 def built(cell: CellStudio) -> CellStudio:
     """The studio once its depth-cell session is built (listed by the API)."""
     wait_for(lambda: DEPTH_CELL_NAME in [s["name"] for s in cell.get("/api/sessions")], START_TIMEOUT_S,
-             lambda: f"the depth-cell session was never built:\n{cell.log_text()[-3000:]}")
+             lambda: f"the depth-cell session was never built:\n{cell.log_tail()}")
     return cell
 
 
@@ -162,7 +155,7 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
     with ThreadPoolExecutor(len(NODES)) as pool:  # as the studio's Capture all: the nodes answer at once
         responses = dict(zip(NODES, pool.map(capture_when_seen, NODES), strict=True))
     for node, response in responses.items():
-        assert response.status_code == 201, f"{node}: {response.text}\n{built.log_text()[-3000:]}"
+        assert response.status_code == 201, f"{node}: {response.text}\n{built.log_tail()}"
         record = response.json()
         assert record["image_size"] == [512, 424] and record["n_points"] > 100_000, record
     assert all(len(built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/nodes/{n}/captures")) == 3 for n in NODES)
@@ -170,9 +163,9 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
 
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:
     wait_for(lambda: sorted(agent_processes(cell.process.pid)) == NODES, START_TIMEOUT_S,
-             lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_text()[-3000:]}")
+             lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_tail()}")
     os.kill(agent_processes(cell.process.pid)["sn6"], signal.SIGKILL)
-    wait_for(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), 10.0, lambda: cell.log_text()[-3000:])
+    wait_for(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), 10.0, cell.log_tail)
     assert sorted(agent_processes(cell.process.pid)) == NODES[:5]
 
 
@@ -180,7 +173,7 @@ def test_stopping_the_studio_stops_its_agents(cell: CellStudio) -> None:
     agents = agent_processes(cell.process.pid)
     assert agents, "no agents to stop"
     stop_process(cell.process)
-    assert cell.process.returncode == 0, cell.log_text()[-3000:]
+    assert cell.process.returncode == 0, cell.log_tail()
 
     def gone(pid: int) -> bool:
         try:
