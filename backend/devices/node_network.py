@@ -52,6 +52,8 @@ WINDOW_S = 5.0
 CLOCK_WARN_S = 0.5
 """A node whose clock is further off than this (s) is warned about."""
 CLOCK_ROUNDS = 8
+CLOCK_MAX_AGE_S = 60.0
+"""A capture re-estimates a clock offset older than this (s): a node's clock may be stepped meanwhile."""
 QUERY_POLL_S = 0.05
 """How often a waiting capture looks whether its node is still there (s)."""
 
@@ -73,6 +75,8 @@ class NodeStatus:
     """Node clock minus studio clock (s; positive: the node is ahead); None until estimated."""
     clock_rtt_s: float | None = None
     """Round-trip time of the best clock round (s): the offset is good to half of it."""
+    clock_checked_s: float | None = None
+    """When the offset was estimated (studio clock, s)."""
     bandwidth_bps: float = 0.0
     """Bytes per second of its stream over the last :data:`WINDOW_S` (B/s, not bits)."""
     frames: int = 0
@@ -238,7 +242,7 @@ class NodeNetwork:
         with self._lock:
             status = self._nodes.get(node)
             if status is not None:
-                status.clock_offset_s, status.clock_rtt_s = offset_s, rtt_s
+                status.clock_offset_s, status.clock_rtt_s, status.clock_checked_s = offset_s, rtt_s, time.time()
                 status.warnings = [w for w in status.warnings if "'s clock is" not in w] + ([warning] if warning
                                                                                            else [])
         self._changed(node)
@@ -255,8 +259,8 @@ class NodeNetwork:
         """
         session = self._require_node(node)
         with self._lock:
-            offset_s = self._nodes[node].clock_offset_s
-        if offset_s is None:
+            offset_s, checked_s = self._nodes[node].clock_offset_s, self._nodes[node].clock_checked_s
+        if offset_s is None or checked_s is None or time.time() - checked_s > CLOCK_MAX_AGE_S:
             offset_s = self.estimate_clock(node).offset_s
         done = threading.Event()
         replies: list[zenoh.Reply] = []
