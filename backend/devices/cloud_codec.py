@@ -8,11 +8,12 @@ a small frame that would inflate to gigabytes (a zlib bomb) costs nothing.
 
 Kinds and their quantisation (what the frame loses):
 
-- ``cloud`` (a LiDAR, or a depth camera's voxelised stream): points as unsigned integer steps from the cloud's
-  minimum corner (1 mm when voxelised, 0.1 mm in a full frame; uint16 per axis when the extent allows, else
-  uint32), stored axis by axis; intensity as float16 (3 significant digits).
-- ``depth`` (a depth camera's full frame): depth as uint16 mm (0 = no return; depth beyond 65.5 m dropped), IR
-  amplitude as a float16 image, the valid pixels as a packed bit mask. The points are unprojected again on
+- ``cloud`` (a LiDAR, or a depth camera's voxelised stream): points as integer steps from the cloud's minimum
+  corner (1 mm when voxelised, 0.1 mm in a full frame), axis by axis, as zigzag-coded differences from point to
+  point in the smallest unsigned type, bytes shuffled; intensity as float16 (3 significant digits; 4 mantissa
+  bits, within 3 %, in the stream).
+- ``depth`` (a depth camera's full frame): depth as uint16 mm (0 = no return; depth beyond 65.5 m dropped) coded
+  as differences along each row, IR amplitude as a float16 image, the valid pixels as a packed bit mask. The points are unprojected again on
   decoding with the frame's intrinsics (``meta["intrinsics"]``, else the Kinect v2's for a 512x424 image); a
   depth image of unknown intrinsics carries its points as in ``cloud``.
 - ``image`` (a camera): PNG (lossless) in a full frame, JPEG (quality 85) in the stream.
@@ -148,7 +149,7 @@ def encode_frame(sample: Sample, voxel_m: float | None) -> bytes:
     else:
         raise InputError("the sample holds no depth, points or image to send", "sample")
     compressed = [zlib.compress(a.stored_bytes(), level) for a in arrays]
-    header = json.dumps({"timestamp_s": float(sample.timestamp_s), "full": full, "meta": meta,
+    header = json.dumps({"timestamp_s": float(sample.timestamp_s), "meta": meta,
                          "arrays": [a.header(c) for a, c in zip(arrays, compressed, strict=True)]},
                         separators=(",", ":")).encode()
     if len(header) > MAX_HEADER_BYTES:
