@@ -13,9 +13,9 @@ Kinds and their quantisation (what the frame loses):
   point in the smallest unsigned type, bytes shuffled; intensity as float16 (3 significant digits; 4 mantissa
   bits, within 3 %, in the stream).
 - ``depth`` (a depth camera's full frame): depth as uint16 mm (0 = no return; depth beyond 65.5 m dropped) coded
-  as differences along each row, IR amplitude as a float16 image, the valid pixels as a packed bit mask. The points are unprojected again on
-  decoding with the frame's intrinsics (``meta["intrinsics"]``, else the Kinect v2's for a 512x424 image); a
-  depth image of unknown intrinsics carries its points as in ``cloud``.
+  as differences along each row, IR amplitude as a float16 image, the valid pixels as a packed bit mask. The
+  points are unprojected again on decoding with the frame's intrinsics (``meta["intrinsics"]``, else the Kinect
+  v2's for a 512x424 image); a depth image of unknown intrinsics carries its points as in ``cloud``.
 - ``image`` (a camera): PNG (lossless) in a full frame, JPEG (quality 85) in the stream.
 
 Only the JSON-friendly part of ``Sample.meta`` travels (:meth:`Sample.storable_meta`); a decoded depth frame's
