@@ -13,6 +13,7 @@ from test_depth_network_service import build_cell_session, pose_error
 
 from backend.services import depth_network as service
 from backend.store.session import Session
+from studio.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 NODE = "sn4"
@@ -45,20 +46,20 @@ def test_solve_prints_the_contract(solved) -> None:
     assert body["verification"] == []
 
 
-def test_verification_rows_and_the_text_table(solved) -> None:
+def test_verification_rows_the_text_table_and_errors(solved, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture) -> None:
+    """In process (the subprocess above is the real command; these reuse its imports)."""
     folder, _ = solved
     added = service.verify_layout_distances(Session.load(folder))
     assert added, "sn4 sees both crosses of at least one measured distance"
-    body = json.loads(cli(folder, "--json").stdout)
+    assert main(["depth-network", str(folder), "--json"]) == 0
+    body = json.loads(capsys.readouterr().out)
     assert [set(r) >= {"a", "b", "measured_m", "estimated_m", "error_m"} for r in body["verification"]] == \
         [True] * len(added)
     assert all(abs(r["error_m"]) < 0.010 for r in body["verification"]), body["verification"]
-    text = cli(folder)
-    assert text.returncode == 0 and text.stdout.splitlines()[1].startswith(NODE)
-    assert f"{added[0]['a']:<14}{added[0]['b']:<14}" in text.stdout
-
-
-def test_a_missing_session_is_a_json_error(tmp_path: Path) -> None:
-    run = cli(tmp_path / "nope", "--json")
-    assert run.returncode != 0 and run.stderr.strip().splitlines()[-1].startswith("error:")
-    assert set(json.loads(run.stdout)["error"]) == {"message", "input"}
+    assert main(["depth-network", str(folder)]) == 0
+    text = capsys.readouterr().out
+    assert text.splitlines()[1].startswith(NODE) and f"{added[0]['a']:<14}{added[0]['b']:<14}" in text
+    assert main(["depth-network", str(tmp_path / "nope"), "--json"]) != 0
+    out, err = capsys.readouterr()
+    assert set(json.loads(out)["error"]) == {"message", "input"} and err.strip().startswith("error:")
