@@ -10,9 +10,9 @@ import pytest
 
 from backend.core.depth import KINECT_V2, pose_from_row
 from backend.core.errors import InputError
+from backend.core.voxels import voxel_downsample
 from backend.devices.base import Sample
 from backend.devices.cloud_codec import MAGIC, PREAMBLE, VERSION, decode_frame, encode_frame
-from backend.services.live_clouds import voxel_downsample
 
 
 @pytest.fixture(scope="module")

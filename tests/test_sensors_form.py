@@ -16,9 +16,9 @@ from studio.wizard.sensors_step import DRIVERS, RANGE_KINDS, device_settings, dr
 
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
     assert sorted(DRIVERS) == driver_names()
-    assert drivers_for("camera") == ["uvc", "folder", "simulated", "rosbag"]
+    assert drivers_for("camera") == ["uvc", "folder", "simulated", "rosbag", "node"]
     range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "swept_scanner", "cloud_files",
-                     "rosbag"}
+                     "rosbag", "node"}
     for kind in RANGE_KINDS:
         depth_drivers = {"kinect2", "realsense", "depth_files", "sim_depth"} if kind == "depth" else set()
         assert set(drivers_for(kind)) == range_drivers | depth_drivers
@@ -40,6 +40,7 @@ def test_settings_from_the_form(tmp_path):
     assert device_settings("kinect2", "") == {"driver": "kinect2", "serial": None}
     assert device_settings("realsense", " 123 ") == {"driver": "realsense", "serial": "123"}
     assert device_settings("sim_depth", "sn4") == {"driver": "sim_depth", "node": "sn4", "seed": 0}
+    assert device_settings("node", "sn2") == {"driver": "node", "node": "sn2"}
     assert device_settings("swept_scanner", "sim") == {"driver": "swept_scanner", "servo_port": "sim",
                                                        "scanner": {"driver": "sim"}}
     assert device_settings("swept_scanner", "/dev/ttyUSB1", scanner_port="/dev/ttyUSB0") == {
@@ -57,6 +58,7 @@ def test_settings_from_the_form(tmp_path):
     ("velodyne", "70000", {}, "source", "must be a UDP port"),
     ("velodyne", "lidar:abc", {}, "source", "must be a UDP port"),
     ("swept_scanner", "/dev/ttyUSB1", {"scanner_port": ""}, "scanner_port", "real 2D scanner's serial port"),
+    ("node", " ", {}, "source", "needs the name its agent was started with"),
     ("nonsense", "x", {}, "device", "unknown device"),
 ])
 def test_bad_form_input_names_the_field(tmp_path, driver, source, extra, field, message):

@@ -9,6 +9,7 @@ from backend.devices import (  # noqa: F401
     dynamixel_servo,
     image_folder,
     kinect2,
+    node_network,
     realsense,
     rosbag_source,
     simulated_camera,

@@ -36,6 +36,7 @@ import numpy as np
 from backend.core.depth import KINECT_V2, DepthIntrinsics
 from backend.core.errors import InputError, shorten
 from backend.core.limits import MAX_CLOUD_POINTS, MAX_IMAGE_PIXELS
+from backend.core.voxels import voxel_downsample
 from backend.devices.base import Sample
 from backend.devices.image_io import decode_image_bytes, encode_jpeg, encode_png
 
@@ -135,8 +136,6 @@ def encode_frame(sample: Sample, voxel_m: float | None) -> bytes:
         if not full:
             if not voxel_m > 0:
                 raise InputError(f"voxel size {voxel_m!r} m: expected a positive number of metres", "voxel_m")
-            from backend.services.live_clouds import voxel_downsample  # lazily: it imports the session store
-
             points, intensity = voxel_downsample(points, intensity, float(voxel_m))
             meta["voxel_m"] = float(voxel_m)
         arrays = _cloud_arrays(points, intensity, FULL_POINT_STEP_M if full else STREAM_POINT_STEP_M,

@@ -58,6 +58,8 @@ DRIVERS: dict[str, DriverChoice] = {
     "depth_files": DriverChoice("depth images (16-bit PNG in mm or .npy in m, *_ir beside, intrinsics .json or "
                                 "camera_info .yaml): the folder", DEPTH_KINDS, ""),
     "sim_depth": DriverChoice("simulated Kinect v2 node of the depth cell: sn1 to sn6", DEPTH_KINDS, "sn1"),
+    "node": DriverChoice("a sensor on another computer, served there by `calib-studio node --name NAME`: its name",
+                         CAMERA_KINDS + RANGE_KINDS, ""),
 }
 PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "rosbag", "depth_files")
 VELODYNE_LISTEN_HOST = "0.0.0.0"
@@ -108,6 +110,10 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
         return {"driver": "ydlidar", "port": text or "sim"}
     if driver in ("kinect2", "realsense"):
         return {"driver": driver, "serial": text or None}
+    if driver == "node":
+        if not text:
+            raise InputError("a network node needs the name its agent was started with (--name) in Source", "source")
+        return {"driver": "node", "node": text}
     if driver == "sim_depth":
         return {"driver": "sim_depth", "node": text or "sn1", "seed": 0}
     if driver == "swept_scanner":
