@@ -20,6 +20,7 @@ import pytest
 from backend.core.depth import KINECT_V2, pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
 from backend.core.errors import InputError
+from backend.core.rig import Frame
 from backend.core.transforms import transform_error
 from backend.devices.base import Sample
 from backend.services import depth_network as service
@@ -162,6 +163,10 @@ def test_bad_input_is_refused_and_nothing_is_lost(solved, tmp_path: Path) -> Non
     assert len(session.captures("sn1")) == before
     with pytest.raises(InputError, match="not a depth node"):
         service.capture_node(session, "world", empty)
+    robot = Session.create(tmp_path / "robot", "robot")
+    robot.add_sensor(Frame("lidar", "base_link", kind="lidar3d"))
+    with pytest.raises(InputError, match="a depth node hangs under the cell's 'world' frame"):
+        service.add_node(robot, "sn1", typed_pose("sn1"))
 
     shutil.copytree(session.path, tmp_path / "copy")
     copy = Session.load(tmp_path / "copy")

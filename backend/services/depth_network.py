@@ -123,6 +123,10 @@ def add_node(session: Session, node: str, pose: Sequence[float] | None = None,
     laser meter; identity when None, then with no mounting prior). An empty rig is rooted at ``world`` first."""
     with session.lock:
         if WORLD not in session.rig.frames:
+            if len(session.rig.frames) > 1:
+                raise InputError(f"a depth node hangs under the cell's {WORLD!r} frame, which this rig (rooted at "
+                                 f"{session.rig.root!r}, with other frames) lacks: add a frame {WORLD!r} first, or "
+                                 "calibrate the cell in a session of its own", "parent", 409)
             session.set_root(WORLD)
         T_world_node = np.eye(4) if pose is None else pose_from_row(pose)
         frame = Frame(node, WORLD, T_world_node, kind="depth", device=dict(device or {}),
