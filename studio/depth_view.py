@@ -46,6 +46,9 @@ FRUSTUM_SCALE_M = 0.6
 OVERVIEW_FROM = (-0.25, -0.3, 2.2)
 """Where the cell's overview is seen from, in fractions of the cell's size (x, y, z): beyond its origin corner and
 above it, so that the whole floor and every node on the ceiling are in view."""
+OVERVIEW_TARGET = (0.65, 0.5, 0.0)
+"""What the overview looks at (fractions of the cell's size): right of the floor's centre, as the wizard panel
+covers the view's right side."""
 COUNT_COLOUR_MAX = 30
 """Voxel counts at or above this are drawn at the colour map's hot end (TURBO, from 1)."""
 
@@ -133,7 +136,7 @@ class DepthView:
             position, target = np.array(INITIAL_CAMERA_POSITION_M), np.array(INITIAL_LOOK_AT_M)
         else:
             size = np.array(layout.size_m)
-            position, target = size * OVERVIEW_FROM, size * (0.5, 0.5, 0.0)
+            position, target = size * OVERVIEW_FROM, size * OVERVIEW_TARGET
         server = self.scene.server
         server.initial_camera.position, server.initial_camera.look_at = position, target
         for client in server.get_clients().values():

@@ -35,7 +35,6 @@ from conftest import (
     stop_process,
     studio_page,
     text_input,
-    unfold,
     wait_body,
     wait_health,
 )
@@ -126,9 +125,8 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
                                                                        rate_hz=AGENT_RATE_HZ) as agents:
         choose(page, "Session", DEPTH_CELL_NAME)
         button(page, "Open session").click()
-        expect(page.get_by_text("9 · Depth network", exact=True)).to_be_visible(timeout=60_000)
-        page.get_by_text("9 · Depth network", exact=True).click()
-        listen = text_input(page, "Listen on")
+        listen = text_input(page, "Listen on")  # step 9 shows, unfolded, once a rig with depth nodes is open
+        expect(listen).to_be_visible(timeout=60_000)
         listen.fill(endpoint)
         listen.press("Enter")
         button(page, "Listen for nodes").click()
@@ -148,22 +146,23 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         _heights_within(page, TABLE_TOLERANCE_M)  # the lines' distances, same tolerance
         button(page, "Keep this pose as the node's result").click()
         result_id = wait_body(page, re.compile(r"Kept as (r\d+) \(guided, verdict check\)"), 60).group(1)
-        unfold(page, "Automatic solve", button(page, "Solve all nodes"))
         wait_body(page, re.compile(rf"{result_id} \(not accepted\) · depth_node · guided"), 30)
-        page.get_by_label("Confirm the check", exact=True).filter(visible=True).check()
-        accept = page.get_by_role("button", name="Accept", exact=True).filter(visible=True)
-        accept.click()
+        page.screenshot(path=ARTIFACTS / "studio_depth_result.png")
+        page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()
+        page.get_by_role("button", name="Accept", exact=True).filter(visible=True).last.click()
         page.get_by_role("button", name="Apply accept", exact=True).filter(visible=True).click()
         wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), 30)
-        page.screenshot(path=ARTIFACTS / "studio_depth_result.png")
+        page.screenshot(path=ARTIFACTS / "studio_depth_accepted.png")
 
     state = httpx.get(f"{cell.api}{API}/guided/{NODE}", timeout=30).json()
     assert state["done"] == ["initial", "tables_behind", "tables_beside", "lines"], state
-    truth = json.loads((cell.log.parent / "sessions" / DEPTH_CELL_NAME / TRUTH_FILE).read_text())
-    dt_m, dr_deg = transform_error(np.array(state["T_world_node"]), np.array(truth["nodes"][NODE]["T_world_node"]))
-    assert np.linalg.norm(dt_m) <= GUIDED_TOLERANCE[0] and np.linalg.norm(dr_deg) <= GUIDED_TOLERANCE[1], (dt_m,
-                                                                                                          dr_deg)
     assert state["result_id"] == result_id
-    summary = httpx.get(f"{cell.api}{API}/summary", timeout=30).json()  # the accepted pose is the rig's now
+    summary = httpx.get(f"{cell.api}{API}/summary", timeout=30).json()
     assert summary["nodes"][NODE]["result_id"] == result_id, summary["nodes"][NODE]
-    np.testing.assert_allclose(summary["nodes"][NODE]["T_world_node"], state["T_world_node"], atol=1e-6)
+    truth = np.array(json.loads((cell.log.parent / "sessions" / DEPTH_CELL_NAME / TRUTH_FILE).read_text())["nodes"][
+        NODE]["T_world_node"])
+    # The guided pose, and the rig's once accepted (fused with the tape-measured prior, which pulls it by ~0.1 mm).
+    for what, T in (("guided", state["T_world_node"]), ("rig", summary["nodes"][NODE]["T_world_node"])):
+        dt_m, dr_deg = transform_error(np.array(T), truth)
+        assert np.linalg.norm(dt_m) <= GUIDED_TOLERANCE[0] and np.linalg.norm(dr_deg) <= GUIDED_TOLERANCE[1], (
+            what, dt_m, dr_deg)

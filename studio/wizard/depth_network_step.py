@@ -179,7 +179,7 @@ class DepthNetworkStep:
         self._crosses: dict[str, dict[str, Any]] = {}
         self._picked: dict[str, Any] | None = None
         gui = ctx.server.gui
-        self.folder = gui.add_folder("9 · Depth network", expand_by_default=False, visible=False)
+        self.folder = gui.add_folder("9 · Depth network", expand_by_default=True, visible=False)
         with self.folder:
             gui.add_markdown(HELP)
             self.node = gui.add_dropdown("Depth node", options=[NONE], hint="the node the panels below work on")
@@ -212,7 +212,7 @@ class DepthNetworkStep:
                                                     hint="a guided result (set by hand: 5 mm, 0.3° sigma), shown on "
                                                          "the card of *Automatic solve* to accept")
                 self.finish_text = gui.add_markdown("")
-            with gui.add_folder("Automatic solve", expand_by_default=False):
+            with gui.add_folder("Automatic solve", expand_by_default=True):
                 self.solve_button = gui.add_button("Solve all nodes", color="blue")
                 self.solve_node_button = gui.add_button("Solve this node")
                 self.solve_jobs = JobPanel(ctx, [self.solve_button, self.solve_node_button])
@@ -484,7 +484,7 @@ class DepthNetworkStep:
         self._show_result()
         level = Verdict.from_record(record).level
         self.finish_text.content = (f"Kept as **{record['id']}** (guided, verdict {level}): accept it on the card "
-                                    "in *Automatic solve*.")
+                                    "below, under the automatic solve.")
 
     def _advice_loop(self) -> None:
         """Re-measure the step's residuals at the editor's pose after every change (the newest pose only)."""
