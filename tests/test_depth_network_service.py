@@ -129,6 +129,16 @@ def test_the_merged_map_and_a_pick(solved) -> None:
         service.pick(session, on_arm + [0.0, 0.0, 3.0], [0.0, 0.0, 1.0])
 
 
+def test_a_depth_capture_reads_as_a_cloud_like_any_range_sensor(solved) -> None:
+    session, _ = solved
+    [record, *_] = service.captures(session, "sn2")
+    points, amplitude = session.capture_cloud("sn2", record.id)  # as the LiDAR steps read a capture
+    depth, stored_amplitude = session.depth_capture("sn2", record.id)
+    assert points.shape == (record.n_points, 3) and amplitude.shape == (record.n_points,)
+    assert np.allclose(np.sort(points[:, 2]), np.sort(depth[depth > 0]), atol=1e-6)  # Z is the stored depth
+    assert np.isclose(np.sort(amplitude), np.sort(stored_amplitude[depth > 0])).all()
+
+
 def test_the_pose_table_export_and_report(solved) -> None:
     session, _ = solved
     summary = service.network_summary(session)

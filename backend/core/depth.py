@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 from backend.core.transforms import from_xyz_ypr, to_xyz_ypr
 
 POSE_COLUMNS = ("X", "Y", "Z", "RotZ", "RotY", "RotX")
@@ -84,6 +84,19 @@ def _rays(intrinsics: DepthIntrinsics) -> np.ndarray:
 
 KINECT_V2 = DepthIntrinsics(512, 424, fx=365.6, fy=365.6, cx=255.5, cy=211.5)
 """The Kinect v2's time-of-flight depth camera: 512x424 px, about 70 x 60 deg, used out to 9 m."""
+
+
+def stored_intrinsics(meta: dict) -> DepthIntrinsics:
+    """The pinhole a depth capture's metadata keeps (``meta["intrinsics"]``, :meth:`DepthIntrinsics.to_dict`), or
+    the Kinect v2's when it keeps none; malformed ones raise :class:`InputError`."""
+    stored = meta.get("intrinsics")
+    if not isinstance(stored, dict):
+        return KINECT_V2
+    try:
+        return DepthIntrinsics.from_dict(stored)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"the frame's intrinsics {shorten(stored)}: expected width, height, fx, fy, cx, cy",
+                         "intrinsics") from None
 
 
 def pose_from_row(row: tuple[float, float, float, float, float, float] | list[float]) -> np.ndarray:

@@ -25,7 +25,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from pydantic import ValidationError
 
-from backend.core.depth import KINECT_V2, DepthIntrinsics, pose_from_row
+from backend.core.depth import DepthIntrinsics, pose_from_row, stored_intrinsics
 from backend.core.depth_cell import CellLayout, Cross, TableSpec, default_cell_layout
 from backend.core.errors import InputError, shorten
 from backend.core.limits import MAX_IMAGE_PIXELS
@@ -186,14 +186,7 @@ def capture_node(session: Session, node: str, sample: Sample, arrangement: Arran
 
 def _sample_intrinsics(sample: Sample) -> DepthIntrinsics:
     """The pinhole a source put in ``sample.meta["intrinsics"]``, else the Kinect v2's."""
-    stored = sample.meta.get("intrinsics")
-    if not isinstance(stored, dict):
-        return KINECT_V2
-    try:
-        return DepthIntrinsics.from_dict(stored)
-    except (KeyError, TypeError, ValueError):
-        raise InputError(f"the frame's intrinsics {shorten(stored)}: expected width, height, fx, fy, cx, cy",
-                         "intrinsics") from None
+    return stored_intrinsics(sample.meta)
 
 
 def _amplitude_image(sample: Sample, shape: tuple[int, ...], valid_index: np.ndarray) -> np.ndarray | None:
@@ -255,8 +248,7 @@ def captures(session: Session, node: str, arrangement: str | None = None) -> lis
 
 def capture_intrinsics(record: CaptureRecord) -> DepthIntrinsics:
     """The pinhole a depth capture was taken with (stored in its meta; the Kinect v2's otherwise)."""
-    stored = record.meta.get("intrinsics")
-    return KINECT_V2 if not stored else DepthIntrinsics.from_dict(stored)
+    return stored_intrinsics(record.meta)
 
 
 def observations(session: Session, node: str, arrangement: str | None = None,

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from backend.core.depth import stored_intrinsics
 from backend.core.errors import InputError, NotFoundError
 from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.rig import Frame, Rig
@@ -418,9 +419,15 @@ class Session:
             self.rig = Rig(root=root)
 
     def capture_cloud(self, sensor: str, capture_id: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """Points (N, 3) float64 in the sensor frame (m) and intensity (N,) (None if never recorded)."""
+        """Points (N, 3) float64 in the sensor frame (m) and intensity (N,) (None if never recorded); a depth
+        capture gives its valid pixels through the pinhole it was taken with, and their IR amplitude."""
         check_name(capture_id, "capture")
         path = self._capture_dir(sensor) / f"{capture_id}.npy"
+        if not path.exists() and path.with_suffix(".npz").exists():
+            record = CaptureRecord.model_validate_json(path.with_suffix(".json").read_bytes())
+            depth, amplitude = self.depth_capture(sensor, capture_id)
+            points, index = stored_intrinsics(record.meta).unproject(depth)
+            return points, amplitude.ravel()[index]
         if not path.exists():
             raise (self._quarantined_error(path)
                    or NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture"))
