@@ -21,8 +21,6 @@ from backend.store.session import SessionStore
 from studio.app import StudioApp
 
 if TYPE_CHECKING:
-    from fastapi import FastAPI
-
     from backend.services.demo_depth_cell import DepthCellNodes
 
 
@@ -30,10 +28,11 @@ def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRunner, app: FastAPI,
+def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRunner,
                       studio: StudioApp) -> DepthCellNodes:
     """``demo --rig depth-cell``: the six simulated nodes' agent processes, connected to the studio's network (the
-    app's ``state.node_network``), and the session's build; the studio opens the session when it is ready.
+    process's open one, which the API's live captures use too), and the session's build; the studio opens the
+    session when it is ready.
 
     Run on the main thread: the agents are told to stop when the thread that started them ends (so a studio
     killed outright leaves none behind).
@@ -42,7 +41,6 @@ def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRu
 
     nodes = cell.start_depth_cell_nodes(store.root / cell.NODE_LOG_DIR,
                                         lambda name, why: _log(f"node agent {name} {why}"))
-    app.state.node_network = nodes.network
     studio.attach_node_network(nodes.network)
     _log(f"node agents {', '.join(nodes.agents.agents)} connect to {nodes.endpoint} (logs in {nodes.agents.log_dir})")
     _log(f"preparing the depth-cell session in {store.root}/{cell.DEPTH_CELL_NAME} ...")
@@ -82,7 +80,7 @@ def serve(args: argparse.Namespace) -> int:
     studio = StudioApp(viewer, store, jobs, api_url=f"http://{host}:{args.port}" if token is None else "")
     nodes = None
     if args.command == "demo" and args.rig == "depth-cell":
-        nodes = _start_depth_cell(args, store, jobs, app, studio)
+        nodes = _start_depth_cell(args, store, jobs, studio)
     elif args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
         _log(f"preparing the demo session in {store.root}/demo ...")
         studio.session_step.open_when_built(start_demo_build(store, jobs, fresh=args.fresh))

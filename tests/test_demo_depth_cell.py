@@ -159,6 +159,9 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
         record = response.json()
         assert record["image_size"] == [512, 424] and record["n_points"] > 100_000, record
     assert all(len(built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/nodes/{n}/captures")) == 3 for n in NODES)
+    presence = {p["name"]: p for p in built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/presence")}
+    assert sorted(presence) == sorted(NODES) and all(p["alive"] for p in presence.values()), presence
+    assert all(abs(p["clock_offset_s"]) < 0.05 for p in presence.values()), presence  # one host: one clock
 
 
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:

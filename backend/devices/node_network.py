@@ -467,7 +467,7 @@ class NetworkNode(CaptureDevice):
                 self._own.open()
             except InputError as exc:
                 raise DeviceError(exc.message, self.describe()) from None
-        self._network = self._own or (_OPEN[-1] if _OPEN else None)
+        self._network = self._own or open_network()
         if self._network is None:
             raise DeviceError("no node network is open in this studio (open one in the depth-network step, or "
                               "give this device listen or connect endpoints)", self.describe())
@@ -501,7 +501,13 @@ class NetworkNode(CaptureDevice):
 
 
 _OPEN: list[NodeNetwork] = []
-"""The networks open in this process, oldest first (:class:`NetworkNode` uses the last)."""
+"""The networks open in this process, oldest first (:func:`open_network` gives the last)."""
+
+
+def open_network() -> NodeNetwork | None:
+    """The node network this process opened last and still holds open (the studio's: the demo's, or the one its
+    depth-network step listens on), which the API's live captures and :class:`NetworkNode` use; None without one."""
+    return _OPEN[-1] if _OPEN else None
 
 
 def _trim(window: collections.deque, now: float) -> None:

@@ -1,16 +1,18 @@
 """A depth-camera network: layout, nodes, depth captures, solves, the guided procedure, verification, the map.
 
 Thin routes over :mod:`backend.services.depth_network` and :mod:`backend.services.depth_guided`; solves run as
-jobs (poll ``/api/jobs/{id}``). A live capture goes through the app's ``state.node_network`` (a
-:class:`~backend.devices.node_network.NodeNetwork` the server opens) when there is one.
+jobs (poll ``/api/jobs/{id}``). Presence and live captures go through the process's open
+:class:`~backend.devices.node_network.NodeNetwork` (the demo's, or the one the studio's depth-network step
+listens on) when there is one.
 """
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, File, Form, Query, Request, UploadFile
+from fastapi import APIRouter, File, Form, Query, UploadFile
 from fastapi.responses import PlainTextResponse
 
 from backend.api.depth_schemas import (
@@ -33,6 +35,7 @@ from backend.core.depth import pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.base import Sample
+from backend.devices.node_network import NodeNetwork, open_network
 from backend.services import depth_guided as guided
 from backend.services import depth_network as service
 
@@ -99,13 +102,26 @@ def upload_capture(sensor: str, session: deps.SessionDep, depth: Annotated[Uploa
                                 source=depth_name).model_dump()
 
 
-@router.post("/nodes/{sensor}/capture-live", status_code=201)
-def capture_live(sensor: str, body: LiveCapture, session: deps.SessionDep, request: Request) -> dict[str, Any]:
-    """Capture one full frame from the node's agent over the studio's node network (409 without one)."""
-    network = getattr(request.app.state, "node_network", None)
+def _network() -> NodeNetwork:
+    network = open_network()
     if network is None:
-        raise InputError("no node network is open in this server; start the studio with its node network, or "
-                         "upload the depth image", "node_network", 409)
+        raise InputError("no node network is open in this server: listen for nodes in the studio's depth-network "
+                         "step (or start calib-studio demo --rig depth-cell), or upload the depth image",
+                         "node_network", 409)
+    return network
+
+
+@router.get("/presence")
+def presence() -> list[dict[str, Any]]:
+    """The nodes the open node network sees or saw (alive, clock offset and round trip (s), bandwidth (B/s),
+    frames, rate (Hz), dropped frames, latency (s)); 409 without a network."""
+    return [{k: v for k, v in asdict(status).items() if k != "info"} for status in _network().nodes()]
+
+
+@router.post("/nodes/{sensor}/capture-live", status_code=201)
+def capture_live(sensor: str, body: LiveCapture, session: deps.SessionDep) -> dict[str, Any]:
+    """Capture one full frame from the node's agent over the studio's node network (409 without one)."""
+    network = _network()
     service.check_node(session, sensor)
     sample = network.capture(sensor, timeout_s=body.timeout_s)
     offset = next((s.clock_offset_s for s in network.nodes() if s.name == sensor), None)
