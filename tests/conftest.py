@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import fcntl
+import io
+import os
 import queue
 import re
 import shutil
@@ -63,6 +66,22 @@ def opencalib_frame() -> OpenCalibFrame:
     T = np.array(extrinsic["top_center_lidar-to-center_camera-extrinsic"]["param"]["sensor_calib"]["data"])
     cloud = read_cloud(OPENCALIB / "calib.pcd")
     return OpenCalibFrame(read_image(OPENCALIB / "calib.png"), cloud.points, cloud.intensity, camera, T)
+
+
+def cli_in_process(*args: str | Path, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """``calib-studio ARGS`` through :func:`studio.cli.main` in this process, run in ``cwd``: its exit code, stdout
+    and stderr. It is the code ``python -m studio.cli`` runs (its ``__main__`` exits with what ``main`` returns), less
+    the interpreter and the imports, a few seconds of start-up per call; for the refusals, where that start-up is
+    nearly all the time. The contracts themselves keep a real subprocess."""
+    from studio import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.chdir(cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = cli.main([str(arg) for arg in args])
+        except SystemExit as exc:  # what the process would exit with, had anything called sys.exit
+            code = exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess(["calib-studio", *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="session")
@@ -152,12 +171,21 @@ class Studio:
 @pytest.fixture(scope="session")
 def demo_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A sessions folder holding the demo session, built once per run (about 40 s) and copied by every test
-    that wants a demo of its own (:func:`fresh_demo`)."""
+    that wants a demo of its own (:func:`fresh_demo`). Under pytest-xdist the workers share one: the first to
+    need it builds it in the run's common temp folder while holding a lock, the others wait and read it."""
     from backend.services.demo import ensure_demo_session
     from backend.store.session import SessionStore
 
-    root = tmp_path_factory.mktemp("demo_template")
-    ensure_demo_session(SessionStore(root))
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        root = tmp_path_factory.mktemp("demo_template")
+        ensure_demo_session(SessionStore(root))
+        return root
+    shared = tmp_path_factory.getbasetemp().parent  # this run's folder, above every worker's own
+    root = shared / "demo_template"
+    # fcntl rather than the filelock package (not a dependency): one POSIX lock file, released when closed
+    with (shared / "demo_template.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        ensure_demo_session(SessionStore(root))  # builds it when missing, else only reads it
     return root
 
 

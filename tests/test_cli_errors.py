@@ -1,6 +1,8 @@
 """``calib-studio`` error paths (issue 12, item 7): every failure is the one-line error (and the JSON error with
 ``--json``); output paths are refused before the solve; an output that fails after the solve loses no result;
-echoed values are truncated; YAML alias, size and nesting bombs are refused."""
+echoed values are truncated; YAML alias, size and nesting bombs are refused. The refusals run ``main`` in this
+process (:func:`conftest.cli_in_process`); an argument error and the outputs failing after a solve run the command
+as a subprocess."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import cli_in_process
 from test_cli import BOARD, REPO, assert_json_failure, copy_images
 
 from backend.core.errors import InputError, shorten
@@ -66,7 +69,7 @@ def _unwritable_outputs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 @pytest.mark.parametrize("case", ["parent is a file", "is a folder", "missing folder", "proc"])
 def test_intrinsics_unwritable_out_refused_before_the_solve(images, tmp_path: Path, case: str):
     out, words = _unwritable_outputs(tmp_path)[case]
-    run = cli("intrinsics", images, "--board", BOARD, "--out", out, "--json")
+    run = cli_in_process("intrinsics", images, "--board", BOARD, "--out", out, "--json")
     error = assert_json_failure(run)
     assert error["input"] == str(out) and words in error["message"] and str(out) in error["message"]
     assert "detecting the board" not in run.stderr  # refused before any image was read
@@ -75,19 +78,19 @@ def test_intrinsics_unwritable_out_refused_before_the_solve(images, tmp_path: Pa
 
 def test_multicam_outputs_refused_before_the_solve(images, tmp_path: Path):
     out, words = _unwritable_outputs(tmp_path)["parent is a file"]
-    run = cli("multicam", "--camera", f"left={images}", "--camera", f"right={images}", "--board", BOARD,
-              "--transforms", out)
+    run = cli_in_process("multicam", "--camera", f"left={images}", "--camera", f"right={images}", "--board", BOARD,
+                         "--transforms", out)
     last = assert_plain_failure(run)
     assert last == f"error: {out}: {out.parent} is a file, not a folder"
     assert "%]" not in run.stderr  # no progress: nothing was solved
-    run = cli("multicam", "--camera", f"left={images}", "--camera", f"right={images}", "--board", BOARD,
-              "--kalibr", tmp_path, "--json")
+    run = cli_in_process("multicam", "--camera", f"left={images}", "--camera", f"right={images}", "--board", BOARD,
+                         "--kalibr", tmp_path, "--json")
     assert assert_json_failure(run)["message"] == f"{tmp_path}: is a folder; expected the path of a file to write"
 
 
 def test_export_out_refused_before_the_session_is_read(tmp_path: Path):
     out, words = _unwritable_outputs(tmp_path)["is a folder"]
-    last = assert_plain_failure(cli("export", tmp_path / "no_such_session", "--format", "rig", "--out", out))
+    last = assert_plain_failure(cli_in_process("export", tmp_path / "no_such_session", "--format", "rig", "--out", out))
     assert words in last and str(out) in last and "no_such_session" not in last
 
 
@@ -96,7 +99,7 @@ def test_export_replaces_an_existing_out_whole_keeping_its_mode(tmp_path: Path):
     out = tmp_path / "rig.yaml"
     out.write_text("old contents\n")
     out.chmod(0o640)
-    run = cli("export", session.path, "--format", "rig", "--out", out)
+    run = cli_in_process("export", session.path, "--format", "rig", "--out", out)
     assert run.returncode == 0 and run.stdout == "", run.stderr
     assert load_rig_transforms(out) == [] and stat.S_IMODE(out.stat().st_mode) == 0o640
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml", "sessions"]  # no temp or probe file left
@@ -159,7 +162,7 @@ def test_alias_bomb_as_camera_refused(tmp_path: Path):
     bomb = tmp_path / "camera.yaml"
     bomb.write_text(_alias_bomb())
     assert bomb.stat().st_size < 600
-    run = cli("lidar-camera", "--camera", bomb, "--pair", PAIR, "--init-xyzypr", "0,0,0,0,0,0", "--json")
+    run = cli_in_process("lidar-camera", "--camera", bomb, "--pair", PAIR, "--init-xyzypr", "0,0,0,0,0,0", "--json")
     error = assert_json_failure(run)
     assert error["input"] == str(bomb)
     assert "alias (*a)" in error["message"] and "aliases are not accepted" in error["message"]
@@ -169,17 +172,17 @@ def test_alias_bomb_as_camera_refused(tmp_path: Path):
 def test_size_bomb_and_endless_file_as_camera_refused(tmp_path: Path):
     big = tmp_path / "camera.yaml"
     big.write_text(dump_camera_info(CAM_FRONT, "cam") + "# padding\n" * 200_000)  # 2 MB of a valid file
-    error = assert_json_failure(cli("lidar-camera", "--camera", big, "--pair", PAIR, "--json"))
+    error = assert_json_failure(cli_in_process("lidar-camera", "--camera", big, "--pair", PAIR, "--json"))
     assert error["input"] == str(big) and "1000000-byte limit" in error["message"]
     # a device that never ends is refused after the limit is read, not read until memory runs out
-    error = assert_json_failure(cli("lidar-camera", "--camera", "/dev/zero", "--pair", PAIR, "--json"))
+    error = assert_json_failure(cli_in_process("lidar-camera", "--camera", "/dev/zero", "--pair", PAIR, "--json"))
     assert error["input"] == "/dev/zero" and "1000000-byte limit" in error["message"]
 
 
 def test_deep_nesting_refused(tmp_path: Path):
     deep = tmp_path / "camera.yaml"
     deep.write_text("image_width: " + "[" * 50_000 + "]" * 50_000 + "\n")
-    error = assert_json_failure(cli("lidar-camera", "--camera", deep, "--pair", PAIR, "--json"))
+    error = assert_json_failure(cli_in_process("lidar-camera", "--camera", deep, "--pair", PAIR, "--json"))
     assert "nested more than 20 levels deep" in error["message"] and error["input"] == str(deep)
 
 
@@ -196,7 +199,7 @@ def test_long_values_truncated_in_messages(tmp_path: Path):
     huge = "x" * 100_000
     camera = tmp_path / "camera.yaml"
     camera.write_text(dump_camera_info(CAM_FRONT, "cam").replace("image_width: 1280", f"image_width: {huge}"))
-    error = assert_json_failure(cli("lidar-camera", "--camera", camera, "--pair", PAIR, "--json"))
+    error = assert_json_failure(cli_in_process("lidar-camera", "--camera", camera, "--pair", PAIR, "--json"))
     assert error["message"].startswith(f"{camera}: field 'image_width' is 'xxx")
     assert "xxx...xxx" in error["message"] and len(error["message"]) < 400
     assert error["message"].endswith("expected a positive integer (pixels)")  # what was expected survives the cut
@@ -204,10 +207,10 @@ def test_long_values_truncated_in_messages(tmp_path: Path):
     good = tmp_path / "good.yaml"
     good.write_text(dump_camera_info(CAM_FRONT, "cam"))
     runs = {
-        "--pair": cli("lidar-camera", "--camera", good, "--pair", huge, "--json"),
-        "--init-xyzypr": cli("lidar-camera", "--camera", good, "--pair", PAIR, "--method", "edges",
-                             "--init-xyzypr", huge, "--json"),
-        "board": cli("intrinsics", tmp_path, "--board", huge, "--json"),
+        "--pair": cli_in_process("lidar-camera", "--camera", good, "--pair", huge, "--json"),
+        "--init-xyzypr": cli_in_process("lidar-camera", "--camera", good, "--pair", PAIR, "--method", "edges",
+                                        "--init-xyzypr", huge, "--json"),
+        "board": cli_in_process("intrinsics", tmp_path, "--board", huge, "--json"),
     }
     for option, run in runs.items():
         error = assert_json_failure(run)
