@@ -98,7 +98,7 @@ def nodes_markdown(statuses: list, nodes: list[str], captures: dict[str, int]) -
     (ms, node minus studio) and round trip (ms), its stream's bandwidth (kB/s), frames/s and latency (ms),
     and the captures stored; then each node's warnings (a clock far off)."""
     by_name = {s.name: s for s in statuses}
-    rows = ["| node | present | device | clock offset (ms) | RTT (ms) | kB/s | frames/s | latency (ms) | captures |",
+    rows = ["| node | present | device | clock Δ (ms) | RTT (ms) | kB/s | frames/s | latency (ms) | stored |",
             "|---|---|---|---|---|---|---|---|---|"]
     warnings = []
     for name in dict.fromkeys([*nodes, *by_name]):
@@ -213,8 +213,10 @@ class DepthNetworkStep:
                                                          "the card of *Automatic solve* to accept")
                 self.finish_text = gui.add_markdown("")
             with gui.add_folder("Automatic solve", expand_by_default=True):
-                self.solve_button = gui.add_button("Solve all nodes", color="blue")
-                self.solve_node_button = gui.add_button("Solve this node")
+                self.solve_button = gui.add_button("Solve all nodes", color="blue", hint="every node with captures, "
+                                                   "each result accepted when its verdict is trusted")
+                self.solve_node_button = gui.add_button("Solve this node", hint="its result on the card below, to "
+                                                        "accept after the preview")
                 self.solve_jobs = JobPanel(ctx, [self.solve_button, self.solve_node_button])
                 self.history = ResultHistory(gui, lambda _: self._show_result(),
                                              hint="every result of this node (guided and automatic), newest first")
@@ -246,8 +248,8 @@ class DepthNetworkStep:
         self.apply_button.on_click(lambda _: self._work(self._apply))
         self.next_button.on_click(lambda _: self._work(self._next_step))
         self.finish_button.on_click(lambda _: self._work(self._finish))
-        self.solve_button.on_click(lambda _: self._solve(self.nodes))
-        self.solve_node_button.on_click(lambda _: self._solve([self.current]))
+        self.solve_button.on_click(lambda _: self._solve_all())
+        self.solve_node_button.on_click(lambda _: self._solve_node())
         self.map_button.on_click(lambda _: self._draw_map())
         self.pick_button.on_click(lambda _: self._arm_pick())
         self.verify_button.on_click(lambda _: self._work(self._verify))
@@ -480,8 +482,7 @@ class DepthNetworkStep:
             return
         self._keep_editor_pose(node)
         record = guided_service.finish(self.ctx.session, node)
-        self.history.fill(self._results(), record["id"])
-        self._show_result()
+        self._show_result(select=record["id"])
         level = Verdict.from_record(record).level
         self.finish_text.content = (f"Kept as **{record['id']}** (guided, verdict {level}): accept it on the card "
                                     "below, under the automatic solve.")
@@ -539,37 +540,40 @@ class DepthNetworkStep:
         node = self.current
         return [] if node is None else [r["id"] for r in reversed(self.ctx.session.results(node, KIND))]
 
-    def _show_result(self) -> None:
+    def _show_result(self, select: str | None = None) -> None:
+        """The node's results (``select``, else the one picked, else the newest) on its card, and the tables."""
         session, node = self.ctx.session, self.current
         if session is None or node is None:
             self.card.show(None, None)
             return
-        selected = self.history.fill(self._results(), self.history.selected)
+        selected = self.history.fill(self._results(), select or self.history.selected)
         accepted = session.accepted(edge_slot(network_service.WORLD, node))
         self.card.show(None if selected is None else session.result(selected), accepted)
         self._show_tables()
 
-    def _solve(self, nodes: list[str | None]) -> None:
-        session, nodes = self.ctx.session, [n for n in nodes if n is not None]
-        if not nodes:
+    def _solve_all(self) -> None:
+        """Solve every node with captures and accept each result its verdict lets in (the CLI's ``--solve``)."""
+        session = self.ctx.session
+        if session is None:
             return
-
-        def work(progress) -> list[str]:
-            ids = []
-            for i, node in enumerate(nodes):
-                ids.append(network_service.solve_node(session, node, progress=lambda f, m, i=i: progress(
-                    (i + f) / len(nodes), f"{nodes[i]}: {m}"))["id"])
-            return ids
-
         self._in_view()
-        self.solve_jobs.run(f"solve of {', '.join(nodes)}", work, lambda ids: self._on_solved(nodes, ids))
+        self.solve_jobs.run("solve of every node", lambda progress: network_service.solve_network(
+            session, progress=progress), self._on_network_solved)
 
-    def _on_solved(self, nodes: list[str], ids: list[str]) -> None:
-        """Show the current node's new result (or the last node's when it was not among them)."""
-        if self.current not in nodes:
-            self.node.value = nodes[-1]
-        self.history.fill(self._results(), ids[nodes.index(self.current)])
-        self._show_result()
+    def _on_network_solved(self, out: dict[str, Any]) -> None:
+        lines = [f"Solved {len(out['results'])} node(s), accepted {len(out['accepted'])} into the rig."]
+        lines += [f"- ⚠️ {problem}" for problem in out["problems"]]
+        self.solve_jobs.text.content = "\n".join(lines)
+        self.ctx.rig_changed()  # the card, the tables and the scene follow (on_rig_changed)
+
+    def _solve_node(self) -> None:
+        """Solve the current node (not accepted: its card shows the result to accept)."""
+        session, node = self.ctx.session, self.current
+        if node is None:
+            return
+        self._in_view()
+        self.solve_jobs.run(f"solve of {node}", lambda progress: network_service.solve_node(
+            session, node, progress=progress)["id"], lambda result_id: self._show_result(select=result_id))
 
     # -- the whole network ------------------------------------------------------------------------
     def _draw_map(self) -> None:
