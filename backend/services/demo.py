@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import shutil
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 from backend.devices.base import create_device
@@ -62,24 +63,34 @@ def _retire(store: SessionStore, name: str) -> None:
         old.rename(store.root / f"{name}-old-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
-def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int = DEMO_VIEWS,
-                        progress: ProgressCallback = no_progress) -> Session:
-    """Open the demo session, building it from the simulator if missing (or ``fresh``).
+def ensure_staged_session(store: SessionStore, name: str, staging_dir: str, build: Callable[[SessionStore], Session],
+                          *, fresh: bool = False) -> Session:
+    """Open the session ``name``, building it if missing (or ``fresh``: the old one is moved aside, never deleted).
 
-    ``progress`` hears the whole build's fraction (0..1) and what it is doing. The build runs in
-    :data:`STAGING_DIR` and the finished session is renamed into ``store.root``.
+    ``build`` creates it in a store at ``staging_dir`` under ``store.root``, and the finished session is renamed
+    into place whole, so a build that is interrupted never leaves a half-built session behind.
     """
     if fresh:
-        _retire(store, DEMO_NAME)
-    if (store.root / DEMO_NAME).exists():
-        return store.get(DEMO_NAME)
-    staging = store.root / STAGING_DIR
+        _retire(store, name)
+    if (store.root / name).exists():
+        return store.get(name)
+    staging = store.root / staging_dir
     if staging.exists():  # left by an interrupted build: only the simulator's frames, nothing of a user's
         shutil.rmtree(staging)
-    _build(SessionStore(staging), views, progress)
-    (staging / DEMO_NAME).rename(store.root / DEMO_NAME)
+    build(SessionStore(staging))
+    (staging / name).rename(store.root / name)
     staging.rmdir()
-    return store.get(DEMO_NAME)
+    return store.get(name)
+
+
+def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int = DEMO_VIEWS,
+                        progress: ProgressCallback = no_progress) -> Session:
+    """Open the demo session, building it from the simulator in :data:`STAGING_DIR` if missing (or ``fresh``).
+
+    ``progress`` hears the whole build's fraction (0..1) and what it is doing.
+    """
+    return ensure_staged_session(store, DEMO_NAME, STAGING_DIR, lambda staging: _build(staging, views, progress),
+                                 fresh=fresh)
 
 
 def start_demo_build(store: SessionStore, jobs: JobRunner, *, fresh: bool = False) -> Job:

@@ -21,7 +21,6 @@ The session is built in :data:`STAGING_DIR` and moved into place whole, as the r
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +35,7 @@ from backend.core.transforms import apply_params
 from backend.devices.base import create_device
 from backend.devices.node_network import NodeNetwork
 from backend.services import depth_network
-from backend.services.demo import _retire
+from backend.services.demo import ensure_staged_session
 from backend.services.jobs import Job, JobRunner
 from backend.services.node_processes import NodeProcesses, free_tcp_port
 from backend.sim.depth_cell import table_placements, truth_dict
@@ -96,19 +95,10 @@ def demo_placements(layout: CellLayout) -> dict[str, list[TablePlacement]]:
 
 def ensure_depth_cell_session(store: SessionStore, *, fresh: bool = False,
                               progress: ProgressCallback = no_progress) -> Session:
-    """Open the depth-cell session, building it from the simulator if missing (or ``fresh``: the old one is moved
-    aside, never deleted). ``progress`` hears the build's fraction (0..1) and what it is doing."""
-    if fresh:
-        _retire(store, DEPTH_CELL_NAME)
-    if (store.root / DEPTH_CELL_NAME).exists():
-        return store.get(DEPTH_CELL_NAME)
-    staging = store.root / STAGING_DIR
-    if staging.exists():  # left by an interrupted build: only the simulator's frames, nothing of a user's
-        shutil.rmtree(staging)
-    _build(SessionStore(staging), progress)
-    (staging / DEPTH_CELL_NAME).rename(store.root / DEPTH_CELL_NAME)
-    staging.rmdir()
-    return store.get(DEPTH_CELL_NAME)
+    """Open the depth-cell session, building it from the simulator in :data:`STAGING_DIR` if missing (or ``fresh``:
+    the old one is moved aside, never deleted). ``progress`` hears the build's fraction (0..1) and what it does."""
+    return ensure_staged_session(store, DEPTH_CELL_NAME, STAGING_DIR, lambda staging: _build(staging, progress),
+                                 fresh=fresh)
 
 
 def start_depth_cell_build(store: SessionStore, jobs: JobRunner, *, fresh: bool = False) -> Job:
