@@ -605,9 +605,9 @@ class DepthNetworkStep:
         """The next click in the 3D view picks a point: a detected cross near the ray, else the nearest point."""
         scene = self.ctx.server.scene
 
-        @scene.on_pointer_event("click")
-        def _(event) -> None:
-            scene.remove_pointer_callback()
+        @scene.on_click()
+        def picked(event) -> None:
+            scene.remove_click_callback(picked)
             try:
                 self._picked = network_service.pick(self.ctx.session, event.ray_origin, event.ray_direction)
             except InputError as exc:
