@@ -138,11 +138,10 @@ def suggestion_label(suggestion: dict[str, float]) -> str:
 
 
 def criterion_markdown(advice: dict[str, Any]) -> str:
-    """The step's done criterion with its tick, why the step comes here, and the problems the solver met
-    (``advice``: :func:`backend.services.depth_guided.advice_dict`)."""
+    """The step's done criterion with its tick and the problems the solver met (``advice``:
+    :func:`backend.services.depth_guided.advice_dict`; why the step comes here is in :data:`INSTRUCTIONS`)."""
     tick = "✅ **Done**" if advice["done"] else "⬜ **Not yet**"
-    lines = [f"{tick}: {advice['criterion']}"] + (["", f"*{advice['why']}*"] if advice["why"] else [])
-    return "\n".join(lines + [f"- ⚠️ {problem}" for problem in advice["problems"]])
+    return "\n".join([f"{tick}: {advice['criterion']}", *(f"- ⚠️ {problem}" for problem in advice["problems"])])
 
 
 def verification_markdown(rows: list[dict[str, Any]]) -> str:
@@ -175,7 +174,10 @@ class DepthNetworkStep:
         self._lock = threading.Lock()
         """Held by each advice pass, so that leaving a session waits for the one in flight."""
         self._points: tuple[str, np.ndarray] | None = None
-        """(capture id, points (N, 3) m in the node frame) of the node's latest capture, drawn at the editor pose."""
+        """(``node/capture id``, points (N, 3) m in the node frame) of the node's latest capture, drawn at the
+        editor's pose."""
+        self._stored: dict[str, int] = {}
+        """Depth captures stored per node (the presence table's last column), counted when they change."""
         self._crosses: dict[str, dict[str, Any]] = {}
         self._picked: dict[str, Any] | None = None
         gui = ctx.server.gui
@@ -290,7 +292,7 @@ class DepthNetworkStep:
     def _close(self) -> None:
         """Leave the open session: the advice in flight ends first, and the scene is redrawn afresh."""
         with self._lock:
-            self._measured, self._points, self._picked, self._crosses = None, None, None, {}
+            self._measured, self._points, self._picked, self._crosses, self._stored = None, None, None, {}, {}
             self.view.forget()
 
     def _on_session(self, session) -> None:
@@ -302,6 +304,7 @@ class DepthNetworkStep:
         if not nodes:
             self.view.look_at(None)
             return
+        self._count_captures()
         cell = network_service.layout(session)
         self.view.look_at(cell)
         self.view.show_cell(cell)
@@ -362,8 +365,7 @@ class DepthNetworkStep:
         if session is None or network is None or not self.folder.visible:
             return
         statuses = network.nodes()
-        captures = {node: len(network_service.captures(session, node)) for node in self.nodes}
-        self.nodes_text.content = nodes_markdown(statuses, self.nodes, captures)
+        self.nodes_text.content = nodes_markdown(statuses, self.nodes, self._stored)
         self.place_button.visible = self.step in SIM_ARRANGEMENTS and any(
             s.alive and str(s.device).startswith("sim") for s in statuses)
 
@@ -400,10 +402,14 @@ class DepthNetworkStep:
             self.ctx.notify("Not every node was captured", "; ".join(f"{n}: {w}" for n, w in failures.items()),
                             error=True)
         self.capture_jobs.text.content = text
+        self._count_captures()
         self._show_nodes()
         self._list_crosses()
         self._measured = None  # a new capture: measure again
         self._wake.set()
+
+    def _count_captures(self) -> None:
+        self._stored = {node: len(network_service.captures(self.ctx.session, node)) for node in self.nodes}
 
     def _place_tables(self) -> None:
         """Move the simulated tables where this step wants them in the node's view (the sim cell's nodes)."""
