@@ -25,6 +25,7 @@ STEPS: dict[str, str] = {
     "lidar_camera": "Step 6 · LiDAR to camera",
     "multicam": "Step 7 · Multi-camera",
     "rig": "Step 8 · Rig",
+    "depth_network": "Step 9 · Depth network",
 }
 """Every wizard step by its layer-group name, with how the step selector names it."""
 LAYER_GROUPS: dict[str, str] = {
@@ -34,6 +35,7 @@ LAYER_GROUPS: dict[str, str] = {
     "lidar_camera": "Coloured cloud (step 6)",
     "multicam": "Solved cameras (step 7)",
     "rig": "Rig tree (step 8)",
+    "depth_network": "Depth network (step 9)",
 }
 """The steps that draw layers of their own, with their checkbox labels."""
 ALL_STEPS = "All steps"
