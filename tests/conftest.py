@@ -195,15 +195,17 @@ def fresh_demo(template: Path, sessions: Path) -> Path:
     return sessions
 
 
-def start_demo(sessions: Path, free_port: Callable[[], int], log: Path) -> tuple[subprocess.Popen, int, int]:
-    """``calib-studio demo`` on ``sessions`` in a subprocess (stdout piped, stderr into ``log``), on two free
-    ports: the process, the API's port and the viewer's."""
+def start_demo(sessions: Path, free_port: Callable[[], int], log: Path, command: tuple[str, ...] = ("demo",)
+               ) -> tuple[subprocess.Popen, int, int]:
+    """``calib-studio demo`` (or another serving ``command``: ``("serve",)``, ``("demo", "--rig", "depth-cell")``)
+    on ``sessions`` in a subprocess (stdout piped, stderr into ``log``), on two free ports: the process, the API's
+    port and the viewer's."""
     api_port, viewer_port = free_port(), free_port()
     while viewer_port == api_port:
         viewer_port = free_port()
     with log.open("wb") as stderr:
         process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "demo", "--sessions", str(sessions), "--port", str(api_port),
+            [sys.executable, "-m", "studio.cli", *command, "--sessions", str(sessions), "--port", str(api_port),
              "--viewer-port", str(viewer_port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
     return process, api_port, viewer_port
 

@@ -27,7 +27,7 @@ from backend.core.depth_cell import PAPER_NODE_POSES
 from backend.core.transforms import transform_error
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, MOUNT_SIGMA, TAPE_ERROR_DEG, TAPE_ERROR_M, TRUTH_FILE
 from backend.services.node_processes import NodeProcesses, free_tcp_port
-from tests.conftest import ROOT, Studio, stop_process, wait_health
+from tests.conftest import ROOT, Studio, start_demo, stop_process, wait_health
 
 pytestmark = pytest.mark.slow
 
@@ -74,15 +74,8 @@ def wait_for(check: Callable[[], bool], timeout_s: float, what: Callable[[], str
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[CellStudio]:
     tmp = tmp_path_factory.mktemp("depth_cell")
-    api_port, viewer_port = free_port(), free_port()
-    while viewer_port == api_port:
-        viewer_port = free_port()
     log = tmp / "studio.log"
-    with log.open("wb") as stderr:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "demo", "--rig", "depth-cell", "--sessions", str(tmp / "sessions"),
-             "--port", str(api_port), "--viewer-port", str(viewer_port)],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    process, api_port, viewer_port = start_demo(tmp / "sessions", free_port, log, ("demo", "--rig", "depth-cell"))
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
     studio = CellStudio("", f"http://127.0.0.1:{api_port}", process, log, viewer_port, tmp / "sessions")

@@ -18,8 +18,6 @@ import json
 import queue
 import re
 import shutil
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -32,10 +30,10 @@ import pytest
 import viser
 from conftest import (
     ARTIFACTS,
-    ROOT,
     Studio,
     button,
     choose,
+    start_demo,
     stop_process,
     studio_page,
     text_input,
@@ -78,15 +76,8 @@ def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int])
     tmp = tmp_path_factory.mktemp("depth_studio")
     ensure_depth_cell_session(SessionStore(tmp / PRISTINE))
     shutil.copytree(tmp / PRISTINE, tmp / "sessions")
-    api_port, viewer_port = free_port(), free_port()
-    while viewer_port == api_port:
-        viewer_port = free_port()
     log = tmp / "studio.log"
-    with log.open("wb") as stderr:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "serve", "--sessions", str(tmp / "sessions"), "--port",
-             str(api_port), "--viewer-port", str(viewer_port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=stderr,
-            text=True)
+    process, api_port, _ = start_demo(tmp / "sessions", free_port, log, ("serve",))
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
     studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
