@@ -321,26 +321,16 @@ COVERED_JS = """el => { el.scrollIntoView({block: "center"}); const r = el.getBo
 """Whether something else than the element (or a child of it) is under the element's centre (scrolled into view)."""
 
 
-def reopen_if_covered(page: Page, folder: str, row: Locator, settle_s: float = 5.0, timeout_s: float = 15.0) -> bool:
-    """Make ``row``, inside the GUI folder titled ``folder``, clickable; True if it stayed covered and the folder
-    was closed and opened again.
+def assert_uncovered(row: Locator, timeout_s: float = 15.0) -> None:
+    """Fail unless ``row`` shows and, within ``timeout_s``, nothing covers its centre.
 
     A viser 1.1.1 folder (Mantine 9's ``Collapse``) that went empty and was filled again while a folder around it
     was closed stays at height 0 for good: its opening transition ran under ``display: none``, so no
     ``transitionend`` came to let it grow. Its rows are then "visible" to Playwright (they keep their own size) but
-    the folder's frame covers them ("... mantine-Paper-root intercepts pointer events"). This hits a user too:
-    adding a sensor re-opens the session and refills the LiDAR step's *Show live* boxes while that step is closed.
-    A folder still opening covers its rows for a moment too (seconds on a loaded machine): ``settle_s`` tells the
-    two apart. Then, like the user, close the folder and open it again."""
+    the folder's frame covers them ("... mantine-Paper-root intercepts pointer events"), for a user too. A folder
+    still opening covers its rows for a moment (seconds on a loaded machine), hence the wait."""
     expect(row).to_be_visible()
-    if _uncovered(row, settle_s):
-        return False
-    title = page.get_by_text(folder, exact=True)
-    title.click()
-    expect(row).to_be_hidden()  # a closed folder's rows are display: none once its closing transition ended
-    title.click()
-    assert _uncovered(row, timeout_s), f"{folder!r} closed and opened again, but its row is still covered"
-    return True
+    assert _uncovered(row, timeout_s), f"{row} is covered by its folder's frame (a folder stuck at height 0?)"
 
 
 def _uncovered(row: Locator, timeout_s: float) -> bool:

@@ -23,7 +23,8 @@ from backend.core.depth import KINECT_V2, pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, TablePlacement
 from backend.core.errors import InputError
 from backend.core.transforms import transform_points
-from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device, register_driver
+from backend.devices import base
+from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device
 from backend.devices.device_spec import parse_device_spec
 from backend.devices.node_agent import run_agent
 from backend.devices.node_network import NodeNetwork
@@ -36,9 +37,11 @@ BIG_POINTS = {"big1": 70_000, "big10": 700_000}
 """Points of each in-process test cloud: about 1 MB and 10 MB of frame (14.5 bytes a point, incompressible)."""
 
 
-@register_driver
 class NoiseCloud(CaptureDevice):
-    """A test LiDAR: ``points`` random points in a 100 m cube (fixed per seed), 10 reads a second at most."""
+    """A test LiDAR: ``points`` random points in a 100 m cube (fixed per seed), 10 reads a second at most.
+
+    Registered only while the module's ``cell`` fixture runs, so other modules see the built-in drivers alone.
+    """
 
     driver = "test_noise_cloud"
 
@@ -81,6 +84,12 @@ def ready(network: NodeNetwork, names: list[str]) -> bool:
 
 @pytest.fixture(scope="module")
 def cell() -> Iterator[tuple[NodeNetwork, dict[str, subprocess.Popen]]]:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(base._DRIVERS, NoiseCloud.driver, NoiseCloud)
+        yield from _cell()
+
+
+def _cell() -> Iterator[tuple[NodeNetwork, dict[str, subprocess.Popen]]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     network = NodeNetwork(listen=[endpoint])
     network.open()

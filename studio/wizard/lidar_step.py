@@ -179,12 +179,20 @@ class LidarStep:
         self.histogram.image = cc.distance_histogram(np.zeros(0), self.max_correspondence_m)
 
     def _on_session(self, session) -> None:
-        for box in self.show.values():
-            box.remove()
         lidars = self._lidars()
+        old, self.show = self.show, {}
+        # Boxes of LiDARs still there are kept and new ones go in before the gone ones go: a viser folder emptied
+        # and refilled while its step is closed stays at height 0, its frame covering its rows.
         with self.sensor_folder:
-            self.show = {name: self.ctx.server.gui.add_checkbox(name, initial_value=_live_by_default(session, name))
-                         for name in lidars}
+            for name in lidars:
+                ticked = _live_by_default(session, name)
+                if name in old:
+                    self.show[name] = old.pop(name)
+                    self.show[name].value = ticked
+                else:
+                    self.show[name] = self.ctx.server.gui.add_checkbox(name, initial_value=ticked)
+        for box in old.values():
+            box.remove()
         self.imports.set_lidars(lidars)
         options = lidars or [NONE]
         self.source.options, self.target.options = options, options

@@ -12,7 +12,7 @@ from dataclasses import asdict
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, File, Form, Query, UploadFile
+from fastapi import APIRouter, Depends, File, Form, Query, UploadFile
 from fastapi.responses import PlainTextResponse
 
 from backend.api.depth_schemas import (
@@ -111,10 +111,10 @@ def _network() -> NodeNetwork:
     return network
 
 
-@router.get("/presence")
+@router.get("/presence", dependencies=[Depends(deps.session)])
 def presence() -> list[dict[str, Any]]:
     """The nodes the open node network sees or saw (alive, clock offset and round trip (s), bandwidth (B/s),
-    frames, rate (Hz), dropped frames, latency (s)); 409 without a network."""
+    frames, rate (Hz), dropped frames, latency (s)); 404 for an unknown session, 409 without a network."""
     return [{k: v for k, v in asdict(status).items() if k != "info"} for status in _network().nodes()]
 
 
