@@ -21,6 +21,7 @@ from test_depth_network_service import pose_error, render_captures, typed_pose
 from backend.api.app import create_app
 from backend.core.depth import pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
+from backend.core.transforms import transform_error
 from backend.sim.depth_cell import CellScene
 
 BASE = "/api/sessions/cell/depth-network"
@@ -96,7 +97,13 @@ def test_the_guided_procedure_reaches_10_mm(client: TestClient) -> None:
     record = record.json()
     assert (record["kind"], record["method"], record["parent"], record["child"]) == (
         "depth_node", "guided", "world", "sn1")
-    assert record["verdict"]["level"] == "check"  # 0.3 deg assumed for a pose set by hand, above 0.2 deg
+    least_squares = record["diagnostics"]["least_squares"]
+    assert "problem" not in least_squares, least_squares
+    # its sigma (from the least-squares solve of the same captures and the offset from it) covers its error
+    error_m, error_deg = transform_error(np.array(record["T_parent_child"]), pose_from_row(PAPER_NODE_POSES["sn1"]))
+    assert np.all(np.abs(error_m) <= 3 * np.array(record["std"]["trans_m"])), (error_m, record["std"])
+    assert np.all(np.abs(error_deg) <= 3 * np.array(record["std"]["rot_deg"])), (error_deg, record["std"])
+    assert record["verdict"]["level"] == "trusted", record["verdict"]  # 0.5 mm, 0.006 deg here
     summary = client.get(f"{BASE}/summary").json()
     assert summary["nodes"]["sn1"]["result_id"] == record["id"]
     assert pose_error(summary["nodes"]["sn1"]["T_world_node"], "sn1")[0] < 0.010

@@ -148,10 +148,9 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         _apply_until_done(page, "studio_depth_lines.png")
         _heights_within(page, TABLE_TOLERANCE_M)  # the lines' distances, same tolerance
         button(page, "Keep this pose as the node's result").click()
-        result_id = wait_body(page, re.compile(r"Kept as (r\d+) \(guided, verdict check\)"), 60).group(1)
+        result_id = wait_body(page, re.compile(r"Kept as (r\d+) \(guided, verdict trusted\)"), 90).group(1)
         wait_body(page, re.compile(rf"{result_id} \(not accepted\) · depth_node · guided"), 30)
         page.screenshot(path=ARTIFACTS / "studio_depth_result.png")
-        page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()
         page.get_by_role("button", name="Accept", exact=True).filter(visible=True).last.click()
         page.get_by_role("button", name="Apply accept", exact=True).filter(visible=True).click()
         wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), 30)

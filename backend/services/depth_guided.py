@@ -23,6 +23,7 @@ import numpy as np
 
 from backend.core.depth import pose_from_row, pose_row
 from backend.core.errors import InputError, shorten
+from backend.core.transforms import params_between
 from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 from backend.services import depth_network as network
 from backend.services import rig as rig_service
@@ -192,10 +193,13 @@ def finish(session: Session, node: str, *, accept: bool = False, confirm: bool =
     ``world``) and return its stored record; with ``accept``, accept it into the rig too (a ``check`` verdict
     needs ``confirm``).
 
-    Covariance: the transform set by hand's (:data:`backend.services.rig.MANUAL_SIGMA`, 5 mm and 0.3 deg per
-    axis): the residuals say the criteria hold, not how far the pose may still be off within them. Verdict:
-    those sigmas against the default tolerances, and as the cross-check every step's criterion re-measured at
-    the final pose (a nudge after a step may have undone it)."""
+    Covariance: the criteria holding says little of how far the pose may still be off within them, so the
+    node's captures are solved by least squares from the final pose (:func:`_least_squares_check`); the pose
+    is off the truth by its offset from that solution plus that solution's own error, so its covariance is
+    the solution's plus the offset's outer product. When the captures cannot fix all six degrees of freedom,
+    the transform set by hand's (:data:`backend.services.rig.MANUAL_SIGMA`, 5 mm and 0.3 deg per axis), and
+    the verdict says why. Verdict: the sigmas against the default tolerances; as the cross-check, every step's
+    criterion re-measured at the final pose (a nudge after a step may have undone it)."""
     steps = _steps()
     guided = _node_state(session, node)
     if not guided.history:
@@ -206,18 +210,18 @@ def finish(session: Session, node: str, *, accept: bool = False, confirm: bool =
         raise InputError(f"{node}: step {missing[0]!r} is not done yet (steps left: {missing})", "step", 409)
     T = np.array(guided.history[-1])
     checks = {step: advise(session, node, step, T) for step in steps[1:]}
-    sigma_m, sigma_deg = rig_service.MANUAL_SIGMA
-    covariance = np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3)
+    covariance, least_squares = _least_squares_check(session, node, T)
     result = TransformResult(kind="depth_node", method="guided", parent=network.WORLD, child=node, T_parent_child=T,
                              covariance=covariance,
                              residuals=_residual_summary([r for a in checks.values() for r in a.residuals]),
                              diagnostics={"steps": {step: advice_dict(a) for step, a in checks.items()},
                                           "pose_row": list(pose_row(T)),
                                           "history": [list(pose_row(np.array(h))) for h in guided.history],
-                                          "covariance_note": f"set by hand: sigma assumed {sigma_m * 1e3:g} mm, "
-                                                             f"{sigma_deg:g} deg"})
+                                          "least_squares": least_squares})
     judge = VerdictBuilder()
     judge_transform_sigmas(judge, result.std)
+    if "problem" in least_squares:
+        judge.check(f"sigma set by hand: {least_squares['problem']}")
     failed = [step for step, a in checks.items() if not a.done]
     judge.cross_check("every step's criterion at the final pose", not failed,
                       f"{', '.join(failed)} no longer hold{'s' if len(failed) == 1 else ''}" if failed else
@@ -230,6 +234,27 @@ def finish(session: Session, node: str, *, accept: bool = False, confirm: bool =
     if accept:
         rig_service.accept(session, record["id"], confirm=confirm)
     return record
+
+
+def _least_squares_check(session: Session, node: str, T_world_node: np.ndarray
+                         ) -> tuple[np.ndarray, dict[str, Any]]:
+    """The guided pose's 6x6 covariance (:data:`~backend.solvers.result.TRANSFORM_PARAMETERS`, m and rad) and
+    what it rests on: the least-squares solve of all ``node``'s captures from ``T_world_node``, its ``pose_row``,
+    its ``std``, and the guided pose's ``offset_m`` / ``offset_deg`` from it (parent axes, child axes); or,
+    when that solve cannot be made, the set-by-hand covariance and the ``problem`` that stopped it."""
+    from backend.solvers.depth_node import solve_depth_node
+
+    try:
+        solved = solve_depth_node(node, network.observations(session, node), network.layout(session), T_world_node)
+    except InputError as error:
+        sigma_m, sigma_deg = rig_service.MANUAL_SIGMA
+        return np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3), {
+            "problem": f"no least-squares solve of the same captures ({shorten(str(error))}); sigma assumed "
+                       f"{sigma_m * 1e3:g} mm, {sigma_deg:g} deg"}
+    offset = params_between(solved.T_parent_child, T_world_node)
+    return solved.covariance + np.outer(offset, offset), {
+        "pose_row": list(pose_row(solved.T_parent_child)), "std": solved.std, "verdict": solved.verdict.level,
+        "offset_m": offset[:3].tolist(), "offset_deg": np.degrees(offset[3:]).tolist()}
 
 
 def _residual_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -211,8 +211,9 @@ class DepthNetworkStep:
                 self.criterion_text = gui.add_markdown("")
                 self.next_button = gui.add_button("Next step")
                 self.finish_button = gui.add_button("Keep this pose as the node's result",
-                                                    hint="a guided result (set by hand: 5 mm, 0.3° sigma), shown on "
-                                                         "the card of *Automatic solve* to accept")
+                                                    hint="a guided result, its sigma from a least-squares solve of "
+                                                         "the same captures; shown on the card of *Automatic solve* "
+                                                         "to accept")
                 self.finish_text = gui.add_markdown("")
             with gui.add_folder("Automatic solve", expand_by_default=True):
                 self.solve_button = gui.add_button("Solve all nodes", color="blue", hint="every node with captures, "
@@ -487,7 +488,15 @@ class DepthNetworkStep:
         if node is None:
             return
         self._keep_editor_pose(node)
-        record = guided_service.finish(self.ctx.session, node)
+        self.finish_text.content = "Keeping the pose: solving the same captures by least squares for its sigma …"
+        self.finish_button.disabled = True
+        try:
+            record = guided_service.finish(self.ctx.session, node)
+        except InputError:
+            self.finish_text.content = ""
+            raise
+        finally:
+            self.finish_button.disabled = False
         self._show_result(select=record["id"])
         level = Verdict.from_record(record).level
         self.finish_text.content = (f"Kept as **{record['id']}** (guided, verdict {level}): accept it on the card "
