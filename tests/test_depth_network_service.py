@@ -23,6 +23,7 @@ from backend.core.errors import InputError
 from backend.core.rig import Frame
 from backend.core.transforms import transform_error
 from backend.devices.base import Sample
+from backend.services import depth_guided
 from backend.services import depth_network as service
 from backend.services.exports import export_text
 from backend.services.report import render_report
@@ -189,3 +190,12 @@ def test_bad_input_is_refused_and_nothing_is_lost(solved, tmp_path: Path) -> Non
     assert service.network_summary(copy)["problems"] == []  # afresh after the quarantine
     service.capture_node(copy, "sn1", frame_sample(render_captures("sn1", 0)[0][2]), clock_offset_s=3.0)
     assert "sn1: its clock is +3.00 s off the studio's (capture 00003)" in service.network_summary(copy)["problems"][0]
+
+
+def test_a_guided_pose_the_captures_cannot_solve_keeps_the_hand_set_sigma(tmp_path: Path) -> None:
+    session = Session.create(tmp_path / "bare", "bare")
+    service.add_node(session, "sn1", typed_pose("sn1"))
+    covariance, basis = depth_guided._least_squares_check(session, "sn1", pose_from_row(typed_pose("sn1")))
+    assert basis == {"problem": "no least-squares solve of the same captures (node sn1: no captures to solve from; "
+                                "capture the node first); sigma assumed 5 mm, 0.3 deg"}
+    assert np.allclose(np.sqrt(np.diag(covariance)), [0.005] * 3 + [np.radians(0.3)] * 3)

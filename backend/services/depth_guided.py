@@ -249,7 +249,7 @@ def _least_squares_check(session: Session, node: str, T_world_node: np.ndarray
     except InputError as error:
         sigma_m, sigma_deg = rig_service.MANUAL_SIGMA
         return np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3), {
-            "problem": f"no least-squares solve of the same captures ({shorten(str(error))}); sigma assumed "
+            "problem": f"no least-squares solve of the same captures ({error.message}); sigma assumed "
                        f"{sigma_m * 1e3:g} mm, {sigma_deg:g} deg"}
     offset = params_between(solved.T_parent_child, T_world_node)
     return solved.covariance + np.outer(offset, offset), {
