@@ -247,10 +247,8 @@ def _least_squares_check(session: Session, node: str, T_world_node: np.ndarray
     try:
         solved = solve_depth_node(node, network.observations(session, node), network.layout(session), T_world_node)
     except InputError as error:
-        sigma_m, sigma_deg = rig_service.MANUAL_SIGMA
-        return np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3), {
-            "problem": f"no least-squares solve of the same captures ({error.message}); sigma assumed "
-                       f"{sigma_m * 1e3:g} mm, {sigma_deg:g} deg"}
+        covariance, assumed = rig_service.manual_covariance()
+        return covariance, {"problem": f"no least-squares solve of the same captures ({error.message}); {assumed}"}
     offset = params_between(solved.T_parent_child, T_world_node)
     return solved.covariance + np.outer(offset, offset), {
         "pose_row": list(pose_row(solved.T_parent_child)), "std": solved.std, "verdict": solved.verdict.level,

@@ -90,12 +90,19 @@ def slot_of(record: dict[str, Any]) -> str:
     raise InputError(f"result {record.get('id')} is a {kind!r} result, which cannot be accepted", "result")
 
 
+def manual_covariance() -> tuple[np.ndarray, str]:
+    """The 6x6 covariance assumed for a transform set by hand (:data:`MANUAL_SIGMA` on every axis, m and rad) and
+    the words that say so."""
+    sigma_m, sigma_deg = MANUAL_SIGMA
+    return (np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3),
+            f"sigma assumed {sigma_m * 1000:g} mm, {sigma_deg:g} deg")
+
+
 def _edge(transform: TransformResult, record: dict[str, Any], slot: str) -> RigEdge:
     covariance, note = transform.covariance, ""
     if transform.method == "manual" or not np.isfinite(covariance).any():
-        sigma_m, sigma_deg = MANUAL_SIGMA
-        covariance = np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3)
-        note = f"set by hand: sigma assumed {sigma_m * 1000:g} mm, {sigma_deg:g} deg"
+        covariance, assumed = manual_covariance()
+        note = f"set by hand: {assumed}"
     return RigEdge(transform.parent, transform.child, transform.T_parent_child, covariance, record["kind"],
                    record["id"], slot, transform.method, note)
 
