@@ -57,8 +57,8 @@ def _stream_and_capture(page: Page, studio: Studio) -> None:
     expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden(timeout=30_000)
     page.get_by_text("4 · LiDARs", exact=True).click()
     button(page, "Start live").scroll_into_view_if_needed()
-    # Adding velo_sim refilled the closed step's "Show live" boxes; a folder emptied and refilled there stays at
-    # height 0, its frame covering the boxes: the step keeps the boxes it had, so nothing covers them.
+    # Adding velo_sim changed the closed step's live boxes: a titled viser folder filled while closed can stay at
+    # height 0, its frame covering them; the boxes sit in an untitled one, so nothing covers them.
     assert_uncovered(page.get_by_label("lidar_top", exact=True))
     for name in ("lidar_top", "lidar_front", "scanner_2d", "sweep_3d"):
         page.get_by_label(name, exact=True).uncheck()

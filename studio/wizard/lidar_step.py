@@ -109,7 +109,9 @@ class LidarStep:
         gui = ctx.server.gui
         with gui.add_folder("4 · LiDARs", expand_by_default=False):
             gui.add_markdown(LIVE_HELP)
-            self.sensor_folder = gui.add_folder("Show live")
+            # Untitled, so viser draws it without a collapsible frame: a titled folder filled while this step is
+            # closed can stay at height 0, its frame covering the boxes.
+            self.sensor_folder = gui.add_folder(None)
             self.start_button = gui.add_button("Start live", color="green")
             self.stop_button = gui.add_button("Stop live", color="red", visible=False)
             self.toggle = LiveToggle(self.start_button, self.stop_button)
@@ -181,8 +183,7 @@ class LidarStep:
     def _on_session(self, session) -> None:
         lidars = self._lidars()
         old, self.show = self.show, {}
-        # Boxes of LiDARs still there are kept and new ones go in before the gone ones go: a viser folder emptied
-        # and refilled while its step is closed stays at height 0, its frame covering its rows.
+        # Boxes of LiDARs still there are kept (their rows do not flicker); new ones go in before the gone ones go.
         with self.sensor_folder:
             for name in lidars:
                 ticked = _live_by_default(session, name)
