@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 import tempfile
+import threading
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -521,11 +523,14 @@ def run_depth_network(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_node(args: argparse.Namespace) -> int:
-    """Serve one sensor over Zenoh until interrupted."""
-    from backend.devices.node_agent import run_agent
+    """Serve one sensor over Zenoh until interrupted (or, started by a studio, until that studio ends)."""
+    from backend.devices.node_agent import PARENT_PID_ENV, run_agent, stop_with_parent
 
+    stop = threading.Event()
+    if os.environ.get(PARENT_PID_ENV, "").isdigit():
+        stop_with_parent(int(os.environ[PARENT_PID_ENV]), stop)
     return run_agent(name=args.name, device=args.device, connect=args.connect, listen=args.listen,
-                     rate_hz=args.rate, voxel_m=args.voxel)
+                     rate_hz=args.rate, voxel_m=args.voxel, stop=stop)
 
 
 def run_export(args: argparse.Namespace) -> None:

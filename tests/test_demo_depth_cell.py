@@ -190,12 +190,15 @@ def test_an_agent_that_cannot_start_is_named_with_its_reason(tmp_path: Path) -> 
     assert agents.alive() == []
 
 
-def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path) -> None:
-    """SIGKILL runs no cleanup: the kernel stops the agent (its parent-death signal)."""
+@pytest.mark.parametrize("death_signal", [True, False], ids=["death-signal", "parent-watch-alone"])
+def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: bool) -> None:
+    """SIGKILL runs no cleanup: the kernel stops the agent (its parent-death signal), and without that signal the
+    agent stops itself once its parent is gone."""
     parent = subprocess.Popen(
         [sys.executable, "-c", "import sys, time\n"
-         "from backend.services.node_processes import NodeProcesses\n"
-         "agents = NodeProcesses(sys.argv[1], sys.argv[2])\n"
+         "from backend.services import node_processes\n"
+         + ("" if death_signal else "node_processes._death_signal_prefix = lambda: []\n") +
+         "agents = node_processes.NodeProcesses(sys.argv[1], sys.argv[2])\n"
          "agents.start({'sn1': 'sim-cell:sn1'})\n"
          "print(agents.agents['sn1'].process.pid, flush=True)\n"
          "time.sleep(120)\n", f"tcp/127.0.0.1:{free_tcp_port()}", str(tmp_path)],

@@ -23,6 +23,7 @@ Zenoh refuses is an :class:`InputError` (the CLI's one-line error, exit 2). Log 
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import struct
@@ -144,6 +145,29 @@ def run_agent(name: str, device: str, connect: list[str] | None = None, listen: 
         restore()
     _log(name, "stopped")
     return 0
+
+
+PARENT_PID_ENV = "CALIB_STUDIO_NODE_PARENT"
+"""Environment variable: the pid of the process that started the agent and whose end ends it too."""
+PARENT_POLL_S = 0.5
+"""How often (s) an agent started by a studio looks whether that studio still runs."""
+
+
+def stop_with_parent(parent_pid: int, stop: threading.Event) -> threading.Thread:
+    """Set ``stop`` once this process's parent is no longer ``parent_pid`` (it ended and the process was
+    re-parented), looking every :data:`PARENT_POLL_S` (a daemon thread).
+
+    The agents a studio starts also carry Linux's parent-death signal, but that can be lost in the agent's
+    start-up (seen once, in a CI dry run under load): this needs no signal at all."""
+    def follow() -> None:
+        while not stop.wait(PARENT_POLL_S):
+            if os.getppid() != parent_pid:
+                _log("agent", f"its parent {parent_pid} has ended: stopping")
+                stop.set()
+
+    thread = threading.Thread(target=follow, name="node-agent-parent", daemon=True)
+    thread.start()
+    return thread
 
 
 def _stop_on_signals(stop: threading.Event) -> Callable[[], None]:

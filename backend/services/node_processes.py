@@ -9,7 +9,8 @@ node's own computer runs, so the studio takes their frames through the network e
   SIGTERM, waits, and kills those still running. On Linux each agent is also started through ``setpriv
   --pdeathsig TERM`` so the kernel stops it should the studio die without running either (SIGKILL): no orphans.
   The death signal follows the *thread* that started the agent, so start them from a thread that lives as long
-  as the studio (the main thread).
+  as the studio (the main thread). As that signal can be lost in an agent's start-up, each agent also stops
+  itself once the studio's process is gone (:data:`~backend.devices.node_agent.PARENT_PID_ENV`).
 - An agent that exits while the studio runs is named with its exit code and the last line of its log
   (:meth:`NodeProcesses.dead`; :meth:`NodeProcesses.watch` calls back once per agent).
 """
@@ -17,6 +18,7 @@ node's own computer runs, so the studio takes their frames through the network e
 from __future__ import annotations
 
 import atexit
+import os
 import shutil
 import signal
 import socket
@@ -30,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.core.errors import InputError
+from backend.devices.node_agent import PARENT_PID_ENV
 
 STOP_TIMEOUT_S = 5.0
 """How long (s) the agents get after SIGTERM before they are killed."""
@@ -132,7 +135,8 @@ class NodeProcesses:
                 log = self.log_dir / f"{name}.log"
                 with log.open("wb") as output:  # the child holds its own descriptor
                     process = subprocess.Popen(self.command(name, device), stdin=subprocess.DEVNULL, stdout=output,
-                                               stderr=subprocess.STDOUT)
+                                               stderr=subprocess.STDOUT,
+                                               env={**os.environ, PARENT_PID_ENV: str(os.getpid())})
                 self._agents[name] = NodeProcess(name, device, process, log)
 
     @property
