@@ -49,7 +49,7 @@ import uvicorn
 from fastapi import File, UploadFile
 
 from backend.api.app import create_app
-from backend.services import intrinsics
+from backend.calib.intrinsics import service as intrinsics
 
 app = create_app(sys.argv[1])
 

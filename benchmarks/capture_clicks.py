@@ -36,14 +36,14 @@ from pathlib import Path
 
 from bench_util import REPEATS, log, median_time
 
+from backend.calib.board.detection import detect_board
+from backend.calib.lidar_camera.capture import capture_pair_from_devices
 from backend.core.boards import BoardSpec
 from backend.devices.base import create_device
 from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, ensure_demo_session
-from backend.services.lidar_camera_pairs import capture_pair_from_devices
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
 from backend.sim.scene_camera import clean_yard_image, render_scene_image
-from backend.solvers.board_detection import detect_board
 from backend.store.session import SessionStore
 
 

@@ -40,14 +40,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_util import REPEATS, log, median_time, peak_rss_mb, pose_error  # noqa: E402
 
+from backend.calib.depth.features import DepthObservation  # noqa: E402
+from backend.calib.depth.guided import GUIDED_STEPS, advise  # noqa: E402
+from backend.calib.depth.icp import icp_network  # noqa: E402
+from backend.calib.depth.node import solve_depth_node  # noqa: E402
 from backend.core.depth import KINECT_V2  # noqa: E402
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout  # noqa: E402
 from backend.core.transforms import apply_params  # noqa: E402
 from backend.sim.depth_cell import CellScene, node_pose, table_placements  # noqa: E402
-from backend.solvers.depth_features import DepthObservation  # noqa: E402
-from backend.solvers.depth_guided import GUIDED_STEPS, advise  # noqa: E402
-from backend.solvers.depth_icp import icp_network  # noqa: E402
-from backend.solvers.depth_node import solve_depth_node  # noqa: E402
 
 GUESS_OFF_M, GUESS_OFF_DEG = 0.05, 2.0
 GUIDED_PASSES = 2

@@ -36,11 +36,11 @@ import cv2
 import numpy as np
 from bench_util import REPEATS, log, median_time, peak_rss_mb
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.devices.base import create_device
 from backend.sim.demo_rig import DEMO_BOARD
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 
 N_VIEWS = 50
 IMAGE_SIZE = (1280, 720)

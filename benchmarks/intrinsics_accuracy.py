@@ -35,15 +35,15 @@ import cv2
 import numpy as np
 from bench_util import log
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics.crossval import grid_pixels
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import transform_points
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
-from backend.solvers.intrinsics_crossval import grid_pixels
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencv_stereo_chessboard"
 RENDERED_VIEWS = 20

@@ -34,9 +34,9 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from conftest import OPENCALIB, opencalib_frame  # noqa: E402
 
+from backend.calib.lidar_camera.service import PairData, solve_pairs  # noqa: E402
 from backend.core.errors import InputError  # noqa: E402
 from backend.core.transforms import make_T, transform_error  # noqa: E402
-from backend.services.lidar_camera import PairData, solve_pairs  # noqa: E402
 
 STARTS = 6
 PERTURBATION_DEG = 3.0

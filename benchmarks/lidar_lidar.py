@@ -52,6 +52,7 @@ import numpy as np
 from bench_util import REPEATS, log, median_time, peak_rss_mb, pose_error
 from scipy.spatial.transform import Rotation
 
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, register_pair
 from backend.core.transforms import from_xyz_ypr, invert, make_T
 from backend.devices.base import DeviceDisconnected
 from backend.devices.velodyne import VelodyneUdp
@@ -59,7 +60,6 @@ from backend.devices.ydlidar import YdlidarParser
 from backend.sim.lidar_scene import LidarScene
 from backend.sim.velodyne_packets import simulate_vlp16_scan
 from backend.sim.ydlidar_sim import YdlidarSimulator
-from backend.solvers.lidar_lidar import LidarLidarSettings, register_pair
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))

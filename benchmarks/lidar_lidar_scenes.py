@@ -45,11 +45,11 @@ import numpy as np
 from bench_util import REPEATS, log, median_time, peak_rss_mb, pose_error
 from scipy.spatial.transform import Rotation
 
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment, register_pair
+from backend.calib.lidar_lidar.scenes import register_pairs
 from backend.core.transforms import check_transform, from_xyz_ypr, invert, make_T, transform_error
 from backend.devices.cloud_files import read_cloud
 from backend.sim.lidar_scene import LidarScene
-from backend.solvers.lidar_lidar import LidarLidarSettings, evaluate_alignment, register_pair
-from backend.solvers.lidar_lidar_scenes import register_pairs
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))

@@ -3,13 +3,13 @@
 
 What it measures, in one run on the same frames:
 
-- ``live_fps``: :class:`backend.solvers.live_detection.LiveDetector` (the classic search on the full
+- ``live_fps``: :class:`backend.calib.board.live_detection.LiveDetector` (the classic search on the full
   frame, else the sector-based one in the frame shrunk to 640x360; refinement at full resolution), as the
   live capture runs it, over every frame in turn (target:
   at least 15); ``live_fps_board`` / ``live_fps_no_board`` over the frames with / without the board;
-  ``live_single_fps``: :func:`~backend.solvers.live_detection.detect_board_live`, which tries every
+  ``live_single_fps``: :func:`~backend.calib.board.live_detection.detect_board_live`, which tries every
   contrast treatment on each frame without a board;
-- ``accurate_fps``: :func:`backend.solvers.board_detection.detect_board` at full accuracy (what a kept
+- ``accurate_fps``: :func:`backend.calib.board.detection.detect_board` at full accuracy (what a kept
   capture is re-detected with), and ``previous_live_fps``: its ``live=True`` mode, which the live capture
   used before;
 - ``baseline_fps``: the in-run baseline, plain ``cv2.findChessboardCorners`` with its default flags plus
@@ -42,12 +42,12 @@ import cv2
 import numpy as np
 from bench_util import log
 
+from backend.calib.board.detection import SUBPIX_WINDOW_FRACTIONS, detect_board, refinement_name
+from backend.calib.board.live_detection import FULL_RESOLUTION_FLAGS, LiveDetector, detect_board_live
 from backend.core.boards import BoardSpec
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import SUBPIX_WINDOW_FRACTIONS, detect_board, refinement_name
-from backend.solvers.live_detection import FULL_RESOLUTION_FLAGS, LiveDetector, detect_board_live
 
 CAMERAS = ("cam_front", "cam_wide")
 BOARD_FRAMES = 9

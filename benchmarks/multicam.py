@@ -41,9 +41,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_util import log, median_time, peak_rss_mb  # noqa: E402
 
+from backend.calib.multicam.bundle import calibrate_multicam  # noqa: E402
 from backend.core.transforms import invert  # noqa: E402
 from backend.sim.multicam_rig import simulated_ring  # noqa: E402
-from backend.solvers.multicam import calibrate_multicam  # noqa: E402
 
 OTHER_ORDER = ["cam0", "cam2", "cam1", "cam3", "cam5", "cam4"]
 """A second chain through other pairs (0-2, 2-1, 1-3, 3-5, 5-4 instead of 0-1, 1-2, 2-3, 3-4, 4-5)."""

@@ -32,8 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_util import log, pose_error  # noqa: E402
 
+from backend.calib.rig.graph import RigEdge, solve_rig_graph  # noqa: E402
 from backend.core.transforms import apply_params, from_xyz_ypr, invert, params_between  # noqa: E402
-from backend.solvers.rig_graph import RigEdge, solve_rig_graph  # noqa: E402
 
 TRIALS = 12
 FRAMES = {  # x, y, z (m), yaw, pitch, roll (deg) on base_link

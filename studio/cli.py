@@ -232,10 +232,10 @@ def _keep_result(command: str, summary: dict[str, Any], unwritten: list[tuple[Pa
 
 
 def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.intrinsics.service import calibrate_folder
+    from backend.calib.intrinsics.solver import IntrinsicsSettings
     from backend.core.boards import BoardSpec
     from backend.exports.ros_camera_info import dump_camera_info
-    from backend.services.intrinsics import calibrate_folder
-    from backend.solvers.intrinsics import IntrinsicsSettings
 
     _check_outputs(args.out)
     settings = IntrinsicsSettings(model=args.model, estimate_k3=args.k3, estimate_tangential=not args.no_tangential,
@@ -309,10 +309,10 @@ def _lidar_pairs(args: argparse.Namespace) -> list[tuple[Path, Path]]:
 
 
 def run_lidar_lidar(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+    from backend.calib.lidar_lidar.scenes import register_pairs
     from backend.core.transforms import check_transform
     from backend.devices.cloud_files import read_cloud
-    from backend.solvers.lidar_lidar import LidarLidarSettings
-    from backend.solvers.lidar_lidar_scenes import register_pairs
 
     progress = _progress_to_stderr(False)
     files = _lidar_pairs(args)
@@ -383,10 +383,10 @@ def _pairs(values: list[str], form: str = "IMAGE:CLOUD") -> list[tuple[Path, Pat
 
 
 def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.lidar_camera.service import cli_summary, solve_files
     from backend.core.boards import BoardSpec
     from backend.core.transforms import check_transform
     from backend.exports.ros_camera_info import load_camera_info
-    from backend.services.lidar_camera import cli_summary, solve_files
 
     pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in _pairs(args.pair)]
     camera, _ = load_camera_info(args.camera)
@@ -422,10 +422,10 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.multicam.service import parse_named, result_rig, solve_folders
     from backend.core.boards import BoardSpec
     from backend.exports.kalibr_camchain import dump_kalibr_camchain
     from backend.exports.rig_transforms import dump_rig_transforms
-    from backend.services.multicam import parse_named, result_rig, solve_folders
 
     _check_outputs(args.kalibr, args.transforms)
     folders = parse_named(args.camera, "IMAGES_DIR")
@@ -476,7 +476,7 @@ def run_target(args: argparse.Namespace) -> None:
 
 def run_rig(args: argparse.Namespace) -> dict[str, Any]:
     """The fused tree of a session (nothing is written); problems (flagged edges, unconnected frames) on stderr."""
-    from backend.services.rig import solve_rig
+    from backend.calib.rig.service import solve_rig
     from backend.store.session import Session
 
     tree = solve_rig(Session.load(args.session_dir))
@@ -512,7 +512,7 @@ def run_report(args: argparse.Namespace) -> None:
 def run_depth_network(args: argparse.Namespace) -> dict[str, Any]:
     """Every node's ``T_world_node`` with its sigma and verdict, and the verification table (solving first with
     ``--solve``); the pose table on stdout without ``--json``."""
-    from backend.services.depth_network import network_summary, pose_table_text
+    from backend.calib.depth.service import network_summary, pose_table_text
     from backend.store.session import Session
 
     session = Session.load(args.session_dir)

@@ -12,7 +12,7 @@ Everything is drawn in the cell's ``world`` frame (m, Z up) under the step's lay
 - ``map``: the merged voxel map (cube centres, one per occupied voxel), coloured per node or by count;
 - ``picks/``: the two verification points and the segment between them.
 
-Only drawing lives here; every number comes from the services (:mod:`backend.services.depth_network`).
+Only drawing lives here; every number comes from the services (:mod:`backend.calib.depth.service`).
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from backend.core.result import ProgressCallback
 from backend.services.jobs import Job
-from backend.solvers.result import ProgressCallback
 from backend.store.session import Session
 from studio.context import StudioContext
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from backend.calib.board.detection import Detection, draw_detection
 from backend.core.boards import BoardSpec
-from backend.solvers.board_detection import Detection, draw_detection
 
 PANEL_WIDTH_PX = 480
 

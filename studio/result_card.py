@@ -3,7 +3,7 @@
 Every kind of result (intrinsics, LiDAR-LiDAR, LiDAR-camera, multi-camera, a sweep geometry)
 is shown the same way: its transforms with their 1-sigma, its residual statistics, the verdict
 with every reason, and its warnings. *Accept* first shows what accepting would do to the whole
-rig (:func:`backend.services.rig.preview`: which frames move, by how many sigma, which edges
+rig (:func:`backend.calib.rig.service.preview`: which frames move, by how many sigma, which edges
 would disagree with the rest) and applies on the second click, optionally reverting an edge the
 new result disagrees with (the user chooses which to keep).
 """
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
+from backend.core.result import TransformResult
 from backend.core.transforms import to_xyz_ypr
-from backend.services import rig as rig_service
-from backend.solvers.result import TransformResult
 from studio.context import StudioContext
 from studio.verdict_view import ConfirmCheck, verdict_markdown
 

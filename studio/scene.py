@@ -17,10 +17,10 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from backend.calib.rig.graph import EdgeResidual, RigTree
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
-from backend.solvers.rig_graph import EdgeResidual, RigTree
 
 DEFAULT_FOV_RAD = np.radians(60.0)
 FRUSTUM_SCALE_M = 0.15

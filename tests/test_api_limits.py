@@ -22,12 +22,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.lidar_camera import capture as pairs_service
+from backend.calib.lidar_lidar import service as lidar_service
 from backend.core.errors import InputError
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import decode_image_bytes, image_size
-from backend.services import intrinsics as intrinsics_service
-from backend.services import lidar_camera_pairs as pairs_service
-from backend.services import lidar_lidar as lidar_service
 
 BOARD = "checkerboard:9x6:0.025"
 

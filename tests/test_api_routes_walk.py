@@ -24,7 +24,7 @@ from fastapi.routing import APIRoute, iter_route_contexts
 from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
-from backend.services.sweep import KIND as SWEEP_KIND
+from backend.calib.sweep.service import KIND as SWEEP_KIND
 
 WRONG_NAMES = ["nope", "..", "a" * 300, "x\x00y", "%2e%2e"]
 """Names and ids that exist nowhere: missing, traversal, too long, a NUL byte."""

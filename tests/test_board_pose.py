@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from test_intrinsics_models import FISHEYE
 
+from backend.calib.board.detection import detect_board
+from backend.calib.board.pose import board_pose, nominal_camera
 from backend.core.boards import BoardSpec
 from backend.core.transforms import invert, rotation_angle_deg
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import detect_board
-from backend.solvers.board_pose import board_pose, nominal_camera
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 

@@ -14,11 +14,11 @@ import pytest
 import yaml
 from conftest import cli_in_process
 
+from backend.calib.intrinsics import service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.rig import service as rig_service
 from backend.core.rig import Frame
 from backend.exports.ros_camera_info import load_camera_info
-from backend.services import intrinsics as service
-from backend.services import rig as rig_service
-from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.session import SessionStore
 
 REPO = Path(__file__).resolve().parents[1]

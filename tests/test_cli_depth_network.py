@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from test_depth_network_service import build_cell_session, pose_error
 
-from backend.services import depth_network as service
+from backend.calib.depth import service
 from backend.store.session import Session
 from studio.cli import main
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from backend.calib.board.coverage import FULL_CELLS, Coverage, enough_data, view_parameters
+from backend.calib.board.detection import Detection
 from backend.core.boards import BoardSpec
-from backend.solvers.board_detection import Detection
-from backend.solvers.coverage import FULL_CELLS, Coverage, enough_data, view_parameters
 
 BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 SIZE = (1280, 720)

@@ -6,13 +6,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from backend.calib.depth.features import DepthObservation
+from backend.calib.depth.guided import GUIDED_STEPS, advise
 from backend.core.depth import KINECT_V2, pose_from_row, pose_row
 from backend.core.depth_cell import default_cell_layout
 from backend.core.errors import InputError
 from backend.core.transforms import transform_error
 from backend.sim.depth_cell import CellScene, node_pose, table_placements
-from backend.solvers.depth_features import DepthObservation
-from backend.solvers.depth_guided import GUIDED_STEPS, advise
 
 NODES = ("sn1", "sn4")
 TARGET_M = 0.010

@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from backend.calib.depth import guided_service as depth_guided
+from backend.calib.depth import service
 from backend.core.depth import KINECT_V2, pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
 from backend.core.errors import InputError
 from backend.core.rig import Frame
 from backend.core.transforms import transform_error
 from backend.devices.base import Sample
-from backend.services import depth_guided
-from backend.services import depth_network as service
 from backend.services.exports import export_text
 from backend.services.report import render_report
 from backend.sim.depth_cell import CellScene, DepthFrame, table_placements

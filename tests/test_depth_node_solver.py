@@ -6,14 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from backend.calib.depth.features import DepthObservation, extract_features, feature_residuals
+from backend.calib.depth.icp import icp_network, pairwise_icp
+from backend.calib.depth.node import solve_depth_node
 from backend.core.depth import KINECT_V2
 from backend.core.depth_cell import PAPER_NODE_POSES, TableSpec, default_cell_layout
 from backend.core.errors import InputError
 from backend.core.transforms import apply_params, transform_error
 from backend.sim.depth_cell import CellScene, node_pose, node_visibility, table_placements
-from backend.solvers.depth_features import DepthObservation, extract_features, feature_residuals
-from backend.solvers.depth_icp import icp_network, pairwise_icp
-from backend.solvers.depth_node import solve_depth_node
 
 ARRANGEMENTS = ("behind", "beside", "free")
 """Captures per node: three tables behind each other, three beside each other, none (floor and lines)."""

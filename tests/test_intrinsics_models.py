@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import Detection, detect_board
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
-from backend.solvers.board_detection import Detection, detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 
 FISHEYE = CameraIntrinsics("fisheye-equidistant", 1280, 720,
                            np.array([[600.0, 0, 641.5], [0, 599.0, 359.2], [0, 0, 1]]), [0.05, -0.01, 0.004, -0.001])

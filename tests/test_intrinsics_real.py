@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics.service import calibrate_folder
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
-from backend.services.intrinsics import calibrate_folder
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
 
 BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 REFERENCE_RMS_PX = 0.3926

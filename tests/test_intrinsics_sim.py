@@ -7,12 +7,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics.solver import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.devices.base import create_device
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsResult, IntrinsicsSettings, View, calibrate_intrinsics
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 HONESTY_SEEDS = 8

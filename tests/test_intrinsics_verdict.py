@@ -7,16 +7,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import Detection, _agrees_with_neighbours, detect_board
+from backend.calib.intrinsics.crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
+from backend.calib.intrinsics.models import SIMPLE, compare_models, solve_auto
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import transform_points
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import Detection, _agrees_with_neighbours, detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings, View, calibrate_intrinsics
-from backend.solvers.intrinsics_crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
-from backend.solvers.intrinsics_models import SIMPLE, compare_models, solve_auto
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 FAST = IntrinsicsSettings(jackknife=False)

@@ -12,16 +12,7 @@ import pytest
 from conftest import opencalib_frame
 from scipy.spatial.transform import Rotation
 
-from backend.core.camera import CameraIntrinsics
-from backend.core.errors import CancelledError, InputError
-from backend.core.projection import project_cloud
-from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
-from backend.services.lidar_camera import TOLERANCES, cli_summary, edges_settings, judge
-from backend.sim.demo_rig import CAM_FRONT, demo_rig
-from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from backend.sim.scene_camera import render_scene_image
-from backend.solvers.image_edges import find_image_edges
-from backend.solvers.lidar_camera_edges import (
+from backend.calib.lidar_camera.edges import (
     PLANE,
     EdgeObservation,
     LidarCameraEdgesSettings,
@@ -30,8 +21,17 @@ from backend.solvers.lidar_camera_edges import (
     in_view,
     solve_edges,
 )
-from backend.solvers.plane_edges import find_plane_edges
-from backend.solvers.result import TRANSFORM_PARAMETERS
+from backend.calib.lidar_camera.image_edges import find_image_edges
+from backend.calib.lidar_camera.plane_edges import find_plane_edges
+from backend.calib.lidar_camera.service import TOLERANCES, cli_summary, edges_settings, judge
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import CancelledError, InputError
+from backend.core.projection import project_cloud
+from backend.core.result import TRANSFORM_PARAMETERS
+from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
+from backend.sim.demo_rig import CAM_FRONT, demo_rig
+from backend.sim.lidar_scene import LidarScene, moving_board_poses
+from backend.sim.scene_camera import render_scene_image
 
 RIG = demo_rig()
 T_BASE_CAMERA = RIG.T_root_frame("cam_front")

@@ -16,19 +16,26 @@ from conftest import ROOT, opencalib_frame
 from scipy.spatial.transform import Rotation
 
 from backend.api.schemas import LidarCameraSolveRequest
-from backend.core.camera import CameraIntrinsics
-from backend.core.errors import InputError
-from backend.core.transforms import apply_params, invert, make_T, params_between, transform_points
-from backend.exports.ros_camera_info import write_camera_info
-from backend.services.lidar_camera import CrossCheck, PairData, cli_summary, cross_check_methods, judge, solve_pairs
-from backend.solvers.cloud_accumulation import accumulate_scans
-from backend.solvers.lidar_camera_intensity import (
+from backend.calib.lidar_camera.checks import compare_methods
+from backend.calib.lidar_camera.intensity import (
     IntensityObservation,
     LidarCameraIntensitySettings,
     nid_and_mi,
     solve_intensity,
 )
-from backend.solvers.method_agreement import compare_methods
+from backend.calib.lidar_camera.service import (
+    CrossCheck,
+    PairData,
+    cli_summary,
+    cross_check_methods,
+    judge,
+    solve_pairs,
+)
+from backend.calib.lidar_lidar.accumulation import accumulate_scans
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.transforms import apply_params, invert, make_T, params_between, transform_points
+from backend.exports.ros_camera_info import write_camera_info
 
 CAMERA = CameraIntrinsics("pinhole-radtan", 640, 480, np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]))
 LIDAR_TO_OPTICAL = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from conftest import fresh_demo
 
+from backend.calib.lidar_camera import capture as pairs_service
+from backend.calib.lidar_camera import service
 from backend.core.errors import InputError, NotFoundError
 from backend.core.transforms import from_xyz_ypr, invert
 from backend.devices.base import Sample, create_device
 from backend.devices.image_io import read_image
-from backend.services import lidar_camera as service
-from backend.services import lidar_camera_pairs as pairs_service
 from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, DEMO_PAIRS
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.store.session import Session, SessionStore
@@ -177,7 +177,7 @@ def test_the_demo_session_holds_pairs_ready_to_solve(tmp_path, demo_template):
 def test_the_hold_still_check_takes_either_numbering_of_a_whole_board():
     # The stored frame's board comes from the accurate detector, the second frame's from the fast preview one,
     # which may number a whole checkerboard from the other end: the same corners are still, a shift is not.
-    from backend.solvers.board_detection import Detection
+    from backend.calib.board.detection import Detection
 
     grid = np.stack(np.meshgrid(np.arange(9) * 30.0 + 200, np.arange(6) * 30.0 + 100), axis=-1).reshape(-1, 2)
     before = Detection(grid, np.arange(54), (1280, 720), "none")

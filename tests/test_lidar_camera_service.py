@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from backend.calib.lidar_camera import service
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
+from backend.core.result import TransformResult
 from backend.core.rig import edge_slot
 from backend.core.transforms import from_xyz_ypr, transform_error
-from backend.services import lidar_camera as service
-from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
-from backend.solvers.result import TransformResult
 from backend.store.session import Session, SessionStore
 
 SLOT = "lidar_front/T_cam_front_lidar_front"

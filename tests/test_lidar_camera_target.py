@@ -9,20 +9,20 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from backend.core.boards import BoardSpec
-from backend.core.errors import InputError
-from backend.core.transforms import invert, make_T, transform_error
-from backend.services.lidar_camera import TOLERANCES, cli_summary, judge
-from backend.sim.board_renderer import PLATE_MARGIN_SQUARES, render_board_image
-from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
-from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from backend.solvers.lidar_camera_target import (
+from backend.calib.lidar_camera.service import TOLERANCES, cli_summary, judge
+from backend.calib.lidar_camera.target import (
     LidarCameraTargetSettings,
     TargetObservation,
     camera_board_pose,
     scan_line_edges,
     solve_target,
 )
+from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from backend.core.transforms import invert, make_T, transform_error
+from backend.sim.board_renderer import PLATE_MARGIN_SQUARES, render_board_image
+from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
+from backend.sim.lidar_scene import LidarScene, moving_board_poses
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 SETTINGS = LidarCameraTargetSettings(plate_margin_m=PLATE_MARGIN_SQUARES * BOARD.square_m)

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, check_cloud, evaluate_alignment, register_pair
 from backend.core.errors import InputError
+from backend.core.result import TransformResult
 from backend.core.transforms import (
     check_transform,
     from_xyz_ypr,
@@ -22,8 +24,6 @@ from backend.core.transforms import (
     transform_error,
     transform_points,
 )
-from backend.solvers.lidar_lidar import LidarLidarSettings, check_cloud, evaluate_alignment, register_pair
-from backend.solvers.result import TransformResult
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencalib_lidar2lidar_pair"

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from test_lidar_lidar import SCENE_KEYS, T_TRUE, perturbed, scan_pair
 
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+from backend.calib.lidar_lidar.scenes import register_pairs
 from backend.core.transforms import from_xyz_ypr, transform_error, transform_points
-from backend.solvers.lidar_lidar import LidarLidarSettings
-from backend.solvers.lidar_lidar_scenes import register_pairs
 
 PLACEMENTS = [np.eye(4), from_xyz_ypr(np.array([1.0, 0.5, 0.0]), np.radians([30.0, 0, 0])),
               from_xyz_ypr(np.array([-0.5, -1.0, 0.0]), np.radians([-50.0, 0, 0]))]

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from backend.calib.lidar_lidar import service
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, invert, params_between, rotation_angle_deg
 from backend.devices.base import create_device
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.services import exports as export_service
-from backend.services import lidar_lidar as service
-from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import viser
 
+from backend.calib.lidar_lidar import service
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.base import create_device
-from backend.services import lidar_lidar as service
 from backend.services.jobs import JobRunner
 from backend.sim.demo_rig import demo_rig
-from backend.solvers.lidar_lidar import LidarLidarSettings
 from backend.store.session import SessionStore
 from studio.context import StudioContext
 from studio.scene import RigScene

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
+from backend.calib.lidar_lidar import service as lidar_service
 from backend.core.voxels import voxel_downsample
 from backend.devices.base import create_device
-from backend.services import lidar_lidar as lidar_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.ydlidar_sim import YdlidarSimulator

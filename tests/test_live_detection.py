@@ -12,19 +12,19 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.core.boards import BoardSpec
-from backend.sim.board_motion import board_poses, project_corners
-from backend.sim.board_renderer import render_board_image
-from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.sim.thermal import thermal_image
-from backend.solvers import live_detection
-from backend.solvers.board_detection import (
+from backend.calib.board import live_detection
+from backend.calib.board.detection import (
     SUBPIX_WINDOW_FRACTIONS,
     Detection,
     detect_board,
     refinement_name,
 )
-from backend.solvers.live_detection import FALLBACK_EVERY, SEARCH_FLAGS, LiveDetector, detect_board_live
+from backend.calib.board.live_detection import FALLBACK_EVERY, SEARCH_FLAGS, LiveDetector, detect_board_live
+from backend.core.boards import BoardSpec
+from backend.sim.board_motion import board_poses, project_corners
+from backend.sim.board_renderer import render_board_image
+from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.thermal import thermal_image
 
 REAL_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 BOARD = BoardSpec.parse(DEMO_BOARD)

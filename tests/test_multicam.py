@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.board.detection import detect_board
+from backend.calib.multicam.bundle import MulticamResult, MulticamSettings, calibrate_multicam
+from backend.calib.multicam.graph import Observation, observation_graph, spanning_tree
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.result import TransformResult
 from backend.core.transforms import invert
 from backend.devices.image_io import read_image
 from backend.sim.multicam_rig import SimulatedMulticam, simulated_ring
-from backend.solvers.board_detection import detect_board
-from backend.solvers.multicam import MulticamResult, MulticamSettings, calibrate_multicam
-from backend.solvers.multicam_graph import Observation, observation_graph, spanning_tree
-from backend.solvers.result import TransformResult
 
 NOISE_PX = 0.3
 STEREO_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")

@@ -14,10 +14,10 @@ import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 from test_rosbag_source import T0_NS, TS, camera_info_msg, checkerboard, compressed_msg, header, image_msg
 
+from backend.calib.multicam import capture as multicam
 from backend.core.errors import CancelledError, InputError
 from backend.core.rig import Frame, Rig
 from backend.devices.base import Sample
-from backend.services import multicam_capture as multicam
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.store.session import Session, SessionStore
 

@@ -18,6 +18,11 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
+from backend.calib.intrinsics.service import calibrate_folder
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.multicam import service
+from backend.calib.multicam.capture import capture_set
+from backend.calib.rig import service as rig_service
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
@@ -27,12 +32,7 @@ from backend.devices.image_io import read_image
 from backend.exports.kalibr_camchain import load_kalibr_camchain
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.exports.ros_camera_info import load_camera_info, write_camera_info
-from backend.services import multicam as service
-from backend.services import rig as rig_service
-from backend.services.intrinsics import calibrate_folder
-from backend.services.multicam_capture import capture_set
 from backend.sim.demo_rig import demo_rig
-from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.session import Session, SessionStore
 
 BOARD = "checkerboard:9x6:0.025"

@@ -13,15 +13,15 @@ from fastapi.testclient import TestClient
 from markupsafe import escape
 
 from backend.api.app import create_app
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.lidar_camera import service as lidar_camera_service
+from backend.calib.lidar_lidar import service as lidar_lidar_service
+from backend.calib.rig import service as rig_service
 from backend.devices.base import create_device
 from backend.reports.gather import camera_report, gather
 from backend.reports.template import SECTIONS, fixed, number
-from backend.services import intrinsics as intrinsics_service
-from backend.services import lidar_camera as lidar_camera_service
-from backend.services import lidar_lidar as lidar_lidar_service
-from backend.services import rig as rig_service
 from backend.services.report import render_report
-from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.session import Session, SessionStore
 from studio.cli import main
 

@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 from conftest import fresh_demo
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.lidar_camera import service as lidar_camera_service
+from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib.multicam import service as multicam_service
+from backend.calib.rig import service as rig_service
+from backend.calib.rig.graph import FLAG_SIGMA
 from backend.core.transforms import params_between
 from backend.devices.base import create_device
-from backend.services import intrinsics as intrinsics_service
-from backend.services import lidar_camera as lidar_camera_service
-from backend.services import lidar_lidar as lidar_service
-from backend.services import multicam as multicam_service
-from backend.services import rig as rig_service
 from backend.services.demo import DEMO_VIEWS
 from backend.sim.demo_rig import demo_rig
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings
-from backend.solvers.rig_graph import FLAG_SIGMA
 from backend.store.session import SessionStore
 
 

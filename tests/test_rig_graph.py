@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from backend.calib.rig import service as rig_service
+from backend.calib.rig.graph import FLAG_SIGMA, RigEdge, solve_rig_graph
 from backend.core.errors import InputError, NotFoundError
+from backend.core.result import TransformResult
 from backend.core.rig import Frame, Rig
 from backend.core.transforms import apply_params, invert, make_T, params_between
 from backend.core.verdict import Verdict
-from backend.services import rig as rig_service
 from backend.sim.demo_rig import demo_rig
-from backend.solvers.result import TransformResult
-from backend.solvers.rig_graph import FLAG_SIGMA, RigEdge, solve_rig_graph
 from backend.store.session import SessionStore
 
 FRAMES = ("cam_front", "lidar_top", "lidar_front")

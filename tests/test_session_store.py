@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from backend.calib.intrinsics import service
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError, NotFoundError
 from backend.core.rig import Frame
-from backend.services import intrinsics as service
-from backend.services import rig as rig_service
 from backend.store.schema import SCHEMA_VERSION
 from backend.store.session import SESSION_FILE, Session, SessionStore
 

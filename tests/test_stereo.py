@@ -9,10 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.core.camera import UNDISTORT_CRITERIA, CameraIntrinsics
-from backend.core.errors import InputError
-from backend.core.transforms import invert, make_T
-from backend.solvers.stereo import (
+from backend.calib.multicam.stereo import (
     LINE_COLOUR_BGR,
     epipolar_errors,
     fundamental_matrix,
@@ -20,6 +17,9 @@ from backend.solvers.stereo import (
     rectified_row_errors,
     rectify,
 )
+from backend.core.camera import UNDISTORT_CRITERIA, CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.transforms import invert, make_T
 
 PATTERN = (9, 6)
 """Inner corners of the data set's chessboard (see its README); squares are 0.025 m."""

@@ -42,9 +42,9 @@ from conftest import (
 )
 from playwright.sync_api import Browser, Page, expect
 
+from backend.calib.depth import service as network_service
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
 from backend.core.transforms import transform_error
-from backend.services import depth_network as network_service
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, TRUTH_FILE, ensure_depth_cell_session
 from backend.services.jobs import JobRunner
 from backend.services.node_processes import NodeProcesses, free_tcp_port

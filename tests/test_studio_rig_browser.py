@@ -25,7 +25,7 @@ import viser
 from conftest import ARTIFACTS, Studio, button, choose, studio_page, unfold, wait_body, wait_job
 from playwright.sync_api import Browser, Page, expect
 
-from backend.services import rig as rig_service
+from backend.calib.rig import service as rig_service
 from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, DEMO_NAME
 from backend.services.jobs import JobRunner
 from backend.sim.demo_rig import demo_rig

@@ -18,7 +18,7 @@ from playwright.sync_api import Browser, Page, expect
 from rosbags.rosbag2 import StoragePlugin
 from test_rosbag_source import write_bag
 
-from backend.core.sweep import SweepGeometry
+from backend.core.sweep_geometry import SweepGeometry
 from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.sweep.solver import SweepCalibrationSettings, calibrate_sweep
 from backend.core.errors import InputError
-from backend.core.sweep import SweepGeometry, intensity_image
+from backend.core.result import TransformResult
+from backend.core.sweep_geometry import SweepGeometry, intensity_image
 from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
 from backend.devices.base import DeviceError, create_device
 from backend.devices.dynamixel_servo import (
@@ -24,8 +26,6 @@ from backend.devices.dynamixel_servo import (
 )
 from backend.sim import dynamixel_sim as dsim
 from backend.sim.dynamixel_sim import DynamixelSimulator
-from backend.solvers.result import TransformResult
-from backend.solvers.sweep_calibration import SweepCalibrationSettings, calibrate_sweep
 
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
 

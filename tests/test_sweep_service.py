@@ -14,18 +14,18 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
+from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib.rig import service as rig_service
+from backend.calib.sweep import service
 from backend.core.errors import CancelledError, InputError, NotFoundError
+from backend.core.result import TransformResult
 from backend.core.rig import Frame
-from backend.core.sweep import SweepGeometry
+from backend.core.sweep_geometry import SweepGeometry
 from backend.core.transforms import transform_error
 from backend.devices.base import Sample, create_device
 from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY, SweptScanner, points_in_base
 from backend.devices.image_io import decode_image_bytes
-from backend.services import lidar_lidar as lidar_service
-from backend.services import rig as rig_service
-from backend.services import sweep as service
 from backend.sim.demo_rig import SWEEP_NOMINAL_GEOMETRY, demo_rig
-from backend.solvers.result import TransformResult
 from backend.store.session import Session, SessionStore
 
 SENSOR = "sweep_3d"

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import FALLBACKS, Detection, detect_board, draw_detection
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
@@ -20,7 +21,6 @@ from backend.sim.board_motion import board_poses, project_corners
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD
 from backend.sim.thermal import thermal_image
-from backend.solvers.board_detection import FALLBACKS, Detection, detect_board, draw_detection
 
 THERMAL_CAMERA = CameraIntrinsics("pinhole-radtan", 640, 512,
                                   np.array([[686.0, 0, 319.5], [0, 686.0, 255.5], [0, 0, 1]]), [-0.08, 0.02, 0, 0, 0])

@@ -9,10 +9,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from backend.calib.sweep.checks import sweep_verdict
 from backend.core.errors import InputError
 from backend.core.rig import Frame, Rig
 from backend.core.verdict import NO_VERDICT_REASON, Verdict, VerdictBuilder, judge_transform_sigmas
-from backend.solvers.sweep_checks import sweep_verdict
 from backend.store.session import Session
 
 

@@ -6,7 +6,7 @@ name ends in ``_deg``. Euler angles follow ROS ``static_transform_publisher``:
 ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``. Quaternions are ``(x, y, z, w)``.
 
 A small perturbation of a transform is the 6-vector every solver, covariance and export
-uses (``TRANSFORM_PARAMETERS`` of :mod:`backend.solvers.result`): ``[dt (m, parent axes),
+uses (``TRANSFORM_PARAMETERS`` of :mod:`backend.core.result`): ``[dt (m, parent axes),
 dr (rad, rotation vector about the child's axes)]``, so ``T = (R Exp(dr), t + dt)``
 (:func:`params_between`, :func:`apply_params`).
 

@@ -8,8 +8,8 @@ counts ticks up.
 :class:`SweptScanner` (driver ``"swept_scanner"``) is the "2D scanner on a servo" rig: each
 :meth:`~SweptScanner.read` is one full sweep: the servo steps from ``start_deg`` to ``end_deg``,
 at each step it settles, one fresh 2D scan is read, and the servo angle is read back; the scans
-are assembled with a :class:`~backend.core.sweep.SweepGeometry` into one cloud in the ``mount``
-frame (see :mod:`backend.core.sweep`).
+are assembled with a :class:`~backend.core.sweep_geometry.SweepGeometry` into one cloud in the ``mount``
+frame (see :mod:`backend.core.sweep_geometry`).
 
 Simulation: ``servo_port="sim"`` starts a :class:`~backend.sim.dynamixel_sim.DynamixelSimulator`
 (byte-level Protocol 2.0 on a pty) and ``scanner={"driver": "sim", ...}`` is a 2D scanner bolted
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.core.sweep import SweepGeometry, stack_scans
+from backend.core.sweep_geometry import SweepGeometry, stack_scans
 from backend.core.transforms import from_xyz_ypr, transform_points
 from backend.devices.base import (
     CaptureDevice,
@@ -300,7 +300,8 @@ class SweptScanner(CaptureDevice):
       calibration (:meth:`scans_of`); ``scan_angles_rad`` (M,) angle of each point within its scan;
     - ``step_counts`` (per step, points of its scan) and ``geometry`` (the dict used): with
       ``servo_angles_rad`` what a stored capture needs to recover the raw scans
-      (:func:`~backend.core.sweep.scans_from_capture`); ``frame`` ``"mount"``, ``sweep_seconds``, ``servo_retries``;
+      (:func:`~backend.core.sweep_geometry.scans_from_capture`); ``frame`` ``"mount"``, ``sweep_seconds``,
+      ``servo_retries``;
     - in simulation: ``simulated`` True, ``true_geometry``, ``T_base_mount`` (ground truth).
     """
 

@@ -2,7 +2,7 @@
 
 Everything comes from the session as stored: the accepted results (the acceptance slots), the
 captures they were solved from, and the rig tree fused from every accepted edge
-(:func:`backend.services.rig.solve_rig`). Residuals a record does not keep are recomputed from
+(:func:`backend.calib.rig.service.solve_rig`). Residuals a record does not keep are recomputed from
 its captures: the corners of an intrinsics view from the stored detection and the accepted
 camera and board pose, the cloud-to-cloud distances of a LiDAR-LiDAR edge from its clouds.
 """
@@ -16,15 +16,15 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib.board.detection import Detection
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment
+from backend.calib.rig.graph import EdgeResidual, RigTree
+from backend.calib.rig.service import record_transforms, solve_rig
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.result import TransformResult
 from backend.core.transforms import transform_points
-from backend.services.rig import record_transforms, solve_rig
-from backend.solvers.board_detection import Detection
-from backend.solvers.lidar_lidar import LidarLidarSettings, evaluate_alignment
-from backend.solvers.result import TransformResult
-from backend.solvers.rig_graph import EdgeResidual, RigTree
 from backend.store.schema import Acceptance
 from backend.store.session import Session
 
@@ -98,7 +98,7 @@ class ReportData:
     """Everything the report shows."""
 
     session: dict[str, Any]
-    """:meth:`Session.info`, with ``depth_network``: the depth nodes' :func:`~backend.services.depth_network.
+    """:meth:`Session.info`, with ``depth_network``: the depth nodes' :func:`~backend.calib.depth.service.
     network_summary` (None when the rig has no depth node), which the template reads from here."""
     generated_at: float
     """s since the epoch."""
@@ -147,9 +147,9 @@ def gather(session: Session) -> ReportData:
 
 
 def depth_network_summary(session: Session) -> dict[str, Any]:
-    """The depth network as the report shows it: :func:`~backend.services.depth_network.network_summary` (each
+    """The depth network as the report shows it: :func:`~backend.calib.depth.service.network_summary` (each
     node's pose, sigma and verdict; the verification table) with the pose table's rows."""
-    from backend.services.depth_network import network_summary
+    from backend.calib.depth.service import network_summary
 
     return network_summary(session)
 

@@ -16,9 +16,9 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import FancyArrowPatch, Patch
 
+from backend.calib.rig.graph import RigTree
 from backend.core.verdict import PROJECTION_TOLERANCE_PX
 from backend.reports.gather import CameraReport, EdgeReport
-from backend.solvers.rig_graph import RigTree
 
 USED, OUTLIER, UNUSED = "#3b6ea8", "#c0392b", "#a0a0a0"
 AXIS_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")

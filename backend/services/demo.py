@@ -29,16 +29,16 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.lidar_camera.capture import store_pair
+from backend.calib.multicam.capture import capture_set
+from backend.calib.rig import service as rig_service
+from backend.core.result import ProgressCallback, no_progress
 from backend.devices.base import create_device
-from backend.services import intrinsics as intrinsics_service
-from backend.services import rig as rig_service
 from backend.services.jobs import Job, JobRunner
-from backend.services.lidar_camera_pairs import store_pair
-from backend.services.multicam_capture import capture_set
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.solvers.board_detection import detect_board
-from backend.solvers.intrinsics import IntrinsicsSettings
-from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.session import Session, SessionStore
 
 DEMO_NAME = "demo"

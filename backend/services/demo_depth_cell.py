@@ -28,18 +28,18 @@ from typing import Literal
 
 import numpy as np
 
+from backend.calib.depth import service as depth_network
 from backend.core.depth import pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, CellLayout, TablePlacement, default_cell_layout
+from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Frame, Rig
 from backend.core.transforms import apply_params
 from backend.devices.base import create_device
 from backend.devices.node_network import NodeNetwork
-from backend.services import depth_network
 from backend.services.demo import ensure_staged_session
 from backend.services.jobs import Job, JobRunner
 from backend.services.node_processes import NodeProcesses, free_tcp_port
 from backend.sim.depth_cell import table_placements, truth_dict
-from backend.solvers.result import ProgressCallback, no_progress
 from backend.store.atomic import write_json_atomic
 from backend.store.session import Session, SessionStore
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+from backend.calib.rig.service import solve_rig
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, Rig
@@ -16,7 +17,6 @@ from backend.exports.rig_transforms import dump_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
 from backend.exports.ros_camera_info import dump_camera_info
 from backend.exports.urdf import dump_urdf
-from backend.services.rig import solve_rig
 from backend.store.session import Session
 
 MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python", "pose-table": "text/csv"}

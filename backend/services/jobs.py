@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from backend.core.errors import CancelledError, InputError, NotFoundError, shorten
-from backend.solvers.result import ProgressCallback
+from backend.core.result import ProgressCallback
 
 JobState = Literal["running", "done", "failed", "cancelled"]
 

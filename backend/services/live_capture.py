@@ -1,8 +1,8 @@
 """Live camera capture with guidance: detect on every frame, keep frames that add coverage.
 
 Runs the device in its own thread so the UI never waits on a camera. Every frame
-is detected quickly for the preview (:mod:`backend.solvers.live_detection`); a frame that adds coverage (see
-:mod:`backend.solvers.coverage`) is re-detected at full accuracy and stored as a
+is detected quickly for the preview (:mod:`backend.calib.board.live_detection`); a frame that adds coverage (see
+:mod:`backend.calib.board.coverage`) is re-detected at full accuracy and stored as a
 capture, immediately and atomically, so an unplugged camera loses nothing.
 """
 
@@ -14,14 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backend.calib.board.coverage import Coverage
+from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.live_detection import LiveDetector
+from backend.calib.intrinsics import service as intrinsics_service
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.devices.base import Sample
-from backend.services import intrinsics as intrinsics_service
 from backend.services.sensor_stream import SensorStream
-from backend.solvers.board_detection import Detection, detect_board
-from backend.solvers.coverage import Coverage
-from backend.solvers.live_detection import LiveDetector
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 

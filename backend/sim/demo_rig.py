@@ -61,7 +61,7 @@ SWEEP_NOMINAL_GEOMETRY: dict = {
     "T_servo_scanner": make_T(np.eye(3), np.array([0.03, 0.0, 0.05])).tolist(),
     "zero_offset_rad": 0.0,
 }
-"""The swept scanner's geometry as drawn (:class:`~backend.core.sweep.SweepGeometry` dict): servo axis
+"""The swept scanner's geometry as drawn (:class:`~backend.core.sweep_geometry.SweepGeometry` dict): servo axis
 along mount x, optical centre 3 cm along it and 5 cm above, no tilt, servo zero as read. The truth
 (:data:`~backend.devices.dynamixel_servo.DEFAULT_SIM_GEOMETRY`) is off by about a centimetre and 1.5 deg."""
 

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backend.calib.board.detection import Detection
+from backend.calib.multicam.graph import Observation
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import from_xyz_ypr, invert, look_at, transform_points
 from backend.sim.board_motion import plate_in_view
-from backend.solvers.board_detection import Detection
-from backend.solvers.multicam_graph import Observation
 
 SPACING_DEG = 40.0
 """Default azimuth between neighbouring cameras (deg); each sees about 70 deg across, so neighbours overlap."""

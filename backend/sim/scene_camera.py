@@ -7,7 +7,7 @@ sky, with an albedo per surface label (:data:`LABEL_ALBEDO`) and optionally a sm
 texture fixed to the scene; sub-pixels are averaged per pixel, and lens blur and sensor noise
 are added. Where two faces of the mesh meet at an angle they face the sun differently, so the
 image has an edge exactly where a LiDAR sees two planes intersect: the depth-continuous edges
-of targetless LiDAR-camera calibration (:mod:`backend.solvers.lidar_camera_edges`). Rays that
+of targetless LiDAR-camera calibration (:mod:`backend.calib.lidar_camera.edges`). Rays that
 leave the yard (over the walls) see the sky, :data:`SKY_RADIANCE`.
 
 The board's print has the reflectances of :mod:`backend.sim.board_renderer`, on the squares where the

@@ -127,7 +127,7 @@ DEPTH_NETWORK_VERSION = 1
 
 
 class GuidedNodeState(FiniteModel):
-    """Where one depth node stands in the guided procedure (``backend.services.depth_guided``)."""
+    """Where one depth node stands in the guided procedure (``backend.calib.depth.guided_service``)."""
 
     step: str | None = Field(None, description="the step to work on next; None: not started, or every step done")
     done: list[str] = Field(default_factory=list, description="steps whose criterion held when they were applied")

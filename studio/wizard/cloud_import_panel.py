@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from backend.calib.lidar_lidar import service as lidar_service
 from backend.core.errors import InputError
 from backend.devices.cloud_files import CLOUD_EXTENSIONS
-from backend.services import lidar_lidar as lidar_service
 from backend.services import recordings
 from studio.context import StudioContext
 from studio.job_panel import JobPanel

@@ -7,7 +7,7 @@ each ``T_world_node`` in the paper's optical node frame, :mod:`backend.core.dept
 - **Nodes**: who is there (:class:`backend.devices.node_network.NodeNetwork` presence through Zenoh
   liveliness, live), each node's clock offset, bandwidth and frames/s; *Capture* one node or
   *Capture all* (what arrived is stored; a node that vanished is named).
-- **Guided procedure** of one node, in its order (:data:`backend.solvers.depth_guided.GUIDED_STEPS`):
+- **Guided procedure** of one node, in its order (:data:`backend.calib.depth.guided.GUIDED_STEPS`):
   1 initial pose typed, 2 tables behind each other, 3 tables beside each other, 4 lines and points.
   Each step says what to place where and why it comes here, holds the node's pose in the transform
   editor (sliders and nudges), shows the live residuals (table heights measured against known, line
@@ -18,7 +18,7 @@ each ``T_world_node`` in the paper's optical node frame, :mod:`backend.core.dept
 - **Network**: the merged voxel map in 3D, verification (two points, picked in 3D or chosen among the
   detected crosses, and the laser-measured distance: measured against estimated) and the pose table.
 
-Logic lives in the services (:mod:`backend.services.depth_network`, :mod:`backend.services.depth_guided`);
+Logic lives in the services (:mod:`backend.calib.depth.service`, :mod:`backend.calib.depth.guided_service`);
 the 3D drawing in :mod:`studio.depth_view`.
 """
 
@@ -31,13 +31,13 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib.depth import guided_service
+from backend.calib.depth import service as network_service
+from backend.calib.depth.guided import GUIDED_STEPS
 from backend.core.depth import POSE_COLUMNS, pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot
 from backend.core.verdict import Verdict
-from backend.services import depth_guided as guided_service
-from backend.services import depth_network as network_service
-from backend.solvers.depth_guided import GUIDED_STEPS
 from studio.cloud_colours import sensor_colour
 from studio.context import StudioContext
 from studio.depth_view import COUNT_COLOUR_MAX, STEP, DepthView
@@ -139,7 +139,7 @@ def suggestion_label(suggestion: dict[str, float]) -> str:
 
 def criterion_markdown(advice: dict[str, Any]) -> str:
     """The step's done criterion with its tick and the problems the solver met (``advice``:
-    :func:`backend.services.depth_guided.advice_dict`; why the step comes here is in :data:`INSTRUCTIONS`)."""
+    :func:`backend.calib.depth.guided_service.advice_dict`; why the step comes here is in :data:`INSTRUCTIONS`)."""
     tick = "✅ **Done**" if advice["done"] else "⬜ **Not yet**"
     return "\n".join([f"{tick}: {advice['criterion']}", *(f"- ⚠️ {problem}" for problem in advice["problems"])])
 
@@ -531,7 +531,7 @@ class DepthNetworkStep:
             self._show_advice(node, step, T, advice)
 
     def _show_advice(self, node: str, step: str, T: np.ndarray, advice: dict[str, Any]) -> None:
-        """Show ``advice`` (:func:`backend.services.depth_guided.advice_dict`) of ``step`` at pose ``T``."""
+        """Show ``advice`` (:func:`backend.calib.depth.guided_service.advice_dict`) of ``step`` at pose ``T``."""
         self._measured = (node, step, T)
         self.residuals_text.content = residuals_markdown(advice["residuals"])
         self.apply_button.label = suggestion_label(advice["suggestion"])

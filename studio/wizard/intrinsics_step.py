@@ -6,14 +6,14 @@ import time
 
 import numpy as np
 
+from backend.calib.board.coverage import PARAM_NAMES, Coverage, enough_data
+from backend.calib.board.detection import Detection
+from backend.calib.board.pose import board_pose, nominal_camera
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
-from backend.services import intrinsics as intrinsics_service
-from backend.services import rig as rig_service
 from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
-from backend.solvers.board_detection import Detection
-from backend.solvers.board_pose import board_pose, nominal_camera
-from backend.solvers.coverage import PARAM_NAMES, Coverage, enough_data
-from backend.solvers.intrinsics import IntrinsicsSettings
 from backend.store.schema import CaptureRecord
 from studio import plots
 from studio.context import StudioContext

@@ -30,17 +30,17 @@ from urllib.parse import quote, urlencode
 
 import numpy as np
 
+from backend.calib.lidar_camera import capture as pairs_service
+from backend.calib.lidar_camera import service as lidar_camera_service
+from backend.calib.lidar_camera.service import PairData
+from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
 from backend.core.projection import colourise_cloud
 from backend.core.rig import edge_slot
 from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
-from backend.services import lidar_camera as lidar_camera_service
-from backend.services import lidar_camera_pairs as pairs_service
-from backend.services import lidar_lidar as lidar_service
-from backend.services import rig as rig_service
-from backend.services.lidar_camera import PairData
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_card import ResultCard

@@ -16,7 +16,7 @@ write their transform back into the sliders; refine starts from the sliders and 
 one transform over the ticked capture pairs (*Scenes*: pairs taken in different places
 cross-check each other). Half a second after the last nudge the source cloud is
 recoloured by its distance to the target at the new pose (colours only). The guess and
-the fit at the sliders' pose are :mod:`backend.services.lidar_lidar`'s; this step only draws.
+the fit at the sliders' pose are :mod:`backend.calib.lidar_lidar.service`'s; this step only draws.
 The :class:`~studio.result_card.ResultCard` shows the result (pose, sigma, residuals, verdict)
 and accepts it into the rig's tree with its preview; beside it, every scene's own solve and the
 cloud-to-cloud histogram.
@@ -31,13 +31,13 @@ import numpy as np
 import viser
 from scipy.spatial import cKDTree
 
+from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+from backend.calib.rig import service as rig_service
+from backend.calib.sweep import service as sweep_service
 from backend.core.errors import InputError
 from backend.core.transforms import to_xyz_ypr
-from backend.services import lidar_lidar as lidar_service
-from backend.services import rig as rig_service
-from backend.services import sweep as sweep_service
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
-from backend.solvers.lidar_lidar import LidarLidarSettings
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel

@@ -1,10 +1,10 @@
 """Step 7: multi-camera rig - synchronised sets, one joint solve of every camera, its checks, accept, export.
 
-A *set* is one moment seen by several cameras (:mod:`backend.services.multicam_capture`):
+A *set* is one moment seen by several cameras (:mod:`backend.calib.multicam.capture`):
 captured here from every chosen camera's device at once, refused when the frame times
 spread over more than the tolerance, or imported from a recorded bag, whose frames are
 matched by timestamp (frames no other camera matches are reported, not stored). *Solve*
-runs the joint calibration (:func:`backend.services.multicam.solve_session`) as a job:
+runs the joint calibration (:func:`backend.calib.multicam.service.solve_session`) as a job:
 the reference camera keeps its place in the rig and every other camera is solved
 relative to it; cameras without intrinsics get them estimated from the sets.
 
@@ -14,7 +14,7 @@ it (each camera an edge of the rig graph, after the rig preview; an older result
 beside it per camera its verdict, RMS and estimated intrinsics, the observation graph (which
 cameras saw the board together, how often), per-frame residual bars, per pair the baseline
 and the epipolar error, with the stereo check of any set
-(:func:`backend.services.multicam.stereo_check`), and in 3D the solved frusta and board poses
+(:func:`backend.calib.multicam.service.stereo_check`), and in 3D the solved frusta and board poses
 beside the rig, in the step's layer group. The rig is then exported as the rig transforms YAML
 (with ROS static transforms) or a Kalibr camchain.
 """
@@ -26,14 +26,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.core.boards import BoardSpec
-from backend.core.camera import DIST_NAMES, CameraIntrinsics
-from backend.services import multicam as multicam_service
-from backend.services import multicam_capture as capture_service
-from backend.solvers.stereo import (
+from backend.calib.multicam import capture as capture_service
+from backend.calib.multicam import service as multicam_service
+from backend.calib.multicam.stereo import (
     LINE_COLOUR_BGR,
     Rectification,
 )
+from backend.core.boards import BoardSpec
+from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel

@@ -1,6 +1,6 @@
 """Step 8: the rig - the fused tree of every accepted result, its checks, reverts and the whole-rig downloads.
 
-The tree is :func:`backend.services.rig.solve_rig`: each frame's ``T_parent_child`` with its sigma,
+The tree is :func:`backend.calib.rig.service.solve_rig`: each frame's ``T_parent_child`` with its sigma,
 each edge (mounting prior or accepted result) with its residual against the tree and its
 leave-one-out disagreement with the rest, the loops' closure errors and the frames no edge
 connects to the root. The 3D view draws it under ``/rig_tree`` (:meth:`RigScene.show_rig_tree`):
@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import viser
 
+from backend.calib.rig import service as rig_service
+from backend.calib.rig.graph import FLAG_SIGMA, EdgeResidual, RigTree
 from backend.core.errors import InputError
 from backend.core.transforms import to_xyz_ypr
-from backend.services import rig as rig_service
-from backend.solvers.rig_graph import FLAG_SIGMA, EdgeResidual, RigTree
 from studio.context import StudioContext
 from studio.scene import ELLIPSOID_MAX_M
 

@@ -1,6 +1,6 @@
 """Step 5: the swept scanner - capture a sweep, calibrate its geometry, inspect, accept.
 
-A 2D scanner on a servo gives one 3D cloud per sweep (:mod:`backend.core.sweep`). Its
+A 2D scanner on a servo gives one 3D cloud per sweep (:mod:`backend.core.sweep_geometry`). Its
 geometry (the optical centre's offset from the servo axis, the scanner's tilt on the
 horn, the servo's zero) decides how flat walls and floor come out. The step captures a
 sweep as a background job, draws it in the step's layer (``/steps/sweep/<sensor>/cloud``)
@@ -17,13 +17,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from backend.calib.rig import service as rig_service
+from backend.calib.sweep import service as sweep_service
+from backend.calib.sweep.checks import LABELS
+from backend.calib.sweep.solver import SweepCalibrationSettings
 from backend.core.errors import InputError
-from backend.core.sweep import SweepGeometry
+from backend.core.sweep_geometry import SweepGeometry
 from backend.core.transforms import to_xyz_ypr, transform_points
-from backend.services import rig as rig_service
-from backend.services import sweep as sweep_service
-from backend.solvers.sweep_calibration import SweepCalibrationSettings
-from backend.solvers.sweep_checks import LABELS
 from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel

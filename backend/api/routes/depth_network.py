@@ -1,6 +1,6 @@
 """A depth-camera network: layout, nodes, depth captures, solves, the guided procedure, verification, the map.
 
-Thin routes over :mod:`backend.services.depth_network` and :mod:`backend.services.depth_guided`; solves run as
+Thin routes over :mod:`backend.calib.depth.service` and :mod:`backend.calib.depth.guided_service`; solves run as
 jobs (poll ``/api/jobs/{id}``). Presence and live captures go through the process's open
 :class:`~backend.devices.node_network.NodeNetwork` (the demo's, or the one the studio's depth-network step
 listens on) when there is one.
@@ -31,13 +31,13 @@ from backend.api.depth_schemas import (
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus
 from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
+from backend.calib.depth import guided_service as guided
+from backend.calib.depth import service
 from backend.core.depth import pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.base import Sample
 from backend.devices.node_network import NodeNetwork, open_network
-from backend.services import depth_guided as guided
-from backend.services import depth_network as service
 
 router = APIRouter(prefix="/sessions/{name}/depth-network", tags=["depth network"], route_class=UploadRoute)
 

@@ -9,11 +9,11 @@ from fastapi import APIRouter, File, Query, Response, UploadFile
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, ImportResponse, IntrinsicsSolveRequest, JobStatus
 from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
+from backend.calib.intrinsics import service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.rig import service as rig
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.image_io import encode_jpeg
-from backend.services import intrinsics as service
-from backend.services import rig
-from backend.solvers.intrinsics import IntrinsicsSettings
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}", tags=["intrinsics"], route_class=UploadRoute)
 

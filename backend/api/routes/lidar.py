@@ -11,11 +11,11 @@ from fastapi import APIRouter, File, UploadFile
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus, LidarLidarAccept, LidarLidarSolveRequest
 from backend.api.uploads import UploadRoute, save_uploads, upload_folder, upload_limit
+from backend.calib.lidar_lidar import service
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+from backend.calib.rig import service as rig_service
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB
 from backend.core.transforms import from_xyz_ypr
-from backend.services import lidar_lidar as service
-from backend.services import rig as rig_service
-from backend.solvers.lidar_lidar import LidarLidarSettings
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=UploadRoute)
 

@@ -18,16 +18,16 @@ from backend.api.schemas import (
     LidarCameraSolveRequest,
 )
 from backend.api.uploads import UploadRoute, file_name, read_image_upload, save_upload, upload_folder, upload_limit
+from backend.calib.intrinsics.service import check_camera
+from backend.calib.lidar_camera import capture as pairs_service
+from backend.calib.lidar_camera import service
+from backend.calib.lidar_lidar.service import check_lidar
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB, MAX_IMAGE_PIXELS
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, render_overlays, with_legend
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
-from backend.services import lidar_camera as service
-from backend.services import lidar_camera_pairs as pairs_service
-from backend.services import rig as rig_service
-from backend.services.intrinsics import check_camera
-from backend.services.lidar_lidar import check_lidar
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar-camera"], route_class=UploadRoute)
 
@@ -96,7 +96,7 @@ def manual(body: LidarCameraManual, session: deps.SessionDep) -> dict[str, Any]:
 
 @router.post("/sensors/{sensor}/lidar-camera/accept")
 def accept(sensor: str, body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
-    """Accept a LiDAR-to-camera result of ``sensor`` into the rig (:func:`backend.services.rig.accept`)."""
+    """Accept a LiDAR-to-camera result of ``sensor`` into the rig (:func:`backend.calib.rig.service.accept`)."""
     service.lidar_camera_record(session, sensor, body.result_id)
     rig_service.accept(session, body.result_id, confirm=body.confirm)
     return session.info()

@@ -9,11 +9,11 @@ from fastapi import APIRouter, Query, Response
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, MulticamBagImport, MulticamSetCapture, MulticamSolveRequest
+from backend.calib.multicam import capture as capture_service
+from backend.calib.multicam import service
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.devices.image_io import encode_png
-from backend.services import multicam as service
-from backend.services import multicam_capture as capture_service
-from backend.services import rig as rig_service
 
 router = APIRouter(prefix="/sessions/{name}/multicam", tags=["multicam"])
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, PreviewRequest, RevertRequest
-from backend.services import rig as service
+from backend.calib.rig import service
 
 router = APIRouter(tags=["rig"])
 

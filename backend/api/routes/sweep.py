@@ -8,10 +8,10 @@ from fastapi import APIRouter, Query, Response
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, SweepCalibrateRequest
+from backend.calib.rig import service as rig
+from backend.calib.sweep import service
+from backend.calib.sweep.solver import SweepCalibrationSettings
 from backend.devices.image_io import encode_png
-from backend.services import rig
-from backend.services import sweep as service
-from backend.solvers.sweep_calibration import SweepCalibrationSettings
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}/sweep", tags=["sweep"])
 

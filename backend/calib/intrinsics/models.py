@@ -1,0 +1,168 @@
+"""Which lens model to solve with: candidates compared by their reprojection error on held-out views.
+
+Each candidate is fitted on all but one fold of the views and tested on the views it did not see (each
+held-out view gets its own pose by PnP with the fitted intrinsics, then its corners' RMS): a model with
+more coefficients always fits its own views better, but only a model that follows the lens also predicts
+new ones. The recommendation is the simplest candidate whose held-out RMS is within
+:data:`WITHIN_BEST` of the best output model's. OpenCV's rational model (8 coefficients) is compared too,
+but it is not an output model here (no export or projection carries it), so it can only be reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from backend.calib.intrinsics.solver import (
+    TERM_CRITERIA,
+    IntrinsicsResult,
+    IntrinsicsSettings,
+    View,
+    _check_views,
+    _opencv_calibrate,
+    _pick_corners,
+    calibrate_intrinsics,
+)
+from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, no_progress
+
+MIN_VIEWS_TO_COMPARE = 8
+"""Fewest views for the comparison: each of the :data:`FOLDS` fits keeps at least 6 views."""
+FOLDS = 4
+"""Views are dealt round-robin into this many folds; each is held out once."""
+WITHIN_BEST = 0.05
+"""A simpler model is preferred while its held-out RMS is at most this fraction above the best's."""
+SIMPLE = "pinhole-radtan k1-k2"
+"""The model kept when the views are too few to compare."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A lens model to compare: its name, the solve settings (None: OpenCV's rational model) and parameters."""
+
+    name: str
+    settings: IntrinsicsSettings | None
+    n_dist: int
+    """Distortion coefficients it estimates (its complexity; fewer wins a tie)."""
+
+
+def candidates(base: IntrinsicsSettings) -> list[Candidate]:
+    """The compared models, simplest first; ``base`` gives the shared options (tangential, aspect)."""
+    radtan = replace(base, model="pinhole-radtan", jackknife=False, cross_validate=False, drop_outliers=False)
+    tangential = 2 if base.estimate_tangential else 0
+    return [
+        Candidate(SIMPLE, replace(radtan, estimate_k3=False), 2 + tangential),
+        Candidate("fisheye-equidistant", replace(radtan, model="fisheye-equidistant"), 4),
+        Candidate("pinhole-radtan k1-k3", replace(radtan, estimate_k3=True), 3 + tangential),
+        Candidate("pinhole-rational", None, 6 + tangential),
+    ]
+
+
+def _fit(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[int, int],
+         base: IntrinsicsSettings) -> tuple[np.ndarray, np.ndarray]:
+    """K and dist of ``candidate`` fitted on ``views``."""
+    if candidate.settings is not None:
+        K, dist, _, _ = _opencv_calibrate(views, board, size, candidate.settings)
+        return K, dist
+    flags = (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_ZERO_TANGENT_DIST * (not base.estimate_tangential)
+             | cv2.CALIB_FIX_ASPECT_RATIO * base.fix_aspect)
+    _, K, dist, _, _ = cv2.calibrateCamera([v.detection.object_points(board) for v in views],
+                                           [v.detection.corners_px.astype(np.float32) for v in views], size,
+                                           np.eye(3), None, flags=flags, criteria=TERM_CRITERIA)
+    return K, dist.ravel()[:8]
+
+
+def _held_out_residuals(fisheye: bool, K: np.ndarray, dist: np.ndarray, view: View, board: BoardSpec) -> np.ndarray:
+    """(N, 2) residuals (px) of a view the model was not fitted on, posed by PnP with the fitted intrinsics."""
+    obj = view.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3)
+    img = view.detection.corners_px.reshape(-1, 1, 2)
+    if fisheye:
+        _, rvec, tvec = cv2.fisheye.solvePnP(obj, img, K, dist[:4], flags=cv2.SOLVEPNP_ITERATIVE)
+        projected, _ = cv2.fisheye.projectPoints(obj, rvec, tvec, K, dist[:4])
+    else:
+        _, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+        projected, _ = cv2.projectPoints(obj, rvec, tvec, K, dist)
+    return img.reshape(-1, 2) - projected.reshape(-1, 2)
+
+
+def _held_out_rms(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[int, int],
+                  base: IntrinsicsSettings) -> dict[str, Any]:
+    """``{"model", "n_dist", "held_out_rms_px"}`` over :data:`FOLDS` folds, or with ``error`` if a fit failed."""
+    residuals = []
+    fisheye = candidate.name == "fisheye-equidistant"
+    try:
+        for fold in range(FOLDS):
+            train = [v for i, v in enumerate(views) if i % FOLDS != fold]
+            K, dist = _fit(candidate, train, board, size, base)
+            residuals += [_held_out_residuals(fisheye, K, dist, v, board)
+                          for i, v in enumerate(views) if i % FOLDS == fold]
+    except (InputError, cv2.error) as exc:
+        message = exc.message if isinstance(exc, InputError) else exc.err
+        return {"model": candidate.name, "n_dist": candidate.n_dist, "held_out_rms_px": None, "error": message}
+    r = np.concatenate(residuals)
+    return {"model": candidate.name, "n_dist": candidate.n_dist,
+            "held_out_rms_px": float(np.sqrt(np.mean(np.sum(r**2, axis=1))))}
+
+
+def compare_models(views: list[View], board: BoardSpec, size: tuple[int, int],
+                   base: IntrinsicsSettings) -> dict[str, Any]:
+    """Compare the :func:`candidates` on held-out views and recommend one.
+
+    Returns ``{"status": "compared" | "too few views", "recommended", "reason", "candidates": [...]}``;
+    ``recommended`` is always an output model's name (:data:`SIMPLE` when the views are too few).
+    """
+    if len(views) < MIN_VIEWS_TO_COMPARE:
+        return {"status": "too few views", "recommended": SIMPLE, "candidates": [],
+                "reason": f"{len(views)} views; comparing models on held-out views needs at least "
+                          f"{MIN_VIEWS_TO_COMPARE}, so the simple model {SIMPLE} is kept"}
+    _check_views(views, board)
+    rows = [_held_out_rms(c, views, board, size, base) for c in candidates(base)]
+    scored = [r for r in rows if r["held_out_rms_px"] is not None]
+    outputs = [r for r in scored if r["model"] != "pinhole-rational"]
+    if not outputs:
+        return {"status": "compared", "recommended": SIMPLE, "candidates": rows,
+                "reason": f"no output model could be fitted on every fold; {SIMPLE} is kept"}
+    best = min(outputs, key=lambda r: r["held_out_rms_px"])
+    limit = best["held_out_rms_px"] * (1 + WITHIN_BEST)
+    chosen = min((r for r in outputs if r["held_out_rms_px"] <= limit), key=lambda r: r["n_dist"])
+    reason = (f"{chosen['model']}: held-out RMS {chosen['held_out_rms_px']:.3f} px, within {WITHIN_BEST:.0%} of the "
+              f"best ({best['model']}, {best['held_out_rms_px']:.3f} px) with the fewest coefficients")
+    worse = [r for r in outputs if r["n_dist"] < chosen["n_dist"]]
+    if worse:
+        reason += "; simpler: " + ", ".join(f"{r['model']} {r['held_out_rms_px']:.3f} px" for r in worse)
+    rational = next((r for r in scored if r["model"] == "pinhole-rational"), None)
+    if rational and rational["held_out_rms_px"] < chosen["held_out_rms_px"] / (1 + WITHIN_BEST):
+        reason += (f"; the rational model predicts better still ({rational['held_out_rms_px']:.3f} px) but is "
+                   "compared only, not an output model")
+    for row in rows:
+        row["recommended"] = row["model"] == chosen["model"]
+    return {"status": "compared", "recommended": chosen["model"], "reason": reason, "candidates": rows}
+
+
+def settings_for(recommended: str, base: IntrinsicsSettings) -> IntrinsicsSettings:
+    """``base`` with the model (and k3) of a recommended output model's name."""
+    if recommended == "fisheye-equidistant":
+        return replace(base, model="fisheye-equidistant")
+    return replace(base, model="pinhole-radtan", estimate_k3=recommended == "pinhole-radtan k1-k3")
+
+
+def solve_auto(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+               progress: ProgressCallback = no_progress) -> IntrinsicsResult:
+    """:func:`calibrate_intrinsics`, first resolving ``settings.model == "auto"`` by :func:`compare_models`.
+
+    The comparison runs on the corner set that fits the simple model better (:func:`_pick_corners`); the
+    result carries it as ``model_comparison``.
+    """
+    if settings.model != "auto":
+        return calibrate_intrinsics(views, board, size, settings, progress)
+    progress(0.0, "comparing lens models on held-out views")
+    _check_views(views, board)
+    picked, _ = _pick_corners(views, board, size, settings_for(SIMPLE, settings))
+    comparison = compare_models(picked, board, size, settings)
+    result = calibrate_intrinsics(views, board, size, settings_for(comparison["recommended"], settings), progress)
+    result.model_comparison = comparison
+    return result

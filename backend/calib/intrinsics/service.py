@@ -1,0 +1,213 @@
+"""Intrinsics workflow shared by the API, the studio and the CLI.
+
+capture or import images -> detect the board -> store captures -> solve -> store
+the result -> accept it into the rig (:func:`backend.calib.rig.service.accept`, whose effect is
+:func:`apply_intrinsics`). Routers and wizard steps call these functions and hold no logic of
+their own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from backend.calib.board.detection import Detection, detect_board
+from backend.calib.intrinsics.models import solve_auto
+from backend.calib.intrinsics.solver import IntrinsicsResult, IntrinsicsSettings, View
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, no_progress
+from backend.core.rig import Rig
+from backend.devices.image_folder import image_files
+from backend.devices.image_io import decode_image_bytes, read_image
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+KIND = IntrinsicsResult.kind
+
+
+@dataclass
+class DetectedImage:
+    name: str
+    image: np.ndarray
+    detection: Detection | None
+
+
+@dataclass
+class ImportReport:
+    added: list[CaptureRecord] = field(default_factory=list)
+    skipped: list[dict[str, str]] = field(default_factory=list)
+    """``{"input": file name, "message": why}`` for images that were not stored."""
+
+
+def session_board(session: Session) -> BoardSpec:
+    if not session.board:
+        raise InputError(f"session {session.name!r} has no board spec yet; set one such as checkerboard:9x6:0.025",
+                         "board")
+    return BoardSpec.parse(session.board)
+
+
+def _no_board_message(name: str, board: BoardSpec) -> str:
+    cols, rows = board.corner_grid
+    return (f"{name}: no {board.kind} with {cols}x{rows} inner corners found; check the board spec ({board}) "
+            "and that the whole board is sharp and inside the image")
+
+
+def detect_upload(image: np.ndarray, board: BoardSpec, name: str) -> Detection | None:
+    """:func:`detect_board` on an uploaded image; OpenCV failing on an odd image is an :class:`InputError`
+    naming the file, not a server error."""
+    try:
+        return detect_board(image, board)
+    except cv2.error as exc:
+        reason = " ".join(str(exc.err or exc).split())[:200]
+        raise InputError(f"{name}: the board search failed on this {image.shape[1]}x{image.shape[0]} px image "
+                         f"(OpenCV: {reason}); expected an ordinary photo of the board", name) from None
+
+
+def detect_uploads(files: list[tuple[str, bytes]], board: BoardSpec,
+                   progress: ProgressCallback = no_progress) -> list[DetectedImage]:
+    """Decode and detect every file; a corrupt or too large file raises :class:`InputError` naming it."""
+    out = []
+    for i, (name, data) in enumerate(files):
+        progress(i / max(len(files), 1), f"detecting the board in {name}")
+        image = decode_image_bytes(data, name, grayscale=False)
+        out.append(DetectedImage(name, image, detect_upload(image, board, name)))
+    return out
+
+
+def check_size(session: Session, sensor: str, name: str, image: np.ndarray) -> None:
+    camera = session.rig.get(sensor)
+    if camera.kind != "camera":
+        raise InputError(f"sensor {sensor!r} is a {camera.kind}, not a camera", "sensor")
+    size = (image.shape[1], image.shape[0])
+    previous = [c.image_size for c in session.captures(sensor, limit=1)]
+    expected = tuple(previous[0]) if previous else None
+    if expected and size != expected:
+        raise InputError(f"{name} is {size[0]}x{size[1]} px but earlier captures of {sensor} are "
+                         f"{expected[0]}x{expected[1]} px; all images of one camera must share one size", name)
+
+
+def store_capture(session: Session, sensor: str, image: np.ndarray, detection: Detection | None, *,
+                  device: str, timestamp_s: float, source: str | None = None,
+                  meta: dict[str, Any] | None = None) -> CaptureRecord:
+    """Keep one image (live or imported) with its board detection."""
+    check_size(session, sensor, source or "image", image)
+    return session.add_capture(sensor, image, {
+        "timestamp_s": timestamp_s, "device": device, "source": source, "board": session.board,
+        "detection": None if detection is None else detection.to_dict(), "meta": meta or {},
+    })
+
+
+def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]], *, skip_unusable: bool = False,
+                  progress: ProgressCallback = no_progress) -> ImportReport:
+    """Add uploaded images as captures. All-or-nothing unless ``skip_unusable``.
+
+    Without ``skip_unusable`` any image without the board rejects the whole batch
+    and the session stays as it was; with it, such images are reported and skipped.
+    Corrupt files always reject the batch.
+    """
+    board = session_board(session)
+    detected = detect_uploads(files, board, progress)
+    report = ImportReport()
+    missing = [d.name for d in detected if d.detection is None]
+    if missing and not skip_unusable:
+        raise InputError(_no_board_message(", ".join(missing), board), missing[0])
+    with session.lock:
+        for d in detected:
+            check_size(session, sensor, d.name, d.image)
+            # also within the batch, so a camera's first upload cannot be half stored
+            first = detected[0]
+            if d.image.shape[:2] != first.image.shape[:2]:
+                raise InputError(f"{d.name} is {d.image.shape[1]}x{d.image.shape[0]} px but {first.name} in the same "
+                                 f"upload is {first.image.shape[1]}x{first.image.shape[0]} px; all images of one "
+                                 "camera must share one size", d.name)
+        for d in detected:
+            if d.detection is None:
+                report.skipped.append({"input": d.name, "message": _no_board_message(d.name, board)})
+                continue
+            report.added.append(store_capture(session, sensor, d.image, d.detection, device="upload",
+                                              timestamp_s=0.0, source=Path(d.name).name))
+    return report
+
+
+def check_camera(session: Session, camera: str) -> None:
+    """Refuse ``camera`` unless the rig holds it as a camera (a LiDAR has no intrinsics, images or board views)."""
+    if session.rig.get(camera).kind != "camera":
+        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+
+
+def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
+    """Views (captures with a detection) of one camera (those of ``capture_ids`` if given), and its image size."""
+    check_camera(session, sensor)
+    captures = session.captures(sensor)
+    unknown = sorted(set(capture_ids or ()) - {c.id for c in captures})
+    if unknown:
+        raise InputError(f"{sensor} has no capture {', '.join(map(repr, unknown[:5]))}"
+                         f"{' (and more)' if len(unknown) > 5 else ''}", "capture_ids", status_code=404)
+    captures = [c for c in captures if capture_ids is None or c.id in capture_ids]
+    views = [View(c.id, Detection.from_dict(c.detection)) for c in captures if c.detection]
+    if not captures:
+        raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)
+    return views, tuple(captures[0].image_size)
+
+
+def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, capture_ids: list[str] | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, IntrinsicsResult]:
+    """Solve from the session's captures and store the result (not yet accepted)."""
+    board = session_board(session)
+    views, size = session_views(session, sensor, capture_ids)
+    result = solve_auto(views, board, size, settings, progress)
+    result_id = session.add_result(sensor, result.to_record(), inputs=[v.name for v in views])
+    return result_id, result
+
+
+def intrinsics_result(session: Session, sensor: str, result_id: str) -> dict[str, Any]:
+    """The stored intrinsics result ``result_id`` of the camera ``sensor``; raises :class:`InputError`
+    naming the result when it belongs to another sensor or is another kind."""
+    record = session.result(result_id)
+    if record["sensor"] != sensor:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    return record
+
+
+def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
+    """Write a stored intrinsics result into the rig's camera: the effect of accepting it
+    (:func:`backend.calib.rig.service.accept`, slot ``"<camera>/intrinsics"``)."""
+    if record.get("kind") != KIND:
+        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
+
+
+def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
+                     progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
+    """The CLI's path: every image in a folder, no session. Returns the result and skipped images."""
+    files = image_files(images_dir)
+    views, skipped, size = [], [], None
+    for i, path in enumerate(files):
+        progress(0.5 * i / len(files), f"detecting the board in {path.name}")
+        image = read_image(path, grayscale=True)
+        if size is None:
+            size = (image.shape[1], image.shape[0])
+        detection = detect_board(image, board)
+        if detection is None:
+            skipped.append({"input": path.name, "message": _no_board_message(path.name, board)})
+        else:
+            views.append(View(path.name, detection))
+    if skipped and (len(views) < 3 or len(skipped) > len(files) / 2):
+        names = ", ".join(s["input"] for s in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+        raise InputError(f"only {len(views)} of {len(files)} images show the board {board} (none in {names}); "
+                         "check the board spec (inner corners for checkerboards, squares for ChArUco) and capture at "
+                         "least 3 sharp views of the whole board", skipped[0]["input"])
+
+    def solve_progress(fraction: float, message: str) -> None:
+        progress(0.5 + 0.5 * fraction, message)
+
+    result = solve_auto(views, board, size, settings, solve_progress)
+    return result, skipped

@@ -1,0 +1,503 @@
+"""Camera intrinsic calibration with honest uncertainties.
+
+OpenCV does the solve (``calibrateCamera`` for ``pinhole-radtan``,
+``fisheye.calibrate`` for ``fisheye-equidistant``). OpenCV reports per-parameter
+standard deviations but not their covariance, so we rebuild the full problem's
+Jacobian from OpenCV's own analytic projection Jacobians (``projectPoints``) and
+compute ``cov = sigma^2 (J^T J)^-1`` over intrinsics *and* every view's pose,
+with ``sigma^2`` the residual variance (``SSR / (2N - P)``). That gives the
+standard deviations, the correlation matrix (e.g. k1-k2) and the projection
+uncertainty across the image, all from one documented noise model:
+independent, isotropic Gaussian corner noise.
+
+Checkerboard views come with several corner sets (``findChessboardCornersSB``'s and the
+same refined by :func:`~backend.calib.board.detection.refine_corners` with a few window
+sizes); the solve uses the set that fits the model best on these views (``corners`` in
+the result).
+Every result carries a :class:`~backend.core.verdict.Verdict`: the worst projection
+sigma across the image against :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`,
+and, as the independent cross-check, two calibrations from the two halves of the
+views compared across the image (:mod:`backend.calib.intrinsics.crossval`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+
+from backend.calib.board.coverage import view_parameters
+from backend.calib.board.detection import Detection
+from backend.calib.board.pose import board_pose
+from backend.calib.intrinsics.crossval import grid_pixels, projection_difference
+from backend.core.boards import BoardSpec
+from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
+from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, SolveResult, jackknife_std, no_progress
+from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
+from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
+
+MIN_VIEWS = 3
+MIN_VIEW_SPREAD = 0.1
+"""Smallest summed spread of the ROS view parameters (x, y, size, skew) before all views count as alike."""
+MAX_RELATIVE_FOCAL_STD = 0.05
+"""A focal length less certain than this fraction means the views cannot pin down the camera."""
+UNCERTAINTY_GRID = (16, 9)
+TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+@dataclass
+class IntrinsicsSettings:
+    """What to estimate. Defaults: k1, k2, p1, p2 (no k3, no skew), free aspect."""
+
+    model: CameraModelName | Literal["auto"] = "pinhole-radtan"
+    """``auto``: the services compare the candidate models on held-out views first
+    (:mod:`backend.calib.intrinsics.models`) and solve with the recommended one."""
+    estimate_k3: bool = False
+    """pinhole-radtan only: estimate k3 (else fixed at 0)."""
+    estimate_tangential: bool = True
+    """pinhole-radtan only: estimate p1, p2 (else fixed at 0)."""
+    fix_aspect: bool = False
+    """Keep fx / fy at 1 (square pixels)."""
+    drop_outliers: bool = False
+    """Re-solve without views flagged as outliers."""
+    outlier_factor: float = 3.0
+    """A view is an outlier when its RMS exceeds this many times the median view RMS."""
+    jackknife: bool = True
+    """Also estimate sigmas by leaving out one view at a time, and report the larger (see :func:`_jackknife_std`)."""
+    cross_validate: bool = True
+    """Also calibrate each half of the views and compare them (:func:`_cross_validate`), the verdict's cross-check."""
+
+
+@dataclass
+class View:
+    """One image's board detection, named by its image."""
+
+    name: str
+    detection: Detection
+
+
+@dataclass
+class ViewResidual:
+    """Per-view outcome of a solve."""
+
+    name: str
+    used: bool
+    outlier: bool
+    rms_px: float
+    ids: np.ndarray
+    residuals_px: np.ndarray
+    """(N, 2) detected minus projected corner position (px)."""
+    T_camera_board: np.ndarray | None
+
+    def to_record(self) -> dict:
+        return {
+            "image": self.name,
+            "used": self.used,
+            "outlier": self.outlier,
+            "rms_px": self.rms_px,
+            "ids": self.ids.tolist(),
+            "residuals_px": np.round(self.residuals_px, 5).tolist(),
+            "T_camera_board": None if self.T_camera_board is None else self.T_camera_board.tolist(),
+        }
+
+
+@dataclass
+class IntrinsicsResult(SolveResult):
+    kind = "intrinsics"
+
+    camera: CameraIntrinsics
+    board: BoardSpec
+    settings: IntrinsicsSettings
+    rms_px: float
+    views: list[ViewResidual]
+    std: dict[str, Any]
+    """1-sigma of fx, fy, cx, cy (px) and of each dist coefficient (0 where fixed)."""
+    correlation_names: list[str]
+    correlation: np.ndarray
+    projection_uncertainty: dict[str, Any]
+    seconds: float
+    corners: dict[str, Any]
+    """Which corner set was solved with (``sb`` or a refinement such as ``refined-0.3``) and each set's RMS (px)
+    on these views."""
+    cross_validation: dict[str, Any]
+    """:func:`_cross_validate`'s outcome: ``status`` ``consistent``, ``inconsistent`` or ``not made`` (and why)."""
+    verdict: Verdict
+    warnings: list[str] = field(default_factory=list)
+    model_comparison: dict[str, Any] | None = None
+    """With ``model="auto"``: the held-out comparison of the candidate models and the recommendation."""
+
+    def summary(self) -> dict[str, Any]:
+        unc = self.projection_uncertainty
+        return {
+            "camera": self.camera.to_dict(),
+            "rms_px": self.rms_px,
+            "views": [{"image": v.name, "rms_px": v.rms_px, "used": v.used} for v in self.views],
+            "std": self.std,
+            "correlation": {"names": self.correlation_names, "matrix": self.correlation.tolist()},
+            "projection_sigma_px": {"max": unc["max_px"], "mean": unc["mean_px"], "centre": unc["centre_px"]},
+            "corners": self.corners,
+            "cross_validation": {k: v for k, v in self.cross_validation.items()
+                                 if k not in ("difference_px", "expected_px")},
+            "model_comparison": self.model_comparison,
+            "verdict": self.verdict.to_dict(),
+            "seconds": self.seconds,
+        }
+
+    def to_record(self) -> dict[str, Any]:
+        record = self.summary()
+        record.update(
+            kind=self.kind,
+            board=str(self.board),
+            settings=asdict(self.settings),
+            views=[v.to_record() for v in self.views],
+            projection_uncertainty=self.projection_uncertainty,
+            cross_validation=self.cross_validation,
+            warnings=self.warnings,
+        )
+        return record
+
+
+def _check_views(views: list[View], board: BoardSpec) -> None:
+    """Reject too few or all-alike views before solving, naming what to do."""
+    if len(views) < MIN_VIEWS:
+        names = ", ".join(v.name for v in views) or "none"
+        raise InputError(
+            f"only {len(views)} usable view(s) ({names}); at least {MIN_VIEWS} are needed - "
+            "capture more images with the whole board visible at different positions and tilts",
+            "views",
+        )
+    params = np.array([view_parameters(v.detection, board) for v in views])
+    spread = float((params.max(axis=0) - params.min(axis=0)).sum())
+    if spread < MIN_VIEW_SPREAD:
+        raise InputError(
+            f"all {len(views)} views show the board in nearly the same place, size and angle "
+            f"(spread {spread:.3f} < {MIN_VIEW_SPREAD}); move and tilt the board between captures",
+            "views",
+        )
+
+
+def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                      guess: CameraIntrinsics | None = None):
+    """Run OpenCV's solver, from ``guess`` if given; returns (K, dist, rvecs, tvecs)."""
+    object_points = [v.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3) for v in views]
+    image_points = [v.detection.corners_px.reshape(-1, 1, 2) for v in views]
+    if settings.model == "fisheye-equidistant":
+        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+        flags |= cv2.fisheye.CALIB_USE_INTRINSIC_GUESS if guess else 0
+        try:
+            _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+                object_points, image_points, size, guess.K.copy() if guess else None,
+                guess.dist[:4].copy() if guess else None, flags=flags, criteria=TERM_CRITERIA)
+        except cv2.error as exc:
+            raise InputError(f"the fisheye solve failed ({exc.err}); check the board spec and add varied views",
+                             "views") from None
+        return K, dist.ravel(), rvecs, tvecs
+    flags = cv2.CALIB_FIX_K3 * (not settings.estimate_k3) | cv2.CALIB_ZERO_TANGENT_DIST * (
+        not settings.estimate_tangential) | cv2.CALIB_FIX_ASPECT_RATIO * settings.fix_aspect
+    flags |= cv2.CALIB_USE_INTRINSIC_GUESS if guess else 0
+    _, K, dist, rvecs, tvecs = cv2.calibrateCamera([p.astype(np.float32) for p in object_points],
+                                                   [p.astype(np.float32) for p in image_points], size,
+                                                   guess.K.copy() if guess else np.eye(3),
+                                                   guess.dist.copy() if guess else None,
+                                                   flags=flags, criteria=TERM_CRITERIA)
+    return K, dist.ravel()[:5], rvecs, tvecs
+
+
+def _project(camera: CameraIntrinsics, object_points: np.ndarray, rvec, tvec) -> tuple[np.ndarray, np.ndarray]:
+    """Project board points; returns pixels (N, 2) and the Jacobian columns in the
+    order [rvec(3), tvec(3), fx, fy, cx, cy, dist...] (2N rows, u and v interleaved)."""
+    pts = object_points.astype(np.float64).reshape(-1, 1, 3)
+    if camera.is_fisheye:
+        uv, J = cv2.fisheye.projectPoints(pts, rvec, tvec, camera.K, camera.dist[:4])
+        # fisheye order is [f(2), c(2), k(4), r(3), t(3), alpha]; reorder to the pinhole order.
+        J = np.hstack([J[:, 8:14], J[:, 0:8]])
+    else:
+        uv, J = cv2.projectPoints(pts, rvec, tvec, camera.K, camera.dist)
+        J = J[:, : 10 + camera.dist.size]
+    return uv.reshape(-1, 2), J
+
+
+def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> np.ndarray:
+    """Matrix A (n_all x n_free) mapping free intrinsic parameters to [fx, fy, cx, cy, dist...]."""
+    names = ["fx", "fy", "cx", "cy", *DIST_NAMES[camera.model]]
+    fixed = set()
+    if camera.model == "pinhole-radtan":
+        fixed |= set() if settings.estimate_k3 else {"k3"}
+        fixed |= set() if settings.estimate_tangential else {"p1", "p2"}
+    columns = []
+    for i, name in enumerate(names):
+        if name in fixed or (name == "fy" and settings.fix_aspect):
+            continue
+        column = np.zeros(len(names))
+        column[i] = 1.0
+        if name == "fx" and settings.fix_aspect:
+            column[1] = camera.K[1, 1] / camera.K[0, 0]  # fy moves with fx at the fixed ratio
+        columns.append(column)
+    return np.column_stack(columns)
+
+
+def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, rvecs, tvecs, used: np.ndarray,
+                A: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """Residuals and pose of every view, and the covariance of [fx, fy, cx, cy, dist...].
+
+    ``rvecs``/``tvecs`` are OpenCV's poses of the used views; excluded views get a
+    pose by PnP so their residuals can still be shown. Covariance units are px^2
+    for fx, fy, cx, cy and unitless^2 for the distortion coefficients.
+    """
+    n_free = A.shape[1]
+    n_used = int(np.count_nonzero(used))
+    blocks, rows_r, residuals = [], [], []
+    k = 0
+    for view, is_used in zip(views, used, strict=True):
+        obj = view.detection.object_points(board)
+        if is_used:
+            rvec, tvec = rvecs[k], tvecs[k]
+            k += 1
+        else:  # an excluded view still gets a pose for its residuals (PnP with the solved model)
+            rvec, tvec = to_rvec_tvec(board_pose(camera, board, view.detection))
+        uv, J = _project(camera, obj, rvec, tvec)
+        residuals.append((view.detection.corners_px - uv, from_rvec_tvec(rvec, tvec)))
+        if is_used:
+            blocks.append(J)
+            rows_r.append((view.detection.corners_px - uv).ravel())
+    n_rows = sum(b.shape[0] for b in blocks)
+    jac = np.zeros((n_rows, n_free + 6 * n_used))
+    row = 0
+    for i, J in enumerate(blocks):
+        jac[row:row + len(J), :n_free] = J[:, 6:] @ A
+        jac[row:row + len(J), n_free + 6 * i: n_free + 6 * i + 6] = J[:, :6]
+        row += len(J)
+    r = np.concatenate(rows_r)
+    dof = max(len(r) - jac.shape[1], 1)
+    sigma2 = float(r @ r / dof)
+    # Scale columns to unit norm first: focal lengths (~1e3 px) and k3 (~1e-1) differ by
+    # orders of magnitude, and the scaled normal matrix inverts to full precision.
+    scale = 1.0 / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
+    normal = (jac * scale).T @ (jac * scale)
+    cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
+    cov_all = 0.5 * (cov_all + cov_all.T)
+    return residuals, A @ cov_all[:n_free, :n_free] @ A.T
+
+
+def _embed(matrix: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Place a square matrix over the ``mask`` rows/columns of a zero matrix."""
+    full = np.zeros((mask.size, mask.size))
+    full[np.ix_(mask, mask)] = matrix
+    return full
+
+
+def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics, settings: IntrinsicsSettings,
+                   progress: ProgressCallback) -> np.ndarray:
+    """Leave-one-view-out jackknife standard deviation of [fx, fy, cx, cy, dist...].
+
+    Views, not corners, are the independent units: lighting, blur and board
+    flatness shift all corners of a view together, which the i.i.d. corner-noise
+    covariance cannot see (:func:`~backend.core.result.jackknife_std`).
+    """
+    estimates = []
+    for i in range(len(views)):
+        progress(0.6 + 0.3 * i / len(views), f"jackknife: re-solving without view {i + 1} of {len(views)}")
+        K, dist, _, _ = _opencv_calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
+        estimates.append(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()])
+    return jackknife_std(np.array(estimates))
+
+
+def _projection_uncertainty(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> dict[str, Any]:
+    """1-sigma (worst direction) error in pixels of projecting a far-away point, across the image.
+
+    Only the intrinsics' uncertainty is propagated (points at infinity, so the board
+    poses drop out), like mrcal's ``show-projection-uncertainty`` at infinite range.
+    """
+    cols, rows = UNCERTAINTY_GRID
+    xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
+    points = np.column_stack([xy, np.ones(len(xy))])
+    _, J = _project(camera, points, np.zeros(3), np.zeros(3))
+    J_intr = J[:, 6:].reshape(len(points), 2, -1)
+    cov_uv = J_intr @ cov_intrinsics @ J_intr.transpose(0, 2, 1)
+    worst = np.sqrt(np.clip(np.linalg.eigvalsh(cov_uv)[:, -1], 0, None)).reshape(rows, cols)
+    centre = np.sqrt(max(np.linalg.eigvalsh(J_intr[0:1] @ cov_intrinsics @ J_intr[0:1].transpose(0, 2, 1))[0, -1], 0))
+    return {
+        "grid": [cols, rows],
+        "sigma_px": np.round(worst, 5).tolist(),
+        "mean_px": float(worst.mean()),
+        "max_px": float(worst.max()),
+        "centre_px": float(worst[rows // 2, cols // 2]) if rows and cols else float(centre),
+        "range": "infinity",
+    }
+
+
+def worst_projection_sigma_px(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> float:
+    """The largest 1-sigma (px) across the image of projecting a far point, from the covariance of
+    [fx, fy, cx, cy, dist...] (:func:`_projection_uncertainty`'s ``max_px``)."""
+    return float(_projection_uncertainty(camera, cov_intrinsics)["max_px"])
+
+
+def _with_corners(views: list[View], corner_set: str) -> list[View]:
+    """``views`` whose ``corners_px`` are the detector's own (``corner_set`` ``sb``) or one of its refinements."""
+    if corner_set == "sb":
+        return views
+    return [View(v.name, replace(v.detection, corners_px=v.detection.refined[corner_set])) for v in views]
+
+
+def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
+    """Reprojection RMS (px) of a plain solve (no uncertainty) on ``views``."""
+    K, dist, rvecs, tvecs = _opencv_calibrate(views, board, size, settings)
+    camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
+    residuals = [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
+                 for v, r, t in zip(views, rvecs, tvecs, strict=True)]
+    return float(np.sqrt(np.mean(np.sum(np.concatenate(residuals) ** 2, axis=1))))
+
+
+def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
+                  settings: IntrinsicsSettings) -> tuple[list[View], dict[str, Any]]:
+    """The views with the corner set (the detector's ``sb`` or a refinement) that fits ``settings``' model best.
+
+    On rendered boards each set's RMS tracked its error against the true corners within 5 %, so the better
+    fit is the more accurate set; a set only counts when every view has it.
+    """
+    shared = set.intersection(*(set(v.detection.refined) for v in views)) if views else set()
+    if not shared:
+        return views, {"chosen": "sb", "rms_px": {}, "why": "no refined corners (ChArUco, or detected live)"}
+    rms = {name: _fit_rms(_with_corners(views, name), board, size, settings) for name in ["sb", *sorted(shared)]}
+    chosen = min(rms, key=rms.get)
+    return _with_corners(views, chosen), {"chosen": chosen, "rms_px": rms,
+                                          "why": "the set whose corners fit the model best"}
+
+
+def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                    inflation: float) -> dict[str, Any]:
+    """Calibrate the even and the odd views apart and compare them across the image (mrcal's cross-validation).
+
+    Each half's analytic projection sigma is scaled by ``inflation`` (the full solve's reported over its
+    analytic worst projection sigma: what the jackknife found the corner-noise model misses), so both halves
+    are judged with the noise model the result reports. Returns ``status`` ``consistent``, ``inconsistent``
+    or ``not made`` with a ``detail``, and the comparison's grids.
+    """
+    if len(views) < 2 * MIN_VIEWS:
+        return {"status": "not made", "detail": f"{len(views)} views; two halves need at least {2 * MIN_VIEWS}"}
+    halves = []
+    for half in (views[0::2], views[1::2]):
+        try:
+            _check_views(half, board)
+            K, dist, rvecs, tvecs = _opencv_calibrate(half, board, size, settings)
+        except InputError as exc:
+            return {"status": "not made", "detail": f"a half of the views cannot be solved alone: {exc.message}"}
+        camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
+        _, cov = _covariance(camera, half, board, rvecs, tvecs, np.ones(len(half), bool),
+                             _free_intrinsics(camera, settings))
+        halves.append((camera, np.array(_projection_uncertainty(camera, cov)["sigma_px"]) * inflation))
+    (a, sigma_a), (b, sigma_b) = halves
+    diff = projection_difference(a, sigma_a, b, sigma_b, UNCERTAINTY_GRID)
+    u, v = diff["worst_pixel"]
+    detail = (f"the halves ({len(views[0::2])} and {len(views[1::2])} views) differ by at most "
+              f"{diff['max_difference_px']:.3g} px; worst at ({u:.0f}, {v:.0f}) px: "
+              f"{diff['worst_difference_px']:.3g} px where {diff['worst_expected_px']:.3g} px is expected "
+              f"({diff['worst_ratio']:.1f} sigma)")
+    return {"status": "consistent" if diff["consistent"] else "inconsistent", "detail": detail, **diff}
+
+
+def _judge(projection: dict[str, Any], cross_validation: dict[str, Any]) -> Verdict:
+    """The result's verdict: worst projection sigma against its tolerance, the two halves as the cross-check."""
+    judge = VerdictBuilder()
+    judge.sigma("worst projection across the image", projection["max_px"], PROJECTION_TOLERANCE_PX, "px")
+    name = "two halves of the views"
+    if cross_validation["status"] == "not made":
+        judge.missing_check(name, cross_validation["detail"])
+    else:
+        passed = cross_validation["status"] == "consistent"
+        judge.cross_check(name, passed, cross_validation["detail"] + (
+            "" if passed else ": model error (try --model auto, or k3) or bad views (drop the outliers)"))
+    return judge.verdict()
+
+
+def calibrate_intrinsics(
+    views: list[View],
+    board: BoardSpec,
+    image_size: tuple[int, int],
+    settings: IntrinsicsSettings | None = None,
+    progress: ProgressCallback = no_progress,
+) -> IntrinsicsResult:
+    """Solve a camera's intrinsics from board views of one camera.
+
+    ``image_size`` is (width, height) in pixels. Raises :class:`InputError` for
+    too few views, all-alike views, or views that do not constrain the focal length.
+    """
+    settings = settings or IntrinsicsSettings()
+    if settings.model == "auto":
+        raise ValueError("model 'auto' is resolved by the services (intrinsics_models.solve_auto) before solving")
+    started = time.perf_counter()
+    for view in views:
+        if tuple(view.detection.image_size) != tuple(image_size):
+            raise InputError(f"{view.name} is {view.detection.image_size[0]}x{view.detection.image_size[1]} "
+                             f"but the camera is {image_size[0]}x{image_size[1]}; all images must share one size",
+                             view.name)
+    used = np.ones(len(views), bool)
+    progress(0.05, "picking the corner set that fits better")
+    _check_views(views, board)
+    views, corners = _pick_corners(views, board, image_size, settings)
+    progress(0.1, f"solving {settings.model} from {len(views)} views")
+    for attempt in range(2):
+        active = [v for v, u in zip(views, used, strict=True) if u]
+        _check_views(active, board)
+        K, dist, rvecs, tvecs = _opencv_calibrate(active, board, image_size, settings)
+        camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
+        progress(0.6 + 0.2 * attempt, "estimating uncertainty")
+        A = _free_intrinsics(camera, settings)
+        residuals, cov = _covariance(camera, views, board, rvecs, tvecs, used, A)
+        view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
+        outlier = view_rms > settings.outlier_factor * np.median(view_rms[used])
+        if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):
+            break
+        used = used & ~outlier
+
+    std_all = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if std_all[0] > MAX_RELATIVE_FOCAL_STD * camera.K[0, 0]:
+        raise InputError(
+            f"the views do not pin down the focal length (fx = {camera.K[0, 0]:.1f} +- {std_all[0]:.1f} px); "
+            "tilt the board by 20-40 degrees in some views and fill more of the image",
+            "views",
+        )
+    names = ["fx", "fy", "cx", "cy", *DIST_NAMES[settings.model]]
+    estimated = std_all > 0
+    corr_cov = cov[np.ix_(estimated, estimated)]
+    d = np.sqrt(np.diag(corr_cov))
+    correlation = corr_cov / np.outer(d, d)
+    active = [v for v, u in zip(views, used, strict=True) if u]
+    std_jackknife = _jackknife_std(active, board, camera, settings, progress) if settings.jackknife else 0 * std_all
+    analytic_max_px = _projection_uncertainty(camera, cov)["max_px"]
+    # Report the larger of the two sigmas per parameter, keeping the analytic correlation structure.
+    std_all = np.where(estimated, np.maximum(std_all, std_jackknife), 0.0)
+    cov = np.outer(std_all, std_all) * _embed(correlation, estimated)
+    projection = _projection_uncertainty(camera, cov)
+    progress(0.92, "cross-validating: solving each half of the views")
+    cross_validation = (_cross_validate(active, board, image_size, replace(settings, jackknife=False),
+                                        projection["max_px"] / max(analytic_max_px, 1e-12))
+                        if settings.cross_validate else {"status": "not made", "detail": "switched off"})
+    all_res = np.concatenate([r for (r, _), u in zip(residuals, used, strict=True) if u])
+    view_results = [
+        ViewResidual(v.name, bool(u), bool(o), float(rms), v.detection.ids, r, T)
+        for v, u, o, rms, (r, T) in zip(views, used, outlier, view_rms, residuals, strict=True)
+    ]
+    warnings = [f"{v.name}: reprojection RMS {v.rms_px:.2f} px is an outlier" for v in view_results if v.outlier]
+    progress(1.0, "done")
+    return IntrinsicsResult(
+        camera=camera,
+        board=board,
+        settings=settings,
+        rms_px=float(np.sqrt(np.mean(np.sum(all_res**2, axis=1)))),
+        views=view_results,
+        std={"fx": float(std_all[0]), "fy": float(std_all[1]), "cx": float(std_all[2]), "cy": float(std_all[3]),
+             "dist": std_all[4:].tolist()},
+        correlation_names=[n for n, e in zip(names, estimated, strict=True) if e],
+        correlation=np.clip(correlation, -1, 1),
+        projection_uncertainty=projection,
+        seconds=time.perf_counter() - started,
+        corners=corners,
+        cross_validation=cross_validation,
+        verdict=_judge(projection, cross_validation),
+        warnings=warnings,
+    )

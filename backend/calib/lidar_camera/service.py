@@ -1,0 +1,458 @@
+"""LiDAR-to-camera workflow shared by the CLI and the studio.
+
+Solving: image + cloud pairs of a board seen by both sensors -> the camera's board pose per
+image (detection and PnP with the known intrinsics) and the LiDAR's cloud -> the target-based
+solve of ``T_camera_lidar`` (:mod:`backend.calib.lidar_camera.target`). Every input that
+cannot be used is refused naming the file: an image or cloud that cannot be read, an image
+whose size disagrees with the intrinsics, a board that is not found.
+
+Every solve is kept as the solver's :class:`~backend.core.result.TransformResult` between the rig's
+frames (parent: the camera, child: the LiDAR) with its before/after overlays. By hand: a transform set
+with the studio's sliders is kept the same way, of method ``manual`` (covariance undetermined: nothing
+measured it) naming the image and cloud it was judged on. Either is accepted into the rig graph by
+:func:`backend.calib.rig.service.accept`, like every result kind.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.service import check_camera
+from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
+from backend.calib.lidar_camera.checks import compare_methods
+from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
+from backend.calib.lidar_camera.intensity import (
+    IntensityObservation,
+    LidarCameraIntensitySettings,
+    solve_intensity,
+)
+from backend.calib.lidar_camera.target import (
+    LidarCameraTargetSettings,
+    TargetObservation,
+    camera_board_pose,
+    solve_target,
+)
+from backend.calib.lidar_lidar.accumulation import accumulate_scans
+from backend.calib.lidar_lidar.service import check_lidar
+from backend.calib.rig.service import record_transforms
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.overlay import mosaic, render_overlay
+from backend.core.result import TRANSFORM_PARAMETERS, ProgressCallback, TransformResult, no_progress
+from backend.core.transforms import check_transform
+from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
+from backend.devices.cloud_files import read_cloud
+from backend.devices.image_io import encode_jpeg, read_image
+from backend.store.session import Session
+
+METHODS = ("target", "edges", "intensity")
+TARGETLESS = ("edges", "intensity")
+"""The targetless methods: each cross-checks the other on the same pairs."""
+DEFAULT_PLATE_MARGIN_SQUARES = 1.0
+"""The board's plate reaches this many squares beyond the pattern's outer corners unless told otherwise
+(a white border of one square, as printed boards usually have; the LiDAR sees the plate's edges)."""
+
+
+KIND = "lidar_camera"
+
+
+TOLERANCES = {"target": (0.01, 0.3), "edges": (0.02, 0.3), "intensity": (0.02, 0.3)}
+"""Largest acceptable error per method, per axis: translation (m), rotation (deg). A board pins the LiDAR to a
+centimetre; a targetless scene's edges are mostly far (10-40 m on a road), where they fix the rotation well and
+the translation barely, so the edges method is allowed 2 cm (its translation is often held by a prior). A result is
+trusted only when :data:`COVERAGE` sigmas fit inside them."""
+COVERAGE = 3.0
+"""The sigmas are judged against the :data:`TOLERANCES` divided by this: an error of up to three sigmas is to be
+expected (on the simulated board, 12 poses: 0.23 deg off with a 0.13 deg sigma)."""
+MAX_SPREAD_RATIO = 3.0
+"""The target's leave-one-pose-out cross-check (:func:`_spread_check`) passes when the spread of the re-solves
+without one pose is at most this many times the Jacobian's sigma on every parameter: the poses agree within their
+noise."""
+MANUAL_VERDICT = Verdict("check", ["set by hand: no uncertainty, no cross-check"])
+"""The verdict of a hand-set (``manual``) result."""
+
+
+@dataclass(frozen=True)
+class CrossCheck:
+    """An independent check of a result made elsewhere (another method on the same pairs, say)."""
+
+    name: str
+    passed: bool
+    detail: str
+    fail_level: Level = "check"
+    made: bool = True
+    """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
+
+
+def _diagnostic(result: TransformResult, key: str, undetermined: float = np.nan) -> np.ndarray | None:
+    """A (6,) vector of ``result.diagnostics`` (m, rad) as floats, ``undetermined`` where it is None; None when the
+    solver did not compute it."""
+    values = result.diagnostics.get(key)
+    return None if values is None else np.array([undetermined if v is None else v for v in values], dtype=float)
+
+
+def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
+    """The verdict of a solved ``T_camera_lidar`` (also stored on ``result.verdict``).
+
+    Unconverged or ambiguous: ``reject``. Else the sigmas against the method's :data:`TOLERANCES`, competing
+    alignments of the edges method (``check``), the cross-check between independent captures (:func:`_spread_check`:
+    the target's poses, the edges' two halves of the pairs), and the ``extra`` cross-checks: another method's
+    answer on the same pairs, say. Without any cross-check it stays at ``check``, saying which is missing.
+    """
+    builder = VerdictBuilder()
+    method = result.method
+    if not result.converged:
+        builder.reject("the solve is not usable: " + "; ".join(result.warnings or ["it did not converge"]))
+    translation_m, rotation_deg = TOLERANCES[method]
+    judge_transform_sigmas(builder, result.std, translation_m / COVERAGE, rotation_deg / COVERAGE)
+    if method == "edges" and result.diagnostics.get("std_multistart") is not None:
+        builder.check("other alignments fit about as well; the sigmas are widened to cover them")
+    _spread_check(builder, result, method)
+    for check in extra:
+        if check.made:
+            builder.cross_check(check.name, check.passed, check.detail, check.fail_level)
+        else:
+            builder.missing_check(check.name, check.detail)
+    result.verdict = builder.verdict()
+    return result.verdict
+
+
+def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str) -> None:
+    """The cross-check between independent captures. Target: the leave-one-pose-out spread against the Jacobian's
+    sigma (:data:`MAX_SPREAD_RATIO`; ``diagnostics["std_spread"]`` and ``["std_jacobian"]``). Edges: its two halves
+    of the pairs solved apart (``diagnostics["halves_offset"]``) differ by at most
+    :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
+    data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again). Intensity:
+    :func:`_intensity_pairs_check`."""
+    if method == "intensity":
+        _intensity_pairs_check(builder, result)
+        return
+    if method == "target":
+        std_spread = _diagnostic(result, "std_spread")
+        if std_spread is None:
+            builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
+            return
+        ratio = std_spread / np.maximum(_diagnostic(result, "std_jacobian"), 1e-12)
+        ratio_check(builder, "leave one of the poses out", ratio, MAX_SPREAD_RATIO,
+                    "the re-solves spread at most {ratio} times the Jacobian's sigma")
+        return
+    halves_offset = _diagnostic(result, "halves_offset")
+    if halves_offset is None:
+        builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
+                              "pairs with another method")
+        return
+    expected = 2 * result.std_vector
+    ratio = np.abs(halves_offset) / np.maximum(expected, 1e-12)
+    ratio_check(builder, "between two halves of the pairs", ratio, COVERAGE,
+                "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
+
+
+def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str) -> None:
+    """A cross-check ``name`` that passes when every parameter's (6,) ``ratio`` (of :data:`TRANSFORM_PARAMETERS`) is
+    at most ``limit``; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
+    ratio = np.where(np.isfinite(ratio), ratio, np.inf)
+    worst = int(np.argmax(ratio))
+    builder.cross_check(name, bool(np.all(ratio <= limit)), detail.format(ratio=f"{ratio[worst]:.1f}")
+                        + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
+
+
+def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:
+    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (``diagnostics["std_pairs"]``,
+    with three pairs or more) is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the
+    larger of the curvature's and the spread over image regions and restarts, which one pair already shows; an
+    undetermined curvature sigma is infinite)."""
+    std_pairs = _diagnostic(result, "std_pairs")
+    if std_pairs is None:
+        builder.missing_check("over pairs", "too few pairs for a leave-one-out re-solve (3 or more are needed)")
+        return
+    within = _diagnostic(result, "std_curvature", np.inf)
+    std_groups = _diagnostic(result, "std_groups")
+    if std_groups is not None:
+        within = np.fmax(within, std_groups)
+    ratio_check(builder, "leave one of the pairs out", std_pairs / np.maximum(within, 1e-12),
+                MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
+
+
+def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:
+    """The stored record of a LiDAR-to-camera result of ``lidar``; :class:`InputError` naming ``result`` when it is
+    another kind or another sensor's."""
+    record = session.result(result_id)
+    if record.get("kind") != KIND:
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    if record["sensor"] != lidar:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
+    return record
+
+
+def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.ndarray, *,
+                 inputs: list[str]) -> str:
+    """Keep a hand-set ``T_camera_lidar`` as a result of ``lidar`` (``inputs``: the captures it was judged on): a
+    :class:`~backend.core.result.TransformResult` record of method ``manual`` whose covariance is undetermined
+    (the rig service gives such an edge an assumed sigma)."""
+    check_lidar(session, lidar)
+    check_camera(session, camera)
+    T_camera_lidar, _ = check_transform(T_camera_lidar, "T_camera_lidar")
+    result = TransformResult(kind=KIND, method="manual", parent=camera, child=lidar, T_parent_child=T_camera_lidar,
+                             covariance=np.full((6, 6), np.nan), verdict=MANUAL_VERDICT,
+                             warnings=["set by hand: no uncertainty"])
+    return session.add_result(lidar, result.to_record(), inputs=inputs)
+
+
+def cli_summary(result: TransformResult) -> dict[str, Any]:
+    """``{"T_camera_lidar", "std", "residuals", "seconds", "verdict"}``: the ``lidar-camera`` command's JSON as
+    ``conventions.md`` gives it (``verdict`` None until judged)."""
+    summary = result.summary()
+    return {"T_camera_lidar": summary["T_parent_child"]} | {key: summary[key] for key in
+                                                            ("std", "residuals", "seconds", "verdict")}
+
+
+def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> LidarCameraTargetSettings:
+    """The target solve's settings for ``board``, whose plate reaches ``plate_margin_m`` (m; default
+    :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares) beyond the pattern's outer corners."""
+    margin = DEFAULT_PLATE_MARGIN_SQUARES * board.square_m if plate_margin_m is None else plate_margin_m
+    if not margin >= 0:
+        raise InputError(f"expected a plate margin of 0 m or more, got {margin}", "--plate-margin")
+    return replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
+
+
+PRIOR_SEARCH_SIGMAS = 2.5
+"""With a translation prior, the coarse edge search stays within this many of its sigmas of the initial translation."""
+
+
+def edges_settings(translation_prior_m: float | None = None) -> LidarCameraEdgesSettings:
+    """The targetless solve's settings; ``translation_prior_m`` (m, 1-sigma per axis) holds the initial guess's
+    translation as a measurement (for scenes whose edges are all far, where edges fix the rotation but hardly the
+    translation), and keeps the coarse search within :data:`PRIOR_SEARCH_SIGMAS` of it."""
+    if translation_prior_m is None:
+        return LidarCameraEdgesSettings()
+    if not translation_prior_m > 0:
+        raise InputError(f"expected a translation prior above 0 m, got {translation_prior_m}", "--translation-prior")
+    defaults = LidarCameraEdgesSettings()
+    return replace(defaults, fine=replace(defaults.fine, translation_prior_m=float(translation_prior_m)),
+                   coarse=replace(defaults.coarse, max_translation_m=PRIOR_SEARCH_SIGMAS * translation_prior_m))
+
+
+def intensity_settings(translation_prior_m: float | None = None) -> LidarCameraIntensitySettings:
+    """The intensity solve's settings; ``translation_prior_m`` (m, 1-sigma per axis) holds the initial guess's
+    translation as a measurement, as for the edges (:func:`edges_settings`)."""
+    if translation_prior_m is None:
+        return LidarCameraIntensitySettings()
+    if not translation_prior_m > 0:
+        raise InputError(f"expected a translation prior above 0 m, got {translation_prior_m}", "--translation-prior")
+    return replace(LidarCameraIntensitySettings(), translation_prior_m=float(translation_prior_m))
+
+
+def edge_observation(image: np.ndarray, points: np.ndarray, intensity: np.ndarray | None, name: str
+                     ) -> EdgeObservation:
+    """A targetless observation; the cloud's intensities, when it has them, give reflectivity edges."""
+    return EdgeObservation(image, points if intensity is None else np.column_stack([points, intensity]), name=name)
+
+
+@dataclass
+class PairData:
+    """One image and the cloud taken with it, as the solvers take them."""
+
+    name: str
+    """How the solve names the pair (``image.png:cloud.pcd``, or a stored pair's name)."""
+    image_source: str
+    """How errors about the image name it (its path, or the stored pair's name)."""
+    image: np.ndarray
+    """uint8 gray or BGR image."""
+    points: np.ndarray
+    """(N, 3) cloud in the LiDAR frame (m)."""
+    intensity: np.ndarray | None
+    """(N,) return intensities, or None."""
+
+
+def check_method(method: str, input_name: str, cross_check: bool = False) -> None:
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}", input_name)
+    if cross_check and method not in TARGETLESS:
+        raise InputError(f"the cross-check between methods is made for the targetless methods ({', '.join(TARGETLESS)}"
+                         f"), each against the other; got method {method!r}", input_name)
+
+
+def read_pair_files(pairs: Sequence[tuple[Path, Path | Sequence[Path]]],
+                    progress: ProgressCallback = no_progress) -> list[PairData]:
+    """The (image, cloud) files read; an unreadable one raises :class:`InputError` naming it. A pair's cloud may be
+    several files: scans of a static scene from a sensor at rest, merged into one denser cloud
+    (:func:`~backend.calib.lidar_lidar.accumulation.accumulate_scans`, in the first scan's frame)."""
+    read = []
+    for i, (image_path, cloud_paths) in enumerate(pairs):
+        cloud_paths = [cloud_paths] if isinstance(cloud_paths, Path | str) else list(cloud_paths)
+        cloud_name = ",".join(Path(c).name for c in cloud_paths)
+        progress(0.1 * i / max(len(pairs), 1), f"reading {image_path.name} and {cloud_name}")
+        image, clouds = read_image(image_path), [read_cloud(c) for c in cloud_paths]
+        if len(clouds) == 1:
+            points, intensity = clouds[0].points, clouds[0].intensity
+        else:
+            merged = accumulate_scans([c.points if c.intensity is None else np.column_stack([c.points, c.intensity])
+                                       for c in clouds], names=[str(c) for c in cloud_paths])
+            points, intensity = merged[:, :3], merged[:, 3] if merged.shape[1] > 3 else None
+        read.append(PairData(f"{image_path.name}:{cloud_name}", str(image_path), image, points, intensity))
+    return read
+
+
+def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
+                *, method: str = "target", plate_margin_m: float | None = None,
+                translation_prior_m: float | None = None, cross_check: bool = False,
+                progress: ProgressCallback = no_progress) -> TransformResult:
+    """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
+
+    ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
+    beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    ``method="edges"`` is targetless (:func:`~backend.calib.lidar_camera.edges.solve_edges`): it aligns the
+    edges of ordinary scenes and takes the clouds' intensities, where there are any, for reflectivity edges;
+    ``translation_prior_m``: see :func:`edges_settings`. ``method="intensity"`` is targetless too
+    (:func:`~backend.calib.lidar_camera.intensity.solve_intensity`): it matches the clouds' intensities (which
+    it needs) with the images' grey values; ``cross_check`` (targetless methods) also solves the same pairs with
+    the other targetless method and puts the two methods' agreement into the result's verdict
+    (:func:`cross_check_methods`). An image whose size is not the intrinsics' is refused.
+    """
+    check_method(method, "method", cross_check)
+    for pair in pairs:
+        check_image_size(pair.image, camera, pair.image_source)
+    if method in TARGETLESS:
+        share = 0.45 if cross_check else 0.9
+        result = solve_targetless(method, camera, pairs, T_init, translation_prior_m,
+                                  lambda fraction, message: progress(0.1 + share * fraction, message))
+        extra = [] if not cross_check else [cross_check_methods(
+            result, camera, pairs, T_init, translation_prior_m,
+            lambda fraction, message: progress(0.55 + 0.45 * fraction, f"cross-check: {message}"))]
+        judge(result, extra)
+        return result
+    if board is None:
+        raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
+    settings = target_settings(board, plate_margin_m)
+    observations = []
+    for i, p in enumerate(pairs):
+        progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
+        T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source)
+        observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
+    result = solve_target(board, observations, T_init, settings,
+                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+    judge(result)
+    return result
+
+
+def solve_targetless(method: str, camera: CameraIntrinsics, pairs: Sequence[PairData], T_init: np.ndarray,
+                     translation_prior_m: float | None = None, progress: ProgressCallback = no_progress
+                     ) -> TransformResult:
+    """One targetless solve (``method`` "edges" or "intensity") of the pairs; see :func:`solve_pairs`."""
+    if method == "edges":
+        observations = [edge_observation(p.image, p.points, p.intensity, p.name) for p in pairs]
+        return solve_edges(camera, observations, T_init, edges_settings(translation_prior_m), progress)
+    observations = [IntensityObservation(p.image, p.points, p.intensity, p.name) for p in pairs]
+    return solve_intensity(camera, observations, T_init, intensity_settings(translation_prior_m), progress)
+
+
+def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs: Sequence[PairData],
+                        T_init: np.ndarray, translation_prior_m: float | None = None,
+                        progress: ProgressCallback = no_progress) -> CrossCheck:
+    """Solve the same pairs with the other targetless method and compare the two answers
+    (:func:`~backend.calib.lidar_camera.checks.compare_methods`; kept in ``result.diagnostics["cross_check"]``): the
+    cross-check for :func:`judge`, not made when the other method cannot answer (refused, or not one answer)."""
+    other_method = next(m for m in TARGETLESS if m != result.method)
+    name = f"against the {other_method} method"
+    try:
+        other = solve_targetless(other_method, camera, pairs, T_init, translation_prior_m, progress)
+    except InputError as refused:
+        return CrossCheck(name, False, f"the {other_method} method could not solve these pairs: {refused.message}",
+                          made=False)
+    if not other.converged:
+        return CrossCheck(name, False, f"the {other_method} method gave no usable answer: " + "; ".join(other.warnings),
+                          made=False)
+    agreement = compare_methods(result.T_parent_child, result.covariance, other.T_parent_child, other.covariance,
+                                other_method)
+    result.diagnostics["cross_check"] = agreement.to_record()
+    return CrossCheck(name, agreement.passed, agreement.detail())
+
+
+def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
+                T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
+                translation_prior_m: float | None = None, cross_check: bool = False,
+                progress: ProgressCallback = no_progress) -> TransformResult:
+    """:func:`solve_pairs` on (image, cloud) files of the same moments (a pair's cloud may be several scans: see
+    :func:`read_pair_files`)."""
+    check_method(method, "--method", cross_check)
+    return solve_pairs(camera, board, read_pair_files(pairs, progress), T_init, method=method,
+                       plate_margin_m=plate_margin_m, translation_prior_m=translation_prior_m,
+                       cross_check=cross_check, progress=progress)
+
+
+OVERLAY_PAIRS = 4
+"""Before/after overlays are stored with a result for at most this many of its pairs."""
+OVERLAY_WIDTH_PX = 1280
+"""Width of a stored before/after overlay mosaic (px)."""
+
+
+def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[PairData]:
+    """The stored pairs (all, or those whose image is in ``image_ids``) with their data."""
+    found = stored_pairs(session, camera, lidar, image_ids)
+    if not found:
+        raise InputError(f"no image+cloud pairs of {camera} and {lidar} yet: capture or upload pairs of the same "
+                         "moments first", "pairs")
+    return [PairData(p.name, p.name, session.capture_image(camera, p.image.id),
+                     *session.capture_cloud(lidar, p.cloud.id)) for p in found]
+
+
+def overlay_files(loaded: Sequence[PairData], camera: CameraIntrinsics, T_before: np.ndarray,
+                  T_after: np.ndarray) -> dict[str, bytes]:
+    """``overlay_before.jpg`` and ``overlay_after.jpg``: mosaics of the last :data:`OVERLAY_PAIRS` pairs (the newest,
+    as the studio tiles them) drawn with the initial and the solved ``T_camera_lidar``."""
+    files = {}
+    for name, T in (("overlay_before.jpg", T_before), ("overlay_after.jpg", T_after)):
+        drawn = [render_overlay(p.image, p.points, p.intensity, T, camera)[0] for p in loaded[-OVERLAY_PAIRS:]]
+        files[name] = encode_jpeg(mosaic(drawn, OVERLAY_WIDTH_PX))
+    return files
+
+
+def camera_intrinsics(session: Session, camera: str) -> CameraIntrinsics:
+    """The camera's accepted intrinsics; :class:`InputError` when it is not a camera or has none yet."""
+    check_camera(session, camera)
+    intrinsics = session.rig.get(camera).intrinsics
+    if intrinsics is None:
+        raise InputError(f"{camera} has no intrinsics yet: calibrate and accept them first", camera)
+    return intrinsics
+
+
+def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray:
+    """The ``T_camera_lidar`` (4x4, m) of a stored LiDAR-to-camera result of ``lidar`` (records stored before the
+    results were :class:`~backend.core.result.TransformResult` ones included)."""
+    return record_transforms(lidar_camera_record(session, lidar, result_id))[0].T_parent_child
+
+
+def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
+                  T_init: np.ndarray | None = None, image_ids: list[str] | None = None,
+                  plate_margin_m: float | None = None, translation_prior_m: float | None = None,
+                  cross_check: bool = False,
+                  progress: ProgressCallback = no_progress) -> tuple[str, TransformResult]:
+    """Solve ``T_camera_lidar`` from the session's stored pairs and keep the result (not yet accepted).
+
+    ``T_init`` defaults to the rig's current transform (what was accepted or nudged so far). The record is the
+    result's between ``camera`` (parent) and ``lidar`` (child), and before/after overlays are stored with it;
+    the returned result is so named too. ``plate_margin_m`` is for the
+    target method (:func:`target_settings`), ``translation_prior_m`` and ``cross_check`` for the targetless methods
+    (:func:`edges_settings`, :func:`cross_check_methods`).
+    """
+    check_method(method, "method", cross_check)
+    check_lidar(session, lidar)
+    intrinsics = camera_intrinsics(session, camera)
+    T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
+    loaded = load_pairs(session, camera, lidar, image_ids)
+    board = intrinsics_service.session_board(session) if method == "target" else None
+    result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,
+                         translation_prior_m=translation_prior_m, cross_check=cross_check,
+                         progress=lambda fraction, message: progress(0.9 * fraction, message))
+    progress(0.95, "drawing the before/after overlays")
+    files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_parent_child)
+    result = result.named(camera, lidar)
+    result_id = session.add_result(lidar, result.to_record(), inputs=[p.name for p in loaded], files=files)
+    return result_id, result

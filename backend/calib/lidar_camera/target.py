@@ -1,0 +1,542 @@
+"""Target-based LiDAR-to-camera extrinsic calibration: ``T_camera_lidar`` from a board seen by both.
+
+Each pose of the board gives one observation pair: the camera's board pose
+``T_camera_board`` (PnP on the detected corners, :func:`camera_board_pose`) and the
+LiDAR's cloud. Pipeline, as in the issue:
+
+1. LiDAR side, per pose (:func:`find_board_points`): the points within the board plate's
+   extent plus a margin around where the current ``T_camera_lidar`` puts the camera's
+   board, a RANSAC plane on them (a RANSAC line for a 2D scanner) whose normal agrees with
+   the camera's board normal, and the plate's edge points: the first and last board point of
+   each scan line (ring of a spinning LiDAR, or the one line of a 2D scanner; lines are told
+   apart by elevation), moved out by half the point spacing.
+2. Joint robust least squares over all poses of the 6 parameters of ``T_camera_lidar``
+   (:func:`solve_target`): point-to-plane residuals of the board points against the
+   camera's board plane, and edge residuals of the edge points against the nearest side
+   of the plate outline in the board plane. The outline is taken symmetric about the
+   plate centre, so a checkerboard whose axes PnP flipped by a half turn gives the same
+   residuals. The board points are re-segmented with each refined estimate, with a
+   tighter region each round (:attr:`LidarCameraTargetSettings.region_margins_m`).
+3. Uncertainty: ``sigma^2 (J^T J)^-1`` at the solution and the leave-one-pose-out
+   jackknife; the larger sigma per parameter is reported (poses are the independent
+   units: the board's flatness, its pose error from PnP and the LiDAR's range bias move
+   all points of a pose together, which a per-point noise model cannot see).
+
+Parameters, covariance and sigmas follow :func:`backend.core.transforms.params_between`:
+``[t_x, t_y, t_z]`` (m, along the camera's optical axes) and ``[r_x, r_y, r_z]`` (rad; reported
+in deg) of a right perturbation ``R @ rotvec(r)``, i.e. about the LiDAR's (child frame's) axes,
+as ``../shared/conventions.md`` asks.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from backend.calib.board.detection import detect_board
+from backend.calib.board.pose import board_pose
+from backend.calib.lidar_lidar.gicp import check_cloud
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.result import (
+    ProgressCallback,
+    TransformResult,
+    finite_or_none,
+    jackknife_std,
+    jacobian_covariance,
+    no_progress,
+    widen_covariance,
+)
+from backend.core.transforms import apply_params, check_transform, invert, right_jacobian, transform_points
+
+MIN_POSES = 3
+"""Fewest board poses for a solve: one plane fixes only 3 of the 6 parameters."""
+RANSAC_SCORED_POINTS = 2000
+"""Plane hypotheses are scored on at most this many of the region's points (a random subset)."""
+
+
+@dataclass
+class LidarCameraTargetSettings:
+    """How to find the board in the clouds and solve. Lengths in metres, angles in degrees."""
+
+    plate_margin_m: float = 0.0
+    """White border of the board's plate beyond the printed pattern, on every side (m). The plate's
+    outer edges are what the LiDAR sees; the demo board's plate has one square (0.04 m) of margin."""
+    region_margins_m: tuple[float, ...] = (0.4, 0.1, 0.015)
+    """Margin around the plate of the region searched for board points, in its plane and (added to
+    ``plane_threshold_m``) along its normal, one segmentation round each (m). The first must cover
+    the initial guess's error at the board (10 cm and 5 deg at 3 m is about 0.36 m); later rounds use
+    the refined estimate and stay tight, so that the post and the floor just below the plate do not
+    join its plane (a 4 cm margin biased the simulated solve by 1-2 mm)."""
+    plane_threshold_m: float = 0.03
+    """Largest distance from the RANSAC plane of a board point (m): about 3 range-noise sigmas."""
+    max_normal_angle_deg: float = 15.0
+    """Largest angle between the LiDAR plane's normal and the camera's board normal mapped by the
+    current estimate (deg); planes beyond it (the floor, a wall) are not the board."""
+    ransac_hypotheses: int = 300
+    """Plane hypotheses drawn per pose and round."""
+    min_plane_points: int = 30
+    """Fewest plane inliers in the region for the board to count as found (3D LiDAR)."""
+    min_line_points: int = 6
+    """Fewest line inliers in the region for the board to count as found by a 2D scanner (a cloud whose
+    points all have z = 0: the board is one line segment in the scan plane)."""
+    line_gap_deg: float = 0.2
+    """Elevation gap (deg) that separates two scan lines (rings) of the board points; below the ring
+    spacing of any common LiDAR (VLP-16: 2 deg, 64 beams over 30 deg: 0.48 deg)."""
+    min_points_per_line: int = 8
+    """Fewest board points on a scan line for its two end points to count as edge points."""
+    edge_weight: float | None = None
+    """Weight of an edge residual relative to a point-to-plane residual; None weighs by inverse variance:
+    the ratio of the robust sigmas (1.4826 MAD) of the plane and edge residuals at the previous round's
+    estimate (1 in the first round). Edge points are about twice as precise as face points."""
+    loss: str = "soft_l1"
+    """Robust loss of :func:`scipy.optimize.least_squares`."""
+    loss_scale_m: float = 0.03
+    """Residual (m) where the robust loss starts to down-weight."""
+    max_nfev: int = 200
+    """Most residual evaluations per least-squares round."""
+    max_plane_rms_m: float = 0.03
+    """A solution whose point-to-plane RMS exceeds this (m) is a poor fit: ``converged=False``."""
+    min_normal_eigenvalue: float = 1e-3
+    """Smallest allowed eigenvalue of the mean ``n n^T`` of the board normals; below it the normals are
+    (nearly) parallel or in one plane and part of the translation is unobservable. 1e-3 is a
+    normal spread of about 2 deg rms."""
+    spread: bool = True
+    """Also estimate sigmas by the leave-one-pose-out jackknife and report the larger per parameter."""
+    seed: int = 0
+    """Seeds the RANSAC hypotheses, so a solve is repeatable."""
+
+
+@dataclass
+class TargetObservation:
+    """One board pose seen by both sensors."""
+
+    T_camera_board: np.ndarray
+    """4x4 board pose in the camera's optical frame (m), e.g. from :func:`camera_board_pose`."""
+    points_lidar: np.ndarray
+    """(N, 3) LiDAR cloud in the LiDAR frame (m); extra columns (intensity) are ignored."""
+    name: str = ""
+    """How errors name this pose (e.g. ``"image_03.png:cloud_03.pcd"``); ``"pose i"`` when empty."""
+
+
+@dataclass
+class BoardPoints:
+    """The board's points found in one pose's cloud (LiDAR frame, m)."""
+
+    plane: np.ndarray
+    """(N, 3) plane inliers within the region: the board's face."""
+    edges: np.ndarray
+    """(M, 3) scan-line end points, each moved out by half the line's point spacing so that on
+    average it lies on the plate's outline (the first return on the board is between 0 and one
+    spacing inside the edge)."""
+
+
+@dataclass
+class PoseResiduals:
+    """One pose's fit at the solution."""
+
+    name: str
+    plane_points: int
+    edge_points: int
+    plane_rms_m: float
+    edge_rms_m: float
+
+    def to_record(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------- camera side
+
+
+def camera_board_pose(image: np.ndarray, camera: CameraIntrinsics, board: BoardSpec, name: str = "image"
+                      ) -> np.ndarray:
+    """``T_camera_board`` (4x4, m, optical frame) of the board detected in ``image`` (gray or BGR uint8).
+
+    Detection by :func:`~backend.calib.board.detection.detect_board`, pose by PnP on the
+    undistorted corners (:func:`~backend.calib.board.pose.board_pose`). Raises
+    :class:`InputError` naming ``name`` when the board is not found or PnP fails.
+    """
+    detection = detect_board(image, board)
+    if detection is None:
+        raise InputError(f"the board {board} was not found in the image", name)
+    T = board_pose(camera, board, detection)
+    if T is None:
+        raise InputError(f"PnP failed on the {len(detection.ids)} detected corners", name)
+    return T
+
+
+# ---------------------------------------------------------------- the plate
+
+
+def plate_centre_and_half_size(board: BoardSpec, plate_margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centre (2,) of the plate in the board frame's x-y and its half width and height (2,) (m).
+
+    The printed area spans :attr:`BoardSpec.outer_origin_m` to it plus :attr:`BoardSpec.size_m`; the
+    plate adds ``plate_margin_m`` on every side. The centre is the corner grid's centre, so the
+    outline is the same under the half turn a symmetric checkerboard's PnP may make.
+    """
+    size = np.asarray(board.size_m)
+    return board.outer_origin_m[:2] + size / 2, size / 2 + plate_margin_m
+
+
+def _nearest_side(points_board: np.ndarray, centre: np.ndarray, half: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For board-frame points (at least x, y; m): the signed in-plane distance (m) to the nearest side
+    of the plate outline (positive outside), which board axis (0: x, 1: y) is across that side, and
+    the side's sign along it. Symmetric about the centre, so a half-turn flip of the board's axes
+    changes nothing."""
+    offset = points_board[:, :2] - centre
+    d = np.abs(offset) - half
+    axis = (np.abs(d[:, 1]) < np.abs(d[:, 0])).astype(int)
+    rows = np.arange(len(d))
+    return d[rows, axis], axis, np.where(offset[rows, axis] < 0, -1.0, 1.0)
+
+
+def _edge_residuals(points_board: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Signed in-plane distance (m) of board-frame points to the nearest side of the plate outline."""
+    return _nearest_side(points_board, centre, half)[0]
+
+
+# ---------------------------------------------------------------- LiDAR side
+
+
+def _fit_plane(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
+               rng: np.random.Generator) -> np.ndarray | None:
+    """Inlier mask of the RANSAC plane with the most inliers whose normal is within
+    ``max_normal_angle_deg`` of ``expected_normal``, refined by a least-squares fit; None if none.
+
+    Hand-written (vectorised numpy) rather than Open3D's ``segment_plane``: hypotheses are
+    restricted to planes facing the way the camera says the board faces (so the floor or a wall
+    in the region never wins), and the seeded generator makes a solve repeatable.
+    """
+    if len(points) < 3:
+        return None
+    samples = points[rng.integers(0, len(points), (settings.ransac_hypotheses, 3))]
+    normals = np.cross(samples[:, 1] - samples[:, 0], samples[:, 2] - samples[:, 0])
+    facing = _facing(normals, expected_normal, settings.max_normal_angle_deg)
+    return _best_hypothesis(points, normals[facing], samples[facing, 0], settings, rng, line=False)
+
+
+def _fit_line(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
+              rng: np.random.Generator) -> np.ndarray | None:
+    """Inlier mask of the RANSAC line, in a 2D scanner's x-y plane, along which the board's plane
+    (``expected_normal``) cuts that plane, within ``max_normal_angle_deg``; None if none.
+
+    Hand-written as :func:`_fit_plane`; a hypothesis is the line through two points, its "normal"
+    the line's normal within the scan plane, compared with the board normal's in-plane part.
+    """
+    expected = np.r_[expected_normal[:2], 0.0]
+    if len(points) < 2 or np.linalg.norm(expected) < 1e-6:
+        return None
+    samples = points[rng.integers(0, len(points), (settings.ransac_hypotheses, 2))]
+    along = samples[:, 1] - samples[:, 0]
+    normals = np.column_stack([-along[:, 1], along[:, 0], np.zeros(len(along))])
+    facing = _facing(normals, expected / np.linalg.norm(expected), settings.max_normal_angle_deg)
+    return _best_hypothesis(points, normals[facing], samples[facing, 0], settings, rng, line=True)
+
+
+def _facing(normals: np.ndarray, expected_normal: np.ndarray, max_angle_deg: float) -> np.ndarray:
+    """Which (unnormalised) hypothesis normals are within ``max_angle_deg`` of the unit ``expected_normal``."""
+    length = np.linalg.norm(normals, axis=1)
+    return np.abs(normals @ expected_normal) >= np.cos(np.radians(max_angle_deg)) * np.fmax(length, 1e-12)
+
+
+def _best_hypothesis(points: np.ndarray, normals: np.ndarray, anchors: np.ndarray,
+                     settings: LidarCameraTargetSettings, rng: np.random.Generator, line: bool) -> np.ndarray | None:
+    """Inliers of the hypothesis (a plane, or with ``line`` a line in the scan plane z = 0) with the most
+    inliers among at most :data:`RANSAC_SCORED_POINTS` points, refined by a least-squares fit to its inliers."""
+    if not len(normals):
+        return None
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    scored = points[rng.choice(len(points), min(len(points), RANSAC_SCORED_POINTS), replace=False)]
+    distances = np.abs(scored @ normals.T - np.einsum("ij,ij->i", anchors, normals))
+    best = int(np.argmax((distances < settings.plane_threshold_m).sum(axis=0)))
+    inliers = np.abs((points - anchors[best]) @ normals[best]) < settings.plane_threshold_m
+    centroid = points[inliers].mean(axis=0)
+    _, _, axes = np.linalg.svd(points[inliers] - centroid, full_matrices=False)
+    normal = np.r_[-axes[0, 1], axes[0, 0], 0.0] if line else axes[2]
+    return np.abs((points - centroid) @ normal) < settings.plane_threshold_m
+
+
+def scan_line_edges(points: np.ndarray, line_gap_deg: float, min_points: int) -> np.ndarray:
+    """(M, 3) end points of the scan lines through board points (N, 3) in the sensor frame (m).
+
+    Lines are runs of points whose elevation (angle from the sensor's x-y plane) differs by less
+    than ``line_gap_deg``: the rings of a spinning LiDAR, or the one line of a 2D scanner (all
+    z = 0). Along each line of at least ``min_points`` points (ordered by azimuth about the
+    line's mean direction) the first and last points are moved out by half the mean spacing.
+    """
+    elevation = np.degrees(np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1])))
+    order = np.argsort(elevation)
+    line = np.r_[0, np.cumsum(np.diff(elevation[order]) > line_gap_deg)]
+    edges = []
+    for i in range(line[-1] + 1):
+        members = points[order[line == i]]
+        if len(members) < min_points:
+            continue
+        mean_x, mean_y = members[:, :2].mean(axis=0)
+        mean_azimuth = np.arctan2(mean_y, mean_x)
+        azimuth = np.angle(np.exp(1j * (np.arctan2(members[:, 1], members[:, 0]) - mean_azimuth)))
+        members = members[np.argsort(azimuth)]
+        half_step = (members[-1] - members[0]) / (2 * (len(members) - 1))
+        edges += [members[0] - half_step, members[-1] + half_step]
+    return np.array(edges).reshape(-1, 3)
+
+
+def find_board_points(points_lidar: np.ndarray, T_camera_board: np.ndarray, T_camera_lidar: np.ndarray,
+                      board: BoardSpec, margin_m: float, settings: LidarCameraTargetSettings,
+                      rng: np.random.Generator, name: str) -> BoardPoints:
+    """The board's face and edge points in one LiDAR cloud (m, LiDAR frame).
+
+    The region is the plate (``settings.plate_margin_m`` included) plus ``margin_m`` (m) in its
+    plane and within ``margin_m + settings.plane_threshold_m`` of it along its normal, placed by the
+    camera's ``T_camera_board`` and the current ``T_camera_lidar``. A 3D cloud's board is a RANSAC
+    plane there; a 2D scanner's (all points z = 0) a RANSAC line. Raises :class:`InputError` naming
+    ``name`` when too few points of a plane (line) facing the camera's way are found there.
+    """
+    T_board_lidar = invert(T_camera_board) @ T_camera_lidar
+    local = transform_points(T_board_lidar, points_lidar)
+    centre, half = plate_centre_and_half_size(board, settings.plate_margin_m)
+    depth = margin_m + settings.plane_threshold_m
+    in_region = (np.abs(local[:, :2] - centre) <= half + margin_m).all(axis=1) & (np.abs(local[:, 2]) <= depth)
+    region = points_lidar[in_region]
+    expected_normal = T_board_lidar[2, :3]  # board z in LiDAR axes
+    planar_scan = len(points_lidar) > 0 and not np.any(points_lidar[:, 2])
+    fit, needed = (_fit_line, settings.min_line_points) if planar_scan else (_fit_plane, settings.min_plane_points)
+    inliers = fit(region, expected_normal, settings, rng)
+    found = 0 if inliers is None else int(inliers.sum())
+    if found < needed:
+        raise InputError(
+            f"the board was not found in the LiDAR cloud: {found} plane points facing the camera's board normal "
+            f"(within {settings.max_normal_angle_deg} deg) among the {len(region)} points within {margin_m} m of "
+            f"where the current T_camera_lidar puts the plate; at least {needed} are needed - "
+            "check that the LiDAR sees the board in this pose and the initial guess", name)
+    face = region[inliers]
+    return BoardPoints(face, scan_line_edges(face, settings.line_gap_deg, settings.min_points_per_line))
+
+
+# ---------------------------------------------------------------- the joint solve
+
+
+def _check_normals(T_camera_boards: list[np.ndarray], threshold: float) -> None:
+    """Raise :class:`InputError` when the board normals leave part of the translation unobservable."""
+    normals = np.array([T[:3, 2] for T in T_camera_boards])
+    eigenvalues, eigenvectors = np.linalg.eigh(normals.T @ normals / len(normals))
+    if eigenvalues[0] < threshold:
+        axis = np.round(eigenvectors[:, 0], 2).tolist()
+        raise InputError(
+            f"degenerate board poses: the board normals are (nearly) parallel or in one plane (smallest "
+            f"eigenvalue of their scatter {eigenvalues[0]:.2g} < {threshold:g}), so the translation along "
+            f"{axis} (camera axes) is unobservable; tilt and turn the board between poses", "poses")
+
+
+@dataclass
+class _Stacked:
+    """All poses' board points stacked, each with its pose's board frame, so residuals are vectorised."""
+
+    plane_points: np.ndarray
+    """(N, 3) board face points of all poses (LiDAR frame, m)."""
+    plane_normal: np.ndarray
+    """(N, 3) and (N,): the board plane of each face point's pose in the camera frame, as the board z
+    axis and offset: the signed distance of a camera-frame point ``x`` is ``normal . x + offset`` (m)."""
+    plane_offset: np.ndarray
+    edge_points: np.ndarray
+    """(M, 3) edge points of all poses (LiDAR frame, m)."""
+    edge_axes: np.ndarray
+    """(M, 2, 3) and (M, 2): the board x and y axes of each edge point's pose in the camera frame and
+    offsets, so that ``axes @ x + offset`` are a camera-frame point's board x, y (m)."""
+    edge_offset: np.ndarray
+    plane_pose: np.ndarray
+    """(N,) and (M,): the pose index of each face and edge point."""
+    edge_pose: np.ndarray
+
+    @classmethod
+    def build(cls, T_board_cameras: list[np.ndarray], found: list[BoardPoints]) -> _Stacked:
+        T = np.array(T_board_cameras)
+        plane_pose = np.repeat(np.arange(len(found)), [len(f.plane) for f in found])
+        edge_pose = np.repeat(np.arange(len(found)), [len(f.edges) for f in found])
+        return cls(np.vstack([f.plane for f in found]), T[plane_pose, 2, :3], T[plane_pose, 2, 3],
+                   np.vstack([f.edges for f in found]), T[edge_pose, :2, :3], T[edge_pose, :2, 3],
+                   plane_pose, edge_pose)
+
+    def without_pose(self, k: int) -> _Stacked:
+        plane, edge = self.plane_pose != k, self.edge_pose != k
+        return _Stacked(self.plane_points[plane], self.plane_normal[plane], self.plane_offset[plane],
+                        self.edge_points[edge], self.edge_axes[edge], self.edge_offset[edge],
+                        self.plane_pose[plane], self.edge_pose[edge])
+
+    def residuals(self, T_camera_lidar: np.ndarray, centre: np.ndarray, half: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Signed point-to-plane distances (N,) and edge-to-outline distances (M,) (m) at ``T_camera_lidar``."""
+        plane_camera = transform_points(T_camera_lidar, self.plane_points)
+        edge_camera = transform_points(T_camera_lidar, self.edge_points)
+        plane = np.einsum("ni,ni->n", self.plane_normal, plane_camera) + self.plane_offset
+        edge_xy = np.einsum("nij,nj->ni", self.edge_axes, edge_camera) + self.edge_offset
+        return plane, _edge_residuals(edge_xy, centre, half)
+
+
+def _edge_weight(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray) -> float:
+    """Inverse-variance weight of the edge residuals relative to the plane residuals at ``T``."""
+    plane, edges = stacked.residuals(T, centre, half)
+    mad_plane, mad_edges = (np.median(np.abs(r - np.median(r))) for r in (plane, edges))
+    return float(mad_plane / mad_edges) if len(edges) and mad_edges > 0 else 1.0
+
+
+def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
+           settings: LidarCameraTargetSettings):
+    """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.core.transforms.params_between`).
+
+    The Jacobian is analytic (a residual ``a . (R p + t) + c`` with ``R = R_ref Exp(w)`` has
+    ``d/dt = a`` and ``d/dw = -((R^T a) x p)^T J_r(w)``): finite differences would cost six more
+    residual evaluations per iteration, which the jackknife's re-solves multiply.
+    """
+    def residuals(p: np.ndarray) -> np.ndarray:
+        plane, edges = stacked.residuals(apply_params(T_ref, p), centre, half)
+        return np.concatenate([plane, edge_weight * edges])
+
+    def jacobian(p: np.ndarray) -> np.ndarray:
+        T = apply_params(T_ref, p)
+        R, J_r = T[:3, :3], right_jacobian(p[3:])
+        _, axis, sign = _nearest_side(np.einsum("nij,nj->ni", stacked.edge_axes,
+                                                transform_points(T, stacked.edge_points)) + stacked.edge_offset,
+                                      centre, half)
+        across = edge_weight * sign[:, None] * stacked.edge_axes[np.arange(len(axis)), axis]
+        rows = np.vstack([stacked.plane_normal, across])
+        points = np.vstack([stacked.plane_points, stacked.edge_points])
+        return np.hstack([rows, -np.cross(rows @ R, points) @ J_r])
+
+    return least_squares(residuals, np.zeros(6), jac=jacobian, loss=settings.loss, f_scale=settings.loss_scale_m,
+                         max_nfev=settings.max_nfev, tr_solver="lsmr")
+
+
+def _jackknife(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
+               settings: LidarCameraTargetSettings, progress: ProgressCallback) -> np.ndarray:
+    """Leave-one-pose-out jackknife std (6,) of the re-solves (:func:`~backend.core.result.jackknife_std`)."""
+    n = int(stacked.plane_pose.max()) + 1
+    estimates = []
+    for k in range(n):
+        progress(0.8 + 0.15 * k / n, f"spread: solving without pose {k + 1} of {n}")
+        estimates.append(_solve(T, stacked.without_pose(k), centre, half, edge_weight, settings).x)
+    return jackknife_std(np.array(estimates))
+
+
+def _pose_names(observations: Sequence[TargetObservation]) -> list[str]:
+    return [o.name or f"pose {i + 1}" for i, o in enumerate(observations)]
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2))) if len(values) else 0.0
+
+
+def _fit_statistics(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, names: list[str]
+                    ) -> tuple[dict[str, Any], list[PoseResiduals]]:
+    """The result's ``residuals`` and each pose's fit at ``T``."""
+    plane, edges = stacked.residuals(T, centre, half)
+    d = np.abs(plane)
+    poses = [PoseResiduals(name, int(np.sum(stacked.plane_pose == i)), int(np.sum(stacked.edge_pose == i)),
+                           _rms(d[stacked.plane_pose == i]), _rms(edges[stacked.edge_pose == i]))
+             for i, name in enumerate(names)]
+    residuals = {"plane_rms_m": _rms(d), "plane_median_m": float(np.median(d)),
+                 "plane_p95_m": float(np.percentile(d, 95)), "edge_rms_m": _rms(edges),
+                 "per_pose_rms_m": [p.plane_rms_m for p in poses]}
+    return residuals, poses
+
+
+def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_init: np.ndarray,
+                 settings: LidarCameraTargetSettings | None = None,
+                 progress: ProgressCallback = no_progress) -> TransformResult:
+    """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from board poses.
+
+    ``observations`` pair each pose's camera board pose with its LiDAR cloud; ``T_init`` is the
+    initial ``T_camera_lidar`` (it places the first round's search region: its error at the
+    board must stay within ``settings.region_margins_m[0]``). Raises :class:`InputError` for fewer
+    than :data:`MIN_POSES` poses, a bad cloud or transform, a pose whose board is not found in the
+    LiDAR cloud (named), and a degenerate set of board normals. A solve that diverges, loses the
+    board in a later round or ends with a point-to-plane RMS above ``settings.max_plane_rms_m`` is
+    returned with ``converged=False`` and a warning: the caller must not accept it.
+
+    Returns a :class:`~backend.core.result.TransformResult` (kind ``lidar_camera``, method ``target``, parent
+    ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance holds the reported
+    (larger-per-parameter) sigmas with the Jacobian's correlations. ``residuals``: ``plane_rms_m``,
+    ``plane_median_m``, ``plane_p95_m`` (absolute point-to-plane distances), ``edge_rms_m`` (edge points to the
+    plate outline, in the board plane) and ``per_pose_rms_m`` (point-to-plane RMS of each pose), all in m.
+    ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1`` and ``std_spread`` (6,) of the
+    leave-one-pose-out jackknife or None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
+    ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run) and
+    ``poses`` (each pose's :class:`PoseResiduals`, in input order).
+    """
+    settings = settings or LidarCameraTargetSettings()
+    started = time.perf_counter()
+    if len(observations) < MIN_POSES:
+        raise InputError(f"{len(observations)} board poses given; at least {MIN_POSES} are needed, with the board "
+                         "tilted and turned differently in each", "poses")
+    names = _pose_names(observations)
+    T_camera_boards = [check_transform(o.T_camera_board, f"{name}: T_camera_board")[0]
+                       for o, name in zip(observations, names, strict=True)]
+    clouds = [check_cloud(o.points_lidar, f"{name}: cloud")[0] for o, name in zip(observations, names, strict=True)]
+    T_init, _ = check_transform(T_init, "T_init")
+    _check_normals(T_camera_boards, settings.min_normal_eigenvalue)
+    T_board_cameras = [invert(T) for T in T_camera_boards]
+    centre, half = plate_centre_and_half_size(board, settings.plate_margin_m)
+    rng = np.random.default_rng(settings.seed)
+
+    T, stacked, result, warnings, iterations, converged = T_init, None, None, [], 0, True
+    edge_weight = 1.0
+    for round_index, margin in enumerate(settings.region_margins_m):
+        progress(0.8 * round_index / len(settings.region_margins_m),
+                 f"round {round_index + 1}: finding the board in {len(clouds)} clouds ({margin} m region)")
+        try:
+            found = [find_board_points(cloud, T_cb, T, board, margin, settings, rng, name)
+                     for cloud, T_cb, name in zip(clouds, T_camera_boards, names, strict=True)]
+        except InputError as error:
+            if round_index == 0:
+                raise
+            warnings.append(f"round {round_index + 1}: {error.input}: {error.message}; the estimate moved away "
+                            "from the board: not accepted")
+            converged = False
+            break
+        stacked = _Stacked.build(T_board_cameras, found)
+        if settings.edge_weight is not None:
+            edge_weight = settings.edge_weight
+        elif round_index > 0:
+            edge_weight = _edge_weight(T, stacked, centre, half)
+        result = _solve(T, stacked, centre, half, edge_weight, settings)
+        iterations += int(result.nfev)
+        T = apply_params(T, result.x)
+        if result.status <= 0:
+            warnings.append(f"round {round_index + 1}: least squares stopped without converging "
+                            f"({result.message}); not accepted")
+            converged = False
+            break
+
+    assert stacked is not None and result is not None  # region_margins_m is not empty
+    # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
+    cov_j = jacobian_covariance(result)
+    std_spread = None
+    residuals, poses = _fit_statistics(T, stacked, centre, half, names)
+    if residuals["plane_rms_m"] > settings.max_plane_rms_m:
+        warnings.append(f"poor fit: point-to-plane RMS {residuals['plane_rms_m'] * 1000:.1f} mm > "
+                        f"{settings.max_plane_rms_m * 1000:.1f} mm; not accepted")
+        converged = False
+    if settings.spread and converged:
+        std_spread = _jackknife(T, stacked, centre, half, edge_weight, settings, progress)
+    progress(1.0, "done")
+    return TransformResult(
+        kind="lidar_camera", method="target", parent="camera", child="lidar",
+        T_parent_child=T,
+        covariance=widen_covariance(cov_j, std_spread),
+        residuals=residuals,
+        diagnostics={"std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_j), 0, None))),
+                     "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
+                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses]},
+        settings=asdict(settings),
+        converged=converged,
+        warnings=warnings,
+        seconds=time.perf_counter() - started,
+    )

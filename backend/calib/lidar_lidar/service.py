@@ -1,0 +1,170 @@
+"""LiDAR-to-LiDAR workflow shared by the API, the studio and the CLI.
+
+capture or import clouds -> store them -> solve ``T_target_source`` from pairs of
+captures (one per scene, or several) -> store the result, a
+:class:`~backend.core.result.TransformResult` record with ``parent`` the target LiDAR and
+``child`` the source LiDAR, with its verdict. Accepting it (an edge of the rig's pose graph) is
+:func:`backend.calib.rig.service.accept`'s, as for every result kind; :func:`check_result` is what the
+LiDAR routes check first. The studio's nudging (a global guess, the fit at the sliders' pose) is
+here too, so the step only draws.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, global_initial_guess
+from backend.calib.lidar_lidar.scenes import register_pairs
+from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, TransformResult, no_progress
+from backend.core.rig import Rig
+from backend.core.transforms import transform_points
+from backend.devices.base import Sample
+from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
+
+
+def lidar_names(rig: Rig) -> list[str]:
+    """The rig's LiDAR and depth sensors, in rig order."""
+    return [f.name for f in rig.frames.values() if f.kind in LIDAR_KINDS]
+
+
+def check_lidar(session: Session, sensor: str) -> None:
+    """Refuse (naming the sensor) anything but a LiDAR or depth sensor of the rig."""
+    kind = session.rig.get(sensor).kind
+    if kind not in LIDAR_KINDS:
+        raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
+
+
+def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
+                ) -> CaptureRecord:
+    """Keep one cloud (live or imported) in the sensor's frame."""
+    check_lidar(session, sensor)
+    if sample.points is None or len(sample.points) == 0:
+        raise InputError(f"{source or device}: the cloud holds no points", source or device)
+    return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
+        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": sample.storable_meta()})
+
+
+def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes | Path]],
+                  progress: ProgressCallback = no_progress) -> list[CaptureRecord]:
+    """Add uploaded cloud files (their bytes, or where they were saved) as captures; any unreadable file rejects
+    the whole batch, naming it, and nothing of the batch is stored."""
+    check_lidar(session, sensor)
+    clouds = []
+    for i, (name, data) in enumerate(files):
+        progress(i / max(len(files), 1), f"reading {name}")
+        clouds.append(read_uploaded_cloud(name, data))
+    return [store_cloud(session, sensor, sample, device="upload", source=sample.meta["source"]) for sample in clouds]
+
+
+def read_uploaded_cloud(name: str, data: bytes | Path) -> Sample:
+    """An uploaded cloud file's points as a sample (``meta``: the base ``source`` name kept and the points
+    dropped as non-finite); ``data`` is the file's bytes or the path it was saved to (an upload streamed to
+    disk). Raises :class:`InputError` naming the file when it cannot be read."""
+    safe_name = Path(name).name
+    if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
+        raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})", safe_name)
+    try:
+        if isinstance(data, Path):
+            cloud = read_cloud(data)
+        else:
+            with tempfile.TemporaryDirectory() as folder:
+                path = Path(folder) / safe_name
+                path.write_bytes(data)
+                cloud = read_cloud(path)
+    except InputError as exc:  # name the upload, not the server's temporary path
+        exc.input = safe_name
+        raise
+    return Sample(0.0, points=cloud.points, intensity=cloud.intensity,
+                  meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
+
+
+def pair_ids(session: Session, source: str, target: str) -> list[tuple[str, str]]:
+    """The default frame pairs, (source capture id, target capture id): the i-th cloud of each sensor."""
+    check_lidar(session, source)
+    check_lidar(session, target)
+    source_ids = [c.id for c in session.captures(source) if c.n_points]
+    target_ids = [c.id for c in session.captures(target) if c.n_points]
+    if not source_ids or not target_ids:
+        empty = source if not source_ids else target
+        raise InputError(f"no clouds captured for {empty} yet; capture or import clouds of both LiDARs", empty)
+    return list(zip(source_ids, target_ids, strict=False))
+
+
+def capture_pairs(session: Session, source: str, target: str,
+                  pairs: list[tuple[str, str]] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Clouds to register: the given (source id, target id) pairs, or :func:`pair_ids`."""
+    check_lidar(session, source)
+    check_lidar(session, target)
+    if pairs is None:
+        pairs = pair_ids(session, source, target)
+    return [(session.capture_cloud(source, s)[0], session.capture_cloud(target, t)[0]) for s, t in pairs]
+
+
+def solve_session(session: Session, source: str, target: str, *, T_init: np.ndarray | None = None,
+                  use_rig_guess: bool = True, settings: LidarLidarSettings | None = None,
+                  pairs: list[tuple[str, str]] | None = None,
+                  progress: ProgressCallback = no_progress) -> tuple[str, TransformResult]:
+    """Register ``source`` into ``target`` over the frame ``pairs`` (default :func:`pair_ids`) and store the
+    result (not yet accepted) under the source LiDAR: ``T_parent_child`` is ``T_target_source`` with ``parent``
+    ``target`` and ``child`` ``source``. Pairs from different places are scenes that cross-check each other (see
+    :mod:`backend.calib.lidar_lidar.scenes`); the record's ``inputs`` are the pairs as "source id:target id".
+
+    The initial guess is ``T_init`` if given, else the rig's current transform
+    (manual nudges included) when ``use_rig_guess``, else global registration.
+    """
+    pairs = pair_ids(session, source, target) if pairs is None else [tuple(p) for p in pairs]
+    clouds = capture_pairs(session, source, target, pairs)
+    if T_init is None and use_rig_guess:
+        T_init = session.rig.T_a_b(target, source)
+    result = register_pairs(clouds, T_init, settings, progress,
+                            names=[(f"{source} {s}", f"{target} {t}") for s, t in pairs]).named(target, source)
+    result_id = session.add_result(source, result.to_record(), inputs=[f"{s}:{t}" for s, t in pairs])
+    return result_id, result
+
+
+def pair_results(session: Session, source: str, target: str) -> list[dict[str, Any]]:
+    """The stored LiDAR-to-LiDAR records of ``source`` into ``target``, newest first."""
+    return [r for r in reversed(session.results(source, "lidar_lidar")) if r.get("parent") == target]
+
+
+def check_result(session: Session, source: str, result_id: str) -> dict[str, Any]:
+    """The stored record ``result_id`` if it is a LiDAR-to-LiDAR result of ``source`` (the child); else an
+    :class:`InputError` naming the result's kind or sensor."""
+    record = session.result(result_id)
+    if record.get("kind") != "lidar_lidar":
+        raise InputError(f"result {result_id} is a {record.get('kind')} result, not lidar_lidar", "result")
+    if record["sensor"] != source:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
+    return record
+
+
+def global_guess(session: Session, source: str, target: str, pairs: list[tuple[str, str]] | None = None,
+                 progress: ProgressCallback = no_progress) -> tuple[np.ndarray, float]:
+    """A starting ``T_target_source`` (4x4, m) from FPFH features and RANSAC on the last of ``pairs`` (default the
+    last of :func:`pair_ids`), and RANSAC's fitness; about a voxel (``global_voxel_m``) accurate, for GICP to refine."""
+    progress(0.05, "FPFH features + RANSAC on the last frame pair")
+    source_points, target_points = capture_pairs(session, source, target, pairs)[-1]
+    return global_initial_guess(source_points, target_points, voxel_m=LidarLidarSettings().global_voxel_m)
+
+
+def fit_at(source_points: np.ndarray, target_tree: cKDTree, T_target_source: np.ndarray,
+           max_distance_m: float) -> dict[str, Any]:
+    """How the source cloud (N, 3, m, source frame) lies on the target (its KD-tree, target frame) at a nudged
+    ``T_target_source``: ``distances_m`` (N,) from each source point to its nearest target point (inf beyond
+    ``2 * max_distance_m``), ``inliers_m`` (those within ``max_distance_m``), ``fitness`` (their share) and
+    ``c2c_mean_m`` (their mean distance, NaN when there are none)."""
+    distances, _ = target_tree.query(transform_points(T_target_source, np.asarray(source_points, dtype=float)), k=1,
+                                     distance_upper_bound=2 * max_distance_m, workers=2)
+    inliers = distances[distances <= max_distance_m]
+    return {"distances_m": distances, "inliers_m": inliers, "fitness": len(inliers) / max(len(distances), 1),
+            "c2c_mean_m": float(inliers.mean()) if inliers.size else float("nan")}

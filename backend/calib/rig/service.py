@@ -1,0 +1,282 @@
+"""One accept service for every result, and the session's rig as one fused tree.
+
+Accepting any result goes through :func:`accept`: intrinsics become the camera's, a swept
+scanner's geometry becomes its device's, and every transform result (LiDAR-LiDAR,
+LiDAR-camera, each camera of a multi-camera solve, a depth node) becomes an edge of the rig's
+pose graph (:mod:`backend.calib.rig.graph`), beside the mounting guesses as weak priors.
+After every accept or revert the whole tree is re-fitted and written into the rig's frames
+(``T_parent_child`` and its covariance), so ``session.rig`` is always the current tree and no
+accepted result silently stops holding: each one's residual, its disagreement with the rest
+and every loop's closure are in :func:`solve_rig`. :func:`preview` shows what an accept would
+move before anything is written.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.multicam import service as multicam_service
+from backend.calib.rig.graph import FLAG_SIGMA, EdgeResidual, RigEdge, RigTree, solve_rig_graph
+from backend.calib.sweep import service as sweep_service
+from backend.core.errors import InputError
+from backend.core.result import TransformResult
+from backend.core.rig import Rig, edge_slot
+from backend.core.transforms import params_between
+from backend.store.session import Session
+
+EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node")
+"""Result kinds whose transforms are edges of the rig graph."""
+MANUAL_SIGMA = (0.005, 0.3)
+"""1-sigma (m, deg) assumed for a transform set by hand, which carries none of its own."""
+MOVE_THRESHOLD = (1e-6, 1e-5)
+"""A frame moving less than this (m, deg) does not count as moved."""
+
+Effect = Callable[[Rig, dict[str, Any]], None]
+EFFECTS: dict[str, Effect] = {
+    "intrinsics": lambda rig, record: intrinsics_service.apply_intrinsics(rig, record),
+    "sweep": lambda rig, record: sweep_service.apply_sweep_geometry(rig, record),
+    "multicam": lambda rig, record: multicam_service.apply_refined_intrinsics(rig, record),
+}
+"""What accepting a result does to the rig beside its edges (the camera's intrinsics, a scanner's geometry)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Results as edges
+
+
+def record_transforms(record: dict[str, Any]) -> list[TransformResult]:
+    """The transforms a stored result holds between rig frames (none for intrinsics or a sweep geometry)."""
+    if record.get("kind") not in EDGE_KINDS:
+        return []
+    if "transforms" in record:  # multicam: one per camera
+        return [TransformResult.from_record(t) for t in record["transforms"].values()]
+    if "T_parent_child" not in record:
+        return [TransformResult.from_record(t) for t in _legacy_transforms(record)]
+    return [TransformResult.from_record(record)]
+
+
+def _legacy_transforms(record: dict[str, Any]) -> list[dict[str, Any]]:
+    """Records stored before every solver returned a :class:`TransformResult` (their transform under its own
+    name), read as transform records so sessions accepted then still form their tree."""
+    kind, common = record["kind"], {"converged": record.get("converged", False), "method": record.get("method", "")}
+    if kind == "multicam":
+        return [{**common, "kind": kind, "parent": record["reference"], "child": name, "T_parent_child": T,
+                 "covariance": record["covariance"][name]}
+                for name, T in record["T_ref_cam"].items() if name != record["reference"]]
+    parent, T = ((record["target"], record["T_target_source"]) if kind == "lidar_lidar"
+                 else (record["camera"], record["T_camera_lidar"]))
+    return [{**common, "kind": kind, "parent": parent, "child": record["sensor"], "T_parent_child": T,
+             "covariance": record.get("covariance")}]
+
+
+def slot_of(record: dict[str, Any]) -> str:
+    """The acceptance slot a result fills: ``CAM/intrinsics``, ``SENSOR/sweep``, ``multicam:A+B`` or
+    ``CHILD/T_PARENT_CHILD`` for a transform between two frames."""
+    kind = record.get("kind")
+    if kind == "intrinsics":
+        return f"{record['sensor']}/intrinsics"
+    if kind == "sweep":
+        return f"{record['sensor']}/sweep"
+    if kind == "multicam":
+        return multicam_service.slot(record["camera_order"])
+    if kind in EDGE_KINDS:
+        transform = record_transforms(record)[0]
+        return edge_slot(transform.parent, transform.child)
+    raise InputError(f"result {record.get('id')} is a {kind!r} result, which cannot be accepted", "result")
+
+
+def manual_covariance() -> tuple[np.ndarray, str]:
+    """The 6x6 covariance assumed for a transform set by hand (:data:`MANUAL_SIGMA` on every axis, m and rad) and
+    the words that say so."""
+    sigma_m, sigma_deg = MANUAL_SIGMA
+    return (np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3),
+            f"sigma assumed {sigma_m * 1000:g} mm, {sigma_deg:g} deg")
+
+
+def _edge(transform: TransformResult, record: dict[str, Any], slot: str) -> RigEdge:
+    covariance, note = transform.covariance, ""
+    if transform.method == "manual" or not np.isfinite(covariance).any():
+        covariance, assumed = manual_covariance()
+        note = f"set by hand: {assumed}"
+    return RigEdge(transform.parent, transform.child, transform.T_parent_child, covariance, record["kind"],
+                   record["id"], slot, transform.method, note)
+
+
+def prior_edges(rig: Rig) -> list[RigEdge]:
+    """The mounting guesses as weak edges from each frame's parent (frames whose mounting is unknown have none)."""
+    return [RigEdge(f.parent, f.name, f.T_mount, f.mount_covariance, "prior", note=f"mounting guess, sigma "
+                    f"{f.mount_sigma[0] * 1000:g} mm, {f.mount_sigma[1]:g} deg")
+            for f in rig.frames.values() if f.parent is not None and f.mount_sigma is not None]
+
+
+def _graph_edges(session: Session, accepted: dict[str, str], rig: Rig) -> list[RigEdge]:
+    """Priors, then every accepted slot's edges, the longest-standing first."""
+    edges = prior_edges(rig)
+    for slot, result_id in accepted.items():
+        record = session.result(result_id)
+        edges += [_edge(t, record, slot) for t in record_transforms(record)]
+    return edges
+
+
+def _fit(session: Session, accepted: dict[str, str], rig: Rig) -> RigTree:
+    parents = {name: frame.parent for name, frame in rig.frames.items()}
+    return solve_rig_graph(rig.root, parents, _graph_edges(session, accepted, rig))
+
+
+def solve_rig(session: Session) -> RigTree:
+    """The fused tree of everything accepted in the session (nothing is written)."""
+    return _fit(session, session.accepted_slots(), session.rig)
+
+
+def _write_tree(rig: Rig, tree: RigTree) -> None:
+    """Give every fitted frame its fused ``T_parent_child`` and covariance (a frame left unconnected keeps its own)."""
+    for name, estimate in tree.frames.items():
+        frame = rig.get(name)
+        frame.T_parent_child = estimate.T_parent_child.copy()
+        frame.covariance = estimate.covariance.copy() if np.isfinite(estimate.covariance).all() else None
+
+
+# ---------------------------------------------------------------------------------------------
+# Accept, preview, revert
+
+
+@dataclass
+class FrameMove:
+    """How far a change moves one frame's ``T_parent_child``."""
+
+    frame: str
+    trans_m: float
+    rot_deg: float
+    sigma_ratio: float | None
+    """The worst axis's move over that axis's sigma after the change (None when the sigma is unknown)."""
+
+
+@dataclass
+class RigUpdate:
+    """What an accept or revert does (or would do) to the rig."""
+
+    tree: RigTree
+    """The tree after the change."""
+    moves: list[FrameMove]
+    """Frames that move, the largest move (in sigma) first."""
+    result_id: str | None
+    slot: str
+
+    @property
+    def conflicts(self) -> list[EdgeResidual]:
+        """Edges flagged in the tree after the change."""
+        return self.tree.flagged
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"result_id": self.result_id, "slot": self.slot,
+                "moves": [vars(move) for move in self.moves],
+                "conflicts": [c.to_dict() for c in self.conflicts], "problems": self.tree.problems(),
+                "rig": self.tree.summary()}
+
+    def markdown(self) -> str:
+        """Which frames move, by how much against their sigma, and what disagrees (for the result card)."""
+        lines = []
+        for move in self.moves:
+            ratio = "" if move.sigma_ratio is None else f" ({move.sigma_ratio:.1f} sigma)"
+            lines.append(f"- **{move.frame}** moves {move.trans_m * 1000:.2f} mm, {move.rot_deg:.3f} deg{ratio}")
+        if not lines:
+            lines.append("- no frame moves")
+        for conflict in self.conflicts:
+            lines.append(f"- 🔴 {conflict.edge.label} disagrees with the rest by {conflict.disagreement_sigma:.1f} "
+                         f"sigma (beyond {FLAG_SIGMA:g}) and is left out of the tree")
+        lines += [f"- ⚠️ {problem}" for problem in self.tree.problems() if "not connected" in problem]
+        return "\n".join(lines)
+
+
+def _moves(before: RigTree, after: RigTree) -> list[FrameMove]:
+    moves = []
+    for name, new in after.frames.items():
+        old = before.frames.get(name)
+        if old is None:
+            continue
+        step = params_between(old.T_parent_child, new.T_parent_child)
+        trans_m, rot_deg = float(np.linalg.norm(step[:3])), float(np.degrees(np.linalg.norm(step[3:])))
+        if trans_m < MOVE_THRESHOLD[0] and rot_deg < MOVE_THRESHOLD[1]:
+            continue
+        sigma = np.sqrt(np.clip(np.diag(new.covariance), 0, None))
+        ratio = float(np.max(np.abs(step) / sigma)) if np.all(sigma > 0) and np.isfinite(sigma).all() else None
+        moves.append(FrameMove(name, trans_m, rot_deg, ratio))
+    return sorted(moves, key=lambda m: -(m.sigma_ratio or 0.0))
+
+
+def _check_acceptable(record: dict[str, Any]) -> None:
+    if record.get("kind") in EDGE_KINDS and not record.get("converged", False):
+        raise InputError(f"result {record['id']} did not converge and cannot be accepted: "
+                         + ("; ".join(record.get("warnings", [])) or "no reason given"), "result", 409)
+
+
+def _check_revert(session: Session, revert: Sequence[str]) -> None:
+    for other in revert:
+        if other not in session.accepted_slots():
+            raise InputError(f"cannot revert {other!r}: nothing is accepted for it; accepted: "
+                             f"{sorted(session.accepted_slots())}", "revert")
+
+
+def _accepted_after(session: Session, slot: str, result_id: str, revert: Sequence[str]) -> dict[str, str]:
+    _check_revert(session, revert)
+    return {s: r for s, r in session.accepted_slots().items() if s not in revert and s != slot} | {slot: result_id}
+
+
+def preview(session: Session, result_id: str, revert: Sequence[str] = ()) -> RigUpdate:
+    """What accepting ``result_id`` (and emptying the ``revert`` slots) would do to the tree; nothing is written."""
+    record = session.result(result_id)
+    _check_acceptable(record)
+    slot = slot_of(record)
+    with session.lock:
+        before = solve_rig(session)
+        after = _fit(session, _accepted_after(session, slot, result_id, revert), session.rig)
+    return RigUpdate(after, _moves(before, after), result_id, slot)
+
+
+def accept(session: Session, result_id: str, *, confirm: bool = False, revert: Sequence[str] = ()) -> RigUpdate:
+    """Make ``result_id`` current (any kind), empty the ``revert`` slots (the user keeps this result over
+    theirs), re-fit the tree and write it into the rig, all in one saved change (also how a user goes back
+    to an older result). A ``check`` verdict needs ``confirm``; a ``reject`` or an unconverged solve is refused."""
+    record = session.result(result_id)
+    _check_acceptable(record)
+    slot = slot_of(record)
+    effect = EFFECTS.get(record.get("kind"))
+    with session.lock:
+        _check_revert(session, revert)
+        before = solve_rig(session)
+        after: list[RigTree] = []
+
+        def apply(rig: Rig, stored: dict[str, Any]) -> None:
+            if effect is not None:
+                effect(rig, stored)
+            after.append(_fit(session, session.accepted_slots(), rig))
+            _write_tree(rig, after[0])
+
+        session.accept(slot, result_id, apply, confirm, revert)
+    return RigUpdate(after[0], _moves(before, after[0]), result_id, slot)
+
+
+def revert(session: Session, slot: str) -> RigUpdate:
+    """Empty ``slot`` (its result stays in the history), re-fit the tree without its edges and write it.
+
+    Only transform slots can be emptied; intrinsics and a scanner's geometry are reverted by accepting an
+    older result.
+    """
+    with session.lock:
+        result_id = session.accepted(slot)
+        if result_id is not None and not record_transforms(session.result(result_id)):
+            raise InputError(f"{slot} holds no rig edge; accept an older result to go back", "slot", 409)
+        before = solve_rig(session)
+        after: list[RigTree] = []
+
+        def apply(rig: Rig) -> None:
+            after.append(_fit(session, session.accepted_slots(), rig))
+            _write_tree(rig, after[0])
+
+        session.revert(slot, apply)
+    return RigUpdate(after[0], _moves(before, after[0]), None, slot)
