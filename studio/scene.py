@@ -17,7 +17,7 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
-from backend.calib.rig.graph import EdgeResidual, RigTree
+from backend.calib.rig.service import EdgeResidual, RigTree
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig

@@ -26,6 +26,8 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Locator, Page, expect, sync_playwright
 
+import backend.sim.devices  # noqa: F401  (as the front-ends do through backend.services: simulated drivers and endpoints)
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 STEREO_CHESSBOARD = SHARED_DATA / "opencv_stereo_chessboard"

@@ -78,7 +78,7 @@ def solved(client: TestClient, images: dict[str, bytes]) -> dict:
     """Session ``bench``: camera ``cam`` with all 13 left images, solved (not accepted)."""
     response = client.post("/api/sessions", json={"name": "bench", "board": BOARD, "title": "stereo left"})
     assert response.status_code == 201, response.text
-    response = client.post("/api/sessions/bench/sensors", json={"name": "cam", "xyz_m": [0.1, 0, 0.2]})
+    response = client.post("/api/sessions/bench/sensors", json={"name": "cam", "pose": {"xyz_m": [0.1, 0, 0.2]}})
     assert response.status_code == 201, response.text
     assert "cam" in response.json()["sensors"]
     response = upload(client, "bench", "cam", list(images.items()))
@@ -142,8 +142,8 @@ def test_unknown_session_and_sensor(client: TestClient, fresh: str):
 
 
 def test_add_sensor(client: TestClient, fresh: str):
-    response = client.post(f"/api/sessions/{fresh}/sensors", json={"name": "cam_side", "xyz_m": [0, 0.5, 1.0],
-                                                                   "ypr_deg": [90, 0, 0]})
+    response = client.post(f"/api/sessions/{fresh}/sensors", json={"name": "cam_side", "pose": {
+        "xyz_m": [0, 0.5, 1.0], "ypr_deg": [90, 0, 0]}})
     assert response.status_code == 201 and "cam_side" in response.json()["sensors"]
     rig = client.get(f"/api/sessions/{fresh}/rig").json()
     frame = next(f for f in rig["frames"] if f["name"] == "cam_side")

@@ -37,7 +37,7 @@ def test_real_pair_through_the_api(client, stereo_chessboard):
     U, _, Vt = np.linalg.svd(REFERENCE_T_QT_P64[:3, :3])
     xyz, ypr = to_xyz_ypr(np.block([[U @ Vt, REFERENCE_T_QT_P64[:3, 3:]], [np.zeros((1, 3)), np.ones((1, 1))]]))
     job = client.post("/api/sessions/car/lidar-lidar/solve", json={
-        "source": "p64", "target": "qt", "init_xyz_m": list(xyz), "init_ypr_deg": list(np.degrees(ypr))})
+        "source": "p64", "target": "qt", "init": {"xyz_m": list(xyz), "ypr_deg": list(np.degrees(ypr))}})
     assert job.status_code == 202
     status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
@@ -94,8 +94,8 @@ def test_three_scenes_through_the_api_are_trusted_and_accepted(client, tmp_path)
     assert len(pairs) == 3
     xyz, ypr = to_xyz_ypr(perturbed(T_TRUE, 7, 0.10, 5.0))
     job = client.post("/api/sessions/car/lidar-lidar/solve", json={
-        "source": "p64", "target": "qt", "pairs": pairs, "init_xyz_m": list(xyz),
-        "init_ypr_deg": list(np.degrees(ypr))})
+        "source": "p64", "target": "qt", "pairs": pairs, "init": {"xyz_m": list(xyz),
+                                                                  "ypr_deg": list(np.degrees(ypr))}})
     status = wait_job(client, job.json()["id"], timeout_s=120)
     assert status["state"] == "done", status
     record = client.get(f"/api/sessions/car/results/{status['result_id']}").json()

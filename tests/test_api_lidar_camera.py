@@ -53,8 +53,8 @@ def test_pairs_solve_overlay_and_accept(client):
     assert listed.status_code == 200 and len(listed.json()) == 6
 
     xyz, ypr = to_xyz_ypr(T_TRUE)
-    init = {"init_xyz_m": (xyz + [0.06, -0.05, 0.06]).tolist(),  # 10 cm and 5 deg off
-            "init_ypr_deg": (np.degrees(ypr) + [3, -3, 2.5]).tolist()}
+    init = {"init": {"xyz_m": (xyz + [0.06, -0.05, 0.06]).tolist(),  # 10 cm and 5 deg off
+                     "ypr_deg": (np.degrees(ypr) + [3, -3, 2.5]).tolist()}}
     response = client.post("/api/sessions/l2c/lidar-camera/solve",
                            json={"camera": "cam_front", "lidar": "lidar_front", "method": "target", **init})
     assert response.status_code == 202, response.text
@@ -88,7 +88,8 @@ def test_pairs_solve_overlay_and_accept(client):
 def test_hand_set_transform_and_errors(client):
     xyz, ypr = to_xyz_ypr(T_TRUE)
     response = client.post("/api/sessions/l2c/lidar-camera/manual", json={
-        "camera": "cam_front", "lidar": "lidar_front", "xyz_m": xyz.tolist(), "ypr_deg": np.degrees(ypr).tolist()})
+        "camera": "cam_front", "lidar": "lidar_front",
+        "pose": {"xyz_m": xyz.tolist(), "ypr_deg": np.degrees(ypr).tolist()}})
     assert response.status_code == 201, response.text
     result_id = response.json()["result_id"]
     record = client.get(f"/api/sessions/l2c/results/{result_id}").json()

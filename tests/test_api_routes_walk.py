@@ -38,7 +38,8 @@ class Walk:
         session = client.get("/api/sessions/demo").json()
         self.sensors: list[str] = session["sensors"]
         manual = client.post("/api/sessions/demo/lidar-camera/manual", json={
-            "camera": "cam_front", "lidar": "lidar_top", "xyz_m": [0.1, 0.0, 0.0], "ypr_deg": [0.0, 0.0, 0.0]})
+            "camera": "cam_front", "lidar": "lidar_top",
+            "pose": {"xyz_m": [0.1, 0.0, 0.0], "ypr_deg": [0.0, 0.0, 0.0]}})
         assert manual.status_code == 201, manual.text
         results = client.get("/api/sessions/demo/results").json()
         self.result_ids = sorted({r["id"] for r in results})
@@ -82,6 +83,9 @@ class Walk:
             return ["nope"], WRONG_NAMES
         if field == "fmt":
             return ["camera_info"], ["nope"]
+        if field in ("pose", "init"):
+            return [{"xyz_m": [0.0, 0.0, 0.0], "ypr_deg": [0.0, 0.0, 0.0]}], [{"xyz_m": [0.0]}, "nope",
+                                                                            {"ypr_deg": ["a", 0, 0]}]
         if field in ("xyz_m", "ypr_deg", "init_xyz_m", "init_ypr_deg"):
             return [[0.0, 0.0, 0.0]], [[0.0], ["a", 0, 0], "1,2"]
         if field == "range_m":

@@ -44,6 +44,11 @@ def upload(client: TestClient, node: str, depth: np.ndarray, amplitude: np.ndarr
                        data={"arrangement": arrangement, "tables": tables})
 
 
+def pose(row) -> dict[str, list[float]]:
+    """The API's pose of a depth row (X, Y, Z m, RotZ, RotY, RotX deg)."""
+    return {"xyz_m": list(row[:3]), "ypr_deg": list(row[3:])}
+
+
 @pytest.fixture(scope="module")
 def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
     app = create_app(tmp_path_factory.mktemp("depth-api"))
@@ -51,7 +56,7 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
         assert client.post("/api/sessions", json={"name": "cell"}).status_code == 201
         # sn1 at its typed pose, to calibrate; sn2 at its true pose (calibrated before)
         for node, row in (("sn1", typed_pose("sn1")), ("sn2", list(PAPER_NODE_POSES["sn2"]))):
-            response = client.post(f"{BASE}/nodes", json={"name": node, "pose_row": row})
+            response = client.post(f"{BASE}/nodes", json={"name": node, "pose": pose(row)})
             assert response.status_code == 201, response.text
         for arrangement, tables, frame in render_captures("sn1", seed=7):
             response = upload(client, "sn1", frame.depth_m, frame.amplitude, arrangement, ",".join(tables))
@@ -77,7 +82,7 @@ def error(response, status: int) -> dict:
 def test_the_guided_procedure_reaches_10_mm(client: TestClient) -> None:
     assert error(client.post(f"{BASE}/guided/sn1/advise", json={"step": "tables_behind"}), 409)["message"] == (
         "the guided procedure of sn1 has not started: type its measured pose first (step 'initial')")
-    state = client.post(f"{BASE}/guided/sn1/start", json={"pose_row": typed_pose("sn1")}).json()
+    state = client.post(f"{BASE}/guided/sn1/start", json={"pose": pose(typed_pose("sn1"))}).json()
     assert (state["step"], state["done"]) == ("tables_behind", ["initial"])
     refused = error(client.post(f"{BASE}/guided/sn1/apply", json={"step": "tables_beside"}), 409)
     assert refused["message"].startswith("step 'tables_beside' comes after 'tables_behind' (RotX before RotY: "
@@ -160,7 +165,7 @@ def test_verification_map_and_tables(client: TestClient) -> None:
 
 def test_bad_input_is_a_4xx_and_keeps_everything(client: TestClient) -> None:
     captures = len(client.get(f"{BASE}/nodes/sn2/captures").json())
-    state = client.post(f"{BASE}/guided/sn2/start", json={"pose_row": typed_pose("sn2")}).json()
+    state = client.post(f"{BASE}/guided/sn2/start", json={"pose": pose(typed_pose("sn2"))}).json()
     missing = error(client.post(f"{BASE}/guided/sn2/apply", json={"step": "tables_behind"}), 422)
     assert "table" in missing["message"] and "the pose is kept" in missing["message"]
     assert client.get(f"{BASE}/guided/sn2").json()["history"] == state["history"]

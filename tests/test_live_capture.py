@@ -23,7 +23,7 @@ class Recorder:
     def callbacks(self) -> LiveCallbacks:
         return LiveCallbacks(frame=self._frame, captured=self._captured, status=self._status)
 
-    def _frame(self, image, detection, coverage) -> None:
+    def _frame(self, frame) -> None:
         self.frames += 1
 
     def _captured(self, record, coverage) -> None:

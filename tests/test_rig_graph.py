@@ -333,7 +333,7 @@ def test_api_sensor_mounting_sigma_makes_a_prior_or_none(tmp_path: Path) -> None
     with TestClient(create_app(tmp_path / "sessions")) as client:
         assert client.post("/api/sessions", json={"name": "mounts"}).status_code == 201
         sensors = "/api/sessions/mounts/sensors"
-        assert client.post(sensors, json={"name": "cam", "xyz_m": [0.3, 0, 0.5], "mount_sigma": [0.01, 1.0]}
+        assert client.post(sensors, json={"name": "cam", "pose": {"xyz_m": [0.3, 0, 0.5]}, "mount_sigma": [0.01, 1.0]}
                            ).status_code == 201
         assert client.post(sensors, json={"name": "lidar", "kind": "lidar3d", "mount_sigma": None}).status_code == 201
         bad = client.post(sensors, json={"name": "imu", "kind": "imu", "mount_sigma": [0, 1.0]})

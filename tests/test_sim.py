@@ -9,9 +9,9 @@ import pytest
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
-from backend.devices.simulated_camera import SimulatedCamera
 from backend.sim.board_motion import board_poses, plate_in_view, project_corners
 from backend.sim.board_renderer import render_board_image
+from backend.sim.camera_device import SimulatedCamera
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 
 BOARD = BoardSpec.parse(DEMO_BOARD)

@@ -273,10 +273,11 @@ def test_corrupt_capture_metadata_and_image_are_quarantined(tmp_path: Path):
 
 
 @pytest.mark.parametrize(("body", "field"), [
-    ('{"name": "cam", "xyz_m": [NaN, 0, 0]}', "xyz_m.0"),
-    ('{"name": "cam", "ypr_deg": [0, Infinity, 0]}', "ypr_deg.1"),
-    ('{"name": "cam", "xyz_m": [0, 0, -Infinity]}', "xyz_m.2"),
-    ('{"name": "cam", "xyz_m": [0, "nan", 0]}', "xyz_m.1"),
+    ('{"name": "cam", "pose": {"xyz_m": [NaN, 0, 0]}}', "pose.xyz_m.0"),
+    ('{"name": "cam", "pose": {"ypr_deg": [0, Infinity, 0]}}', "pose.ypr_deg.1"),
+    ('{"name": "cam", "pose": {"xyz_m": [0, 0, -Infinity]}}', "pose.xyz_m.2"),
+    ('{"name": "cam", "pose": {"xyz_m": [0, "nan", 0]}}', "pose.xyz_m.1"),
+    ('{"name": "cam", "xyz_m": [NaN, 0, 0]}', "pose.xyz_m.0"),  # the deprecated spelling, folded into pose
     ('{"name": "cam", "device": {"driver": "sim", "noise": {"px": NaN}}}', "device"),
 ])
 def test_non_finite_mountings_are_refused(tmp_path: Path, client_for, body: str, field: str):
@@ -292,10 +293,10 @@ def test_non_finite_mountings_are_refused(tmp_path: Path, client_for, body: str,
 def test_other_request_models_refuse_non_finite_numbers(tmp_path: Path, client_for):
     lidar_session(tmp_path)
     client = client_for(tmp_path)
-    body = '{"source": "front", "target": "top", "init_xyz_m": [0, 0, NaN], "init_ypr_deg": [0, 0, 0]}'
+    body = '{"source": "front", "target": "top", "init": {"xyz_m": [0, 0, NaN], "ypr_deg": [0, 0, 0]}}'
     response = client.post("/api/sessions/car/lidar-lidar/solve", content=body,
                            headers={"Content-Type": "application/json"})
-    assert_error(response, 422, names="init_xyz_m.2")
+    assert_error(response, 422, names="init.xyz_m.2")
 
 
 def test_rig_refuses_non_finite_transforms():

@@ -19,7 +19,7 @@ from rosbags.rosbag2 import StoragePlugin
 from test_rosbag_source import write_bag
 
 from backend.core.sweep_geometry import SweepGeometry
-from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY
+from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

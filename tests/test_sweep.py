@@ -18,13 +18,13 @@ from backend.core.sweep_geometry import SweepGeometry, intensity_image
 from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
 from backend.devices.base import DeviceError, create_device
 from backend.devices.dynamixel_servo import (
-    DEFAULT_SIM_GEOMETRY,
     DynamixelServo,
     SweptScanner,
     angle_to_ticks,
     points_in_base,
 )
 from backend.sim import dynamixel_sim as dsim
+from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY
 from backend.sim.dynamixel_sim import DynamixelSimulator
 
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)

@@ -23,9 +23,9 @@ from backend.core.rig import Frame
 from backend.core.sweep_geometry import SweepGeometry
 from backend.core.transforms import transform_error
 from backend.devices.base import Sample, create_device
-from backend.devices.dynamixel_servo import DEFAULT_SIM_GEOMETRY, SweptScanner, points_in_base
+from backend.devices.dynamixel_servo import SweptScanner, points_in_base
 from backend.devices.image_io import decode_image_bytes
-from backend.sim.demo_rig import SWEEP_NOMINAL_GEOMETRY, demo_rig
+from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, SWEEP_NOMINAL_GEOMETRY, demo_rig
 from backend.store.session import Session, SessionStore
 
 SENSOR = "sweep_3d"

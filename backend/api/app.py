@@ -109,6 +109,8 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         first = exc.errors()[0]
         field = ".".join(str(p) for p in first["loc"] if p != "body")
+        if not field:  # a check of the whole body (two spellings of one pose): its message names the fields
+            return error_response(422, f"body: {first['msg']}", "body")
         return error_response(422, f"field '{field}': {first['msg']}", field)
 
     @app.get("/api/health", tags=["meta"])

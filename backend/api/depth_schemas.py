@@ -6,9 +6,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
+from backend.api.pose import Pose, PoseRow, deprecated, deprecated_row
+from backend.core.rig import DEFAULT_MOUNT_SIGMA
 from backend.store.schema import NAME_PATTERN, FiniteModel
 
-PoseRow = tuple[float, float, float, float, float, float]
 """X, Y, Z (m), RotZ, RotY, RotX (deg): the paper's pose row (``backend.core.depth.pose_from_row``)."""
 
 
@@ -53,10 +54,13 @@ class LayoutBody(FiniteModel):
 
 class DepthNodeCreate(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN, examples=["sn1"])
-    pose_row: PoseRow | None = Field(None, description="measured pose X, Y, Z (m), RotZ, RotY, RotX (deg); null: "
-                                     "unknown (identity, no mounting prior)", examples=[[9.95, 0.3, 4.9, 45, 0, -140]])
+    pose: Pose | None = Field(None, description="T_world_node as measured (laser meter, tape); null: unknown "
+                              "(identity, no mounting prior)",
+                              examples=[{"xyz_m": [9.95, 0.3, 4.9], "ypr_deg": [45, 0, -140]}])
+    pose_row: PoseRow | None = deprecated("pose")
+    fold_pose = deprecated_row("pose", "pose_row")
     mount_sigma: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = Field(
-        (0.05, 5.0), description="1-sigma of the measured pose (m, deg), a weak prior edge of the rig graph")
+        DEFAULT_MOUNT_SIGMA, description="1-sigma of the measured pose (m, deg), a weak prior edge of the rig graph")
     device: dict[str, Any] = Field(default_factory=dict, description="the node agent's device spec, if any")
 
 
@@ -67,7 +71,9 @@ class LiveCapture(FiniteModel):
 
 
 class NodeSolveRequest(FiniteModel):
-    init_pose_row: PoseRow | None = Field(None, description="initial pose; null: the rig's current pose")
+    init: Pose | None = Field(None, description="initial T_world_node; null: the rig's current pose")
+    init_pose_row: PoseRow | None = deprecated("init")
+    fold_init = deprecated_row("init", "init_pose_row")
 
 
 class NetworkSolveRequest(FiniteModel):
@@ -82,7 +88,9 @@ class DepthAccept(FiniteModel):
 
 
 class GuidedStart(FiniteModel):
-    pose_row: PoseRow
+    pose: Pose = Field(description="T_world_node")
+    pose_row: PoseRow | None = deprecated("pose")
+    fold_pose = deprecated_row("pose", "pose_row")
 
 
 class GuidedStep(FiniteModel):

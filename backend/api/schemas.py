@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field
 
+from backend.api.pose import Pose, Vector3, deprecated, deprecated_pair
 from backend.core.rig import DEFAULT_MOUNT_SIGMA
 from backend.store.schema import NAME_PATTERN, FiniteModel, FiniteTree
 
@@ -38,8 +39,10 @@ class SensorCreate(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN, examples=["cam_front"])
     parent: str = "base_link"
     kind: Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"] = "camera"
-    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    ypr_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ROS yaw, pitch, roll in degrees")
+    pose: Pose = Field(default_factory=Pose, description="T_parent_sensor, the mounting guess (tape, CAD)")
+    xyz_m: Vector3 | None = deprecated("pose.xyz_m")
+    ypr_deg: Vector3 | None = deprecated("pose.ypr_deg")
+    fold_pose = deprecated_pair("pose", "xyz_m", "ypr_deg")
     mount_sigma: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = Field(
         DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting above (m, deg), a weak prior edge of the rig graph; "
         "null: unknown, only calibrations place the sensor")
@@ -96,8 +99,10 @@ class ImportResponse(BaseModel):
 class LidarLidarSolveRequest(FiniteModel):
     source: str = Field(examples=["lidar_front"])
     target: str = Field(examples=["lidar_top"])
-    init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_target_source translation (m)")
-    init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
+    init: Pose | None = Field(None, description="initial T_target_source")
+    init_xyz_m: Vector3 | None = deprecated("init.xyz_m")
+    init_ypr_deg: Vector3 | None = deprecated("init.ypr_deg")
+    fold_init = deprecated_pair("init", "init_xyz_m", "init_ypr_deg")
     use_rig_guess: bool = Field(True, description="start from the rig's current transform when no init is given; "
                                                   "false runs global registration")
     voxel_m: float | None = Field(None, gt=0, description="fine GICP voxel size (m)")
@@ -139,9 +144,10 @@ class LidarCameraSolveRequest(FiniteModel):
     lidar: str = Field(examples=["lidar_top"])
     method: Literal["target", "edges", "intensity"] = "target"
     image_ids: list[str] | None = Field(None, description="solve from the pairs of these image captures; default all")
-    init_xyz_m: tuple[float, float, float] | None = Field(None, description="initial T_camera_lidar translation (m); "
-                                                                            "default the rig's current transform")
-    init_ypr_deg: tuple[float, float, float] | None = Field(None, description="initial ROS yaw, pitch, roll (deg)")
+    init: Pose | None = Field(None, description="initial T_camera_lidar; default the rig's current transform")
+    init_xyz_m: Vector3 | None = deprecated("init.xyz_m")
+    init_ypr_deg: Vector3 | None = deprecated("init.ypr_deg")
+    fold_init = deprecated_pair("init", "init_xyz_m", "init_ypr_deg")
     plate_margin_m: float | None = Field(None, ge=0, description="the board plate's margin beyond the pattern (m); "
                                                                   "default one square")
     translation_prior_m: float | None = Field(None, gt=0, description="edges, intensity: hold the initial "
@@ -153,8 +159,10 @@ class LidarCameraSolveRequest(FiniteModel):
 class LidarCameraManual(FiniteModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
-    xyz_m: tuple[float, float, float] = Field(description="T_camera_lidar translation (m)")
-    ypr_deg: tuple[float, float, float] = Field(description="T_camera_lidar as ROS yaw, pitch, roll (deg)")
+    pose: Pose = Field(description="T_camera_lidar")
+    xyz_m: Vector3 | None = deprecated("pose.xyz_m")
+    ypr_deg: Vector3 | None = deprecated("pose.ypr_deg")
+    fold_pose = deprecated_pair("pose", "xyz_m", "ypr_deg")
     inputs: list[str] = Field(default_factory=list, description="the captures it was judged on, as sensor:capture")
 
 

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from backend.core.uncertainty import sigmas
 from backend.core.verdict import Verdict
 
 ProgressCallback = Callable[[float, str], None]
@@ -61,7 +62,7 @@ TRANSFORM_PARAMETERS = ["t_x_m", "t_y_m", "t_z_m", "r_x_rad", "r_y_rad", "r_z_ra
 def transform_std(covariance: np.ndarray) -> dict[str, list[float | None]]:
     """A transform result's reported 1-sigma from its 6x6 covariance (order :data:`TRANSFORM_PARAMETERS`):
     ``trans_m`` (m, parent axes) and ``rot_deg`` (deg, about the child's axes); None where undetermined."""
-    std = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    std = sigmas(covariance)
     return {"trans_m": finite_or_none(std[:3]), "rot_deg": finite_or_none(np.degrees(std[3:]))}
 
 
@@ -111,7 +112,7 @@ class TransformResult(SolveResult):
     @property
     def std_vector(self) -> np.ndarray:
         """(6,) 1-sigma in :data:`TRANSFORM_PARAMETERS` order (m, rad); NaN where undetermined."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        return sigmas(self.covariance)
 
     def summary(self) -> dict[str, Any]:
         """``{"kind", "method", "parent", "child", "T_parent_child", "std", "residuals", "converged", "verdict",
@@ -169,7 +170,7 @@ def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> 
     covariance, which sees the model's noise, and a leave-one-out spread, which sees what
     moves whole views or poses together.
     """
-    std_h = np.sqrt(np.clip(np.diag(cov_hessian), 0, None))
+    std_h = sigmas(cov_hessian)
     std = std_h if std_spread is None else np.fmax(std_h, std_spread)
     if not np.isfinite(cov_hessian).all():
         return np.diag(std**2)

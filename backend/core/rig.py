@@ -17,6 +17,7 @@ import numpy as np
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError, NotFoundError
 from backend.core.finite import require_finite
+from backend.core.uncertainty import sigmas
 
 SensorKind = Literal["frame", "camera", "lidar3d", "lidar2d", "depth", "imu"]
 
@@ -29,7 +30,7 @@ def covariance_sigmas(covariance: np.ndarray | None) -> tuple[np.ndarray, np.nda
     covariance (``[t (m), r (rad)]``), or None without one."""
     if covariance is None:
         return None
-    std = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    std = sigmas(covariance)
     return std[:3], np.degrees(std[3:])
 
 

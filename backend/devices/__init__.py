@@ -1,6 +1,8 @@
 """Sensor drivers behind the one capture interface in :mod:`backend.devices.base`.
 
-Importing the package registers every built-in driver with :func:`backend.devices.base.create_device`.
+Importing the package registers every built-in driver with :func:`backend.devices.base.create_device`. Drivers
+never import simulators: the simulated drivers, and the simulated endpoints that ``port="sim"``, ``host="sim"``
+and ``servo_port="sim"`` start, are registered by :data:`backend.devices.base.SIMULATORS_MODULE` when imported.
 """
 
 from backend.devices import (  # noqa: F401
@@ -12,9 +14,6 @@ from backend.devices import (  # noqa: F401
     node_network,
     realsense,
     rosbag_source,
-    simulated_camera,
-    simulated_depth,
-    simulated_lidar,
     uvc_camera,
     velodyne,
     ydlidar,

@@ -10,9 +10,10 @@ and are never lost.
 from __future__ import annotations
 
 import abc
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -96,6 +97,14 @@ class CaptureDevice(abc.ABC):
 
 
 _DRIVERS: dict[str, Callable[..., CaptureDevice]] = {}
+_SIMULATORS: dict[str, Callable[..., Any]] = {}
+"""Simulated endpoints by name (:func:`register_simulator`): a driver that can talk to a simulated sensor
+(``port="sim"``, ``host="sim"`` ...) knows only the bytes on its wire; the simulator behind that wire lives in the
+simulation package, which registers it here, so drivers never import simulators."""
+
+SIMULATORS_MODULE = "backend.sim.devices"
+"""The module that registers every simulated driver and endpoint when imported (``backend.services`` imports it
+for every front-end); named here only in messages, never imported."""
 
 
 def register_driver(cls: type[CaptureDevice]) -> type[CaptureDevice]:
@@ -117,9 +126,52 @@ def create_device(settings: dict[str, Any]) -> CaptureDevice:
 
     name = settings.get("driver")
     if name not in _DRIVERS:
-        raise DeviceError(f"unknown driver {name!r}; available: {sorted(_DRIVERS)}", str(name))
+        sim_loaded = SIMULATORS_MODULE in sys.modules
+        hint = "" if sim_loaded else f" (simulated drivers are registered by importing {SIMULATORS_MODULE})"
+        raise DeviceError(f"unknown driver {name!r}; available: {sorted(_DRIVERS)}{hint}", str(name))
     kwargs = {k: v for k, v in settings.items() if k != "driver"}
     try:
         return _DRIVERS[name](**kwargs)
     except TypeError as exc:
         raise DeviceError(f"bad settings {kwargs}: {exc}", name) from None
+
+
+# ---------------------------------------------------------------------------------------------- simulated endpoints
+
+class SimulatedEndpoint(Protocol):
+    """What :func:`start_simulator` returns: a running simulated sensor a driver reads from (a pty's ``port``
+    path, a UDP sender toward the driver's socket, ...); :meth:`stop` ends it."""
+
+    def stop(self) -> None:
+        """Stop the simulator and release what it holds. Safe twice."""
+
+
+def register_simulator(name: str, start: Callable[..., Any]) -> None:
+    """Make a simulated endpoint available to drivers as :func:`start_simulator` ``(name, ...)``.
+
+    ``start(**settings)`` returns the running endpoint (usually a :class:`SimulatedEndpoint`); it raises
+    :class:`ValueError` for settings it cannot simulate (reported as a :class:`DeviceError`).
+    """
+    _SIMULATORS[name] = start
+
+
+def simulator_names() -> list[str]:
+    """The names of every registered simulated endpoint."""
+    return sorted(_SIMULATORS)
+
+
+def start_simulator(name: str, device: str, **settings: Any) -> Any:
+    """Start the simulated endpoint registered as ``name`` with ``settings`` and return it.
+
+    ``device`` is who asks (the driver's :meth:`CaptureDevice.describe`), for the errors: a :class:`DeviceError`
+    if nothing is registered under ``name`` (:data:`SIMULATORS_MODULE` registers the built-in simulators when
+    imported) or if the simulator rejects its settings (:class:`ValueError`).
+    """
+    start = _SIMULATORS.get(name)
+    if start is None:
+        raise DeviceError(f"no simulator {name!r} is registered (available: {simulator_names()}); simulators are "
+                          f"registered by importing {SIMULATORS_MODULE}", device)
+    try:
+        return start(**settings)
+    except ValueError as exc:
+        raise DeviceError(str(exc), device) from None

@@ -11,10 +11,11 @@ at each step it settles, one fresh 2D scan is read, and the servo angle is read 
 are assembled with a :class:`~backend.core.sweep_geometry.SweepGeometry` into one cloud in the ``mount``
 frame (see :mod:`backend.core.sweep_geometry`).
 
-Simulation: ``servo_port="sim"`` starts a :class:`~backend.sim.dynamixel_sim.DynamixelSimulator`
-(byte-level Protocol 2.0 on a pty) and ``scanner={"driver": "sim", ...}`` is a 2D scanner bolted
-to that simulated horn: each scan is ray-cast in :class:`~backend.sim.lidar_scene.LidarScene`
-from the pose the horn's physical angle and a TRUE geometry give, so tests know the truth.
+Simulation: ``servo_port="sim"`` starts the simulated endpoint registered as ``"dynamixel"`` (a simulated
+servo speaking byte-level Protocol 2.0 on a pty; :func:`~backend.devices.base.start_simulator`) and
+``scanner={"driver": "sim", ...}`` the one registered as ``"swept_head"``: a 2D scanner bolted to that
+simulated horn, each scan ray-cast in the simulated yard from the pose the horn's physical angle and a TRUE
+geometry give, so tests know the truth (it reports that truth with ``ground_truth()``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from backend.core.sweep_geometry import SweepGeometry, stack_scans
-from backend.core.transforms import from_xyz_ypr, transform_points
+from backend.core.transforms import transform_points
 from backend.devices.base import (
     CaptureDevice,
     DeviceDisconnected,
@@ -34,6 +35,7 @@ from backend.devices.base import (
     Sample,
     create_device,
     register_driver,
+    start_simulator,
 )
 
 TICKS_PER_REV = 4096
@@ -212,80 +214,6 @@ class DynamixelServo:
             time.sleep(0.001)
 
 
-# ---------------------------------------------------------------------------------------------- simulation
-
-DEFAULT_SIM_GEOMETRY: dict[str, Any] = {
-    "axis": [1.0, 0.0, 0.0],
-    "T_servo_scanner": from_xyz_ypr(np.array([0.03, 0.012, 0.045]), np.radians([0.6, -0.8, 0.0])).tolist(),
-    "zero_offset_rad": math.radians(1.5),
-}
-"""The TRUE geometry of the simulated rig: the optical centre 3 cm along the axis, 1.2 cm beside and
-4.5 cm above it, turned by 0.6 deg yaw and -0.8 deg pitch; the servo's zero reads 1.5 deg off."""
-DEFAULT_SIM_MOUNT: list[list[float]] = from_xyz_ypr(np.array([0.35, 0.0, 0.75]), np.zeros(3)).tolist()
-"""``T_base_mount`` of the simulated rig: level, 35 cm ahead of base_link and 75 cm up."""
-
-
-class SimSweptScannerHead(CaptureDevice):
-    """A 2D scanner on the simulated servo's horn (``scanner={"driver": "sim", ...}``); not registered.
-
-    Each :meth:`read` ray-casts one planar scan (:meth:`LidarScene.scan_2d`) from
-    ``T_base_mount @ geometry.T_mount_scanner(physical servo angle)`` with the TRUE geometry,
-    keeps beams within ``fov_deg`` (a Hokuyo UTM-30LX sees 270 deg) and returns them in the
-    scanner frame with intensity (0..255) and ``meta["T_base_scanner"]`` (truth).
-    """
-
-    driver = "sim"
-
-    def __init__(self, servo_sim: Any, geometry: dict | None = None, T_base_mount: list | None = None,
-                 angle_step_deg: float = 0.25, fov_deg: float = 270.0, range_noise_m: float = 0.01,
-                 max_range_m: float = 30.0, seed: int = 0):
-        """Args:
-        servo_sim: the :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` whose horn carries it.
-        geometry: the TRUE :class:`SweepGeometry` as a dict (default :data:`DEFAULT_SIM_GEOMETRY`).
-        T_base_mount: 4x4 (m) of the mount in the yard's base_link (default :data:`DEFAULT_SIM_MOUNT`).
-        angle_step_deg: beam spacing (deg). fov_deg: field of view centred on scanner x (deg).
-        range_noise_m: 1-sigma range noise (m). max_range_m: farthest return (m).
-        seed: seeds the noise (scan ``i`` uses ``(seed, i)``).
-        """
-        self.servo_sim = servo_sim
-        self.geometry = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY if geometry is None else geometry)
-        self.T_base_mount = np.asarray(DEFAULT_SIM_MOUNT if T_base_mount is None else T_base_mount, dtype=float)
-        self.angle_step_deg = float(angle_step_deg)
-        self.fov_deg = float(fov_deg)
-        self.range_noise_m = float(range_noise_m)
-        self.max_range_m = float(max_range_m)
-        self.seed = int(seed)
-        self._scene: Any = None
-        self._count = 0
-
-    def open(self) -> None:
-        from backend.sim.lidar_scene import LidarScene
-
-        self._scene = LidarScene()
-        self._count = 0
-
-    def read(self) -> Sample:
-        if self._scene is None:
-            raise DeviceDisconnected("read() before open()", self.describe())
-        angle = self.servo_sim.true_angle_rad()
-        T_base_scanner = self.T_base_mount @ self.geometry.T_mount_scanner(angle)
-        rng = np.random.default_rng([self.seed, self._count])
-        scan = self._scene.scan_2d(T_base_scanner, angle_step_deg=self.angle_step_deg, max_range_m=self.max_range_m,
-                                   range_noise_m=self.range_noise_m, rng=rng)
-        self._count += 1
-        azimuth = (scan.azimuth_rad + np.pi) % (2 * np.pi) - np.pi
-        keep = np.abs(azimuth) <= math.radians(self.fov_deg) / 2 + 1e-9
-        return Sample(time.time(), points=scan.points[keep], intensity=scan.intensity[keep],
-                      meta={"T_base_scanner": T_base_scanner.tolist(), "true_servo_angle_rad": angle,
-                            "labels": scan.labels[keep]})
-
-    def close(self) -> None:
-        self._scene = None
-
-    def describe(self) -> str:
-        return "simulated swept scanner head"
-
-
 # ---------------------------------------------------------------------------------------------- the rig
 
 @register_driver
@@ -317,8 +245,8 @@ class SweptScanner(CaptureDevice):
             servo_port: the servo's serial port, or ``"sim"`` for the built-in Dynamixel simulator.
             scanner: the 2D scanner's device settings, e.g. ``{"driver": "ydlidar", "port": "sim"}``,
                 or ``{"driver": "sim", ...}`` (only with ``servo_port="sim"``: a ray-cast scanner on
-                the simulated horn; keys of :class:`SimSweptScannerHead`). Default ``{"driver": "sim"}``
-                with the simulated servo.
+                the simulated horn, the endpoint registered as ``"swept_head"``; keys of the simulation
+                package's ``SimSweptScannerHead``). Default ``{"driver": "sim"}`` with the simulated servo.
             steps: servo steps per sweep (>= 2); 173 over 180 deg is the classic half-sphere sweep.
             start_deg, end_deg: first and last servo angle (deg from centre).
             geometry: the :class:`SweepGeometry` dict used to assemble (default: axis x, no offset).
@@ -358,6 +286,9 @@ class SweptScanner(CaptureDevice):
         self.servo: DynamixelServo | None = None
         self.scanner: CaptureDevice | None = None
         self._sim: Any = None
+        """With ``servo_port="sim"``, the simulated servo (``port``, ``stop()``) while open."""
+        self.simulated_head = False
+        """True while :attr:`scanner` is the simulated head on the simulated horn (it knows the truth)."""
         self._sweeps = 0
 
     def describe(self) -> str:
@@ -374,9 +305,8 @@ class SweptScanner(CaptureDevice):
         try:
             path = self.servo_port
             if self.servo_port == "sim":
-                from backend.sim.dynamixel_sim import DynamixelSimulator
-
-                self._sim = DynamixelSimulator(dxl_id=self.servo_id, speed_deg_s=self.sim_speed_deg_s).start()
+                self._sim = start_simulator("dynamixel", self.describe(), dxl_id=self.servo_id,
+                                            speed_deg_s=self.sim_speed_deg_s)
                 path = self._sim.port
             self.servo = DynamixelServo(path, self.servo_id, self.baudrate)
             self.servo.open()
@@ -384,9 +314,10 @@ class SweptScanner(CaptureDevice):
             if settings.get("driver") == "sim":
                 settings.pop("driver")
                 try:
-                    self.scanner = SimSweptScannerHead(self._sim, **settings)
+                    self.scanner = start_simulator("swept_head", self.describe(), servo=self._sim, **settings)
                 except TypeError as exc:
                     raise DeviceError(f"bad simulated scanner settings {settings}: {exc}", self.describe()) from None
+                self.simulated_head = True
             else:
                 self.scanner = create_device(settings)
             self.scanner.open()
@@ -433,9 +364,8 @@ class SweptScanner(CaptureDevice):
             "sweep_seconds": time.monotonic() - started,
             "servo_retries": self.servo.retried - retries_before,
         }
-        if isinstance(self.scanner, SimSweptScannerHead):
-            meta.update({"simulated": True, "true_geometry": self.scanner.geometry.to_dict(),
-                         "T_base_mount": self.scanner.T_base_mount.tolist()})
+        if self.simulated_head:
+            meta.update({"simulated": True, **self.scanner.ground_truth()})
         self._sweeps += 1
         return Sample(t0, points=self.geometry.transform(points_scanner, angles), intensity=intensity, meta=meta)
 
@@ -451,6 +381,7 @@ class SweptScanner(CaptureDevice):
     def close(self) -> None:
         """Close the scanner, the servo and the simulator. Safe twice."""
         scanner, self.scanner = self.scanner, None
+        self.simulated_head = False
         if scanner is not None:
             scanner.close()
         servo, self.servo = self.servo, None

@@ -40,15 +40,19 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 
 from backend.core.errors import InputError
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
-
-if TYPE_CHECKING:
-    from backend.sim.velodyne_udp import Vlp16UdpSimulator
+from backend.devices.base import (
+    CaptureDevice,
+    DeviceDisconnected,
+    DeviceError,
+    Sample,
+    register_driver,
+    start_simulator,
+)
 
 PACKET_SIZE = 1206
 """UDP payload size of a Velodyne data packet (bytes)."""
@@ -217,10 +221,10 @@ class VelodyneUdp(_VelodyneBase):
     ``timestamp_s`` of a sample is the host's clock (seconds since the epoch) when the scan's
     last packet arrived; ``meta["sender"]`` is the sensor's ``ip:port``.
 
-    ``host="sim"`` binds 127.0.0.1 on a free port (``port`` is not used) and starts a
-    :class:`backend.sim.velodyne_udp.Vlp16UdpSimulator` sending to it: a VLP-16 at the demo
-    rig's ground-truth pose of ``sim_sensor`` scanning the shared simulated yard at the real
-    packet rate (~10 scans/s), so the simulated sensor can be picked like any other device.
+    ``host="sim"`` binds 127.0.0.1 on a free port (``port`` is not used) and starts the simulated
+    endpoint registered as ``"velodyne"`` (:func:`~backend.devices.base.start_simulator`) sending to
+    it: a VLP-16 at the demo rig's ground-truth pose of ``sim_sensor`` scanning the shared simulated
+    yard at the real packet rate (~10 scans/s), so the simulated sensor can be picked like any other device.
     :attr:`simulator` is that sender (``simulator.unplug()`` pulls its cable); :meth:`close`
     stops it.
     """
@@ -250,8 +254,9 @@ class VelodyneUdp(_VelodyneBase):
         self.sim_sensor = sim_sensor
         self.bound_port: int | None = None
         """The UDP port actually bound (differs from ``port`` when that is 0 or the host is ``"sim"``)."""
-        self.simulator: Vlp16UdpSimulator | None = None
-        """With ``host="sim"``, the simulated sensor sending to :attr:`bound_port` while open."""
+        self.simulator: Any = None
+        """With ``host="sim"``, the simulated sensor sending to :attr:`bound_port` while open (``stop()``,
+        ``unplug()``, ``replug()``, ``packets_sent``, ``garbage_every``)."""
         self._sock: socket.socket | None = None
         self._buf = bytearray(65536)
 
@@ -267,7 +272,7 @@ class VelodyneUdp(_VelodyneBase):
             raise DeviceError(f"timeout_s must be positive, not {self.timeout_s}", self.describe())
         self.close()
         simulated = self.host == "sim"
-        T_base_lidar = self._sim_pose() if simulated else None
+        device = self.describe()  # errors of the simulator name the device as it was asked for
         host, port = ("127.0.0.1", 0) if simulated else (self.host, self.port)
         self._setup_decoder()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -283,25 +288,11 @@ class VelodyneUdp(_VelodyneBase):
         self._sock = sock
         self.bound_port = sock.getsockname()[1]
         if simulated:
-            from backend.sim.velodyne_udp import Vlp16UdpSimulator
-
             try:
-                self.simulator = Vlp16UdpSimulator(self.bound_port, T_base_lidar=T_base_lidar).start()
+                self.simulator = start_simulator("velodyne", device, port=self.bound_port, sensor=self.sim_sensor)
             except BaseException:
                 self.close()
                 raise
-
-    def _sim_pose(self) -> np.ndarray:
-        """Ground-truth ``T_base_lidar`` (4x4, m) of :attr:`sim_sensor` in the demo rig."""
-        from backend.sim.demo_rig import demo_rig
-
-        rig = demo_rig()
-        frame = rig.frames.get(self.sim_sensor)
-        if frame is None or frame.kind != "lidar3d":
-            lidars = [f.name for f in rig.sensors() if f.kind == "lidar3d"]
-            raise DeviceError(f"no simulated 3D LiDAR named {self.sim_sensor!r} in the demo rig; available: {lidars}",
-                              self.describe())
-        return rig.T_root_frame(self.sim_sensor)
 
     def read(self) -> Sample:
         """Block until a full scan has arrived; :class:`DeviceDisconnected` after ``timeout_s`` of silence."""

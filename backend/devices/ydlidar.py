@@ -63,7 +63,14 @@ from typing import Any
 import numpy as np
 import serial
 
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.base import (
+    CaptureDevice,
+    DeviceDisconnected,
+    DeviceError,
+    Sample,
+    register_driver,
+    start_simulator,
+)
 
 HEADER = b"\xaa\x55"
 """Packet header ``PH`` as it appears on the wire."""
@@ -317,9 +324,9 @@ class YdlidarSerial(CaptureDevice):
     :meth:`read` returns one full 360 degree scan per :class:`Sample`: ``points`` (N, 3) in the
     scanner frame (m, z = 0, valid returns only), no intensity, and ``meta`` with
     ``scan_index``, ``bad_checksums``, ``skipped_bytes``, ``port``, ``scan_frequency_hz``,
-    ``coverage_deg``, ``reconnects`` and ``status``. ``port="sim"`` starts a
-    :class:`backend.sim.ydlidar_sim.YdlidarSimulator` and reads from it, so the simulated
-    scanner can be picked like any other device.
+    ``coverage_deg``, ``reconnects`` and ``status``. ``port="sim"`` starts the simulated endpoint
+    registered as ``"ydlidar"`` (a simulated TG30 on a pty, :func:`~backend.devices.base.start_simulator`)
+    and reads from it, so the simulated scanner can be picked like any other device.
 
     Robustness: garbage bytes and packets with a bad check code are skipped and counted; if
     bytes arrive but no valid packet for ``no_data_timeout_s`` (a wrong baud rate looks like
@@ -385,7 +392,7 @@ class YdlidarSerial(CaptureDevice):
     # ------------------------------------------------------------------ interface
     @property
     def simulator(self) -> Any:
-        """The built-in :class:`~backend.sim.ydlidar_sim.YdlidarSimulator` while open with ``port="sim"``
+        """The built-in simulator (the endpoint registered as ``"ydlidar"``) while open with ``port="sim"``
         (tests unplug and replug it), else None."""
         return self._sim
 
@@ -397,9 +404,7 @@ class YdlidarSerial(CaptureDevice):
         for the first valid packet (:class:`DeviceError` naming the baud rate if none comes)."""
         self._closed = False
         if self.port == "sim":
-            from backend.sim.ydlidar_sim import YdlidarSimulator
-
-            self._sim = YdlidarSimulator().start()
+            self._sim = start_simulator("ydlidar", self.describe())
             self._path = self._sim.port
         try:
             self._connect()

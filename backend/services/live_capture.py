@@ -1,7 +1,8 @@
 """Live camera capture with guidance: detect on every frame, keep frames that add coverage.
 
 Runs the device in its own thread so the UI never waits on a camera. Every frame
-is detected quickly for the preview (:mod:`backend.calib.board.live_detection`); a frame that adds coverage (see
+is detected quickly for the preview (:mod:`backend.calib.board.live_detection`) and the board posed in the
+camera's frame (PnP, on this thread, so the UI only draws); a frame that adds coverage (see
 :mod:`backend.calib.board.coverage`) is re-detected at full accuracy and stored as a
 capture, immediately and atomically, so an unplugged camera loses nothing.
 """
@@ -14,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.calib.board.coverage import Coverage
+from backend.calib.board.coverage import PARAM_NAMES, Coverage, enough_data
 from backend.calib.board.detection import Detection, detect_board
 from backend.calib.board.live_detection import LiveDetector
+from backend.calib.board.pose import board_pose, nominal_camera
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
@@ -37,11 +39,46 @@ def coverage_from_captures(session: Session, sensor: str, board: BoardSpec) -> C
     return coverage
 
 
+__all__ = ["PARAM_NAMES", "Coverage", "LiveCallbacks", "LiveCapture", "LiveFrame", "coverage_from_captures",
+           "data_enough", "last_capture"]
+
+
+def data_enough(session: Session, sensor: str, coverage: Coverage) -> tuple[bool, list[str]]:
+    """Whether ``coverage`` and the latest intrinsics solve of ``sensor`` together make enough data, and what
+    is missing if not (:func:`backend.calib.board.coverage.enough_data`)."""
+    latest = session.results(sensor, "intrinsics")[-1:]
+    return enough_data(coverage, latest[0]["projection_uncertainty"] if latest else None)
+
+
+def last_capture(session: Session, sensor: str) -> tuple[np.ndarray, Detection | None] | None:
+    """The image of ``sensor``'s latest capture and its board detection (None without captures)."""
+    captures = session.captures(sensor)
+    if not captures:
+        return None
+    last = captures[-1]
+    return session.capture_image(sensor, last.id), Detection.from_dict(last.detection) if last.detection else None
+
+
+@dataclass
+class LiveFrame:
+    """One live frame as the preview shows it."""
+
+    image: np.ndarray
+    """The camera's image (uint8, gray or BGR)."""
+    detection: Detection | None
+    """The board's corners in it, if found."""
+    coverage: Coverage | None
+    """The coverage of the views kept so far (None before the first)."""
+    T_camera_board: np.ndarray | None
+    """4x4 (m) board pose in the camera's optical frame by PnP (the camera's intrinsics, or a nominal pinhole
+    before it has any); None without a detection or when PnP fails."""
+
+
 @dataclass
 class LiveCallbacks:
     """What the capture thread reports; each runs on the capture thread."""
 
-    frame: Callable[[np.ndarray, Detection | None, Coverage | None], None]
+    frame: Callable[[LiveFrame], None]
     captured: Callable[[CaptureRecord, Coverage], None]
     status: Callable[[str, bool], None]
     """(message, is_error)."""
@@ -86,4 +123,10 @@ class LiveCapture(SensorStream):
                 self.coverage = self.coverage or Coverage(self.board, detection.image_size)
                 self.coverage.add(detection)
                 self.callbacks.captured(record, self.coverage)
-        self.callbacks.frame(image, detection, self.coverage)
+        self.callbacks.frame(LiveFrame(image, detection, self.coverage, self._board_pose(detection)))
+
+    def _board_pose(self, detection: Detection | None) -> np.ndarray | None:
+        if detection is None:
+            return None
+        camera = self.session.rig.get(self.sensor).intrinsics or nominal_camera(*detection.image_size)
+        return board_pose(camera, self.board, detection)

@@ -9,6 +9,8 @@ demo and the tests compare calibration results against.
 from __future__ import annotations
 
 import copy
+import math
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +65,19 @@ SWEEP_NOMINAL_GEOMETRY: dict = {
 }
 """The swept scanner's geometry as drawn (:class:`~backend.core.sweep_geometry.SweepGeometry` dict): servo axis
 along mount x, optical centre 3 cm along it and 5 cm above, no tilt, servo zero as read. The truth
-(:data:`~backend.devices.dynamixel_servo.DEFAULT_SIM_GEOMETRY`) is off by about a centimetre and 1.5 deg."""
+(:data:`DEFAULT_SIM_GEOMETRY`) is off by about a centimetre and 1.5 deg."""
+
+DEFAULT_SIM_GEOMETRY: dict[str, Any] = {
+    "axis": [1.0, 0.0, 0.0],
+    "T_servo_scanner": from_xyz_ypr(np.array([0.03, 0.012, 0.045]), np.radians([0.6, -0.8, 0.0])).tolist(),
+    "zero_offset_rad": math.radians(1.5),
+}
+"""The TRUE geometry of the simulated swept scanner (:class:`~backend.sim.swept_head.SimSweptScannerHead`): the
+optical centre 3 cm along the axis, 1.2 cm beside and 4.5 cm above it, turned by 0.6 deg yaw and -0.8 deg pitch;
+the servo's zero reads 1.5 deg off."""
+DEFAULT_SIM_MOUNT: list[list[float]] = from_xyz_ypr(np.array([0.35, 0.0, 0.75]), np.zeros(3)).tolist()
+"""``T_base_mount`` of the simulated swept scanner (the ``sweep_3d`` frame): level, 35 cm ahead of base_link and
+75 cm up."""
 
 
 def demo_rig() -> Rig:
@@ -78,8 +92,6 @@ def demo_rig() -> Rig:
     a simulated Dynamixel (``swept_scanner`` driver; its frame is the servo's mount, at the simulator's
     truth), carrying the nominal :data:`SWEEP_NOMINAL_GEOMETRY` to calibrate.
     """
-    from backend.devices.dynamixel_servo import DEFAULT_SIM_MOUNT  # here: the devices package imports this module
-
     rig = Rig("base_link")
     cameras = {
         "cam_front": (CAM_FRONT, (0.32, 0.06, 0.48), (1.5, 2.0, -0.8)),

@@ -33,7 +33,7 @@ import numpy as np
 
 from backend.calib.depth import guided_service
 from backend.calib.depth import service as network_service
-from backend.calib.depth.guided import GUIDED_STEPS
+from backend.calib.depth.guided_service import GUIDED_STEPS
 from backend.core.depth import POSE_COLUMNS, pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot

@@ -6,14 +6,20 @@ import time
 
 import numpy as np
 
-from backend.calib.board.coverage import PARAM_NAMES, Coverage, enough_data
-from backend.calib.board.detection import Detection
-from backend.calib.board.pose import board_pose, nominal_camera
 from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
-from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures
+from backend.services.live_capture import (
+    PARAM_NAMES,
+    Coverage,
+    LiveCallbacks,
+    LiveCapture,
+    LiveFrame,
+    coverage_from_captures,
+    data_enough,
+    last_capture,
+)
 from backend.store.schema import CaptureRecord
 from studio import plots
 from studio.context import StudioContext
@@ -107,11 +113,9 @@ class IntrinsicsStep:
         board = None if sensor is None else intrinsics_service.session_board(session)
         coverage = None if sensor is None else coverage_from_captures(session, sensor, board)
         self._show_coverage(coverage)
-        captures = [] if sensor is None else session.captures(sensor)
-        if captures:
-            last = captures[-1]
-            image = session.capture_image(sensor, last.id)
-            detection = Detection.from_dict(last.detection) if last.detection else None
+        last = None if sensor is None else last_capture(session, sensor)
+        if last is not None:
+            image, detection = last
             self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
             self.ctx.scene.show_camera_image(sensor, image)
         else:  # not the previous camera's (or session's) last frame
@@ -179,20 +183,18 @@ class IntrinsicsStep:
         self.ctx.notify("Image added", f"{upload.name} is capture {report.added[0].id} of {self.sensor}.")
         self._select_camera()
 
-    def _on_frame(self, image: np.ndarray, detection: Detection | None, coverage: Coverage | None) -> None:
+    def _on_frame(self, frame: LiveFrame) -> None:
         now = time.monotonic()
         if now - self._last_preview < 0.1:  # 10 Hz is plenty for the panel and keeps the socket free
             return
         self._last_preview = now
         board = self.live.board if self.live else intrinsics_service.session_board(self.ctx.session)
-        self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
-        self.ctx.scene.show_camera_image(self.sensor, image)
-        if detection is not None:
-            camera = self.ctx.session.rig.get(self.sensor).intrinsics or nominal_camera(*detection.image_size)
-            T_camera_board = board_pose(camera, board, detection)
-            if T_camera_board is not None:
-                self.ctx.scene.show_boards("intrinsics", self.ctx.session.rig, self.sensor, board, [T_camera_board],
-                                           live=True)
+        heatmap = frame.coverage.heatmap if frame.coverage else None
+        self.preview.image = plots.live_view(frame.image, board, frame.detection, heatmap)
+        self.ctx.scene.show_camera_image(self.sensor, frame.image)
+        if frame.T_camera_board is not None:
+            self.ctx.scene.show_boards("intrinsics", self.ctx.session.rig, self.sensor, board,
+                                       [frame.T_camera_board], live=True)
 
     def _on_captured(self, record: CaptureRecord, coverage: Coverage) -> None:
         self._show_coverage(coverage)
@@ -207,7 +209,7 @@ class IntrinsicsStep:
         if coverage is None:
             return "No views yet."
         latest = self.ctx.session.results(self.sensor, "intrinsics")[-1:] if self.sensor else []
-        enough, missing = enough_data(coverage, latest[0]["projection_uncertainty"] if latest else None)
+        enough, missing = data_enough(self.ctx.session, self.sensor, coverage)
         state = ("✅ **Enough data** - full coverage and the last solve's projection σ is within tolerance."
                  if enough else "Not enough data yet: " + "; ".join(missing) + ".")
         solved = f" (last solve: {latest[0]['id']})" if latest else ""

@@ -32,7 +32,7 @@ import viser
 from scipy.spatial import cKDTree
 
 from backend.calib.lidar_lidar import service as lidar_service
-from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+from backend.calib.lidar_lidar.service import LidarLidarSettings
 from backend.calib.rig import service as rig_service
 from backend.calib.sweep import service as sweep_service
 from backend.core.errors import InputError

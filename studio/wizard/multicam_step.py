@@ -28,10 +28,7 @@ import numpy as np
 
 from backend.calib.multicam import capture as capture_service
 from backend.calib.multicam import service as multicam_service
-from backend.calib.multicam.stereo import (
-    LINE_COLOUR_BGR,
-    Rectification,
-)
+from backend.calib.multicam.service import LINE_COLOUR_BGR, Rectification
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from studio import plots

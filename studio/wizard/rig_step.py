@@ -14,7 +14,7 @@ import numpy as np
 import viser
 
 from backend.calib.rig import service as rig_service
-from backend.calib.rig.graph import FLAG_SIGMA, EdgeResidual, RigTree
+from backend.calib.rig.service import FLAG_SIGMA, EdgeResidual, RigTree
 from backend.core.errors import InputError
 from backend.core.transforms import to_xyz_ypr
 from studio.context import StudioContext

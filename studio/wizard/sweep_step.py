@@ -19,8 +19,7 @@ import numpy as np
 
 from backend.calib.rig import service as rig_service
 from backend.calib.sweep import service as sweep_service
-from backend.calib.sweep.checks import LABELS
-from backend.calib.sweep.solver import SweepCalibrationSettings
+from backend.calib.sweep.service import LABELS, SweepCalibrationSettings
 from backend.core.errors import InputError
 from backend.core.sweep_geometry import SweepGeometry
 from backend.core.transforms import to_xyz_ypr, transform_points

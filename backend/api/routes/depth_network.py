@@ -33,7 +33,7 @@ from backend.api.schemas import JobStatus
 from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
 from backend.calib.depth import guided_service as guided
 from backend.calib.depth import service
-from backend.core.depth import pose_from_row, pose_row
+from backend.core.depth import pose_row
 from backend.core.errors import InputError
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.base import Sample
@@ -68,7 +68,7 @@ def nodes(session: deps.SessionDep) -> list[dict[str, Any]]:
 @router.post("/nodes", status_code=201)
 def add_node(body: DepthNodeCreate, session: deps.SessionDep) -> dict[str, Any]:
     """Add a node under ``world`` at its measured pose (an empty rig is rooted at ``world`` first)."""
-    frame = service.add_node(session, body.name, body.pose_row, body.mount_sigma, body.device)
+    frame = service.add_node(session, body.name, body.pose and body.pose.row(), body.mount_sigma, body.device)
     return {"name": frame.name, "pose_row": list(pose_row(frame.T_parent_child))}
 
 
@@ -134,7 +134,7 @@ def solve_node(sensor: str, body: NodeSolveRequest, session: deps.SessionDep, jo
     """Solve the node's pose from its captures in the background (not accepted); the job's ``result_id``."""
     if not service.captures(session, sensor):  # fail fast, before queueing
         raise InputError(f"no depth captures of {sensor} yet; capture the node first", sensor)
-    T_init = None if body.init_pose_row is None else pose_from_row(body.init_pose_row)
+    T_init = None if body.init is None else body.init.matrix()
     job = jobs.submit(f"depth node {sensor}", lambda progress: service.solve_node(session, sensor, progress,
                                                                                  T_init)["id"])
     return job.status() | {"result_id": None}
@@ -180,7 +180,7 @@ def guided_state(sensor: str, session: deps.SessionDep) -> dict[str, Any]:
 @router.post("/guided/{sensor}/start")
 def guided_start(sensor: str, body: GuidedStart, session: deps.SessionDep) -> dict[str, Any]:
     """Start from the measured pose (X, Y, Z m; RotZ, RotY, RotX deg)."""
-    return guided.start(session, sensor, body.pose_row)
+    return guided.start(session, sensor, body.pose.row())
 
 
 @router.post("/guided/{sensor}/advise")
@@ -198,7 +198,7 @@ def guided_apply(sensor: str, body: GuidedStep, session: deps.SessionDep) -> dic
 @router.post("/guided/{sensor}/nudge")
 def guided_nudge(sensor: str, body: GuidedStart, session: deps.SessionDep) -> dict[str, Any]:
     """Set the pose by hand (X, Y, Z m; RotZ, RotY, RotX deg)."""
-    return guided.nudge(session, sensor, body.pose_row)
+    return guided.nudge(session, sensor, body.pose.row())
 
 
 @router.post("/guided/{sensor}/undo")

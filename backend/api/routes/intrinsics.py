@@ -10,7 +10,7 @@ from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, ImportResponse, IntrinsicsSolveRequest, JobStatus
 from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
 from backend.calib.intrinsics import service
-from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.image_io import encode_jpeg

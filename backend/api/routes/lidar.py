@@ -5,17 +5,15 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Annotated, Any
 
-import numpy as np
 from fastapi import APIRouter, File, UploadFile
 
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus, LidarLidarAccept, LidarLidarSolveRequest
 from backend.api.uploads import UploadRoute, save_uploads, upload_folder, upload_limit
 from backend.calib.lidar_lidar import service
-from backend.calib.lidar_lidar.gicp import LidarLidarSettings
+from backend.calib.lidar_lidar.service import LidarLidarSettings
 from backend.calib.rig import service as rig_service
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB
-from backend.core.transforms import from_xyz_ypr
 
 router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=UploadRoute)
 
@@ -43,9 +41,7 @@ def solve(body: LidarLidarSolveRequest, session: deps.SessionDep, jobs: deps.Job
     """Register ``source`` into ``target`` over the chosen frame pairs (scenes) in the background; poll
     ``/api/jobs/{id}`` for ``result_id``."""
     service.capture_pairs(session, body.source, body.target, body.pairs)  # fail fast, before queueing
-    T_init = None
-    if body.init_xyz_m is not None or body.init_ypr_deg is not None:
-        T_init = from_xyz_ypr(np.array(body.init_xyz_m or (0, 0, 0)), np.radians(body.init_ypr_deg or (0, 0, 0)))
+    T_init = None if body.init is None else body.init.matrix()
     settings = LidarLidarSettings()
     if body.voxel_m is not None:
         settings = replace(settings, voxel_m=body.voxel_m)

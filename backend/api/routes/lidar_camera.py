@@ -77,9 +77,7 @@ def solve(body: LidarCameraSolveRequest, session: deps.SessionDep, jobs: deps.Jo
     """Solve ``T_camera_lidar`` from the stored pairs in the background; poll ``/api/jobs/{id}`` for ``result_id``."""
     service.check_method(body.method, "method", body.cross_check)  # fail fast, before queueing
     service.load_pairs(session, body.camera, body.lidar, body.image_ids)
-    T_init = None
-    if body.init_xyz_m is not None or body.init_ypr_deg is not None:
-        T_init = from_xyz_ypr(np.array(body.init_xyz_m or (0, 0, 0)), np.radians(body.init_ypr_deg or (0, 0, 0)))
+    T_init = None if body.init is None else body.init.matrix()
     job = jobs.submit(f"{body.lidar} to {body.camera} ({body.method})", lambda progress: service.solve_session(
         session, body.camera, body.lidar, method=body.method, T_init=T_init, image_ids=body.image_ids,
         plate_margin_m=body.plate_margin_m, translation_prior_m=body.translation_prior_m,
@@ -90,7 +88,7 @@ def solve(body: LidarCameraSolveRequest, session: deps.SessionDep, jobs: deps.Jo
 @router.post("/lidar-camera/manual", status_code=201)
 def manual(body: LidarCameraManual, session: deps.SessionDep) -> dict[str, Any]:
     """Keep a hand-set ``T_camera_lidar`` as a result (not yet accepted)."""
-    T_camera_lidar = from_xyz_ypr(np.array(body.xyz_m), np.radians(body.ypr_deg))
+    T_camera_lidar = body.pose.matrix()
     return {"result_id": service.store_manual(session, body.camera, body.lidar, T_camera_lidar, inputs=body.inputs)}
 
 

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from fastapi import APIRouter
 
 from backend.api.routes import deps
 from backend.api.schemas import BoardUpdate, SensorCreate, SessionCreate
 from backend.core.boards import BoardSpec
 from backend.core.rig import Frame
-from backend.core.transforms import from_xyz_ypr
 from backend.store.rig_io import rig_to_model
 
 router = APIRouter(tags=["sessions"])
@@ -47,7 +45,7 @@ def get_rig(session: deps.SessionDep) -> dict[str, Any]:
 
 @router.post("/sessions/{name}/sensors", status_code=201)
 def add_sensor(body: SensorCreate, session: deps.SessionDep) -> dict[str, Any]:
-    T = from_xyz_ypr(np.array(body.xyz_m), np.radians(body.ypr_deg))
+    T = body.pose.matrix()
     session.add_sensor(Frame(body.name, body.parent, T, kind=body.kind, device=body.device,
                              mount_sigma=body.mount_sigma))
     return session.info()

@@ -10,7 +10,7 @@ from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, SweepCalibrateRequest
 from backend.calib.rig import service as rig
 from backend.calib.sweep import service
-from backend.calib.sweep.solver import SweepCalibrationSettings
+from backend.calib.sweep.service import SweepCalibrationSettings
 from backend.devices.image_io import encode_png
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}/sweep", tags=["sweep"])

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from backend.calib.depth import service as network
+from backend.calib.depth.guided import GUIDED_STEPS as GUIDED_STEPS  # re-exported: the steps the studio offers
 from backend.calib.rig import service as rig_service
 from backend.core.depth import pose_from_row, pose_row
 from backend.core.errors import InputError, shorten
@@ -43,12 +44,6 @@ ORDER_REASON: dict[str, str] = {
 """Why each step comes before the next (the 409 of a step taken out of order says it)."""
 
 
-def _steps() -> tuple[str, ...]:
-    from backend.calib.depth.guided import GUIDED_STEPS
-
-    return tuple(GUIDED_STEPS)
-
-
 def _node_state(session: Session, node: str) -> GuidedNodeState:
     network.check_node(session, node)
     return network.state(session).guided.get(node, GuidedNodeState())
@@ -67,7 +62,7 @@ def state(session: Session, node: str) -> dict[str, Any]:
     ``T_world_node`` (the current pose; None before start), ``history`` (every pose row, oldest first) and
     ``result_id`` (of :func:`finish`)."""
     guided = _node_state(session, node)
-    steps = _steps()
+    steps = tuple(GUIDED_STEPS)
     current = np.array(guided.history[-1]) if guided.history else None
     step = "initial" if not guided.history else guided.step or steps[-1]
     return {"node": node, "step": step, "complete": all(s in guided.done for s in steps), "done": list(guided.done),
@@ -82,14 +77,14 @@ def start(session: Session, node: str, pose: Sequence[float]) -> dict[str, Any]:
     ``initial`` is done, the next step is ``tables_behind``; earlier poses stay in the history."""
     T = pose_from_row(pose)
     guided = _node_state(session, node)
-    steps = _steps()
+    steps = tuple(GUIDED_STEPS)
     _save(session, node, GuidedNodeState(step=steps[1], done=[steps[0]], history=[*guided.history, T.tolist()]))
     return state(session, node)
 
 
 def _check_step(guided: GuidedNodeState, node: str, step: str) -> None:
     """Refuse an unknown step, a node not started, or a step whose earlier steps are not done (409)."""
-    steps = _steps()
+    steps = tuple(GUIDED_STEPS)
     if step not in steps:
         raise InputError(f"unknown step {shorten(step)}; the steps are {list(steps)}", "step")
     if not guided.history:
@@ -143,7 +138,7 @@ def apply(session: Session, node: str, step: str) -> dict[str, Any]:
     """Take step ``step``'s suggestion at the current pose (the previous pose stays in the history); when its
     criterion then holds the step is done and the next one is due. :func:`state` with ``advice``: the step's
     advice at the new pose."""
-    steps = _steps()
+    steps = tuple(GUIDED_STEPS)
     with session.lock:
         advice = advise(session, node, step)
         if not advice.suggestion:
@@ -200,7 +195,7 @@ def finish(session: Session, node: str, *, accept: bool = False, confirm: bool =
     the transform set by hand's (:data:`backend.calib.rig.service.MANUAL_SIGMA`, 5 mm and 0.3 deg per axis), and
     the verdict says why. Verdict: the sigmas against the default tolerances; as the cross-check, every step's
     criterion re-measured at the final pose (a nudge after a step may have undone it)."""
-    steps = _steps()
+    steps = tuple(GUIDED_STEPS)
     guided = _node_state(session, node)
     if not guided.history:
         raise InputError(f"the guided procedure of {node} has not started: type its measured pose first", "step",

@@ -63,6 +63,7 @@ from backend.core.transforms import (
     right_jacobian,
     transform_points,
 )
+from backend.core.uncertainty import sigmas
 from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 
 __all__ = ["DepthNodeSettings", "DepthObservation", "Feature", "extract_features", "feature_residuals",
@@ -167,7 +168,7 @@ def undetermined_parameters(fit: Any, T_world_node: np.ndarray) -> list[str]:
     to_child = np.eye(6)
     to_child[3:, 3:] = R.T @ basis  # child-axis rotation = R^T (world rotation)
     J = fit.jac @ to_child
-    std = np.sqrt(np.diag(np.linalg.inv(J.T @ J + 1e-6 * np.eye(6))))
+    std = sigmas(np.linalg.inv(J.T @ J + 1e-6 * np.eye(6)))
     limit = np.r_[np.full(3, UNDETERMINED_TRANS_M), np.full(3, np.radians(UNDETERMINED_ROT_DEG))]
     return [name for name, value, most in zip(POSE_PARAMETERS, std, limit, strict=True) if value > most]
 
@@ -327,8 +328,8 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
                    "n_points": int(len(P)), "n_features": len(features), "n_captures": n_captures},
         diagnostics={"features": rows, "initial": list(pose_row(T_init)), "pose_row": list(pose_row(T)),
                      "held_out": held, "crosses": crosses, "problems": problems, "rounds": rounds,
-                     "std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_jacobian), 0, None))),
-                     "std_line_sampling": finite_or_none(np.sqrt(np.clip(np.diag(cov_sampling), 0, None))),
+                     "std_jacobian": finite_or_none(sigmas(cov_jacobian)),
+                     "std_line_sampling": finite_or_none(sigmas(cov_sampling)),
                      "std_spread": finite_or_none(spread)},
         settings=asdict(settings), converged=bool(fit.status > 0), verdict=verdict, warnings=list(problems),
         seconds=time.perf_counter() - started)

@@ -31,7 +31,7 @@ from backend.core.depth_cell import CellLayout, Cross, TableSpec, default_cell_l
 from backend.core.errors import InputError, shorten
 from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.result import ProgressCallback, no_progress, transform_std
-from backend.core.rig import Frame, edge_slot
+from backend.core.rig import DEFAULT_MOUNT_SIGMA, Frame, edge_slot
 from backend.core.transforms import invert, transform_points
 from backend.core.verdict import Verdict
 from backend.devices.base import Sample
@@ -118,7 +118,8 @@ def check_node(session: Session, node: str) -> Frame:
 
 
 def add_node(session: Session, node: str, pose: Sequence[float] | None = None,
-             mount_sigma: tuple[float, float] | None = (0.05, 5.0), device: Mapping[str, Any] | None = None) -> Frame:
+             mount_sigma: tuple[float, float] | None = DEFAULT_MOUNT_SIGMA,
+             device: Mapping[str, Any] | None = None) -> Frame:
     """Add depth node ``node`` under ``world`` at ``pose`` (the row X, Y, Z m, RotZ, RotY, RotX deg, from tape or a
     laser meter; identity when None, then with no mounting prior). An empty rig is rooted at ``world`` first."""
     with session.lock:

@@ -38,6 +38,7 @@ from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, SolveResult, jackknife_std, no_progress
 from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
+from backend.core.uncertainty import sigmas
 from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
 
 MIN_VIEWS = 3
@@ -454,7 +455,7 @@ def calibrate_intrinsics(
             break
         used = used & ~outlier
 
-    std_all = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std_all = sigmas(cov)
     if std_all[0] > MAX_RELATIVE_FOCAL_STD * camera.K[0, 0]:
         raise InputError(
             f"the views do not pin down the focal length (fx = {camera.K[0, 0]:.1f} +- {std_all[0]:.1f} px); "

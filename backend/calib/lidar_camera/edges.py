@@ -82,6 +82,7 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
+from backend.core.uncertainty import sigmas
 
 PLANE, REFLECTIVITY = 0, 1
 """Values of :attr:`LidarEdges.kind`: a plane intersection, a reflectivity step."""
@@ -618,7 +619,7 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     if settings.spread and converged:
         std_spread, spread_source = _spread(best.T, best.matches, camera, len(prepared), t_prior, settings, progress)
     covariance = widen_covariance(cov_j, std_spread)
-    candidates, std_multistart, warning = _multistart(best, fits, np.sqrt(np.diag(covariance)), settings)
+    candidates, std_multistart, warning = _multistart(best, fits, sigmas(covariance), settings)
     if warning is not None:
         warnings.append(warning)
         converged = converged and not warning.startswith("ambiguous")
@@ -629,7 +630,7 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
         T_parent_child=best.T,
         covariance=widen_covariance(covariance, std_multistart),
         residuals=residuals,
-        diagnostics={"std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_j), 0, None))),
+        diagnostics={"std_jacobian": finite_or_none(sigmas(cov_j)),
                      "std_spread": finite_or_none(std_spread), "spread_source": spread_source,
                      "halves_offset": finite_or_none(halves_offset), "std_multistart": finite_or_none(std_multistart),
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),

@@ -80,6 +80,7 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
+from backend.core.uncertainty import sigmas
 
 MIN_SPREAD_PAIRS = 3
 """With this many pairs or more the jackknife also leaves out pairs."""
@@ -609,7 +610,7 @@ def _check_flat(covariance: np.ndarray, mean_mi: float, settings: LidarCameraInt
             f"the best alignment, below {settings.min_mutual_information:g}: the intensities tell nothing about the "
             "image - the scene needs surfaces whose reflectivity the camera also sees (markings, signs, light and "
             "dark walls), or use --method edges", where)
-    std = np.sqrt(np.diag(covariance))
+    std = sigmas(covariance)
     limit_m, limit_deg = settings.max_flat_sigma
     flat = [f"r_{axis} (sigma {np.degrees(s):.2g} deg)" for axis, s in zip("xyz", std[3:], strict=True)
             if not np.degrees(s) <= limit_deg]
@@ -730,7 +731,7 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
                    "mutual_information_nats": float(mi.mean()),
                    "points_in_image": int(sum(p.points_in_image for p in per_pair)),
                    "per_pair_nid": [p.nid for p in per_pair]},
-        diagnostics={"std_curvature": finite_or_none(np.sqrt(np.diag(curvature.covariance))),
+        diagnostics={"std_curvature": finite_or_none(sigmas(curvature.covariance)),
                      "std_spread": finite_or_none(spread), "std_groups": finite_or_none(std_groups),
                      "std_pairs": finite_or_none(curvature.std_pairs), "spread_source": source,
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),

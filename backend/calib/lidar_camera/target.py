@@ -54,6 +54,7 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import apply_params, check_transform, invert, right_jacobian, transform_points
+from backend.core.uncertainty import sigmas
 
 MIN_POSES = 3
 """Fewest board poses for a solve: one plane fixes only 3 of the 6 parameters."""
@@ -532,7 +533,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
         T_parent_child=T,
         covariance=widen_covariance(cov_j, std_spread),
         residuals=residuals,
-        diagnostics={"std_jacobian": finite_or_none(np.sqrt(np.clip(np.diag(cov_j), 0, None))),
+        diagnostics={"std_jacobian": finite_or_none(sigmas(cov_j)),
                      "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
                      "rounds": round_index + 1, "poses": [p.to_record() for p in poses]},
         settings=asdict(settings),

@@ -58,6 +58,7 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import check_transform, params_between, transform_points
+from backend.core.uncertainty import sigmas
 from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
 
 MIN_POINTS = 50
@@ -475,7 +476,7 @@ def assemble_result(T: np.ndarray, quality: dict[str, Any], covariance: np.ndarr
         diagnostics={
             "scenes": [scene.to_record() for scene in scenes],
             "scene_spread": scene_spread(scenes),
-            "std_hessian": finite_or_none(np.sqrt(np.clip(np.diag(cov_h), 0, None))),
+            "std_hessian": finite_or_none(sigmas(cov_h)),
             "std_spread": finite_or_none(std_spread),
             "spread_source": spread_source if std_spread is not None else None,
             "T_init": np.asarray(init[0], dtype=float).tolist(),

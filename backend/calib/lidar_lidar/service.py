@@ -12,6 +12,7 @@ here too, so the step only draws.
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -130,6 +131,31 @@ def solve_session(session: Session, source: str, target: str, *, T_init: np.ndar
                             names=[(f"{source} {s}", f"{target} {t}") for s, t in pairs]).named(target, source)
     result_id = session.add_result(source, result.to_record(), inputs=[f"{s}:{t}" for s, t in pairs])
     return result_id, result
+
+
+def solve_files(files: Sequence[tuple[Path, Path]], T_init: np.ndarray | None = None, *,
+                voxel_m: float | None = None, max_correspondence_m: float | None = None,
+                progress: ProgressCallback = no_progress,
+                warn: Callable[[str], None] = lambda message: None) -> TransformResult:
+    """Register cloud files, no session: one ``T_target_source`` for every (source file, target file) pair (one per
+    scene, as :func:`solve_session`), from ``T_init`` or else global registration. ``voxel_m`` and
+    ``max_correspondence_m`` (m) override :class:`LidarLidarSettings`' fine resolution and inlier distance. Each
+    file is read once (:func:`~backend.devices.cloud_files.read_cloud`); the points it dropped as non-finite are
+    told to ``warn`` as it is read. The result is not named (``parent`` "target", ``child`` "source")."""
+    settings = LidarLidarSettings()
+    if voxel_m is not None:
+        settings.voxel_m = voxel_m
+    if max_correspondence_m is not None:
+        settings.max_correspondence_m = max_correspondence_m
+    clouds = {}
+    for path in dict.fromkeys(p for pair in files for p in pair):
+        progress(0.0, f"reading {path}")
+        cloud = read_cloud(path)
+        if cloud.dropped_non_finite:
+            warn(f"{path}: dropped {cloud.dropped_non_finite} non-finite points")
+        clouds[path] = cloud.points
+    return register_pairs([(clouds[s], clouds[t]) for s, t in files], T_init, settings, progress,
+                          names=[(str(s), str(t)) for s, t in files])
 
 
 def pair_results(session: Session, source: str, target: str) -> list[dict[str, Any]]:

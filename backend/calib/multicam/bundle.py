@@ -62,6 +62,7 @@ from backend.core.result import (
     transform_std,
 )
 from backend.core.transforms import apply_params_many, skew
+from backend.core.uncertainty import sigmas
 from backend.core.verdict import Verdict
 
 MIN_CORNERS = 4
@@ -548,7 +549,7 @@ def _correlation(problem: _Problem, cov: np.ndarray) -> dict[str, Any]:
     """Correlations between every non-reference camera's pose parameters (``cov``: the rig covariance)."""
     n = problem.n_camera_params
     names = [f"{camera}.{p}" for camera in problem.names[1:] for p in ("t_x", "t_y", "t_z", "r_x", "r_y", "r_z")]
-    std = np.sqrt(np.clip(np.diag(cov[:n, :n]), 0, None))
+    std = sigmas(cov[:n, :n])
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov[:n, :n] / np.outer(std, std)
     return {"names": names, "matrix": [finite_or_none(row) for row in corr]}
@@ -618,7 +619,7 @@ def _result(problem: _Problem, solve: _Solve, outcomes: list[FrameResidual], boa
     for name, where in problem.intrinsics_offsets().items():
         rig_where = slice(where.start - board_params, where.stop - board_params)
         cov_intrinsics = cov[rig_where, rig_where]
-        std = np.sqrt(np.clip(np.diag(cov_intrinsics), 0, None))
+        std = sigmas(cov_intrinsics)
         intrinsics_std[name] = dict(zip(problem.free[name], finite_or_none(std), strict=True))
         projection_sigma_px[name] = (intrinsics_projection_sigma_px(cameras[name], problem.free[name], cov_intrinsics)
                                      if np.isfinite(cov_intrinsics).all() else float("inf"))

@@ -37,6 +37,7 @@ from backend.calib.lidar_camera.capture import check_image_size
 from backend.calib.multicam.bundle import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.calib.multicam.capture import MulticamSet, stored_sets
 from backend.calib.multicam.graph import Observation
+from backend.calib.multicam.stereo import LINE_COLOUR_BGR as LINE_COLOUR_BGR  # re-exported for previews
 from backend.calib.multicam.stereo import (
     Rectification,
     epipolar_errors,

@@ -27,6 +27,7 @@ from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.rig import Rig, edge_slot
 from backend.core.transforms import params_between
+from backend.core.uncertainty import sigmas
 from backend.store.session import Session
 
 EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node")
@@ -203,7 +204,7 @@ def _moves(before: RigTree, after: RigTree) -> list[FrameMove]:
         trans_m, rot_deg = float(np.linalg.norm(step[:3])), float(np.degrees(np.linalg.norm(step[3:])))
         if trans_m < MOVE_THRESHOLD[0] and rot_deg < MOVE_THRESHOLD[1]:
             continue
-        sigma = np.sqrt(np.clip(np.diag(new.covariance), 0, None))
+        sigma = sigmas(new.covariance)
         ratio = float(np.max(np.abs(step) / sigma)) if np.all(sigma > 0) and np.isfinite(sigma).all() else None
         moves.append(FrameMove(name, trans_m, rot_deg, ratio))
     return sorted(moves, key=lambda m: -(m.sigma_ratio or 0.0))

@@ -19,6 +19,7 @@ from typing import Any, Literal
 import numpy as np
 
 from backend.calib.lidar_lidar.service import store_cloud
+from backend.calib.sweep.checks import LABELS as LABELS  # re-exported: the parameters' names as shown
 from backend.calib.sweep.solver import SweepCalibrationResult, SweepCalibrationSettings, calibrate_sweep
 from backend.core.errors import InputError, NotFoundError
 from backend.core.result import ProgressCallback, no_progress

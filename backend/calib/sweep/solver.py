@@ -62,6 +62,7 @@ from backend.core.result import (
 )
 from backend.core.sweep_geometry import ScanAtAngle, SweepGeometry, stack_scans
 from backend.core.transforms import params_between
+from backend.core.uncertainty import sigmas
 
 MIN_STEPS = 10
 """A sweep needs at least this many servo steps."""
@@ -188,7 +189,7 @@ class SweepCalibrationResult(SolveResult):
     @property
     def parameter_std(self) -> dict[str, float]:
         """1-sigma of each estimated parameter, by its name in :data:`PARAM_NAMES` (m or rad)."""
-        s = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        s = sigmas(self.covariance)
         return {name: float(x) for name, x in zip(self.estimated, s, strict=True)}
 
     def summary(self) -> dict[str, Any]:
@@ -451,7 +452,7 @@ def _jacobian_covariance(J: np.ndarray, r: np.ndarray, n_planes: int) -> np.ndar
 
 
 def _jacobian_std(J: np.ndarray, r: np.ndarray, n_planes: int) -> np.ndarray:
-    return np.sqrt(np.clip(np.diag(_jacobian_covariance(J, r, n_planes)), 0, None))
+    return sigmas(_jacobian_covariance(J, r, n_planes))
 
 
 def _check(scans: Sequence[ScanAtAngle]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -560,7 +561,7 @@ def calibrate_sweep(scans: Sequence[ScanAtAngle], initial: SweepGeometry | None 
     cov_j = _jacobian_covariance(sol.jac, r, planes.count)
     if not np.isfinite(cov_j).all():
         warnings.append("the planes do not determine every parameter (singular Jacobian)")
-    std_j = np.sqrt(np.clip(np.diag(cov_j), 0, None))
+    std_j = sigmas(cov_j)
 
     # uncertainty: delete-a-group jackknife over contiguous blocks of servo steps
     std_spread = None

@@ -5,6 +5,9 @@ true pose ``T_base_sensor`` in :func:`backend.sim.demo_rig.demo_rig` and the sce
 with the calibration board, either standing still or carried through a cycle of
 poses. A ``lidar3d`` sensor gives a VLP-16-like 16-beam spinning scan, a ``lidar2d``
 sensor a 360 deg planar scan (points with z = 0).
+
+The driver is ``"simulated_lidar"``, registered with :func:`~backend.devices.base.create_device` by
+:mod:`backend.sim.devices`.
 """
 
 from __future__ import annotations
@@ -13,13 +16,12 @@ import time
 
 import numpy as np
 
-from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
-from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
+from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses
+from backend.sim.timing import SimulatedTiming, held_pose_index
 
 
-@register_driver
 class SimulatedLidar(CaptureDevice):
     """Simulated scans of a demo-rig LiDAR; ``points`` in the sensor frame (m), ``intensity`` float32 (0..255).
 

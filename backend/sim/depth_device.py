@@ -4,6 +4,9 @@ Frames are rendered from ground truth (:mod:`backend.sim.depth_cell`): the node 
 pose in :data:`~backend.core.depth_cell.PAPER_NODE_POSES` in the cell of
 :func:`~backend.core.depth_cell.default_cell_layout`, with the movable tables wherever the
 last :meth:`SimulatedDepthCamera.set_placements` put them (none by default).
+
+The driver is ``"sim_depth"``, registered with :func:`~backend.devices.base.create_device` by
+:mod:`backend.sim.devices`.
 """
 
 from __future__ import annotations
@@ -17,12 +20,11 @@ import numpy as np
 from backend.core.depth import KINECT_V2
 from backend.core.depth_cell import TablePlacement, default_cell_layout
 from backend.core.errors import InputError
-from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
-from backend.devices.simulated_timing import SimulatedTiming
+from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.depth_cell import CellScene, node_pose, placement_from_dict, placement_to_dict
+from backend.sim.timing import SimulatedTiming
 
 
-@register_driver
 class SimulatedDepthCamera(CaptureDevice):
     """Simulated depth frames of one node of the cell.
 

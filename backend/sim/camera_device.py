@@ -8,6 +8,9 @@ where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_boa
 the camera photographs the whole yard (:func:`backend.sim.scene_camera.clean_yard_image`), so
 its edges line up with the LiDARs' points. Every sample carries the true ``T_camera_board``
 in its metadata.
+
+The driver is ``"simulated"``, registered with :func:`~backend.devices.base.create_device` by
+:mod:`backend.sim.devices`.
 """
 
 from __future__ import annotations
@@ -19,20 +22,19 @@ import numpy as np
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.devices.base import CaptureDevice, DeviceError, Sample, register_driver
-from backend.devices.simulated_timing import SimulatedTiming, held_pose_index
+from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import moving_board_poses
 from backend.sim.scene_camera import clean_yard_image
+from backend.sim.timing import SimulatedTiming, held_pose_index
 
 BOARD_MOTIONS = ("wave", "scene")
 SCENE_NOISE_SIGMA = 1.5
 """Sensor noise (grey levels, 1-sigma) added to every frame of the yard."""
 
 
-@register_driver
 class SimulatedCamera(CaptureDevice):
     """Renders uint8 grayscale (H, W) images of a board seen by a demo-rig camera.
 

@@ -1,0 +1,86 @@
+"""The simulated swept scanner: a ray-cast 2D scanner bolted to the simulated Dynamixel's horn.
+
+``swept_scanner`` with ``servo_port="sim"`` starts the simulator registered as ``"dynamixel"`` (a
+:class:`~backend.sim.dynamixel_sim.DynamixelSimulator`: byte-level Protocol 2.0 on a pty) and, with
+``scanner={"driver": "sim", ...}``, the one registered as ``"swept_head"``: a :class:`SimSweptScannerHead` on that
+simulator's horn. Each scan is ray-cast in :class:`~backend.sim.lidar_scene.LidarScene` from the pose the horn's
+physical angle and the TRUE geometry (:data:`~backend.sim.demo_rig.DEFAULT_SIM_GEOMETRY`) give, so tests know
+the truth. Both are registered by :mod:`backend.sim.devices`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from backend.core.sweep_geometry import SweepGeometry
+from backend.devices.base import CaptureDevice, DeviceDisconnected, Sample
+from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, DEFAULT_SIM_MOUNT
+from backend.sim.dynamixel_sim import DynamixelSimulator
+from backend.sim.lidar_scene import LidarScene
+
+
+class SimSweptScannerHead(CaptureDevice):
+    """A 2D scanner on the simulated servo's horn (``scanner={"driver": "sim", ...}``); not a registered driver.
+
+    Each :meth:`read` ray-casts one planar scan (:meth:`LidarScene.scan_2d`) from
+    ``T_base_mount @ geometry.T_mount_scanner(physical servo angle)`` with the TRUE geometry,
+    keeps beams within ``fov_deg`` (a Hokuyo UTM-30LX sees 270 deg) and returns them in the
+    scanner frame with intensity (0..255) and ``meta["T_base_scanner"]`` (truth).
+    """
+
+    driver = "sim"
+
+    def __init__(self, servo_sim: DynamixelSimulator, geometry: dict | None = None, T_base_mount: list | None = None,
+                 angle_step_deg: float = 0.25, fov_deg: float = 270.0, range_noise_m: float = 0.01,
+                 max_range_m: float = 30.0, seed: int = 0):
+        """Args:
+        servo_sim: the :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` whose horn carries it.
+        geometry: the TRUE :class:`SweepGeometry` as a dict (default :data:`DEFAULT_SIM_GEOMETRY`).
+        T_base_mount: 4x4 (m) of the mount in the yard's base_link (default :data:`DEFAULT_SIM_MOUNT`).
+        angle_step_deg: beam spacing (deg). fov_deg: field of view centred on scanner x (deg).
+        range_noise_m: 1-sigma range noise (m). max_range_m: farthest return (m).
+        seed: seeds the noise (scan ``i`` uses ``(seed, i)``).
+        """
+        self.servo_sim = servo_sim
+        self.geometry = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY if geometry is None else geometry)
+        self.T_base_mount = np.asarray(DEFAULT_SIM_MOUNT if T_base_mount is None else T_base_mount, dtype=float)
+        self.angle_step_deg = float(angle_step_deg)
+        self.fov_deg = float(fov_deg)
+        self.range_noise_m = float(range_noise_m)
+        self.max_range_m = float(max_range_m)
+        self.seed = int(seed)
+        self._scene: LidarScene | None = None
+        self._count = 0
+
+    def ground_truth(self) -> dict[str, Any]:
+        """What a sweep's ``meta`` carries as truth: ``true_geometry`` (dict) and ``T_base_mount`` (4x4 list, m)."""
+        return {"true_geometry": self.geometry.to_dict(), "T_base_mount": self.T_base_mount.tolist()}
+
+    def open(self) -> None:
+        self._scene = LidarScene()
+        self._count = 0
+
+    def read(self) -> Sample:
+        if self._scene is None:
+            raise DeviceDisconnected("read() before open()", self.describe())
+        angle = self.servo_sim.true_angle_rad()
+        T_base_scanner = self.T_base_mount @ self.geometry.T_mount_scanner(angle)
+        rng = np.random.default_rng([self.seed, self._count])
+        scan = self._scene.scan_2d(T_base_scanner, angle_step_deg=self.angle_step_deg, max_range_m=self.max_range_m,
+                                   range_noise_m=self.range_noise_m, rng=rng)
+        self._count += 1
+        azimuth = (scan.azimuth_rad + np.pi) % (2 * np.pi) - np.pi
+        keep = np.abs(azimuth) <= math.radians(self.fov_deg) / 2 + 1e-9
+        return Sample(time.time(), points=scan.points[keep], intensity=scan.intensity[keep],
+                      meta={"T_base_scanner": T_base_scanner.tolist(), "true_servo_angle_rad": angle,
+                            "labels": scan.labels[keep]})
+
+    def close(self) -> None:
+        self._scene = None
+
+    def describe(self) -> str:
+        return "simulated swept scanner head"
