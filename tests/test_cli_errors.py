@@ -19,6 +19,7 @@ import pytest
 from conftest import cli_in_process
 from test_cli import BOARD, REPO, assert_json_failure, copy_images
 
+from backend.cli import intrinsics as intrinsics_cli
 from backend.core.errors import InputError, shorten
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.exports.ros_camera_info import dump_camera_info, load_camera_info
@@ -242,7 +243,7 @@ def test_os_error_and_bug_are_one_line_errors(monkeypatch, capsys):
     def no_permission(args):
         raise PermissionError(13, "Permission denied", "/srv/images/left01.jpg")
 
-    monkeypatch.setattr(cli_module, "run_intrinsics", no_permission)
+    monkeypatch.setattr(intrinsics_cli, "run_intrinsics", no_permission)
     assert cli_module.main(["intrinsics", "x", "--board", BOARD, "--json"]) == cli_module.EXIT_INPUT_ERROR
     out, err = capsys.readouterr()
     assert err.strip() == "error: /srv/images/left01.jpg: Permission denied"
@@ -251,7 +252,7 @@ def test_os_error_and_bug_are_one_line_errors(monkeypatch, capsys):
     def bug(args):
         raise KeyError("views")
 
-    monkeypatch.setattr(cli_module, "run_intrinsics", bug)
+    monkeypatch.setattr(intrinsics_cli, "run_intrinsics", bug)
     assert cli_module.main(["intrinsics", "x", "--board", BOARD, "--json"]) == cli_module.EXIT_INTERNAL_ERROR
     out, err = capsys.readouterr()
     assert "Traceback" in err  # for the bug report, before the error line

@@ -1,0 +1,78 @@
+"""``calib-studio lidar-camera``: LiDAR-to-camera extrinsics from (image, cloud) files."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from backend.cli._common import init_name, parse_pairs, prints_summary, progress_to_stderr, read_init
+from backend.core.errors import InputError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    lc = sub.add_parser("lidar-camera", help="LiDAR-to-camera extrinsics: T_camera_lidar with its uncertainty")
+    lc.add_argument("--camera", type=Path, required=True, metavar="camera.yaml",
+                    help="the camera's ROS camera_info YAML (as `intrinsics --out` writes it)")
+    lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
+                    help="an image and the cloud taken with it (repeat for every board pose or scene); "
+                         "IMAGE:CLOUD1,CLOUD2,... merges several scans of a static scene into one denser cloud")
+    lc.add_argument("--method", choices=["target", "edges", "intensity"], default="target",
+                    help="target: a board seen by both sensors; edges: targetless, aligns the edges of the scene; "
+                         "intensity: targetless, matches the LiDAR's intensities with the image (needs intensities)")
+    lc.add_argument("--cross-check", action="store_true",
+                    help="edges, intensity: also solve with the other targetless method and put the two methods' "
+                         "agreement into the verdict")
+    lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
+    lc.add_argument("--plate-margin", type=float, metavar="M",
+                    help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
+    lc.add_argument("--translation-prior", type=float, metavar="M",
+                    help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
+                         "whose edges are all far away (they fix the rotation, hardly the translation)")
+    init = lc.add_mutually_exclusive_group()
+    init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
+    init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
+                      help="initial T_camera_lidar: metres and degrees (ROS order)")
+    lc.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    lc.set_defaults(handler=prints_summary(run_lidar_camera))
+
+
+def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.lidar_camera.service import cli_summary, solve_files
+    from backend.core.boards import BoardSpec
+    from backend.core.transforms import check_transform
+    from backend.exports.ros_camera_info import load_camera_info
+
+    pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in parse_pairs(args.pair)]
+    camera, _ = load_camera_info(args.camera)
+    if args.method == "target" and not args.board:
+        raise InputError("--method target needs the board's spec, e.g. --board checkerboard:9x6:0.04", "--board")
+    T_init = read_init(args)
+    if T_init is None:
+        raise InputError("give the initial T_camera_lidar (the mounting as measured, within ~10 cm and 5 deg) with "
+                         "--init or --init-xyzypr", "--init")
+    check_transform(T_init, init_name(args))
+    board = BoardSpec.parse(args.board) if args.board else None
+    result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,
+                         translation_prior_m=args.translation_prior, cross_check=args.cross_check,
+                         progress=progress_to_stderr(False))
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    summary = cli_summary(result)
+    if not result.converged:
+        print(f"rejected result: {json.dumps(summary)}", file=sys.stderr)
+        raise InputError(f"no usable calibration: {(result.warnings or ['the solve failed'])[0]}", "--pair")
+    if not args.json:
+        import numpy as np
+
+        from backend.core.transforms import to_xyz_ypr
+
+        xyz, ypr = to_xyz_ypr(result.T_parent_child)
+        print(f"T_camera_lidar (x y z m, yaw pitch roll deg): {' '.join(f'{v:.4f}' for v in xyz)}  "
+              f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}\n"
+              f"{np.array2string(result.T_parent_child, precision=6, suppress_small=True)}\n"
+              f"1-sigma trans (m) {summary['std']['trans_m']}  rot (deg, LiDAR axes) {summary['std']['rot_deg']}\n"
+              f"residuals {summary['residuals']}")
+    return summary
