@@ -1,0 +1,222 @@
+"""The real studio (``calib-studio demo`` in a subprocess) driven through Debian chromium.
+
+One studio process serves the module: the demo session is built from the
+simulator in a temporary folder, the page is opened at the URL the CLI prints
+first on stdout, and the intrinsics wizard is run end to end on the simulated
+``cam_wide``: live capture with auto-capture, a manual capture, solve, accept;
+the outcome is checked through the HTTP API against the simulator's truth.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+from playwright.sync_api import Browser, Page, expect
+
+from backend.exports.target_pdf import board_sheet
+from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+VIEWPORT = {"width": 1600, "height": 1000}
+PANEL_LEFT_PX = 1150
+"""The wizard panel floats over the right of the page; the 3D view is checked left of this."""
+CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
+"""``backend.sim.demo_rig.CAM_WIDE``: what the simulated wide camera really is."""
+MIN_VIEWS = 12
+VIEWS_RE = re.compile(r"(\d+) views ·")
+RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|✅ accepted)\) · intrinsics[\s\S]*?"
+                       r"(pinhole-radtan|fisheye-equidistant) 1280×720")
+
+
+@pytest.fixture
+def page(browser: Browser, studio: Studio) -> Iterator[Page]:
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        yield page
+
+
+def _body(page: Page) -> str:
+    return page.inner_text("body")
+
+
+def _views(page: Page) -> int:
+    match = VIEWS_RE.search(_body(page))
+    return int(match.group(1)) if match else 0
+
+
+def _wait_views(page: Page, at_least: int, timeout_s: float) -> int:
+    deadline = time.monotonic() + timeout_s
+    while (views := _views(page)) < at_least:
+        assert time.monotonic() < deadline, f"only {views} views after {timeout_s:.0f} s:\n{_body(page)[-1500:]}"
+        time.sleep(0.5)
+    return views
+
+
+def _settled_views(page: Page, quiet_s: float = 4.0, timeout_s: float = 60.0) -> int:
+    """The view count once it has not changed for ``quiet_s`` (an auto-capture in flight has landed)."""
+    deadline = time.monotonic() + timeout_s
+    views, since = _views(page), time.monotonic()
+    while time.monotonic() - since < quiet_s:
+        assert time.monotonic() < deadline, f"the view count kept changing for {timeout_s:.0f} s"
+        time.sleep(0.5)
+        if (now := _views(page)) != views:
+            views, since = now, time.monotonic()
+    return views
+
+
+def _scroll_to_result(page: Page) -> None:
+    page.get_by_text("Per-view RMS", exact=True).scroll_into_view_if_needed()
+    page.get_by_text(re.compile(r"^reprojection RMS \d")).scroll_into_view_if_needed()
+    time.sleep(0.5)
+
+
+def test_demo_page_renders_rig(page: Page) -> None:
+    time.sleep(4)  # frusta, boards and the live thumbnail arrive over the socket and render in software
+    ARTIFACTS.mkdir(exist_ok=True)
+    shot = page.screenshot(path=ARTIFACTS / "studio_demo.png")
+
+    rgb = np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
+    scale = rgb.shape[1] / VIEWPORT["width"]
+    view = rgb[:, : int(PANEL_LEFT_PX * scale)]
+    colours = len(np.unique(view.reshape(-1, 3), axis=0))
+    assert view.std() > 10.0, f"the 3D view looks blank (std {view.std():.1f} grey levels)"
+    assert colours > 200, f"the 3D view has only {colours} distinct colours"
+
+    # The demo session opens on cam_front, calibrated and accepted when the session was built.
+    expect(page.get_by_label("Camera", exact=True)).to_have_value("cam_front")
+    body = _body(page)
+    assert "15 views" in body, body
+    match = RESULT_RE.search(body)
+    assert match and match.group(2) == "✅ accepted", body
+    for text in ("RMS", "fx", "fy", "cx", "cy", "σ", "Projection σ (far points): mean"):
+        assert text in body, f"{text!r} missing from the page"
+
+
+def test_intrinsics_step_with_simulated_camera(browser: Browser, studio: Studio) -> None:
+    # A tall page so the live image, the coverage bars and the result all fit in one screenshot.
+    with studio_page(browser, studio.url, {"width": 1600, "height": 2000}) as page:
+        _run_intrinsics_wizard(page, studio)
+
+
+def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
+    camera = page.get_by_label("Camera", exact=True)
+    camera.click()
+    page.get_by_role("option", name="cam_wide", exact=True).click()
+    expect(camera).to_have_value("cam_wide")
+    expect(page.get_by_text("No result yet.", exact=True)).to_be_visible()
+    assert "views ·" not in _body(page), "cam_wide starts with no captures"
+
+    # Live capture from the simulated camera; auto-capture keeps frames that add coverage.
+    button(page, "Start live capture").click()
+    expect(button(page, "Stop")).to_be_visible()
+    _wait_views(page, MIN_VIEWS, timeout_s=120)
+
+    # Manual capture: with auto-capture off, one click keeps exactly one more frame.
+    page.get_by_label("Auto-capture when it adds coverage").uncheck()
+    before = _settled_views(page)  # an auto-capture already in flight lands first, however loaded the machine
+    button(page, "Capture this frame").click()
+    _wait_views(page, before + 1, timeout_s=60)
+    after = _settled_views(page)
+    assert after == before + 1, "a manual capture must keep exactly one frame"
+
+    button(page, "Stop").click()
+    expect(button(page, "Start live capture")).to_be_visible()
+    captures = studio.get("/api/sessions/demo/sensors/cam_wide/captures")
+    assert len(captures) == after, captures
+
+    # Before a solve the panel says what is missing for enough data.
+    assert "solve to see the projection sigma" in _body(page), _body(page)
+
+    # Solve with the model picked on held-out views (auto) and inspect the result.
+    choose(page, "Model", "auto")
+    button(page, "Solve").click()
+    expect(page.get_by_text(re.compile(r"^Solved in \d"))).to_be_visible(timeout=90_000)
+    match = wait_body(page, RESULT_RE, timeout_s=15)  # the result lands just after the status line
+    assert match.group(2) == "not accepted", _body(page)
+    result_id = match.group(1)
+    body = _body(page)
+    assert re.search(r"reprojection RMS \d+\.\d+ px[\s\S]*\d+ views used", body), body
+    for text in ("fx", "fy", "cx", "cy", "k1", "σ", "Verdict:", "Cross-validation (two halves):", "Model:",
+                 "held-out RMS (px)", "pinhole-rational", "Corners:"):
+        assert text in body, f"{text!r} missing from the result"
+    # the enough-data line now judges the solve's projection sigma, not coverage alone (it follows the result)
+    wait_body(page, re.compile(r"Enough data|px in the [a-z ]+: add views there"), timeout_s=15)
+    summaries = studio.get("/api/sessions/demo/results?sensor=cam_wide&kind=intrinsics")
+    assert [r["id"] for r in summaries] == [result_id], summaries
+    _scroll_to_result(page)
+    page.screenshot(path=ARTIFACTS / "studio_intrinsics.png")
+
+    record = studio.get(f"/api/sessions/demo/results/{result_id}")
+    level = record["verdict"]["level"]
+    assert f"Verdict: {'🟢' if level == 'trusted' else '🟡' if level == 'check' else '🔴'}" in body, body
+    assert record["model_comparison"]["status"] == "compared", record["model_comparison"]
+    print(f"cam_wide verdict {level}: {record['verdict']['reasons']}; model {record['model_comparison']['reason']}")
+    assert level != "reject", record["verdict"]  # the wide lens gets k3 (or fisheye) from auto
+    # the result card's Accept (step 3 comes first; later steps have their own) first shows what the rig would do
+    button(page, "Accept").first.click()
+    expect(page.get_by_text(f"Accepting {result_id} would:", exact=False)).to_be_visible()
+    if level == "check":  # a 'check' is refused until confirmed
+        button(page, "Apply accept").first.click()
+        expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=15_000)
+        assert not studio.get("/api/sessions/demo")["accepted"].get("cam_wide/intrinsics")
+        page.get_by_label("Confirm the check").first.check()
+    button(page, "Apply accept").first.click()
+    expect(page.get_by_text(f"{result_id} (✅ accepted)", exact=False)).to_be_visible()
+    session = studio.get("/api/sessions/demo")
+    assert session["accepted"].get("cam_wide/intrinsics") == result_id, session
+    assert session["accepted"].get("cam_front/intrinsics"), "cam_front's accepted result must survive"
+
+    K = np.array(record["camera"]["K"])
+    got = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
+    print(f"cam_wide from {after} views: rms {record['rms_px']:.3f} px, "
+          + ", ".join(f"{k} {v:.2f} (truth {CAM_WIDE_TRUTH[k]})" for k, v in got.items()))
+    assert record["rms_px"] < 1.0, record["rms_px"]
+    assert abs(got["fx"] - CAM_WIDE_TRUTH["fx"]) < 5.0, got
+    assert abs(got["fy"] - CAM_WIDE_TRUTH["fy"]) < 5.0, got
+    # Which frames get kept depends on timing; with ~15 views the principal point is known to a few px (its σ).
+    for name in ("cx", "cy"):
+        tolerance = max(10.0, 4.0 * record["std"][name])
+        assert abs(got[name] - CAM_WIDE_TRUTH[name]) < tolerance, (name, got, record["std"])
+
+
+def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_chessboard: Path) -> None:
+    """A truncated JPEG imported in the intrinsics step: a red notification names it, nothing is stored."""
+    camera = page.get_by_label("Camera", exact=True).input_value()  # GUI state persists across pages
+    captures_url = f"{studio.api}/api/sessions/demo/sensors/{camera}/captures"
+    before = httpx.get(captures_url).json()
+    data = (stereo_chessboard / "left01.jpg").read_bytes()
+    with page.expect_file_chooser() as chooser:
+        button(page, "Import an image file").click()
+    chooser.value.set_files({"name": "broken_shot.jpg", "mimeType": "image/jpeg", "buffer": data[: len(data) // 2]})
+    notice = page.locator(".mantine-Notification-root", has_text="Image not added")
+    expect(notice).to_be_visible(timeout=15_000)
+    expect(notice).to_contain_text("broken_shot.jpg")
+    expect(notice).to_contain_text("not a readable image")
+    page.wait_for_timeout(1000)  # let the toast finish sliding in before the picture
+    page.screenshot(path=ARTIFACTS / "studio_bad_upload.png")
+    assert httpx.get(captures_url).json() == before
+
+
+def test_session_step_downloads_the_sessions_board(browser: Browser, studio: Studio) -> None:
+    board = studio.get("/api/sessions/demo")["board"]
+    sheet = board_sheet(board)
+    with studio_page(browser, studio.url, {"width": 1600, "height": 1000}) as page:
+        choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
+        button(page, "Print the target").click()
+        expect(page.get_by_text("Cannot print the target")).to_be_visible()
+        expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
+        choose(page, "Paper", "auto")
+        button(page, "Print the target").click()
+        with page.expect_download() as download:
+            page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
+        saved = Path(download.value.path()).read_bytes()
+        assert download.value.suggested_filename == sheet.filename
+    assert saved == sheet.pdf  # the sheet test_target_pdf.py measures

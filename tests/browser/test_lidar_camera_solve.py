@@ -1,0 +1,294 @@
+"""The LiDAR-to-camera solve of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium.
+
+The demo session stores 10 image + cloud pairs of cam_front and lidar_top with the board in view, and its rig
+is the simulator's truth. On step 6 the overlay opens on the mosaic of all pairs at the truth, with its depth
+legend; the full-size overlay page opens from the step's link on the same transform, every pair at 1280x720 with its
+legend, and is zoomed with the wheel and panned. The increment sliders are then typed away from the truth (3° about
+the camera's z, which is yaw, and 5 cm along its x), nudged from the keyboard (viser command-palette hotkeys: L is yaw
+minus, Shift+J a fine yaw plus, Z undo), solved from there with the board method, and the result is accepted with
+its verdict confirmed. The result, the read-only pose and the acceptance are checked against the truth through the
+HTTP API, and the overlays (off the truth, solved, full size and zoomed) and the solve's before/after images are left
+in ``tests/artifacts`` to look at.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import cv2
+import numpy as np
+import pytest
+from playwright.sync_api import Browser, Locator, Page, expect
+
+from backend.core.transforms import from_xyz_ypr, invert
+from backend.sim.demo_rig import demo_rig
+from tests.conftest import (
+    ARTIFACTS,
+    Studio,
+    button,
+    choose,
+    decoded_image,
+    labelled_image,
+    studio_page,
+    text_input,
+    unfold,
+    wait_body,
+)
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+VIEWPORT = {"width": 1600, "height": 2400}
+STEP = "6 · LiDAR to camera"
+CAMERA, LIDAR = "cam_front", "lidar_top"
+SLOT = f"{LIDAR}/T_{CAMERA}_{LIDAR}"
+POSE = ("x (m)", "y (m)", "z (m)", "yaw (°)", "pitch (°)", "roll (°)")
+"""The read-only pose table beside the increment sliders."""
+DRAWN_RE = re.compile(r"([\d,]+) of ([\d,]+) points drawn over (\d+) pairs")
+RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · target · [\d.]+ s\s+Verdict[\s\S]*?"
+                       rf"{CAMERA} → {LIDAR}[\s\S]*?"
+                       r"1σ: ([\d.]+), ([\d.]+), ([\d.]+) mm · ([\d.]+), ([\d.]+), ([\d.]+)°")
+"""The result card of a converged target solve (the card says "not converged" after the seconds otherwise)."""
+YAW_OFF_DEG, X_OFF_M = 3.0, 0.05
+"""How far the sliders are typed away from the truth before solving."""
+TOLERANCE_M, TOLERANCE_DEG = 0.015, 0.3
+
+
+def _wait_new_source(image: Locator, old_source: str | None, what: str, timeout_s: float = 20.0) -> str:
+    """Wait until ``image`` shows a new picture (viser swaps the blob URL on every update); the new source."""
+    deadline = time.monotonic() + timeout_s
+    while (source := image.get_attribute("src")) == old_source:
+        assert time.monotonic() < deadline, f"the overlay did not change after {what}"
+        time.sleep(0.2)
+    return source
+
+
+def _slider_values(page: Page) -> list[float]:
+    """x, y, z (m), yaw, pitch, roll (°) of the step's read-only pose table."""
+    table = page.locator("table", has_text="pitch (°)").filter(visible=True)
+    expect(table).to_have_count(1)
+    assert table.locator("th").all_inner_texts() == list(POSE)
+    return [float(v) for v in table.locator("td").all_inner_texts()]
+
+
+def _slider_T(page: Page) -> np.ndarray:
+    """``T_camera_lidar`` as the read-only pose shows it."""
+    values = _slider_values(page)
+    return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
+
+
+def _wait_yaw(page: Page, expected: float, what: str, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while abs((yaw := _slider_values(page)[3]) - expected) > 0.0015:  # the pose shows three decimals
+        assert time.monotonic() < deadline, f"after {what} yaw is {yaw}°, expected {expected:.3f}°"
+        time.sleep(0.1)
+
+
+def _type(page: Page, label: str, value: float) -> None:
+    box = text_input(page, label)
+    box.fill(str(value))
+    box.press("Enter")
+
+
+def _visible(page: Page, label: str) -> Locator:
+    """Step 6's control labelled ``label`` (other steps have their own: the last on screen is step 6's)."""
+    return page.get_by_label(label, exact=True).filter(visible=True).last
+
+
+def _legend_range(legend: np.ndarray) -> tuple[float, float]:
+    """How far TURBO's blue and red ends lie apart in a legend strip (BGR): its blue and red channels' spans."""
+    bar = legend[4:16, legend.shape[1] // 4:-40].reshape(-1, 3).astype(int)
+    return float(np.ptp(bar[:, 0])), float(np.ptp(bar[:, 2]))
+
+
+def _full_size_page(page: Page) -> None:
+    """Open the full-size overlay from the step's link: every pair at its image's size with its legend, on the
+    sliders' transform; zoom with the wheel about the pointer and pan by dragging."""
+    link = page.get_by_role("link", name="Open the full-size overlay ↗")
+    link.scroll_into_view_if_needed()
+    assert "xyz_m=" in link.get_attribute("href") and "scene=all" in link.get_attribute("href")
+    with page.expect_popup() as popup:
+        link.click()
+    view = popup.value
+    view.set_viewport_size({"width": 1600, "height": 1000})
+    expect(view.locator("body[data-ready=true]")).to_have_count(1, timeout=60_000)
+    expect(view.locator("#error")).to_be_hidden()
+    images = view.locator("#content img")
+    expect(images).to_have_count(10)  # every stored pair, not only the six the panel tiles
+    first = decoded_image(images.first)
+    assert first.shape == (720 + 40, 1280, 3), f"not the full-size overlay with its legend: {first.shape}"
+    blue_span, red_span = _legend_range(first[720:])
+    assert blue_span > 150 and red_span > 150, (blue_span, red_span)
+    captions = view.locator("#content figcaption").all_inner_texts()
+    ranges = [re.search(r"([\d,]+) points drawn · depth \(m\): ([\d.]+) – ([\d.]+)", c) for c in captions]
+    assert all(ranges), captions
+    for match in ranges:  # each scene's depths spread, within the 0.5-40 m window
+        assert int(match.group(1).replace(",", "")) > 100 and 0.5 <= float(match.group(2)) < float(match.group(3)) \
+            <= 40, match.group(0)
+    pose = view.locator("#pose").inner_text()  # the transform drawn: the step's, read-only
+    drawn = [float(v) for v in re.findall(r"-?\d+\.\d+", pose)]
+    assert np.allclose(drawn, _slider_values(page), atol=1e-3), (pose, _slider_values(page))
+    view.screenshot(path=ARTIFACTS / "studio_lidar_camera_full_size.png")
+
+    zoom = view.locator("#zoom")
+    fitted = float(zoom.inner_text().rstrip(" %"))
+    box = view.locator("#viewport").bounding_box()
+    view.mouse.move(box["x"] + 600, box["y"] + 300)
+    for _ in range(8):
+        view.mouse.wheel(0, -100)  # in
+    expect(zoom).not_to_have_text(f"{fitted:.0f} %")
+    zoomed = float(zoom.inner_text().rstrip(" %"))
+    assert zoomed > 3 * fitted, (fitted, zoomed)
+    before = view.locator("#content").evaluate("e => e.style.transform")
+    view.mouse.move(box["x"] + 600, box["y"] + 300)
+    view.mouse.down()
+    view.mouse.move(box["x"] + 400, box["y"] + 200, steps=5)
+    view.mouse.up()
+    assert view.locator("#content").evaluate("e => e.style.transform") != before, "dragging did not pan"
+    view.screenshot(path=ARTIFACTS / "studio_lidar_camera_full_size_zoomed.png")
+    print(f"full-size page: 10 overlays of {first.shape[1]}x{first.shape[0]} px, zoom {fitted:.0f} % -> "
+          f"{zoomed:.0f} %; {captions[0]}")
+    view.close()
+
+
+def _errors(T: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) between two transforms."""
+    delta = invert(truth) @ T
+    angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(T[:3, 3] - truth[:3, 3])), float(angle)
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Share of pixels that differ between two overlays of the same scenes, after a blur that forgives the
+    pixel or two a JPEG and a sub-degree error move the points by."""
+    blur = [cv2.GaussianBlur(image, (0, 0), 2.0).astype(np.int16) for image in (a, b)]
+    return float((np.abs(blur[0] - blur[1]).max(axis=2) > 12).mean())
+
+
+def _focus_outside_inputs(page: Page) -> None:
+    """Give the page (not a text box) the keyboard: viser ignores command hotkeys typed into an input."""
+    page.get_by_text(re.compile(r"^Capture image \+ cloud pairs")).click()  # the step's help text
+    assert page.evaluate("document.activeElement.tagName") == "BODY"
+
+
+def _press(page: Page, key: str, yaw_expected: float, overlay: Locator) -> None:
+    source = overlay.get_attribute("src")
+    page.keyboard.press(key)
+    _wait_yaw(page, yaw_expected, f"pressing {key}")
+    _wait_new_source(overlay, source, f"pressing {key}")
+
+
+def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
+    truth = demo_rig().T_a_b(CAMERA, LIDAR)
+    ARTIFACTS.mkdir(exist_ok=True)
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        for folder in ("1 · Session", "3 · Camera intrinsics"):  # fold these away: room for step 6
+            page.get_by_text(folder, exact=True).click()
+        unfold(page, STEP, page.get_by_label("Onto camera", exact=True))
+        choose(page, "Onto camera", CAMERA)
+        choose(page, "From LiDAR", LIDAR)
+
+        # 1. The mosaic of all pairs, drawn at the rig's (true) transform.
+        expect(page.get_by_label("Scene", exact=True)).to_have_value("all pairs")
+        expect(page.get_by_text("10 pair(s) stored · showing 6", exact=True)).to_be_visible()
+        drawn = wait_body(page, DRAWN_RE, timeout_s=30)
+        assert int(drawn.group(3)) == 6, drawn.group(0)
+        assert int(drawn.group(1).replace(",", "")) > 1000, drawn.group(0)
+        assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
+        overlay = labelled_image(page, "Overlay")
+        time.sleep(1)  # the last redraw of the selection lands
+        at_truth = decoded_image(overlay)
+        assert at_truth.shape[1] == 960 and at_truth.shape[0] > 540, f"not a mosaic: {at_truth.shape}"
+        blue_span, red_span = _legend_range(at_truth[-40:])  # the depth legend beneath the mosaic
+        assert blue_span > 150 and red_span > 150, (blue_span, red_span)
+        _full_size_page(page)
+
+        # 2. Typed away from the truth (about and along the camera's axes, the default): the overlay is redrawn.
+        source = overlay.get_attribute("src")
+        expect(_visible(page, "In the axes of")).to_have_value("parent")
+        yaw_off = _slider_values(page)[3] + YAW_OFF_DEG
+        _type(page, "Δ about z (°)", YAW_OFF_DEG)  # about the camera's z: the same as yaw
+        _type(page, "Δx (m)", X_OFF_M)
+        _wait_yaw(page, yaw_off, "typing 3° about z")
+        wait_body(page, re.compile(r"From where it was put: turned 3\.000°"), timeout_s=10)
+        source = _wait_new_source(overlay, source, "the sliders were typed away from the truth")
+
+        # 3. Keyboard nudges (viser command hotkeys, delivered while no input has the focus).
+        _focus_outside_inputs(page)
+        _press(page, "l", yaw_off - 0.5, overlay)  # L: yaw minus, coarse step (0.5°)
+        _press(page, "Shift+J", yaw_off - 0.45, overlay)  # Shift+J: yaw plus, fine step (0.05°)
+        _press(page, "z", yaw_off - 0.5, overlay)  # Z: undo the fine step
+        time.sleep(1)
+        off = decoded_image(overlay)
+        T_off = _slider_T(page)
+        off_m, off_deg = _errors(T_off, truth)
+        assert off_m > 0.04 and off_deg > 2.0, (off_m, off_deg)
+        cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_solve_overlay_off.png"), off)
+        page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
+        page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_off.png")
+
+        # 4. Solve from there (board method): converged, with sigmas, the sliders back at the truth.
+        expect(page.get_by_label("Method", exact=True)).to_have_value("target (board)")
+        started = time.monotonic()
+        source = overlay.get_attribute("src")  # the overlay off the truth, which the solve will replace
+        button(page, "Solve from the sliders").click()
+        result = wait_body(page, RESULT_RE, timeout_s=120)
+        solve_s = time.monotonic() - started
+        result_id = result.group(1)
+        sigmas_mm, sigmas_deg = [float(v) for v in result.group(2, 3, 4)], [float(v) for v in result.group(5, 6, 7)]
+        assert all(0 < s < 15 for s in sigmas_mm) and all(0 < s < 0.5 for s in sigmas_deg), result.group(0)
+        expect(page.get_by_label("Result", exact=True).last).to_have_value(result_id)
+        record = studio.get(f"/api/sessions/demo/results/{result_id}")
+        assert record["kind"] == "lidar_camera" and record["method"] == "target" and record["converged"]
+        assert (record["parent"], record["child"], record["sensor"]) == (CAMERA, LIDAR, LIDAR)
+        init_m, init_deg = _errors(np.array(record["diagnostics"]["T_init"]), T_off)  # boxes round: 1 mm, 0.01°
+        assert init_m < 1e-3 and init_deg < 0.02, f"the solve did not start from the sliders ({init_m}, {init_deg})"
+        T_solved = np.array(record["T_parent_child"])
+        solved_m, solved_deg = _errors(T_solved, truth)
+        assert solved_m < TOLERANCE_M and solved_deg < TOLERANCE_DEG, (solved_m, solved_deg)
+        deadline = time.monotonic() + 10
+        while max(np.array(_errors(_slider_T(page), T_solved)) / (1e-3, 0.02)) > 1:
+            assert time.monotonic() < deadline, f"the sliders show {_slider_values(page)}, not the result"
+            time.sleep(0.2)
+        sliders_m, sliders_deg = _errors(_slider_T(page), truth)
+        assert sliders_m < TOLERANCE_M and sliders_deg < TOLERANCE_DEG, (sliders_m, sliders_deg)
+        assert any(r["id"] == result_id for r in studio.get("/api/sessions/demo/results"))
+
+        source = _wait_new_source(overlay, source, "the solve moved the sliders")
+        time.sleep(1)
+        solved = decoded_image(overlay)
+        cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_solve_overlay_solved.png"), solved)
+        near, far = _difference(solved, at_truth), _difference(off, at_truth)
+        print(f"solve {result_id} in {solve_s:.1f} s: {solved_m * 1000:.1f} mm / {solved_deg:.3f}° from the truth "
+              f"(started {off_m * 1000:.0f} mm / {off_deg:.2f}° off); 1σ {sigmas_mm} mm, {sigmas_deg}°; "
+              f"overlay differs from the truth's in {near:.2%} of pixels solved, {far:.2%} off; {drawn.group(0)}")
+        assert near < far / 3, f"the solved overlay is not back at the truth's ({near:.2%} vs {far:.2%} off)"
+
+        unfold(page, "Before / after", labelled_image(page, "Before"))
+        for label in ("Before", "After"):
+            image = labelled_image(page, label)
+            expect(image).to_be_visible()
+            picture = decoded_image(image)
+            assert picture.shape[1] > 400, f"the {label} image is still the placeholder: {picture.shape}"
+            cv2.imwrite(str(ARTIFACTS / f"studio_lidar_camera_solve_{label.lower()}.png"), picture)
+        page.get_by_text("Before / after", exact=True).scroll_into_view_if_needed()
+        page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve.png")
+
+        # 5. Accept on the result card: the solve itself is accepted, not a manual copy. Its verdict is on the card;
+        # one that says 'check' needs the box ticked. The first click shows what moves in the rig, the second applies.
+        verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)"), timeout_s=5).group(1)
+        assert verdict != "reject", page.inner_text("body")[-2000:]
+        button(page, "Accept").filter(visible=True).last.click()
+        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Apply accept"),
+                            timeout_s=15)
+        assert re.search(rf"{LIDAR} moves [\d.]+ mm", preview.group(1)), preview.group(1)  # the solve is mm off
+        _visible(page, "Confirm the check").check()
+        button(page, "Apply accept").filter(visible=True).last.click()
+        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · lidar_camera · target"), timeout_s=15)
+        wait_body(page, re.compile(r"Accepted\.\s+"), timeout_s=5)
+        page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
+        page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_accepted.png")
+    session = studio.get("/api/sessions/demo")
+    assert session["accepted"][SLOT] == result_id, session["accepted"]
+    kinds = [r for r in studio.get("/api/sessions/demo/results") if r["kind"] == "lidar_camera"]
+    assert [r["id"] for r in kinds] == [result_id], f"a manual result was stored beside the solve: {kinds}"

@@ -1,0 +1,162 @@
+"""Intrinsics on OpenCV's real stereo chessboard images (left camera, 9x6, 25 mm).
+
+The folder's README gives OpenCV's own calibration (CALIB_FIX_ASPECT_RATIO, k3
+estimated): fx = fy = 535.916, RMS 0.3926 px, made with findChessboardCorners +
+cornerSubPix(11x11). Those classic corners are off by up to ~5 px on a few corners
+(see test_reference_corners_are_worse), which biases the reference's fx; we detect
+with findChessboardCornersSB as the issue asks, so we compare with OpenCV run on the
+same corners in the same process, and with the reference's RMS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from backend.calib.board.detection import detect_board
+from backend.calib.intrinsics.service import calibrate_folder
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
+from backend.core.boards import BoardSpec
+
+BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
+REFERENCE_RMS_PX = 0.3926
+REFERENCE = {"fx": 535.91573396163199, "cx": 342.28315473308373, "cy": 235.57082909788173}
+SETTINGS = IntrinsicsSettings(estimate_k3=True, fix_aspect=True)
+
+
+@pytest.fixture(scope="module")
+def views(left_images) -> list[View]:
+    found = [View(p.name, detect_board(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), BOARD)) for p in left_images]
+    assert all(v.detection is not None for v in found), "every left image shows the board"
+    return found
+
+
+@pytest.fixture(scope="module")
+def result(views):
+    return calibrate_intrinsics(views, BOARD, (640, 480), SETTINGS)
+
+
+@pytest.mark.slow
+def test_rms_no_worse_than_opencv_reference(result):
+    assert len(result.views) == 13 and all(v.used for v in result.views)
+    assert result.rms_px <= REFERENCE_RMS_PX
+    assert result.rms_px < 0.30
+
+
+@pytest.mark.slow
+def test_matches_opencv_on_the_same_corners_within_sigma(views, result):
+    """Same model, same corners: OpenCV's calibrateCameraExtended must agree with our values and sigmas.
+
+    OpenCV's sigmas are the analytic (per-corner noise) ones; ours with the jackknife off
+    must equal them, and the reported ones are never smaller.
+    """
+    chosen = result.corners["chosen"]
+    assert chosen == "refined-0.3"  # they fit better than SB's own and the wider windows here (see below)
+    object_points = [v.detection.object_points(BOARD) for v in views]
+    image_points = [v.detection.refined[chosen].astype(np.float32) for v in views]
+    rms, K, dist, _, _, std_intrinsics, _, _ = cv2.calibrateCameraExtended(
+        object_points, image_points, (640, 480), np.eye(3), None, flags=cv2.CALIB_FIX_ASPECT_RATIO)
+    assert result.rms_px == pytest.approx(rms, rel=1e-3)
+    ours = result.camera
+    assert abs(ours.K[0, 0] - K[0, 0]) < 0.1 * result.std["fx"]
+    assert abs(ours.K[0, 2] - K[0, 2]) < 0.1 * result.std["cx"]
+    assert abs(ours.K[1, 2] - K[1, 2]) < 0.1 * result.std["cy"]
+    np.testing.assert_allclose(ours.dist, dist.ravel()[:5], atol=0.1 * max(result.std["dist"]))
+    opencv_std = std_intrinsics.ravel()
+    analytic = calibrate_intrinsics(views, BOARD, (640, 480), replace(SETTINGS, jackknife=False))
+    assert analytic.std["cx"] == pytest.approx(opencv_std[2], rel=0.02)
+    assert analytic.std["cy"] == pytest.approx(opencv_std[3], rel=0.02)
+    np.testing.assert_allclose(analytic.std["dist"][:2], opencv_std[4:6], rtol=0.02)
+    assert result.std["cx"] >= analytic.std["cx"] and result.std["dist"][0] >= analytic.std["dist"][0]
+
+
+@pytest.mark.slow
+def test_principal_point_agrees_with_reference(result):
+    """cx agrees with the README's reference within 3 sigma; fx and cy carry the reference's corner bias."""
+    assert abs(result.camera.K[0, 2] - REFERENCE["cx"]) < 3 * result.std["cx"]
+    # the biased reference still lies within 1 % in focal length and 3 px in cy
+    assert abs(result.camera.K[0, 0] - REFERENCE["fx"]) < 0.01 * REFERENCE["fx"]
+    assert abs(result.camera.K[1, 2] - REFERENCE["cy"]) < 3.0
+
+
+def test_reference_corners_are_worse(left_images):
+    """Why fx differs from the README: the classic detector's corners fit their own model worse."""
+    object_points, classic = [], []
+    for path in left_images:
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        _, corners = cv2.findChessboardCorners(gray, (9, 6))
+        classic.append(cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1),
+                                        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)))
+        object_points.append(BOARD.object_points)
+    rms, K, *_ = cv2.calibrateCamera(object_points, classic, (640, 480), np.eye(3), None,
+                                     flags=cv2.CALIB_FIX_ASPECT_RATIO)
+    assert rms == pytest.approx(REFERENCE_RMS_PX, abs=0.02)  # this is how the reference was made
+    assert K[0, 0] == pytest.approx(REFERENCE["fx"], abs=0.5)
+
+
+@pytest.mark.slow
+def test_correlation_matrix_is_a_correlation_matrix(result):
+    C = np.array(result.correlation)
+    assert result.correlation_names == ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    np.testing.assert_allclose(np.diag(C), 1.0, atol=1e-9)
+    np.testing.assert_allclose(C, C.T, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(C) > -1e-9)
+    names = result.correlation_names
+    assert C[names.index("k1"), names.index("k2")] < -0.9  # the classic radial trade-off users read here
+    assert C[names.index("fx"), names.index("fy")] == pytest.approx(1.0)  # fixed aspect
+
+
+@pytest.mark.slow
+def test_folder_service_reports_per_view_and_skips_nothing(stereo_chessboard, tmp_path):
+    for path in sorted(stereo_chessboard.glob("left*.jpg")):
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    result, skipped = calibrate_folder(tmp_path, BOARD, SETTINGS)
+    assert skipped == []
+    assert [v.name for v in result.views][:3] == ["left01.jpg", "left02.jpg", "left03.jpg"]
+    assert max(v.rms_px for v in result.views) < 0.5
+
+
+def opencv_rms(images: list[np.ndarray], pipeline: str) -> tuple[float, int]:
+    """RMS (px) and views of OpenCV's own pipeline on ``images`` (this test's model: fixed aspect, k3)."""
+    corners = []
+    for gray in images:
+        if pipeline == "sb":
+            found, c = cv2.findChessboardCornersSB(gray, (9, 6), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE)
+        else:
+            found, c = cv2.findChessboardCorners(gray, (9, 6), flags=cv2.CALIB_CB_ADAPTIVE_THRESH
+                                                 | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            c = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)) if found else c
+        if found:
+            corners.append(c)
+    rms, *_ = cv2.calibrateCamera([BOARD.object_points] * len(corners), corners, (640, 480), np.eye(3), None,
+                                  flags=cv2.CALIB_FIX_ASPECT_RATIO)
+    return rms, len(corners)
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+@pytest.mark.slow
+def test_rms_no_worse_than_opencvs_best_pipeline(stereo_chessboard, side):
+    """On both cameras, our corners fit better than SB-ACCURACY's and the classic detector's, with every view."""
+    paths = sorted(stereo_chessboard.glob(f"{side}*.jpg"))
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+    ours = calibrate_intrinsics([View(p.name, detect_board(g, BOARD)) for p, g in zip(paths, images, strict=True)],
+                                BOARD, (640, 480), replace(SETTINGS, jackknife=False, cross_validate=False))
+    sb, sb_views = opencv_rms(images, "sb")
+    classic, classic_views = opencv_rms(images, "classic")
+    assert len(ours.views) == 13 >= max(sb_views, classic_views)
+    assert ours.rms_px <= 0.97 * min(sb, classic), (ours.rms_px, sb, classic)
+
+
+@pytest.mark.slow
+def test_verdict_is_check_with_a_consistent_cross_validation(result):
+    """13 VGA views: the halves agree, but the image corners are not pinned to 0.3 px, so the user must confirm."""
+    assert result.cross_validation["status"] == "consistent"
+    assert result.verdict.level in ("check", "reject")
+    assert any("worst projection" in r and "above the tolerance" in r for r in result.verdict.reasons)
+    summary = result.summary()
+    assert summary["verdict"] == result.verdict.to_dict() and result.to_record()["verdict"] == summary["verdict"]
+    assert result.to_record()["cross_validation"]["difference_px"]

@@ -1,0 +1,241 @@
+"""Capture across computers: six node-agent processes of the simulated cell on 127.0.0.1, one studio NodeNetwork.
+
+One module-scoped network and six agent processes (``python -m studio.cli node ... --device sim-cell:snK``);
+two more agents run in this process (``run_agent`` in threads) serving a test cloud of 1 MB and of 10 MB (random,
+so it does not compress) with a clock 12.4 s ahead.
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from backend.core.depth import KINECT_V2, pose_from_row
+from backend.core.depth_cell import PAPER_NODE_POSES, TablePlacement
+from backend.core.errors import InputError
+from backend.core.transforms import transform_points
+from backend.devices import base
+from backend.devices.base import CaptureDevice, DeviceError, Sample, create_device
+from backend.devices.device_spec import parse_device_spec
+from backend.devices.node_agent import run_agent
+from backend.devices.node_network import NodeNetwork
+from studio.cli import main as cli_main
+from tests.conftest import ROOT
+
+ROOT = ROOT
+NODES = [f"sn{i}" for i in range(1, 7)]
+CLOCK_AHEAD_S = 12.4
+BIG_POINTS = {"big1": 70_000, "big10": 700_000}
+"""Points of each in-process test cloud: about 1 MB and 10 MB of frame (14.5 bytes a point, incompressible)."""
+
+
+class NoiseCloud(CaptureDevice):
+    """A test LiDAR: ``points`` random points in a 100 m cube (fixed per seed), 10 reads a second at most.
+
+    Registered only while the module's ``cell`` fixture runs, so other modules see the built-in drivers alone.
+    """
+
+    driver = "test_noise_cloud"
+
+    def __init__(self, points: int, seed: int = 0):
+        self.points, self.seed = points, seed
+
+    def open(self) -> None:
+        rng = np.random.default_rng(self.seed)
+        self.cloud = rng.uniform(-50, 50, (self.points, 3))
+        self.intensity = rng.uniform(0, 255, self.points).astype(np.float32)
+
+    def read(self) -> Sample:
+        time.sleep(0.1)
+        return Sample(time.time(), points=self.cloud, intensity=self.intensity, meta={"seed": self.seed})
+
+    def close(self) -> None:
+        pass
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def wait_for(condition, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(0.1)
+
+
+def ready(network: NodeNetwork, names: list[str]) -> bool:
+    """Every node present, its info and clock offset in."""
+    status = {s.name: s for s in network.nodes()}
+    return all(n in status and status[n].alive and status[n].kind and status[n].clock_offset_s is not None
+               for n in names)
+
+
+@pytest.fixture(scope="module")
+def cell() -> Iterator[tuple[NodeNetwork, dict[str, subprocess.Popen]]]:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(base._DRIVERS, NoiseCloud.driver, NoiseCloud)
+        yield from _cell()
+
+
+def _cell() -> Iterator[tuple[NodeNetwork, dict[str, subprocess.Popen]]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    network = NodeNetwork(listen=[endpoint])
+    network.open()
+    agents = {name: subprocess.Popen([sys.executable, "-m", "studio.cli", "node", "--name", name, "--device",
+                                      f"sim-cell:{name}", "--connect", endpoint, "--rate", "0.5"],
+                                     cwd=ROOT, stderr=subprocess.PIPE, text=True) for name in NODES}
+    stop = threading.Event()
+    threads = [threading.Thread(target=run_agent, daemon=True, kwargs=dict(
+        name=name, device=f'{{"driver": "test_noise_cloud", "points": {points}}}', connect=[endpoint], rate_hz=0.2,
+        voxel_m=None, stop=stop, clock=lambda: time.time() + CLOCK_AHEAD_S)) for name, points in BIG_POINTS.items()]
+    for thread in threads:
+        thread.start()
+    try:
+        wait_for(lambda: ready(network, NODES + list(BIG_POINTS)), 90, "eight nodes")
+        yield network, agents
+    finally:
+        stop.set()
+        for agent in agents.values():
+            if agent.poll() is None:
+                agent.send_signal(signal.SIGTERM)
+        codes = {name: agent.wait(20) for name, agent in agents.items()}
+        for thread in threads:
+            thread.join(10)
+        network.close()
+    # every agent not killed by a test ended cleanly on SIGTERM
+    assert all(code in (0, -signal.SIGKILL) for code in codes.values()), codes
+
+
+@pytest.mark.slow
+def test_presence_lists_every_node_with_its_info(cell) -> None:
+    network, _ = cell
+    status = {s.name: s for s in network.nodes()}
+    assert {name for name, s in status.items() if s.alive} >= set(NODES)
+    for name in NODES:
+        assert status[name].kind == "depth" and status[name].device == f"sim-cell:{name}"
+        assert status[name].info["intrinsics"] == KINECT_V2.to_dict()
+        assert abs(status[name].clock_offset_s) <= status[name].clock_rtt_s / 2 + 1e-4  # one host: truth 0
+    assert status["big1"].kind == "lidar"
+
+
+@pytest.mark.slow
+def test_capture_from_all_six(cell) -> None:
+    network, _ = cell
+    assert network.set_sim_placements([TablePlacement("table1", (9.0, 1.5))]) == NODES
+    with pytest.raises(InputError, match="node sn1: table placements refused: .*table9") as refused:
+        network.set_sim_placements([TablePlacement("table9", (9.0, 1.5))])
+    assert refused.value.input == "placements"
+    frames, failures = network.capture_all(NODES)
+    assert failures == {} and sorted(frames) == NODES
+    for name, frame in frames.items():
+        assert frame.depth.shape == (KINECT_V2.height, KINECT_V2.width)
+        index = frame.meta["pixel_index"]  # the node's valid pixels; their points at their depth (mm steps)
+        np.testing.assert_allclose(frame.points[:, 2], frame.depth.ravel()[index], atol=1e-6)
+        np.testing.assert_array_equal(frame.intensity, frame.meta["amplitude"].ravel()[index])
+        # ground truth: in the world frame of the node's true pose, the floor is at z = 0
+        z_world = transform_points(pose_from_row(PAPER_NODE_POSES[name]), frame.points)[:, 2]
+        assert np.mean(np.abs(z_world) < 0.03) > 0.3, name
+        assert frame.meta["node"] == name and abs(frame.meta["studio_time_s"] - time.time()) < 30
+        assert [p["table"] for p in frame.meta["placements"]] == ["table1"]
+
+
+@pytest.mark.slow
+def test_streams_show_bandwidth_and_a_preview(cell) -> None:
+    network, _ = cell
+    wait_for(lambda: all(s.frames >= 2 for s in network.nodes() if s.name in NODES), 30, "two streamed frames each")
+    status = {s.name: s for s in network.nodes()}
+    for name in NODES:
+        assert 20_000 < status[name].bandwidth_bps < 5_000_000  # ~0.35 MB frames at 0.5 Hz
+        preview = network.latest_preview(name)
+        assert preview.meta["voxel_m"] == 0.02 and 1000 < len(preview.points) < 217_088
+
+
+@pytest.mark.slow
+def test_one_and_ten_megabyte_payloads_arrive_intact(cell) -> None:
+    network, _ = cell
+    for name, points in BIG_POINTS.items():
+        rng = np.random.default_rng(0)
+        truth = rng.uniform(-50, 50, (points, 3))
+        frame = network.capture(name, timeout_s=30)  # query/reply
+        assert np.abs(frame.points - truth).max() <= 0.00005 + 1e-9
+        wait_for(lambda n=name: network.latest_preview(n) is not None, 20, f"a streamed frame of {name}")
+        streamed = network.latest_preview(name)  # publish/subscribe, full frames (voxel_m None)
+        assert len(streamed.points) == points and np.abs(streamed.points - truth).max() <= 0.00005 + 1e-9
+        assert next(s for s in network.nodes() if s.name == name).dropped == 0
+
+
+@pytest.mark.slow
+def test_a_skewed_clock_is_estimated_within_5_ms(cell) -> None:
+    network, _ = cell
+    estimate = network.estimate_clock("big1")
+    assert abs(estimate.offset_s - CLOCK_AHEAD_S) < 0.005 and estimate.rtt_s < 0.05
+    assert estimate.warning == "node big1's clock is 12.4 s ahead"
+    frame = network.capture("big1", timeout_s=30)
+    assert abs(frame.meta["studio_time_s"] - time.time()) < 5  # the node's stamp brought onto the studio's clock
+
+
+@pytest.mark.slow
+def test_a_node_killed_mid_capture_is_named_and_the_rest_kept(cell) -> None:
+    network, agents = cell
+    victim = agents["sn6"]
+    victim.send_signal(signal.SIGSTOP)  # it can no longer answer: the capture waits on it
+    result: dict = {}
+    capture = threading.Thread(target=lambda: result.update(
+        zip(("frames", "failures"), network.capture_all(NODES, timeout_s=20), strict=True)))
+    capture.start()
+    time.sleep(1.0)
+    victim.kill()
+    capture.join(30)
+    assert sorted(result["frames"]) == NODES[:5]
+    assert result["failures"] == {"sn6": "node sn6 disappeared during the capture"}
+    wait_for(lambda: not next(s for s in network.nodes() if s.name == "sn6").alive, 10, "sn6 gone")
+    with pytest.raises(InputError, match=r"node sn6 left the network .* ago") as gone:
+        network.capture("sn6")
+    assert gone.value.input == "sn6"
+    present = "big1, big10, sn1, sn2, sn3, sn4, sn5"
+    with pytest.raises(InputError, match=f"node sn9 is not on the network; nodes present: {present}$"):
+        network.capture("sn9")
+
+
+def test_bad_device_spec_or_endpoint_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    for args, message in ((["--device", "kinect3"], "unknown device spec 'kinect3'; expected one of sim-cell:NODE"),
+                          (["--device", "sim-cell:sn1", "--connect", "udp:nowhere"],
+                           "connect: endpoint 'udp:nowhere': expected PROTOCOL/ADDRESS")):
+        assert cli_main(["node", "--name", "sn1", *args]) == 2
+        stderr = capsys.readouterr().err
+        assert len(stderr.strip().splitlines()) == 1 and message in stderr, stderr
+
+
+def test_device_specs() -> None:
+    assert parse_device_spec("sim-cell:sn1") == {"driver": "sim_depth", "node": "sn1"}
+    assert parse_device_spec("kinect2") == {"driver": "kinect2"}
+    assert parse_device_spec("realsense:0123") == {"driver": "realsense", "serial": "0123"}
+    assert parse_device_spec("depth-files:/data/sn1") == {"driver": "depth_files", "path": "/data/sn1"}
+    assert parse_device_spec('{"driver": "velodyne", "port": 2368}') == {"driver": "velodyne", "port": 2368}
+    for bad, message in (("kinect3", "unknown device spec 'kinect3'"), ("sim-cell:", "lacks its node"),
+                         ("{nope", "not valid JSON"), ('{"port": 1}', 'naming its "driver"')):
+        with pytest.raises(InputError, match=message) as error:
+            parse_device_spec(bad)
+        assert error.value.input == "device"
+
+
+@pytest.mark.slow
+def test_a_node_is_a_rig_sensor_through_the_node_driver(cell) -> None:
+    with create_device({"driver": "node", "node": "sn2"}) as device:  # the studio's open network
+        sample = device.read()
+    assert sample.depth.shape == (KINECT_V2.height, KINECT_V2.width) and sample.meta["node"] == "sn2"
+    assert sample.timestamp_s == sample.meta["studio_time_s"]
+    with pytest.raises(DeviceError, match="node sn7 did not appear within 0.2 s; nodes present: big1"):
+        create_device({"driver": "node", "node": "sn7", "timeout_s": 0.2}).open()
