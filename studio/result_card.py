@@ -17,7 +17,7 @@ import numpy as np
 
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
-from backend.core.result import TransformResult
+from backend.core.result import StoredResult, TransformResult
 from backend.core.transforms import to_xyz_ypr
 from studio.context import StudioContext
 from studio.verdict_view import ConfirmCheck, verdict_markdown
@@ -57,8 +57,7 @@ def residuals_markdown(residuals: dict[str, Any]) -> str:
     return " · ".join(text for key, value in residuals.items() if (text := _statistic(key, value)) is not None)
 
 
-def _intrinsics_markdown(record: dict[str, Any]) -> str:
-    camera = record["camera"]
+def _intrinsics_markdown(camera: dict[str, Any]) -> str:
     K = np.array(camera["K"])
     dist = ", ".join(f"{d:.4g}" for d in camera["dist"])
     return (f"{camera['model']} {camera['width']}×{camera['height']} · fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f}, "
@@ -67,25 +66,23 @@ def _intrinsics_markdown(record: dict[str, Any]) -> str:
 
 def card_markdown(record: dict[str, Any], accepted_id: str | None) -> str:
     """The card of any stored result (markdown)."""
-    status = "✅ accepted" if record["id"] == accepted_id else "not accepted"
-    converged = "" if record.get("converged", True) else " · ⚠️ **not converged**: it cannot be accepted"
-    method = f" · {record['method']}" if record.get("method") else ""
-    lines = [f"**{record['id']}** ({status}) · {record.get('kind')}{method} · {record.get('seconds', 0.0):.2f} s"
-             f"{converged}", verdict_markdown(record)]
-    if record.get("kind") == "intrinsics":
-        lines.append(_intrinsics_markdown(record))
-    if isinstance(record.get("rms_px"), int | float):
-        lines.append(f"reprojection RMS **{record['rms_px']:.3f} px**")
-    transforms = rig_service.record_transforms(record)
-    if "transform" in record:  # a swept scanner's geometry, inside its sensor
-        transforms.append(TransformResult.from_record(record["transform"]))
-    for transform in transforms:
+    result = StoredResult(record)
+    status = "✅ accepted" if result.id == accepted_id else "not accepted"
+    converged = "" if result.converged else " · ⚠️ **not converged**: it cannot be accepted"
+    method = f" · {result.method}" if result.method else ""
+    lines = [f"**{result.id}** ({status}) · {result.kind}{method} · {result.seconds:.2f} s{converged}",
+             verdict_markdown(result.verdict)]
+    if result.camera is not None:
+        lines.append(_intrinsics_markdown(result.camera))
+    if result.rms_px is not None:
+        lines.append(f"reprojection RMS **{result.rms_px:.3f} px**")
+    for transform in result.transforms:
         lines.append(transform_markdown(transform))
         if statistics := residuals_markdown(transform.residuals):
             lines.append(statistics)
-    if not transforms and (statistics := residuals_markdown(record.get("residuals", {}))):
+    if not result.transforms and (statistics := residuals_markdown(result.residuals)):
         lines.append(statistics)
-    lines += [f"⚠️ {warning}" for warning in record.get("warnings", [])]
+    lines += [f"⚠️ {warning}" for warning in result.warnings]
     return "\n\n".join(lines)
 
 

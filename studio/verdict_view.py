@@ -7,8 +7,6 @@ confirm=...)``. A ``reject`` cannot be accepted at all; the session refuses it w
 
 from __future__ import annotations
 
-from typing import Any
-
 import viser
 
 from backend.core.verdict import Verdict
@@ -21,9 +19,8 @@ ADVICE = {
 }
 
 
-def verdict_markdown(record: dict[str, Any]) -> str:
+def verdict_markdown(verdict: Verdict) -> str:
     """``Verdict: <level>`` with its advice, then one line per reason (markdown)."""
-    verdict = Verdict.from_record(record)
     lines = [f"Verdict: {BADGES[verdict.level]}. {ADVICE[verdict.level]}".rstrip()]
     lines += [f"- {reason}" for reason in verdict.reasons]
     return "\n".join(lines)

@@ -179,3 +179,101 @@ def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> 
     corr = np.where(np.isfinite(corr), np.clip(corr, -1, 1), 0.0)
     np.fill_diagonal(corr, 1.0)
     return np.outer(std, std) * corr
+
+
+EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node")
+"""Result kinds whose transforms are edges between rig frames (a sweep's geometry is inside its sensor)."""
+
+
+@dataclass(frozen=True)
+class StoredResult:
+    """A result from the session's history as every consumer reads it (the rig, the result card, the report, the
+    CLI), whatever solver made it and whenever it was stored: they ask it, and never look for keys in the record.
+
+    Intrinsics keep their camera model beside this (:attr:`camera`); every other payload stays in :attr:`record`.
+    """
+
+    record: dict[str, Any]
+
+    @property
+    def kind(self) -> str:
+        return str(self.record.get("kind"))
+
+    @property
+    def id(self) -> str:
+        return str(self.record.get("id"))
+
+    @property
+    def sensor(self) -> str | None:
+        return self.record.get("sensor")
+
+    @property
+    def method(self) -> str:
+        return str(self.record.get("method") or "")
+
+    @property
+    def seconds(self) -> float:
+        return float(self.record.get("seconds", 0.0))
+
+    @property
+    def converged(self) -> bool:
+        """False only when the solver said so (a record without the flag, e.g. hand-set, counts as converged)."""
+        return bool(self.record.get("converged", True))
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.record.get("warnings", []))
+
+    @property
+    def verdict(self) -> Verdict:
+        """The stored verdict (one per camera folded into one for a multi-camera result); ``check`` without one."""
+        return Verdict.from_record(self.record)
+
+    @property
+    def residuals(self) -> dict[str, Any]:
+        """The result's own residual statistics (each transform carries its own too)."""
+        return dict(self.record.get("residuals", {}))
+
+    @property
+    def rms_px(self) -> float | None:
+        """The reprojection RMS (px) of a result that has one (intrinsics)."""
+        value = self.record.get("rms_px")
+        return float(value) if isinstance(value, int | float) else None
+
+    @property
+    def camera(self) -> dict[str, Any] | None:
+        """The camera model an intrinsics result solved (``model``, ``width``, ``height``, ``K``, ``dist``)."""
+        return self.record.get("camera") if self.kind == "intrinsics" else None
+
+    @property
+    def edges(self) -> list[TransformResult]:
+        """The transforms it holds between rig frames (one per camera for a multi-camera result; none for
+        intrinsics or a sweep geometry), with their covariances, verdicts and residuals."""
+        if self.kind not in EDGE_KINDS:
+            return []
+        if "transforms" in self.record:  # multicam: one per camera
+            return [TransformResult.from_record(t) for t in self.record["transforms"].values()]
+        if "T_parent_child" not in self.record:
+            return [TransformResult.from_record(t) for t in _legacy_transforms(self.record)]
+        return [TransformResult.from_record(self.record)]
+
+    @property
+    def transforms(self) -> list[TransformResult]:
+        """Every transform it holds: its :attr:`edges`, or a swept scanner's geometry inside its sensor."""
+        if self.kind == "sweep" and "transform" in self.record:
+            return [TransformResult.from_record(self.record["transform"])]
+        return self.edges
+
+
+def _legacy_transforms(record: dict[str, Any]) -> list[dict[str, Any]]:
+    """Records stored before every solver returned a :class:`TransformResult` (their transform under its own
+    name), read as transform records so sessions accepted then still form their tree."""
+    kind, common = record["kind"], {"converged": record.get("converged", False), "method": record.get("method", "")}
+    if kind == "multicam":
+        return [{**common, "kind": kind, "parent": record["reference"], "child": name, "T_parent_child": T,
+                 "covariance": record["covariance"][name]}
+                for name, T in record["T_ref_cam"].items() if name != record["reference"]]
+    parent, T = ((record["target"], record["T_target_source"]) if kind == "lidar_lidar"
+                 else (record["camera"], record["T_camera_lidar"]))
+    return [{**common, "kind": kind, "parent": parent, "child": record["sensor"], "T_parent_child": T,
+             "covariance": record.get("covariance")}]

@@ -19,11 +19,11 @@ import numpy as np
 from backend.calib.board.detection import Detection
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment
 from backend.calib.rig.graph import EdgeResidual, RigTree
-from backend.calib.rig.service import record_transforms, solve_rig
+from backend.calib.rig.service import solve_rig
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.result import TransformResult
+from backend.core.result import StoredResult, TransformResult
 from backend.core.transforms import transform_points
 from backend.store.schema import Acceptance
 from backend.store.session import Session
@@ -128,7 +128,7 @@ def gather(session: Session) -> ReportData:
                "captures": len(session.captures(f.name)) if f.kind != "frame" else 0}
               for f in rig.frames.values() if f.parent is not None]
     cameras, missing = [], {}
-    intrinsics = {r["sensor"]: r for r in accepted if r.get("kind") == "intrinsics"}
+    intrinsics = {r["sensor"]: r for r in accepted if StoredResult(r).kind == "intrinsics"}
     for camera in rig.sensors("camera"):
         if camera.name in intrinsics:
             cameras.append(camera_report(session, intrinsics[camera.name]))
@@ -139,8 +139,8 @@ def gather(session: Session) -> ReportData:
                                     f"no accepted intrinsics result ({count} in the history)" if count else
                                     "no intrinsics solve yet")
     edges = [edge_report(session, residual) for residual in tree.edges if residual.edge.result_id is not None]
-    geometries = [EdgeReport(None, TransformResult.from_record(r["transform"]), r) for r in accepted
-                  if r.get("kind") == "sweep" and "transform" in r]
+    geometries = [EdgeReport(None, transform, r) for r in accepted if StoredResult(r).kind == "sweep"
+                  for transform in StoredResult(r).transforms]
     return ReportData(session=info, generated_at=time.time(), frames=frames, tree=tree, cameras=cameras,
                       cameras_without_intrinsics=missing, edges=edges, geometries=geometries,
                       acceptance_log=acceptance_log)
@@ -198,7 +198,7 @@ def edge_report(session: Session, residual: EdgeResidual) -> EdgeReport:
     """An accepted edge with its stored result (and, for LiDAR-LiDAR, its cloud-to-cloud distances)."""
     record = session.result(residual.edge.result_id)
     edge = residual.edge
-    result = next(t for t in record_transforms(record) if (t.parent, t.child) == (edge.parent, edge.child))
+    result = next(t for t in StoredResult(record).edges if (t.parent, t.child) == (edge.parent, edge.child))
     report = EdgeReport(residual, result, record)
     if result.kind == "lidar_lidar":
         report.c2c_m, report.c2c_note = c2c_distances(session, result, record.get("inputs", []))

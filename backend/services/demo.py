@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
+from backend.calib._session import session_board
 from backend.calib.board.detection import detect_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
@@ -106,7 +107,7 @@ def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Sessi
     for camera in rig.sensors("camera"):
         camera.intrinsics = None
     session = store.create(DEMO_NAME, rig=rig, board=DEMO_BOARD, title="Simulated rig (known ground truth)")
-    board = intrinsics_service.session_board(session)
+    board = session_board(session)
     samples, detections = [], []
     with create_device(session.rig.get(DEMO_CAMERA).device) as device:
         for i in range(views):
@@ -136,7 +137,7 @@ def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:
     pairs of theirs: frame ``i`` of each sees board pose ``i`` (read in step, so no waiting for the board)."""
     camera_settings = {**session.rig.get(DEMO_CAMERA).device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES}
     lidar_settings = {**session.rig.get(DEMO_LIDAR).device, "board_poses": PAIR_BOARD_POSES}
-    board = intrinsics_service.session_board(session)
+    board = session_board(session)
     with create_device(camera_settings) as camera, create_device(lidar_settings) as lidar:
         device = f"{camera.describe()} + {lidar.describe()}"
         for i in range(DEMO_PAIRS):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backend.calib._session import session_board
 from backend.calib.board.coverage import PARAM_NAMES, Coverage, enough_data
 from backend.calib.board.detection import Detection, detect_board
 from backend.calib.board.live_detection import LiveDetector
@@ -92,7 +93,7 @@ class LiveCapture(SensorStream):
     def __init__(self, session: Session, sensor: str, callbacks: LiveCallbacks, *, auto_capture: bool = True,
                  max_preview_hz: float = 15.0):
         super().__init__(session, sensor, callbacks.status, max_preview_hz)
-        self.board = intrinsics_service.session_board(session)
+        self.board = session_board(session)
         self.callbacks = callbacks
         self.auto_capture = auto_capture
         self.coverage = coverage_from_captures(session, sensor, self.board)

@@ -2,7 +2,7 @@
 
 Live capture keeps the scan a user chose; an import keeps every ``every``-th scan of a
 recording (within a bag's time window), up to ``limit``, each through the ordinary cloud
-path (:func:`backend.calib.lidar_lidar.service.store_cloud`), so it is a capture like any other.
+path (:func:`backend.calib._session.store_cloud`), so it is a capture like any other.
 A recording that cannot be opened (missing file, no such topic, unsupported type) fails
 before anything is stored. A message that cannot be converted is skipped and reported; a
 file found damaged part-way ends the import, keeping the scans read before (they are
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from backend.calib.lidar_lidar.service import check_lidar, store_cloud
+from backend.calib._session import check_lidar, store_cloud
 from backend.core.errors import InputError, shorten
 from backend.core.result import ProgressCallback, no_progress
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from backend.calib._session import session_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig_service
@@ -110,7 +111,7 @@ class IntrinsicsStep:
     def _select_camera(self) -> None:
         self.stop_live()
         session, sensor = self.ctx.session, self.sensor
-        board = None if sensor is None else intrinsics_service.session_board(session)
+        board = None if sensor is None else session_board(session)
         coverage = None if sensor is None else coverage_from_captures(session, sensor, board)
         self._show_coverage(coverage)
         last = None if sensor is None else last_capture(session, sensor)
@@ -188,7 +189,7 @@ class IntrinsicsStep:
         if now - self._last_preview < 0.1:  # 10 Hz is plenty for the panel and keeps the socket free
             return
         self._last_preview = now
-        board = self.live.board if self.live else intrinsics_service.session_board(self.ctx.session)
+        board = self.live.board if self.live else session_board(self.ctx.session)
         heatmap = frame.coverage.heatmap if frame.coverage else None
         self.preview.image = plots.live_view(frame.image, board, frame.detection, heatmap)
         self.ctx.scene.show_camera_image(self.sensor, frame.image)
@@ -247,7 +248,7 @@ class IntrinsicsStep:
         self.history.value = result_id
         self._show_result(result_id)
         self._show_coverage(self.live.coverage if self.live else coverage_from_captures(
-            self.ctx.session, self.sensor, intrinsics_service.session_board(self.ctx.session)))
+            self.ctx.session, self.sensor, session_board(self.ctx.session)))
 
     def _show_result(self, result_id: str) -> None:
         session = self.ctx.session
@@ -268,7 +269,7 @@ class IntrinsicsStep:
         self.rms_plot.image = plots.view_rms_bars([v["image"] for v in views], [v["rms_px"] for v in views],
                                                   [v["used"] for v in views])
         self.uncertainty_plot.image = plots.uncertainty_map(record["projection_uncertainty"]["sigma_px"])
-        board = intrinsics_service.session_board(session)
+        board = session_board(session)
         poses = [np.array(v["T_camera_board"]) for v in views if v["used"] and v["T_camera_board"]]
         self.ctx.scene.show_boards("intrinsics", session.rig, self.sensor, board, poses)
 

@@ -30,14 +30,14 @@ from urllib.parse import quote, urlencode
 
 import numpy as np
 
+from backend.calib._session import lidar_names
 from backend.calib.lidar_camera import capture as pairs_service
 from backend.calib.lidar_camera import service as lidar_camera_service
 from backend.calib.lidar_camera.service import PairData
-from backend.calib.lidar_lidar import service as lidar_service
-from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
 from backend.core.projection import colourise_cloud
+from backend.core.result import StoredResult
 from backend.core.rig import edge_slot
 from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
@@ -153,7 +153,7 @@ class LidarCameraStep:
 
     def _on_session(self, session) -> None:
         cameras = [f.name for f in session.rig.sensors("camera")]
-        lidars = lidar_service.lidar_names(session.rig)
+        lidars = lidar_names(session.rig)
         self.camera.options, self.lidar.options = cameras or [NONE], lidars or [NONE]
         self.camera.value, self.lidar.value = self.camera.options[0], self.lidar.options[0]
         self._select()
@@ -265,7 +265,7 @@ class LidarCameraStep:
         if pair is None:
             return []
         results = self.ctx.session.results(pair[1], lidar_camera_service.KIND)
-        return [r["id"] for r in reversed(results) if rig_service.record_transforms(r)[0].parent == pair[0]]
+        return [r["id"] for r in reversed(results) if StoredResult(r).edges[0].parent == pair[0]]
 
     def _show_result(self, result_id: str | None, move_sliders: bool) -> None:
         session, pair = self.ctx.session, self.pair
@@ -276,7 +276,7 @@ class LidarCameraStep:
             return
         record = session.result(result_id)
         if move_sliders:
-            self.editor.set(rig_service.record_transforms(record)[0].T_parent_child)
+            self.editor.set(StoredResult(record).edges[0].T_parent_child)
         self.card.show(record, session.accepted(edge_slot(*pair)))
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
             stored = name in record.get("files", [])  # a transform set by hand has none

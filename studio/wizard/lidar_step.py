@@ -31,6 +31,7 @@ import numpy as np
 import viser
 from scipy.spatial import cKDTree
 
+from backend.calib._session import lidar_names, store_cloud
 from backend.calib.lidar_lidar import service as lidar_service
 from backend.calib.lidar_lidar.service import LidarLidarSettings
 from backend.calib.rig import service as rig_service
@@ -167,7 +168,7 @@ class LidarStep:
         session = self.ctx.session
         if session is None:
             return []
-        return lidar_service.lidar_names(session.rig)
+        return lidar_names(session.rig)
 
     def _close(self) -> None:
         """Leave the open session: stop its live clouds and let go of its LiDAR-to-LiDAR clouds and sensor nodes."""
@@ -336,7 +337,7 @@ class LidarStep:
             if sample is None:
                 continue
             try:
-                record = lidar_service.store_cloud(session, name, sample, device=thread.device_name)
+                record = store_cloud(session, name, sample, device=thread.device_name)
             except InputError as exc:
                 self.ctx.notify("Cloud not kept", exc.message, error=True)
                 continue

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib._session import store_cloud
 from backend.core.voxels import voxel_downsample
 from backend.devices.base import create_device
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
@@ -90,7 +90,7 @@ def test_live_thread_streams_and_accumulation_is_bounded(tmp_path):
         assert live.rate_hz > 0  # it streams (rates are measured in benchmarks/live_clouds.py)
         # What "Capture clouds" stores: the latest full scan, not the voxel map.
         sample = live.latest
-        record = lidar_service.store_cloud(session, "lidar_top", sample, device=live.device_name)
+        record = store_cloud(session, "lidar_top", sample, device=live.device_name)
         assert record.n_points == len(sample.points)
     finally:
         live.stop()
@@ -103,7 +103,7 @@ def test_disconnect_is_reported_and_captures_kept(tmp_path):
     live = LiveClouds(session, "lidar_top", recorder.callbacks(), max_hz=50)
     live.start()
     recorder.wait_frames(1)
-    lidar_service.store_cloud(session, "lidar_top", live.latest, device=live.device_name)
+    store_cloud(session, "lidar_top", live.latest, device=live.device_name)
     assert recorder.failed.wait(30), "the disconnect was never reported"
     live.stop()
     assert not live.running
@@ -173,7 +173,7 @@ def test_serial_lidar_unplugged_live_shows_reconnecting_and_resumes(tmp_path):
     live.start()
     try:
         recorder.wait_frames(3)
-        kept = lidar_service.store_cloud(session, "scanner_2d", live.latest, device=live.device_name)
+        kept = store_cloud(session, "scanner_2d", live.latest, device=live.device_name)
         assert live.device_status == "streaming" and live.device_name == "ydlidar sim @512000"
         simulator = live.device.simulator
         simulator.unplug()

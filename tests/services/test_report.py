@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from markupsafe import escape
 
 from backend.api.app import create_app
+from backend.calib._session import store_cloud
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.lidar_camera import service as lidar_camera_service
@@ -40,7 +41,7 @@ def build_report_session(template: Path, root: Path, *, lidar_camera: bool = Tru
     for lidar in ("lidar_front", "lidar_top"):
         settings = {k: v for k, v in session.rig.get(lidar).device.items() if k not in ("board_poses", "board_hold_s")}
         with create_device(settings) as device:
-            scans[lidar] = lidar_lidar_service.store_cloud(session, lidar, device.read(), device=device.describe()).id
+            scans[lidar] = store_cloud(session, lidar, device.read(), device=device.describe()).id
     result_id, _ = lidar_lidar_service.solve_session(session, "lidar_front", "lidar_top",
                                                      pairs=[(scans["lidar_front"], scans["lidar_top"])])
     rig_service.accept(session, result_id, confirm=True)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import viser
 
+from backend.calib._session import store_cloud
 from backend.calib.lidar_lidar import service
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings
 from backend.core.transforms import from_xyz_ypr
@@ -31,7 +32,7 @@ def step(tmp_path, free_port):
     session = SessionStore(tmp_path).create("lidars", rig=rig)
     for sensor in (SOURCE, TARGET):
         with create_device(demo_rig().get(sensor).device) as device:
-            service.store_cloud(session, sensor, device.read(), device=device.describe())
+            store_cloud(session, sensor, device.read(), device=device.describe())
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     jobs = JobRunner()
     ctx = StudioContext(server, SessionStore(tmp_path), jobs, RigScene(server))

@@ -18,10 +18,9 @@ from backend.api.schemas import (
     LidarCameraSolveRequest,
 )
 from backend.api.uploads import UploadRoute, file_name, read_image_upload, save_upload, upload_folder, upload_limit
-from backend.calib.intrinsics.service import check_camera
+from backend.calib._session import check_camera, check_lidar
 from backend.calib.lidar_camera import capture as pairs_service
 from backend.calib.lidar_camera import service
-from backend.calib.lidar_lidar.service import check_lidar
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB, MAX_IMAGE_PIXELS

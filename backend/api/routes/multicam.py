@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Response
 
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, JobStatus, MulticamBagImport, MulticamSetCapture, MulticamSolveRequest
+from backend.calib._session import result_of
 from backend.calib.multicam import capture as capture_service
 from backend.calib.multicam import service
 from backend.calib.rig import service as rig_service
@@ -66,9 +67,7 @@ def solve(body: MulticamSolveRequest, session: deps.SessionDep, jobs: deps.JobsD
 def accept(body: AcceptRequest, session: deps.SessionDep) -> dict[str, Any]:
     """Accept a multicam result: each camera becomes an edge from the reference in the rig graph, refined lenses
     become the cameras' (an older result reverts); the answer is the session with the rig update."""
-    record = session.result(body.result_id)
-    if record.get("kind") != service.KIND:
-        raise InputError(f"result {body.result_id} is a {record.get('kind')} result, not {service.KIND}", "result")
+    result_of(session, service.KIND, body.result_id)
     update = rig_service.accept(session, body.result_id, confirm=body.confirm, revert=body.revert)
     return session.info() | {"rig_update": update.to_dict()}
 

@@ -25,6 +25,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from pydantic import ValidationError
 
+from backend.calib._session import result_of
 from backend.calib.rig import service as rig_service
 from backend.core.depth import DepthIntrinsics, pose_from_row, stored_intrinsics
 from backend.core.depth_cell import CellLayout, Cross, TableSpec, default_cell_layout
@@ -293,10 +294,7 @@ def solve_node(session: Session, node: str, progress: ProgressCallback = no_prog
 
 def accept_node(session: Session, node: str, result_id: str, confirm: bool = False) -> rig_service.RigUpdate:
     """Accept a ``depth_node`` result of ``node`` into the rig (a ``check`` verdict needs ``confirm``)."""
-    record = session.result(result_id)
-    if record.get("kind") != "depth_node" or record.get("sensor") != node:
-        raise InputError(f"result {result_id} is a {record.get('kind')} result of {record.get('sensor')}, not a "
-                         f"depth_node result of {node}", "result")
+    result_of(session, "depth_node", result_id, node)
     return rig_service.accept(session, result_id, confirm=confirm)
 
 

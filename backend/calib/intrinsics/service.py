@@ -15,6 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from backend.calib._session import check_camera, require_kind, result_of, session_board
 from backend.calib.board.detection import Detection, detect_board
 from backend.calib.intrinsics.models import solve_auto
 from backend.calib.intrinsics.solver import IntrinsicsResult, IntrinsicsSettings, View
@@ -43,13 +44,6 @@ class ImportReport:
     added: list[CaptureRecord] = field(default_factory=list)
     skipped: list[dict[str, str]] = field(default_factory=list)
     """``{"input": file name, "message": why}`` for images that were not stored."""
-
-
-def session_board(session: Session) -> BoardSpec:
-    if not session.board:
-        raise InputError(f"session {session.name!r} has no board spec yet; set one such as checkerboard:9x6:0.025",
-                         "board")
-    return BoardSpec.parse(session.board)
 
 
 def _no_board_message(name: str, board: BoardSpec) -> str:
@@ -135,12 +129,6 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     return report
 
 
-def check_camera(session: Session, camera: str) -> None:
-    """Refuse ``camera`` unless the rig holds it as a camera (a LiDAR has no intrinsics, images or board views)."""
-    if session.rig.get(camera).kind != "camera":
-        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
-
-
 def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
     """Views (captures with a detection) of one camera (those of ``capture_ids`` if given), and its image size."""
     check_camera(session, sensor)
@@ -169,19 +157,13 @@ def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, c
 def intrinsics_result(session: Session, sensor: str, result_id: str) -> dict[str, Any]:
     """The stored intrinsics result ``result_id`` of the camera ``sensor``; raises :class:`InputError`
     naming the result when it belongs to another sensor or is another kind."""
-    record = session.result(result_id)
-    if record["sensor"] != sensor:
-        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    if record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    return record
+    return result_of(session, KIND, result_id, sensor)
 
 
 def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
     """Write a stored intrinsics result into the rig's camera: the effect of accepting it
     (:func:`backend.calib.rig.service.accept`, slot ``"<camera>/intrinsics"``)."""
-    if record.get("kind") != KIND:
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    require_kind(record, KIND)
     rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
 
 

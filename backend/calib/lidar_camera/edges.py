@@ -66,9 +66,9 @@ from backend.calib.lidar_camera.edge_search import CoarseSearchSettings, coarse_
 from backend.calib.lidar_camera.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
 from backend.calib.lidar_camera.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.calib.lidar_camera.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
-from backend.calib.lidar_lidar.gicp import check_cloud
 from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.camera_inverse import visible_radius
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.result import (

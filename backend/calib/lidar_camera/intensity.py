@@ -67,8 +67,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from backend.calib.lidar_camera.edges import in_view
-from backend.calib.lidar_lidar.gicp import check_cloud
 from backend.core.camera import CameraIntrinsics, check_camera_image
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.result import (

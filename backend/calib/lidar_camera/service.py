@@ -22,8 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.intrinsics.service import check_camera
+from backend.calib._session import check_camera, check_lidar, result_of, session_board
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
 from backend.calib.lidar_camera.checks import compare_methods
 from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
@@ -39,13 +38,11 @@ from backend.calib.lidar_camera.target import (
     solve_target,
 )
 from backend.calib.lidar_lidar.accumulation import accumulate_scans
-from backend.calib.lidar_lidar.service import check_lidar
-from backend.calib.rig.service import record_transforms
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
-from backend.core.result import TRANSFORM_PARAMETERS, ProgressCallback, TransformResult, no_progress
+from backend.core.result import TRANSFORM_PARAMETERS, ProgressCallback, StoredResult, TransformResult, no_progress
 from backend.core.transforms import check_transform
 from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
@@ -183,12 +180,7 @@ def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> 
 def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:
     """The stored record of a LiDAR-to-camera result of ``lidar``; :class:`InputError` naming ``result`` when it is
     another kind or another sensor's."""
-    record = session.result(result_id)
-    if record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    if record["sensor"] != lidar:
-        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {lidar}", "result")
-    return record
+    return result_of(session, KIND, result_id, lidar)
 
 
 def store_manual(session: Session, camera: str, lidar: str, T_camera_lidar: np.ndarray, *,
@@ -426,7 +418,7 @@ def camera_intrinsics(session: Session, camera: str) -> CameraIntrinsics:
 def result_transform(session: Session, lidar: str, result_id: str) -> np.ndarray:
     """The ``T_camera_lidar`` (4x4, m) of a stored LiDAR-to-camera result of ``lidar`` (records stored before the
     results were :class:`~backend.core.result.TransformResult` ones included)."""
-    return record_transforms(lidar_camera_record(session, lidar, result_id))[0].T_parent_child
+    return StoredResult(lidar_camera_record(session, lidar, result_id)).edges[0].T_parent_child
 
 
 def solve_session(session: Session, camera: str, lidar: str, *, method: str = "target",
@@ -447,7 +439,7 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
     intrinsics = camera_intrinsics(session, camera)
     T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
     loaded = load_pairs(session, camera, lidar, image_ids)
-    board = intrinsics_service.session_board(session) if method == "target" else None
+    board = session_board(session) if method == "target" else None
     result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,
                          translation_prior_m=translation_prior_m, cross_check=cross_check,
                          progress=lambda fraction, message: progress(0.9 * fraction, message))

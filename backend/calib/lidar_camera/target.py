@@ -40,9 +40,9 @@ from scipy.optimize import least_squares
 
 from backend.calib.board.detection import detect_board
 from backend.calib.board.pose import board_pose
-from backend.calib.lidar_lidar.gicp import check_cloud
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.result import (
     ProgressCallback,

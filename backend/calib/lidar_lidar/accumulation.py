@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from backend.calib.lidar_lidar.gicp import check_cloud
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.transforms import transform_points
 

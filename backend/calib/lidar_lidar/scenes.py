@@ -36,7 +36,6 @@ from backend.calib.lidar_lidar.gicp import (
     LidarLidarSettings,
     SceneResult,
     assemble_result,
-    check_cloud,
     distance_statistics,
     evaluate_alignment,
     fit_warnings,
@@ -48,6 +47,7 @@ from backend.calib.lidar_lidar.gicp import (
     register_pair,
     sector_jackknife,
 )
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.result import (
     ProgressCallback,

@@ -11,7 +11,6 @@ here too, so the step only draws.
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -19,40 +18,15 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from backend.calib._session import check_lidar, read_uploaded_cloud, result_of, store_cloud
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings, global_initial_guess
 from backend.calib.lidar_lidar.scenes import register_pairs
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, TransformResult, no_progress
-from backend.core.rig import Rig
 from backend.core.transforms import transform_points
-from backend.devices.base import Sample
-from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
+from backend.devices.cloud_files import read_cloud
 from backend.store.schema import CaptureRecord
 from backend.store.session import Session
-
-LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
-
-
-def lidar_names(rig: Rig) -> list[str]:
-    """The rig's LiDAR and depth sensors, in rig order."""
-    return [f.name for f in rig.frames.values() if f.kind in LIDAR_KINDS]
-
-
-def check_lidar(session: Session, sensor: str) -> None:
-    """Refuse (naming the sensor) anything but a LiDAR or depth sensor of the rig."""
-    kind = session.rig.get(sensor).kind
-    if kind not in LIDAR_KINDS:
-        raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
-
-
-def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
-                ) -> CaptureRecord:
-    """Keep one cloud (live or imported) in the sensor's frame."""
-    check_lidar(session, sensor)
-    if sample.points is None or len(sample.points) == 0:
-        raise InputError(f"{source or device}: the cloud holds no points", source or device)
-    return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
-        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": sample.storable_meta()})
 
 
 def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes | Path]],
@@ -65,28 +39,6 @@ def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes | 
         progress(i / max(len(files), 1), f"reading {name}")
         clouds.append(read_uploaded_cloud(name, data))
     return [store_cloud(session, sensor, sample, device="upload", source=sample.meta["source"]) for sample in clouds]
-
-
-def read_uploaded_cloud(name: str, data: bytes | Path) -> Sample:
-    """An uploaded cloud file's points as a sample (``meta``: the base ``source`` name kept and the points
-    dropped as non-finite); ``data`` is the file's bytes or the path it was saved to (an upload streamed to
-    disk). Raises :class:`InputError` naming the file when it cannot be read."""
-    safe_name = Path(name).name
-    if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
-        raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})", safe_name)
-    try:
-        if isinstance(data, Path):
-            cloud = read_cloud(data)
-        else:
-            with tempfile.TemporaryDirectory() as folder:
-                path = Path(folder) / safe_name
-                path.write_bytes(data)
-                cloud = read_cloud(path)
-    except InputError as exc:  # name the upload, not the server's temporary path
-        exc.input = safe_name
-        raise
-    return Sample(0.0, points=cloud.points, intensity=cloud.intensity,
-                  meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
 
 
 def pair_ids(session: Session, source: str, target: str) -> list[tuple[str, str]]:
@@ -166,12 +118,7 @@ def pair_results(session: Session, source: str, target: str) -> list[dict[str, A
 def check_result(session: Session, source: str, result_id: str) -> dict[str, Any]:
     """The stored record ``result_id`` if it is a LiDAR-to-LiDAR result of ``source`` (the child); else an
     :class:`InputError` naming the result's kind or sensor."""
-    record = session.result(result_id)
-    if record.get("kind") != "lidar_lidar":
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not lidar_lidar", "result")
-    if record["sensor"] != source:
-        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {source}", "result")
-    return record
+    return result_of(session, "lidar_lidar", result_id, source)
 
 
 def global_guess(session: Session, source: str, target: str, pairs: list[tuple[str, str]] | None = None,

@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib._session import check_camera, session_board
 from backend.calib.board.detection import Detection, detect_board
 from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.intrinsics.service import check_camera
 from backend.calib.lidar_camera.capture import check_image_size
 from backend.core.boards import BoardSpec
 from backend.core.errors import CancelledError, InputError
@@ -199,7 +199,7 @@ def _check_cameras(session: Session, cameras: Sequence[str]) -> None:
 def _set_board(session: Session, require_board: bool) -> BoardSpec | None:
     """The session's board, or None when it has none and none is required."""
     if session.board or require_board:
-        return intrinsics_service.session_board(session)
+        return session_board(session)
     return None
 
 

@@ -29,9 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib._session import check_camera, require_kind, result_of, session_board
 from backend.calib.board.detection import Detection, common_corners, detect_board
-from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.intrinsics.service import check_camera
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.calib.lidar_camera.capture import check_image_size
 from backend.calib.multicam.bundle import MulticamResult, MulticamSettings, calibrate_multicam
@@ -153,7 +152,7 @@ def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bo
     cameras = check_cameras(cameras)
     for name in cameras:
         check_camera(session, name)
-    board = intrinsics_service.session_board(session)
+    board = session_board(session)
     observations, used = session_observations(session, cameras, set_names)
     sizes = {}
     for obs in observations:
@@ -168,8 +167,7 @@ def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bo
 def apply_refined_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
     """Give the cameras whose intrinsics a multicam result refined (``settings.estimate_intrinsics``) those
     intrinsics; the rig service calls it when it accepts the result (the poses are its edges)."""
-    if record.get("kind") != KIND:
-        raise InputError(f"result {record.get('id')} is a {record.get('kind')} result, not {KIND}", "result")
+    require_kind(record, KIND)
     for name in record["settings"]["estimate_intrinsics"]:
         rig.get(name).intrinsics = CameraIntrinsics.from_dict(record["cameras"][name])
 
@@ -244,9 +242,7 @@ def stereo_check(session: Session, result_id: str, left: str, right: str, set_na
 
     The epipolar errors need only the rig and the lenses; the rectification also needs both cameras to share
     one model and image size, and 8-bit images (else ``no_preview`` says why and only the errors are given)."""
-    record = session.result(result_id)
-    if record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
+    record = result_of(session, KIND, result_id)
     found = stereo_sets(session, record, left, right).get(set_name)
     if found is None:
         raise InputError(f"set {set_name} is not one of result {result_id}'s sets in which {left} and {right} both "

@@ -24,14 +24,12 @@ from backend.calib.multicam import service as multicam_service
 from backend.calib.rig.graph import FLAG_SIGMA, EdgeResidual, RigEdge, RigTree, solve_rig_graph
 from backend.calib.sweep import service as sweep_service
 from backend.core.errors import InputError
-from backend.core.result import TransformResult
+from backend.core.result import EDGE_KINDS, StoredResult, TransformResult
 from backend.core.rig import Rig, edge_slot
 from backend.core.transforms import params_between
 from backend.core.uncertainty import sigmas
 from backend.store.session import Session
 
-EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node")
-"""Result kinds whose transforms are edges of the rig graph."""
 MANUAL_SIGMA = (0.005, 0.3)
 """1-sigma (m, deg) assumed for a transform set by hand, which carries none of its own."""
 MOVE_THRESHOLD = (1e-6, 1e-5)
@@ -50,31 +48,6 @@ EFFECTS: dict[str, Effect] = {
 # Results as edges
 
 
-def record_transforms(record: dict[str, Any]) -> list[TransformResult]:
-    """The transforms a stored result holds between rig frames (none for intrinsics or a sweep geometry)."""
-    if record.get("kind") not in EDGE_KINDS:
-        return []
-    if "transforms" in record:  # multicam: one per camera
-        return [TransformResult.from_record(t) for t in record["transforms"].values()]
-    if "T_parent_child" not in record:
-        return [TransformResult.from_record(t) for t in _legacy_transforms(record)]
-    return [TransformResult.from_record(record)]
-
-
-def _legacy_transforms(record: dict[str, Any]) -> list[dict[str, Any]]:
-    """Records stored before every solver returned a :class:`TransformResult` (their transform under its own
-    name), read as transform records so sessions accepted then still form their tree."""
-    kind, common = record["kind"], {"converged": record.get("converged", False), "method": record.get("method", "")}
-    if kind == "multicam":
-        return [{**common, "kind": kind, "parent": record["reference"], "child": name, "T_parent_child": T,
-                 "covariance": record["covariance"][name]}
-                for name, T in record["T_ref_cam"].items() if name != record["reference"]]
-    parent, T = ((record["target"], record["T_target_source"]) if kind == "lidar_lidar"
-                 else (record["camera"], record["T_camera_lidar"]))
-    return [{**common, "kind": kind, "parent": parent, "child": record["sensor"], "T_parent_child": T,
-             "covariance": record.get("covariance")}]
-
-
 def slot_of(record: dict[str, Any]) -> str:
     """The acceptance slot a result fills: ``CAM/intrinsics``, ``SENSOR/sweep``, ``multicam:A+B`` or
     ``CHILD/T_PARENT_CHILD`` for a transform between two frames."""
@@ -86,7 +59,7 @@ def slot_of(record: dict[str, Any]) -> str:
     if kind == "multicam":
         return multicam_service.slot(record["camera_order"])
     if kind in EDGE_KINDS:
-        transform = record_transforms(record)[0]
+        transform = StoredResult(record).edges[0]
         return edge_slot(transform.parent, transform.child)
     raise InputError(f"result {record.get('id')} is a {kind!r} result, which cannot be accepted", "result")
 
@@ -120,7 +93,7 @@ def _graph_edges(session: Session, accepted: dict[str, str], rig: Rig) -> list[R
     edges = prior_edges(rig)
     for slot, result_id in accepted.items():
         record = session.result(result_id)
-        edges += [_edge(t, record, slot) for t in record_transforms(record)]
+        edges += [_edge(t, record, slot) for t in StoredResult(record).edges]
     return edges
 
 
@@ -270,7 +243,7 @@ def revert(session: Session, slot: str) -> RigUpdate:
     """
     with session.lock:
         result_id = session.accepted(slot)
-        if result_id is not None and not record_transforms(session.result(result_id)):
+        if result_id is not None and not StoredResult(session.result(result_id)).edges:
             raise InputError(f"{slot} holds no rig edge; accept an older result to go back", "slot", 409)
         before = solve_rig(session)
         after: list[RigTree] = []

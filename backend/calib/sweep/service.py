@@ -1,6 +1,6 @@
 """Swept-scanner workflow shared by the API and the studio.
 
-capture a sweep through the ordinary cloud path (:func:`backend.calib.lidar_lidar.service.store_cloud`:
+capture a sweep through the ordinary cloud path (:func:`backend.calib._session.store_cloud`:
 points in the mount frame, the sweep meta beside them) -> calibrate the sweep geometry from a
 stored capture -> store the result -> accept it (:func:`backend.calib.rig.service.accept`, whose effect
 is :func:`apply_sweep_geometry`) as the sensor's ``device["geometry"]`` (the next sweeps are
@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from backend.calib.lidar_lidar.service import store_cloud
+from backend.calib._session import require_kind, result_of, store_cloud
 from backend.calib.sweep.checks import LABELS as LABELS  # re-exported: the parameters' names as shown
 from backend.calib.sweep.solver import SweepCalibrationResult, SweepCalibrationSettings, calibrate_sweep
 from backend.core.errors import InputError, NotFoundError
@@ -146,8 +146,7 @@ def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
     effect of accepting it (:func:`backend.calib.rig.service.accept`, slot ``"<sensor>/sweep"``). Not a rig-graph
     edge. Refuses (:class:`InputError` on ``result``) a result that did not converge, leaves parameters
     undetermined or made the planes less flat."""
-    if record.get("kind") != KIND:
-        raise InputError(f"result {record['id']} is a {record.get('kind')} result, not {KIND}", "result")
+    require_kind(record, KIND)
     problems = _refusal(record)
     if problems:
         warnings = "; ".join(record.get("warnings", []))
@@ -161,12 +160,7 @@ def sweep_result(session: Session, sensor: str, result_id: str) -> dict[str, Any
     """The stored sweep geometry result ``result_id`` of the swept scanner ``sensor``; raises
     :class:`InputError` naming the sensor or the result when either is not that."""
     _check_swept(session, sensor)
-    record = session.result(result_id)
-    if record["sensor"] != sensor:
-        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
-    if record.get("kind") != KIND:
-        raise InputError(f"result {result_id} is a {record.get('kind')} result, not {KIND}", "result")
-    return record
+    return result_of(session, KIND, result_id, sensor)
 
 
 def _beam_columns(scan_angles: np.ndarray, steps: np.ndarray) -> int:

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from backend.calib.lidar_lidar.gicp import LidarLidarSettings, check_cloud, evaluate_alignment, register_pair
+from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment, register_pair
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.transforms import (

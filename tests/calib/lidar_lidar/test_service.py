@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from backend.calib._session import store_cloud
 from backend.calib.lidar_lidar import service
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
@@ -29,7 +30,7 @@ def session(tmp_path):
     for sensor in (SOURCE, TARGET):
         with create_device(demo_rig().get(sensor).device) as device:
             for _ in range(2):
-                service.store_cloud(session, sensor, device.read(), device=device.describe())
+                store_cloud(session, sensor, device.read(), device=device.describe())
     session.truth = truth
     return session
 

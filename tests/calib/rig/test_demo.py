@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from backend.calib._session import session_board, store_cloud
 from backend.calib.board.detection import detect_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
@@ -31,7 +32,7 @@ from tests.conftest import fresh_demo
 
 def _calibrate_camera(session, camera: str) -> str:
     """Capture :data:`DEMO_VIEWS` simulated board views of ``camera`` and solve its intrinsics; the result id."""
-    board = intrinsics_service.session_board(session)
+    board = session_board(session)
     with create_device(demo_rig().get(camera).device) as device:
         for _ in range(DEMO_VIEWS):
             sample = device.read()
@@ -52,7 +53,7 @@ def test_every_accepted_edge_of_the_demo_holds_within_3_sigma(demo_template: Pat
     for sensor in ("lidar_top", "lidar_front"):
         with create_device(demo_rig().get(sensor).device) as device:
             for _ in range(2):
-                lidar_service.store_cloud(session, sensor, device.read(), device=device.describe())
+                store_cloud(session, sensor, device.read(), device=device.describe())
     intrinsics_id = _calibrate_camera(session, "cam_right")  # step 3 for the stereo partner, as its verdict asks
     rig_service.accept(session, intrinsics_id, confirm=True)
     lidar_lidar_id, _ = lidar_service.solve_session(session, "lidar_front", "lidar_top")

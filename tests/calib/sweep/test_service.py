@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
-from backend.calib.lidar_lidar import service as lidar_service
+from backend.calib._session import store_cloud
 from backend.calib.rig import service as rig_service
 from backend.calib.sweep import service
 from backend.core.errors import CancelledError, InputError, NotFoundError
@@ -87,7 +87,7 @@ def test_capture_sweep_stores_one_sweep_of_the_rigs_device(calibrated, nominal_s
 def test_a_stored_sweep_gives_its_raw_scans_back(nominal_sweep, session):
     sample, seconds = nominal_sweep
     print(f"one simulated sweep (open + read): {seconds:.1f} s, {len(sample.points):,} points")
-    record = lidar_service.store_cloud(session, SENSOR, sample, device="sim")
+    record = store_cloud(session, SENSOR, sample, device="sim")
     meta = record.meta
     assert meta["geometry"] == SWEEP_NOMINAL_GEOMETRY and meta["true_geometry"] == DEFAULT_SIM_GEOMETRY
     assert sum(meta["step_counts"]) == record.n_points == len(sample.points) and len(meta["step_counts"]) == 173
@@ -207,7 +207,7 @@ def test_bad_results_are_refused_and_the_rig_stays(calibrated):
 
 @pytest.mark.slow
 def test_calibration_can_be_cancelled_and_leaves_no_result(nominal_sweep, session):
-    lidar_service.store_cloud(session, SENSOR, nominal_sweep[0], device="sim")
+    store_cloud(session, SENSOR, nominal_sweep[0], device="sim")
     calls = []
 
     def progress(fraction: float, message: str) -> None:
@@ -245,7 +245,7 @@ def test_errors_name_the_sensor_and_the_capture(session):
     with pytest.raises(InputError, match="no sweep captured for sweep_3d yet") as info:
         service.calibrate(session, SENSOR)
     assert info.value.input == SENSOR and info.value.status_code == 422
-    plain = lidar_service.store_cloud(session, SENSOR, Sample(0.0, points=np.ones((5, 3))), device="upload")
+    plain = store_cloud(session, SENSOR, Sample(0.0, points=np.ones((5, 3))), device="upload")
     with pytest.raises(InputError, match=f"capture {plain.id} of sweep_3d holds no sweep .*step_counts") as info:
         service.calibrate(session, SENSOR, plain.id)
     assert info.value.input == "capture"
@@ -255,12 +255,12 @@ def test_errors_name_the_sensor_and_the_capture(session):
     points = np.column_stack([np.linspace(1, 2, 50), np.zeros(50), np.zeros(50)])
     short = Sample(0.0, points=points, meta={"servo_angles_rad": [0.0, 0.1], "step_counts": [25, 25],
                                              "geometry": SWEEP_NOMINAL_GEOMETRY})
-    lidar_service.store_cloud(session, SENSOR, short, device="sim")
+    store_cloud(session, SENSOR, short, device="sim")
     with pytest.raises(InputError, match="too short to calibrate"):
         service.calibrate(session, SENSOR)
     broken = Sample(0.0, points=points, meta={"servo_angles_rad": [0.0, 0.1], "step_counts": [25, 20],
                                               "geometry": SWEEP_NOMINAL_GEOMETRY})
-    broken_id = lidar_service.store_cloud(session, SENSOR, broken, device="sim").id
+    broken_id = store_cloud(session, SENSOR, broken, device="sim").id
     with pytest.raises(InputError, match=f"capture {broken_id} of sweep_3d: step_counts"):
         service.calibrate(session, SENSOR)
 
@@ -300,7 +300,7 @@ def test_api_errors(client):
 @pytest.mark.slow
 def test_api_calibrate_image_accept(client, nominal_sweep):
     client, session = client
-    capture = lidar_service.store_cloud(session, SENSOR, nominal_sweep[0], device="sim")
+    capture = store_cloud(session, SENSOR, nominal_sweep[0], device="sim")
     base = "/api/sessions/demo/sensors/sweep_3d/sweep"
     job = client.post(f"{base}/calibrate", json={})
     assert job.status_code == 202 and job.json()["state"] == "running"

@@ -1,0 +1,96 @@
+"""What every problem's service does with a session: check a sensor's kind, read the board, keep a cloud,
+look up a stored result of the right kind.
+
+Each problem's ``service.py`` builds on these so that a camera, a LiDAR or a result is refused with the same
+words everywhere (the API turns the :class:`~backend.core.errors.InputError` into a 4xx naming the input).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from backend.core.rig import Rig
+from backend.devices.base import Sample
+from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
+from backend.store.schema import CaptureRecord
+from backend.store.session import Session
+
+LIDAR_KINDS = ("lidar3d", "lidar2d", "depth")
+"""Sensor kinds that give point clouds."""
+
+
+def lidar_names(rig: Rig) -> list[str]:
+    """The rig's LiDAR and depth sensors, in rig order."""
+    return [f.name for f in rig.frames.values() if f.kind in LIDAR_KINDS]
+
+
+def session_board(session: Session) -> BoardSpec:
+    if not session.board:
+        raise InputError(f"session {session.name!r} has no board spec yet; set one such as checkerboard:9x6:0.025",
+                         "board")
+    return BoardSpec.parse(session.board)
+
+
+def check_camera(session: Session, camera: str) -> None:
+    """Refuse ``camera`` unless the rig holds it as a camera (a LiDAR has no intrinsics, images or board views)."""
+    if session.rig.get(camera).kind != "camera":
+        raise InputError(f"sensor {camera!r} is a {session.rig.get(camera).kind}, not a camera", "camera")
+
+
+def check_lidar(session: Session, sensor: str) -> None:
+    """Refuse (naming the sensor) anything but a LiDAR or depth sensor of the rig."""
+    kind = session.rig.get(sensor).kind
+    if kind not in LIDAR_KINDS:
+        raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
+
+
+def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
+                ) -> CaptureRecord:
+    """Keep one cloud (live or imported) in the sensor's frame."""
+    check_lidar(session, sensor)
+    if sample.points is None or len(sample.points) == 0:
+        raise InputError(f"{source or device}: the cloud holds no points", source or device)
+    return session.add_cloud_capture(sensor, sample.points, sample.intensity, {
+        "timestamp_s": sample.timestamp_s, "device": device, "source": source, "meta": sample.storable_meta()})
+
+
+def read_uploaded_cloud(name: str, data: bytes | Path) -> Sample:
+    """An uploaded cloud file's points as a sample (``meta``: the base ``source`` name kept and the points
+    dropped as non-finite); ``data`` is the file's bytes or the path it was saved to (an upload streamed to
+    disk). Raises :class:`InputError` naming the file when it cannot be read."""
+    safe_name = Path(name).name
+    if Path(safe_name).suffix.lower() not in CLOUD_EXTENSIONS:
+        raise InputError(f"{safe_name}: not a point-cloud file (expected {', '.join(CLOUD_EXTENSIONS)})", safe_name)
+    try:
+        if isinstance(data, Path):
+            cloud = read_cloud(data)
+        else:
+            with tempfile.TemporaryDirectory() as folder:
+                path = Path(folder) / safe_name
+                path.write_bytes(data)
+                cloud = read_cloud(path)
+    except InputError as exc:  # name the upload, not the server's temporary path
+        exc.input = safe_name
+        raise
+    return Sample(0.0, points=cloud.points, intensity=cloud.intensity,
+                  meta={"source": safe_name, "dropped_non_finite": cloud.dropped_non_finite})
+
+
+def result_of(session: Session, kind: str, result_id: str, sensor: str | None = None) -> dict[str, Any]:
+    """The stored record ``result_id`` if it is a ``kind`` result (of ``sensor``, when given); else an
+    :class:`InputError` naming ``result`` and saying what it is instead."""
+    record = session.result(result_id)
+    require_kind(record, kind)
+    if sensor is not None and record["sensor"] != sensor:
+        raise InputError(f"result {result_id} belongs to {record['sensor']}, not {sensor}", "result")
+    return record
+
+
+def require_kind(record: dict[str, Any], kind: str) -> None:
+    """Refuse (naming ``result``) a stored record of another kind than ``kind``."""
+    if record.get("kind") != kind:
+        raise InputError(f"result {record.get('id')} is a {record.get('kind')} result, not {kind}", "result")
