@@ -63,7 +63,7 @@ from backend.sim.ydlidar_sim import YdlidarSimulator
 
 T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
 T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))
-"""The two LiDARs on the robot (as in tests/test_lidar_lidar.py): 106 deg apart in yaw, 12 deg in pitch."""
+"""The two LiDARs on the robot (as in tests/calib/lidar_lidar/test_gicp.py): 106 deg apart in yaw, 12 deg in pitch."""
 SCAN = {"beams": 64, "vertical_fov_deg": (-25.0, 15.0), "azimuth_step_deg": 0.2, "range_noise_m": 0.01}
 INIT_OFFSET_M = np.array([0.12, -0.14, 0.07])
 INIT_OFFSET_DEG = 5.0

@@ -21,8 +21,8 @@ What it measures, in one run on the same data:
   its reference (projected onto a rotation) moved 5 cm / 2 deg: ours (``register_pair``; ``ours_s`` with
   ``spread=False``, ``ours_with_sigma_s`` and the sigma and verdict with the default settings, which add the
   8-sector jackknife) and Open3D GICP (0.1 m voxels, 0.5 m correspondences, 100 iterations, as in
-  tests/test_lidar_lidar.py): time, fitness at 0.2 m, offset from the reference (which is not a surveyed
-  truth: see tests/test_lidar_lidar.py), and our verdict.
+  tests/calib/lidar_lidar/test_gicp.py): time, fitness at 0.2 m, offset from the reference (which is not a surveyed
+  truth: see tests/calib/lidar_lidar/test_gicp.py), and our verdict.
 
 Clouds: the simulated yard (``LidarScene``, with the board) scanned from ``PLACEMENTS`` (the robot in
 four places) by the two LiDARs of ``benchmarks/lidar_lidar.py``, each a 32-beam spinning LiDAR

@@ -22,13 +22,13 @@ from typing import Any
 import numpy as np
 
 from backend.calib.depth import service as network
+from backend.calib.depth.checks import guided_verdict
 from backend.calib.depth.guided import GUIDED_STEPS as GUIDED_STEPS  # re-exported: the steps the studio offers
 from backend.calib.rig import service as rig_service
 from backend.core.depth import pose_from_row, pose_row
 from backend.core.errors import InputError, shorten
 from backend.core.result import TransformResult
 from backend.core.transforms import params_between
-from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 from backend.store.schema import GuidedNodeState
 from backend.store.session import Session
 
@@ -213,15 +213,7 @@ def finish(session: Session, node: str, *, accept: bool = False, confirm: bool =
                                           "pose_row": list(pose_row(T)),
                                           "history": [list(pose_row(np.array(h))) for h in guided.history],
                                           "least_squares": least_squares})
-    judge = VerdictBuilder()
-    judge_transform_sigmas(judge, result.std)
-    if "problem" in least_squares:
-        judge.check(f"sigma set by hand: {least_squares['problem']}")
-    failed = [step for step, a in checks.items() if not a.done]
-    judge.cross_check("every step's criterion at the final pose", not failed,
-                      f"{', '.join(failed)} no longer hold{'s' if len(failed) == 1 else ''}" if failed else
-                      "; ".join(a.criterion for a in checks.values()))
-    result.verdict = judge.verdict()
+    result.verdict = guided_verdict(result, checks, least_squares)
     inputs = [c.id for c in network.captures(session, node)]
     record = session.result(session.add_result(node, result.to_record(), inputs=inputs))
     guided.result_id = record["id"]

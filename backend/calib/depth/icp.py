@@ -16,10 +16,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from backend.calib.depth.checks import icp_verdict
 from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.transforms import check_transform, invert, skew, transform_points
-from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 
 
 @dataclass
@@ -129,13 +129,7 @@ def pairwise_icp(node_a: str, points_a_world: np.ndarray, node_b: str, points_b_
         diagnostics={"T_correction": T_corr.tolist(), "T_world_a": T_world_a.tolist(),
                      "T_world_b": T_world_b.tolist(), "T_a_b_initial": (invert(T_world_a) @ T_world_b).tolist()},
         settings=asdict(settings), converged=bool(fit.fitness >= settings.min_fitness))
-    judge = VerdictBuilder()
-    if fit.fitness < settings.min_fitness:
-        judge.reject(f"the clouds hardly overlap (fitness {fit.fitness:.3f} < {settings.min_fitness})")
-    judge_transform_sigmas(judge, result.std, settings.translation_tolerance_m, settings.rotation_tolerance_deg)
-    judge.missing_check("against the cell's geometry", "ICP between two nodes is one more constraint, never the "
-                        "only one: solve the nodes from tables and lines and compare")
-    result.verdict = judge.verdict()
+    result.verdict = icp_verdict(result, float(fit.fitness), settings)
     result.seconds = time.perf_counter() - started
     return result
 

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from backend.calib.depth.checks import node_verdict
 from backend.calib.depth.features import (
     AXES,
     DepthNodeSettings,
@@ -64,7 +65,6 @@ from backend.core.transforms import (
     transform_points,
 )
 from backend.core.uncertainty import sigmas
-from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
 
 __all__ = ["DepthNodeSettings", "DepthObservation", "Feature", "extract_features", "feature_residuals",
            "solve_depth_node", "fit_features", "extract_all", "undetermined_parameters"]
@@ -76,8 +76,6 @@ UNDETERMINED_ROT_DEG = 0.5
 """A degree of freedom whose 1-sigma (from the evidence's information alone) exceeds these is not determined."""
 CONVERGED_SHARE = 0.1
 """Extract-and-solve rounds stop once the pose moves less than this share of the tolerances between rounds."""
-HELD_OUT_FACTOR = 2.0
-"""A held-out capture's tables and lines pass the cross-check within this many times the translation tolerance."""
 
 
 def _stack(features: list[Feature], layout: CellLayout, settings: DepthNodeSettings, T_world_node: np.ndarray
@@ -247,30 +245,6 @@ def _held_out(observations: list[DepthObservation], features: list[Feature], T: 
     return jackknife_std(np.array(steps)), held
 
 
-def _verdict(std: dict, converged: bool, held: list[dict], crosses: list[dict], n_captures: int,
-             settings: DepthNodeSettings) -> Any:
-    """The result's :class:`~backend.core.verdict.Verdict` (see the module's docstring)."""
-    judge = VerdictBuilder()
-    if not converged:
-        judge.reject("the least-squares solve did not converge; give a better initial pose")
-    judge_transform_sigmas(judge, std, settings.translation_tolerance_m, settings.rotation_tolerance_deg)
-    limit = HELD_OUT_FACTOR * settings.translation_tolerance_m
-    worst = [h["max_error_m"] for h in held if h["max_error_m"] is not None]
-    if worst:
-        judge.cross_check("held-out captures", max(worst) <= limit,
-                          f"each capture's tables and lines at the pose solved without it are within "
-                          f"{1e3 * max(worst):.1f} mm of their known values (limit {1e3 * limit:.0f} mm)")
-    else:
-        judge.missing_check("held-out captures", f"{n_captures} capture: capture the tables once more, moved")
-    if crosses:
-        far = max(c["error_m"] for c in crosses)
-        judge.cross_check("crosses", far <= settings.cross_tolerance_m,
-                          f"{len(crosses)} crosses seen (not surveyed, so not used by the solve), the furthest "
-                          f"{1e3 * far:.1f} mm from its known position (limit {1e3 * settings.cross_tolerance_m:.0f} "
-                          "mm)")
-    return judge.verdict()
-
-
 def solve_depth_node(node: str, observations: list[DepthObservation], layout: CellLayout,
                      T_world_node_init: np.ndarray, settings: DepthNodeSettings | None = None,
                      progress: ProgressCallback = no_progress) -> TransformResult:
@@ -317,7 +291,7 @@ def solve_depth_node(node: str, observations: list[DepthObservation], layout: Ce
     is_line, is_plane = kinds == "line", np.isin(kinds, ("floor", "table"))
     n_captures = len({obs.capture_id for obs in observations})
     unsurveyed = [row for row in crosses if not layout.cross(row["name"].removeprefix("cross ")).surveyed]
-    verdict = _verdict(transform_std(covariance), bool(fit.status > 0), held, unsurveyed, n_captures, settings)
+    verdict = node_verdict(transform_std(covariance), bool(fit.status > 0), held, unsurveyed, n_captures, settings)
     progress(1.0, "done")
     return TransformResult(
         kind="depth_node", method="constraints", parent="world", child=node, T_parent_child=T,

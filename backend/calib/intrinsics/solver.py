@@ -32,6 +32,7 @@ import numpy as np
 from backend.calib.board.coverage import view_parameters
 from backend.calib.board.detection import Detection
 from backend.calib.board.pose import board_pose
+from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.crossval import grid_pixels, projection_difference
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
@@ -39,7 +40,7 @@ from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, SolveResult, jackknife_std, no_progress
 from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
 from backend.core.uncertainty import sigmas
-from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
+from backend.core.verdict import Verdict
 
 MIN_VIEWS = 3
 MIN_VIEW_SPREAD = 0.1
@@ -401,20 +402,6 @@ def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], 
     return {"status": "consistent" if diff["consistent"] else "inconsistent", "detail": detail, **diff}
 
 
-def _judge(projection: dict[str, Any], cross_validation: dict[str, Any]) -> Verdict:
-    """The result's verdict: worst projection sigma against its tolerance, the two halves as the cross-check."""
-    judge = VerdictBuilder()
-    judge.sigma("worst projection across the image", projection["max_px"], PROJECTION_TOLERANCE_PX, "px")
-    name = "two halves of the views"
-    if cross_validation["status"] == "not made":
-        judge.missing_check(name, cross_validation["detail"])
-    else:
-        passed = cross_validation["status"] == "consistent"
-        judge.cross_check(name, passed, cross_validation["detail"] + (
-            "" if passed else ": model error (try --model auto, or k3) or bad views (drop the outliers)"))
-    return judge.verdict()
-
-
 def calibrate_intrinsics(
     views: list[View],
     board: BoardSpec,
@@ -499,6 +486,6 @@ def calibrate_intrinsics(
         seconds=time.perf_counter() - started,
         corners=corners,
         cross_validation=cross_validation,
-        verdict=_judge(projection, cross_validation),
+        verdict=intrinsics_verdict(projection, cross_validation),
         warnings=warnings,
     )

@@ -24,7 +24,7 @@ import numpy as np
 
 from backend.calib._session import check_camera, check_lidar, result_of, session_board
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
-from backend.calib.lidar_camera.checks import compare_methods
+from backend.calib.lidar_camera.checks import MANUAL_VERDICT, CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
 from backend.calib.lidar_camera.intensity import (
     IntensityObservation,
@@ -42,9 +42,8 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.overlay import mosaic, render_overlay
-from backend.core.result import TRANSFORM_PARAMETERS, ProgressCallback, StoredResult, TransformResult, no_progress
+from backend.core.result import ProgressCallback, StoredResult, TransformResult, no_progress
 from backend.core.transforms import check_transform
-from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
 from backend.store.session import Session
@@ -58,123 +57,6 @@ DEFAULT_PLATE_MARGIN_SQUARES = 1.0
 
 
 KIND = "lidar_camera"
-
-
-TOLERANCES = {"target": (0.01, 0.3), "edges": (0.02, 0.3), "intensity": (0.02, 0.3)}
-"""Largest acceptable error per method, per axis: translation (m), rotation (deg). A board pins the LiDAR to a
-centimetre; a targetless scene's edges are mostly far (10-40 m on a road), where they fix the rotation well and
-the translation barely, so the edges method is allowed 2 cm (its translation is often held by a prior). A result is
-trusted only when :data:`COVERAGE` sigmas fit inside them."""
-COVERAGE = 3.0
-"""The sigmas are judged against the :data:`TOLERANCES` divided by this: an error of up to three sigmas is to be
-expected (on the simulated board, 12 poses: 0.23 deg off with a 0.13 deg sigma)."""
-MAX_SPREAD_RATIO = 3.0
-"""The target's leave-one-pose-out cross-check (:func:`_spread_check`) passes when the spread of the re-solves
-without one pose is at most this many times the Jacobian's sigma on every parameter: the poses agree within their
-noise."""
-MANUAL_VERDICT = Verdict("check", ["set by hand: no uncertainty, no cross-check"])
-"""The verdict of a hand-set (``manual``) result."""
-
-
-@dataclass(frozen=True)
-class CrossCheck:
-    """An independent check of a result made elsewhere (another method on the same pairs, say)."""
-
-    name: str
-    passed: bool
-    detail: str
-    fail_level: Level = "check"
-    made: bool = True
-    """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
-
-
-def _diagnostic(result: TransformResult, key: str, undetermined: float = np.nan) -> np.ndarray | None:
-    """A (6,) vector of ``result.diagnostics`` (m, rad) as floats, ``undetermined`` where it is None; None when the
-    solver did not compute it."""
-    values = result.diagnostics.get(key)
-    return None if values is None else np.array([undetermined if v is None else v for v in values], dtype=float)
-
-
-def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
-    """The verdict of a solved ``T_camera_lidar`` (also stored on ``result.verdict``).
-
-    Unconverged or ambiguous: ``reject``. Else the sigmas against the method's :data:`TOLERANCES`, competing
-    alignments of the edges method (``check``), the cross-check between independent captures (:func:`_spread_check`:
-    the target's poses, the edges' two halves of the pairs), and the ``extra`` cross-checks: another method's
-    answer on the same pairs, say. Without any cross-check it stays at ``check``, saying which is missing.
-    """
-    builder = VerdictBuilder()
-    method = result.method
-    if not result.converged:
-        builder.reject("the solve is not usable: " + "; ".join(result.warnings or ["it did not converge"]))
-    translation_m, rotation_deg = TOLERANCES[method]
-    judge_transform_sigmas(builder, result.std, translation_m / COVERAGE, rotation_deg / COVERAGE)
-    if method == "edges" and result.diagnostics.get("std_multistart") is not None:
-        builder.check("other alignments fit about as well; the sigmas are widened to cover them")
-    _spread_check(builder, result, method)
-    for check in extra:
-        if check.made:
-            builder.cross_check(check.name, check.passed, check.detail, check.fail_level)
-        else:
-            builder.missing_check(check.name, check.detail)
-    result.verdict = builder.verdict()
-    return result.verdict
-
-
-def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str) -> None:
-    """The cross-check between independent captures. Target: the leave-one-pose-out spread against the Jacobian's
-    sigma (:data:`MAX_SPREAD_RATIO`; ``diagnostics["std_spread"]`` and ``["std_jacobian"]``). Edges: its two halves
-    of the pairs solved apart (``diagnostics["halves_offset"]``) differ by at most
-    :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
-    data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again). Intensity:
-    :func:`_intensity_pairs_check`."""
-    if method == "intensity":
-        _intensity_pairs_check(builder, result)
-        return
-    if method == "target":
-        std_spread = _diagnostic(result, "std_spread")
-        if std_spread is None:
-            builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")
-            return
-        ratio = std_spread / np.maximum(_diagnostic(result, "std_jacobian"), 1e-12)
-        ratio_check(builder, "leave one of the poses out", ratio, MAX_SPREAD_RATIO,
-                    "the re-solves spread at most {ratio} times the Jacobian's sigma")
-        return
-    halves_offset = _diagnostic(result, "halves_offset")
-    if halves_offset is None:
-        builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
-                              "pairs with another method")
-        return
-    expected = 2 * result.std_vector
-    ratio = np.abs(halves_offset) / np.maximum(expected, 1e-12)
-    ratio_check(builder, "between two halves of the pairs", ratio, COVERAGE,
-                "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
-
-
-def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str) -> None:
-    """A cross-check ``name`` that passes when every parameter's (6,) ``ratio`` (of :data:`TRANSFORM_PARAMETERS`) is
-    at most ``limit``; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
-    ratio = np.where(np.isfinite(ratio), ratio, np.inf)
-    worst = int(np.argmax(ratio))
-    builder.cross_check(name, bool(np.all(ratio <= limit)), detail.format(ratio=f"{ratio[worst]:.1f}")
-                        + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
-
-
-def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:
-    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (``diagnostics["std_pairs"]``,
-    with three pairs or more) is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the
-    larger of the curvature's and the spread over image regions and restarts, which one pair already shows; an
-    undetermined curvature sigma is infinite)."""
-    std_pairs = _diagnostic(result, "std_pairs")
-    if std_pairs is None:
-        builder.missing_check("over pairs", "too few pairs for a leave-one-out re-solve (3 or more are needed)")
-        return
-    within = _diagnostic(result, "std_curvature", np.inf)
-    std_groups = _diagnostic(result, "std_groups")
-    if std_groups is not None:
-        within = np.fmax(within, std_groups)
-    ratio_check(builder, "leave one of the pairs out", std_pairs / np.maximum(within, 1e-12),
-                MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
 
 
 def lidar_camera_record(session: Session, lidar: str, result_id: str) -> dict[str, Any]:

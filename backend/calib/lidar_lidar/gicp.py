@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from backend.calib.lidar_lidar.checks import judge_fit, judge_one_scene
 from backend.core.clouds import MIN_POINTS, check_cloud
 from backend.core.result import (
     ProgressCallback,
@@ -59,7 +60,7 @@ from backend.core.result import (
 )
 from backend.core.transforms import check_transform, params_between, transform_points
 from backend.core.uncertainty import sigmas
-from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
+from backend.core.verdict import Verdict
 
 NO_OVERLAP_FITNESS = 0.005
 """Below this fitness the clouds are said not to overlap at all."""
@@ -76,11 +77,6 @@ GLOBAL_SEEDS = 3
 """Global registration tries these multiples of ``global_voxel_m``, each with this many RANSAC seeds."""
 SECTORS = 8
 """Azimuth sectors of the source cloud for the single-scene jackknife."""
-LOW_FITNESS = 0.1
-"""Below this fitness (but above ``min_fitness``) little of the source overlaps the target: the verdict asks
-for a look at the alignment (the real OpenCalib pair, a 64-beam and a short-range LiDAR, reaches 0.15)."""
-ONE_SCENE = "only one scene: capture the rig in two more places"
-"""Why a single-scene result has no cross-check (the verdict's missing check)."""
 
 
 @dataclass
@@ -382,30 +378,7 @@ def fit_warnings(fitness: float, converged: bool, settings: LidarLidarSettings) 
     return warnings
 
 
-def judge_fit(std: dict[str, list[float | None]], fitness: float, ok: bool, problems: list[str],
-              settings: LidarLidarSettings) -> VerdictBuilder:
-    """The verdict's findings on one solve's own numbers: ``reject`` when it did not converge or fits poorly
-    (``problems``: why, from :func:`fit_warnings`), its sigmas (``std``: m and deg) against the default
-    tolerances, and a ``check`` when its fitness is below :data:`LOW_FITNESS`. The caller adds the cross-check."""
-    judge = VerdictBuilder()
-    if not ok:
-        judge.reject("; ".join(problems) or "the refinement failed")
-    judge_transform_sigmas(judge, std)
-    overlap = f"fitness {fitness:.3f} (share of source points within {settings.max_correspondence_m} m of the target)"
-    if ok and fitness < LOW_FITNESS:
-        judge.check(f"little overlap: {overlap}; look at the alignment before accepting")
-    else:
-        judge.note(overlap)
-    return judge
 
-
-def judge_one_scene(judge: VerdictBuilder, sectors: bool, frames: int = 1) -> None:
-    """The missing cross-check of a solve from one place (``frames`` pairs there), and what the sectors gave."""
-    judge.missing_check("across scenes", ONE_SCENE if frames == 1 else
-                        f"{ONE_SCENE} (the {frames} frame pairs were all taken in one place)")
-    if sectors:
-        judge.note(f"the spread over {SECTORS} azimuth sectors is inside the sigma; it re-uses the same scan, "
-                   "so it is no independent cross-check")
 
 
 def initial_guess(T_init: np.ndarray | None, source: np.ndarray, target: np.ndarray, settings: LidarLidarSettings,
@@ -491,7 +464,7 @@ def register_pair(source_points: np.ndarray, target_points: np.ndarray, T_init: 
             T, settings, progress)
     covariance = widen_covariance(cov_h, std_spread)
     judge = judge_fit(transform_std(covariance), quality["fitness"], ok, quality_warnings, settings)
-    judge_one_scene(judge, std_spread is not None)
+    judge_one_scene(judge, SECTORS if std_spread is not None else None)
     progress(1.0, "done")
     return assemble_result(T, quality, covariance, cov_h, std_spread, "sectors", settings, ok, started,
                            (T_init, init_method), result, judge.verdict(),

@@ -29,9 +29,11 @@ import numpy as np
 import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
+from backend.calib.lidar_lidar.checks import CROSS_CHECK_SIGMAS, judge_fit, judge_one_scene, scenes_cross_check
 from backend.calib.lidar_lidar.gicp import (
     CYCLE_TOLERANCE,
     ROTATION_EPSILON_RAD,
+    SECTORS,
     TRANSLATION_EPSILON_M,
     LidarLidarSettings,
     SceneResult,
@@ -41,8 +43,6 @@ from backend.calib.lidar_lidar.gicp import (
     fit_warnings,
     hessian_covariance,
     initial_guess,
-    judge_fit,
-    judge_one_scene,
     preprocess,
     register_pair,
     sector_jackknife,
@@ -58,17 +58,12 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import params_between
-from backend.core.verdict import ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M, VerdictBuilder
+from backend.core.verdict import ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M
 
 SAME_PLACE_FITNESS = 0.8
 """Two pairs were taken in one place when at least this share of one's target points lies within the fine voxel
 size of the other's target points, as captured (in simulation: repeated frames of a rig standing still 1.00, the rig
 moved 1 m 0.49, moved 1 m and turned 30 deg 0.17)."""
-CROSS_CHECK_SIGMAS = 3.0
-"""A scene agrees when it lies within this many combined 1-sigmas of the other scenes' joint solve (or within
-the tolerance), per axis."""
-REJECT_FACTOR = 3.0
-"""A scene further than this many times its allowance from the others makes the verdict ``reject``."""
 TOLERANCE = np.r_[np.full(3, TRANSLATION_TOLERANCE_M), np.full(3, np.radians(ROTATION_TOLERANCE_DEG))]
 """The stated tolerance per axis (m, rad): deviations within it always agree."""
 COARSE_EPSILON = (np.radians(0.1), 1e-3)
@@ -212,29 +207,6 @@ def _solve_scene(pairs: list[_Pair], indices: list[int], T_init: np.ndarray, set
     return SceneResult(indices, T, quality["fitness"], quality["rmse_m"], ok, cov)
 
 
-def _cross_check(judge: VerdictBuilder, scenes: list[SceneResult]) -> None:
-    """The verdict's cross-check across scenes, from each scene's deviation and allowance (m, rad)."""
-    ratios = [float(np.max(np.abs(s.deviation) / s.allowance)) if s.converged else np.inf for s in scenes]
-    worst = int(np.argmax(ratios))
-    scene = scenes[worst]
-    where = f"scene {worst + 1} (pairs {', '.join(str(i) for i in scene.pairs)})"
-    if not scene.converged:
-        judge.cross_check("across scenes", False, f"{where} does not converge to a good fit on its own: drop it or "
-                          "capture it again", fail_level="reject")
-        return
-    d, a = scene.deviation, scene.allowance
-    offset = (f"{1e3 * np.linalg.norm(d[:3]):.1f} mm / {np.degrees(np.linalg.norm(d[3:])):.3f} deg from the joint "
-              f"solve of the other scenes (allowed per axis up to {1e3 * a[:3].max():.1f} mm / "
-              f"{np.degrees(a[3:].max()):.3f} deg: the tolerance or {CROSS_CHECK_SIGMAS:g} sigma)")
-    if ratios[worst] <= 1.0:
-        judge.cross_check("across scenes", True, f"all {len(scenes)} scenes agree; the furthest, {where}, lies "
-                          f"{offset}")
-    else:
-        judge.cross_check("across scenes", False, f"{where} lies {offset}, {ratios[worst]:.1f} times its allowance: "
-                          "a cloud that moved, a LiDAR knocked between scenes or a poor scene; drop it or capture it "
-                          "again", fail_level="reject" if ratios[worst] > REJECT_FACTOR else "check")
-
-
 def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarray | None = None,
                    settings: LidarLidarSettings | None = None, progress: ProgressCallback = no_progress,
                    names: list[tuple[str, str]] | None = None) -> TransformResult:
@@ -304,9 +276,9 @@ def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarra
 
     judge = judge_fit(transform_std(covariance), quality["fitness"], ok, problems, settings)
     if len(groups) == 1:
-        judge_one_scene(judge, std_spread is not None, frames=len(pairs))
+        judge_one_scene(judge, SECTORS if std_spread is not None else None, frames=len(pairs))
     else:
-        _cross_check(judge, scenes)
+        scenes_cross_check(judge, scenes)
     progress(1.0, "done")
     return assemble_result(T, quality, covariance, cov_h, std_spread, "sectors" if len(groups) == 1 else "scenes",
                            settings, ok, started, (T_init, init_method), fit, judge.verdict(), scenes, warnings)

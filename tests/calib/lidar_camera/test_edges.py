@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.lidar_camera.checks import TOLERANCES, judge
 from backend.calib.lidar_camera.edges import (
     PLANE,
     EdgeObservation,
@@ -22,7 +23,7 @@ from backend.calib.lidar_camera.edges import (
 )
 from backend.calib.lidar_camera.image_edges import find_image_edges
 from backend.calib.lidar_camera.plane_edges import find_plane_edges
-from backend.calib.lidar_camera.service import TOLERANCES, cli_summary, edges_settings, judge
+from backend.calib.lidar_camera.service import cli_summary, edges_settings
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import CancelledError, InputError
 from backend.core.projection import project_cloud

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from backend.calib.lidar_camera.service import TOLERANCES, cli_summary, judge
+from backend.calib.lidar_camera.checks import TOLERANCES, judge
+from backend.calib.lidar_camera.service import cli_summary
 from backend.calib.lidar_camera.target import (
     LidarCameraTargetSettings,
     TargetObservation,
