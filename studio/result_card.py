@@ -64,6 +64,21 @@ def _intrinsics_markdown(camera: dict[str, Any]) -> str:
             f"cx {K[0, 2]:.1f}, cy {K[1, 2]:.1f} px · dist [{dist}]")
 
 
+def update_markdown(update: rig_service.RigUpdate) -> str:
+    """What an accept moves in the rig (each frame against its sigma) and what disagrees (markdown)."""
+    lines = []
+    for move in update.moves:
+        ratio = "" if move.sigma_ratio is None else f" ({move.sigma_ratio:.1f} sigma)"
+        lines.append(f"- **{move.frame}** moves {move.trans_m * 1000:.2f} mm, {move.rot_deg:.3f} deg{ratio}")
+    if not lines:
+        lines.append("- no frame moves")
+    for conflict in update.conflicts:
+        lines.append(f"- 🔴 {conflict.edge.label} disagrees with the rest by {conflict.disagreement_sigma:.1f} "
+                     f"sigma (beyond {rig_service.FLAG_SIGMA:g}) and is left out of the tree")
+    lines += [f"- ⚠️ {problem}" for problem in update.tree.problems() if "not connected" in problem]
+    return "\n".join(lines)
+
+
 def card_markdown(record: dict[str, Any], accepted_id: str | None) -> str:
     """The card of any stored result (markdown)."""
     result = StoredResult(record)
@@ -134,7 +149,7 @@ class ResultCard:
         self.ctx.scene.update_rig(session.rig)
         self.ctx.rig_changed()
         self.show(record, record["id"])
-        self.preview_text.content = "**Accepted.**\n\n" + update.markdown()
+        self.preview_text.content = "**Accepted.**\n\n" + update_markdown(update)
         if self.on_accepted is not None:
             self.on_accepted(record["id"])
 
@@ -146,4 +161,5 @@ class ResultCard:
         self.revert_choice.visible = bool(others)
         self._previewed = result_id
         self.accept_button.label = "Apply accept"
-        self.preview_text.content = f"**Accepting {result_id} would:**\n\n{update.markdown()}\n\nClick *Apply accept*."
+        self.preview_text.content = (f"**Accepting {result_id} would:**\n\n{update_markdown(update)}\n\n"
+                                     "Click *Apply accept*.")

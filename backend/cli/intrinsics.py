@@ -27,14 +27,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
-    from backend.calib.intrinsics.service import IntrinsicsSettings, calibrate_folder
+    from backend.calib.intrinsics.service import IntrinsicsSettings, solve_files
     from backend.core.boards import BoardSpec
     from backend.exports.ros_camera_info import dump_camera_info
 
     check_outputs(args.out)
     settings = IntrinsicsSettings(model=args.model, estimate_k3=args.k3, estimate_tangential=not args.no_tangential,
                                   fix_aspect=args.fix_aspect, drop_outliers=args.drop_outliers)
-    result, skipped = calibrate_folder(args.images_dir, BoardSpec.parse(args.board), settings,
+    result, skipped = solve_files(args.images_dir, BoardSpec.parse(args.board), settings,
                                        progress_to_stderr(False))
     for item in skipped:
         print(f"warning: {item['message']}", file=sys.stderr)

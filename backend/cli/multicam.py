@@ -30,14 +30,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_multicam(args: argparse.Namespace) -> dict[str, Any]:
-    from backend.calib.multicam.service import parse_named, result_rig, solve_folders
+    from backend.calib.multicam.service import parse_named, result_rig, solve_files
     from backend.core.boards import BoardSpec
     from backend.exports.kalibr_camchain import dump_kalibr_camchain
     from backend.exports.rig_transforms import dump_rig_transforms
 
     check_outputs(args.kalibr, args.transforms)
     folders = parse_named(args.camera, "IMAGES_DIR")
-    result, warnings = solve_folders(folders, BoardSpec.parse(args.board), parse_named(args.intrinsics, "camera.yaml"),
+    result, warnings = solve_files(folders, BoardSpec.parse(args.board), parse_named(args.intrinsics, "camera.yaml"),
                                      refine_intrinsics=args.refine_intrinsics, progress=progress_to_stderr(False))
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)

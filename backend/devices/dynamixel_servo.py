@@ -57,6 +57,24 @@ def ticks_to_angle(ticks: int) -> float:
     return (ticks - CENTER_TICKS) * RAD_PER_TICK
 
 
+USB_LATENCY_MS = 16.0
+"""The latency timer of a U2D2 (FTDI) adapter; ``dynamixel_sdk`` waits twice this plus the bytes' time."""
+SIM_LATENCY_MS = 250.0
+"""The wait for the built-in simulator (``servo_port="sim"``), which answers from a thread of a possibly loaded
+host rather than from the servo's own microcontroller."""
+
+
+def _port_handler(dxl: Any, path: str, latency_ms: float) -> Any:
+    """``dynamixel_sdk.PortHandler`` for ``path`` whose packet timeout uses ``latency_ms`` (the SDK's is fixed)."""
+
+    class PortHandler(dxl.PortHandler):
+        def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - the SDK's name
+            self.packet_start_time = self.getCurrentTime()
+            self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
+
+    return PortHandler(path)
+
+
 class DynamixelServo:
     """One Dynamixel X-series servo in position mode, through ``dynamixel_sdk`` (Protocol 2.0).
 
@@ -66,17 +84,22 @@ class DynamixelServo:
     limit, access ...) raises :class:`DeviceError` with the SDK's text.
     """
 
-    def __init__(self, port: str, dxl_id: int = 1, baudrate: int = 57600, retries: int = 3):
+    def __init__(self, port: str, dxl_id: int = 1, baudrate: int = 57600, retries: int = 3,
+                 latency_ms: float = USB_LATENCY_MS):
         """Args:
         port: serial device (``/dev/ttyUSB0``, a U2D2) or a simulator's pty path.
         dxl_id: the servo's ID.
         baudrate: 57600 (X-series default) or what the servo is set to.
         retries: attempts after a failed transaction.
+        latency_ms: how late an answer may arrive beyond its bytes' time, halved (ms): the USB adapter's latency
+            timer (:data:`USB_LATENCY_MS`, the SDK's own figure), or :data:`SIM_LATENCY_MS` for a simulator, a
+            thread that a loaded host may not schedule for tens of milliseconds.
         """
         self.port = str(port)
         self.dxl_id = int(dxl_id)
         self.baudrate = int(baudrate)
         self.retries = int(retries)
+        self.latency_ms = float(latency_ms)
         self.model_number: int | None = None
         self.retried = 0
         self._port_handler: Any = None
@@ -92,7 +115,7 @@ class DynamixelServo:
         import dynamixel_sdk as dxl
 
         self._dxl = dxl
-        port = dxl.PortHandler(self.port)
+        port = _port_handler(dxl, self.port, self.latency_ms)
         try:
             port.baudrate = self.baudrate
             ok = port.openPort()
@@ -308,7 +331,8 @@ class SweptScanner(CaptureDevice):
                 self._sim = start_simulator("dynamixel", self.describe(), dxl_id=self.servo_id,
                                             speed_deg_s=self.sim_speed_deg_s)
                 path = self._sim.port
-            self.servo = DynamixelServo(path, self.servo_id, self.baudrate)
+            self.servo = DynamixelServo(path, self.servo_id, self.baudrate,
+                                        latency_ms=SIM_LATENCY_MS if self._sim is not None else USB_LATENCY_MS)
             self.servo.open()
             settings = dict(self.scanner_settings)
             if settings.get("driver") == "sim":

@@ -587,7 +587,7 @@ class DepthNetworkStep:
         if node is None:
             return
         self._in_view()
-        self.solve_jobs.run(f"solve of {node}", lambda progress: network_service.solve_node(
+        self.solve_jobs.run(f"solve of {node}", lambda progress: network_service.solve_session(
             session, node, progress=progress)["id"], lambda result_id: self._show_result(select=result_id))
 
     # -- the whole network ------------------------------------------------------------------------

@@ -35,7 +35,7 @@ from backend.calib.lidar_camera import capture as pairs_service
 from backend.calib.lidar_camera import service as lidar_camera_service
 from backend.calib.lidar_camera.service import PairData
 from backend.core.errors import InputError
-from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, render_overlays, with_legend
+from backend.core.overlay import COLOUR_MODES, OverlayStyle, mosaic, with_legend
 from backend.core.projection import colourise_cloud
 from backend.core.result import StoredResult
 from backend.core.rig import edge_slot
@@ -327,14 +327,13 @@ class LidarCameraStep:
             self.overlay.image = PLACEHOLDER
             return
         camera, lidar = pair
-        for scene in scenes:
-            if scene.image.shape[1] != intrinsics.width or scene.image.shape[0] != intrinsics.height:
-                self.status.content = (f"⚠️ {scene.name}: the image is {scene.image.shape[1]}×{scene.image.shape[0]} "
-                                       f"px but {camera}'s intrinsics are for {intrinsics.width}×{intrinsics.height}")
-                return
-        T_camera_lidar, style, T_root_lidar = self.editor.T, self.style, session.rig.T_root_frame(lidar)
-        drawn, projections, scale = render_overlays([(s.image, s.points, s.intensity) for s in scenes], T_camera_lidar,
-                                                    intrinsics, style, T_root_lidar)
+        T_camera_lidar, style = self.editor.T, self.style
+        try:
+            drawn, projections, scale = lidar_camera_service.render_scenes(session, camera, lidar, scenes,
+                                                                           T_camera_lidar, style)
+        except InputError as exc:
+            self.status.content = f"⚠️ {exc.input}: {exc.message}"
+            return
         kept = sum(len(p) for p in projections)
         self.overlay.image = with_legend(mosaic(drawn, OVERLAY_WIDTH_PX), scale)[..., ::-1]
         self.full_size.content = FULL_SIZE_LINK.format(url=html.escape(self._page_url(T_camera_lidar, style)))

@@ -18,6 +18,7 @@ from backend.calib.rig.service import FLAG_SIGMA, EdgeResidual, RigTree
 from backend.core.errors import InputError
 from backend.core.transforms import to_xyz_ypr
 from studio.context import StudioContext
+from studio.result_card import update_markdown
 from studio.scene import ELLIPSOID_MAX_M
 
 NONE = "(no accepted edge)"
@@ -183,5 +184,5 @@ class RigStep:
         except InputError as exc:
             self.ctx.notify("Cannot revert", exc.message, error=True)
             return
-        self.revert_text.content = f"**{slot} reverted.**\n\n{update.markdown()}"
+        self.revert_text.content = f"**{slot} reverted.**\n\n{update_markdown(update)}"
         self.ctx.rig_changed()

@@ -134,7 +134,7 @@ class SweepStep:
             return
         settings = SweepCalibrationSettings(estimate_tilt=bool(self.estimate_tilt.value))
         self.ctx.show_step(STEP)
-        self.jobs.run(f"Sweep geometry of {sensor}", lambda progress: sweep_service.calibrate(
+        self.jobs.run(f"Sweep geometry of {sensor}", lambda progress: sweep_service.solve_session(
             session, sensor, settings=settings, progress=progress), self._show_history)
 
     # -- showing a sweep and a result --------------------------------------------------------------

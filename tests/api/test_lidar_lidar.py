@@ -78,10 +78,9 @@ def test_three_scenes_through_the_api_are_trusted_and_accepted(client, tmp_path)
     'trusted' verdict (the scenes agree), accepted without a confirmation."""
     import io
 
-    from test_lidar_lidar import T_TRUE, perturbed, scan_pair
-    from test_lidar_lidar_scenes import PLACEMENTS
-
     from backend.sim.lidar_scene import LidarScene
+    from tests.calib.lidar_lidar.test_gicp import T_TRUE, perturbed, scan_pair
+    from tests.calib.lidar_lidar.test_scenes import PLACEMENTS
 
     scene = LidarScene()
     for i, placement in enumerate(PLACEMENTS):

@@ -135,7 +135,7 @@ def solve_node(sensor: str, body: NodeSolveRequest, session: deps.SessionDep, jo
     if not service.captures(session, sensor):  # fail fast, before queueing
         raise InputError(f"no depth captures of {sensor} yet; capture the node first", sensor)
     T_init = None if body.init is None else body.init.matrix()
-    job = jobs.submit(f"depth node {sensor}", lambda progress: service.solve_node(session, sensor, progress,
+    job = jobs.submit(f"depth node {sensor}", lambda progress: service.solve_session(session, sensor, progress,
                                                                                  T_init)["id"])
     return job.status() | {"result_id": None}
 

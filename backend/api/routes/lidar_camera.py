@@ -24,7 +24,7 @@ from backend.calib.lidar_camera import service
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.limits import MAX_CLOUD_UPLOAD_MB, MAX_IMAGE_PIXELS
-from backend.core.overlay import COLOUR_MODES, OverlayStyle, render_overlays, with_legend
+from backend.core.overlay import COLOUR_MODES, OverlayStyle, with_legend
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.image_io import encode_jpeg
 
@@ -154,15 +154,8 @@ def overlay(
     if not 0 <= window[0] < window[1]:
         raise InputError(f"expected a range window 'lo,hi' with 0 <= lo < hi (m), got {range_m!r}", "range_m")
     style = OverlayStyle(colour_by=colour_by, range_m=window, occlusion_px=occlusion_px, radius_px=radius_px)
-    if cloud_id is None:
-        loaded = service.load_pairs(session, camera, lidar, [image_id])[0]
-        scene = (loaded.image, loaded.points, loaded.intensity)
-    else:
-        image = session.capture_image(camera, image_id)
-        pairs_service.check_image_size(image, intrinsics, image_id)
-        scene = (image, *session.capture_cloud(lidar, cloud_id))
-    (drawn,), (projection,), scale = render_overlays([scene], T_camera_lidar, intrinsics, style,
-                                                     session.rig.T_root_frame(lidar))
+    scene = service.overlay_scene(session, camera, lidar, image_id, cloud_id)
+    (drawn,), (projection,), scale = service.render_scenes(session, camera, lidar, [scene], T_camera_lidar, style)
     headers = {"X-Colour-Scale": scale.label, "X-Colour-Range": f"{scale.lo:.6g},{scale.hi:.6g}",
                "X-Points-Drawn": str(len(projection)), "Cache-Control": "no-store"}
     return Response(encode_jpeg(with_legend(drawn, scale) if legend else drawn), media_type="image/jpeg",

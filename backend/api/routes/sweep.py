@@ -22,7 +22,7 @@ def calibrate(sensor: str, body: SweepCalibrateRequest, session: deps.SessionDep
     """Calibrate the sweep geometry in the background; poll ``/api/jobs/{id}`` for ``result_id``."""
     capture = service.swept_capture(session, sensor, body.capture_id)  # fail fast, before queueing
     settings = SweepCalibrationSettings(up_mount=body.up_mount, estimate_tilt=body.estimate_tilt)
-    job = jobs.submit(f"sweep geometry of {sensor}", lambda progress: service.calibrate(
+    job = jobs.submit(f"sweep geometry of {sensor}", lambda progress: service.solve_session(
         session, sensor, capture.id, settings=settings, progress=progress))
     return job.status() | {"result_id": None}
 

@@ -274,7 +274,7 @@ def observations(session: Session, node: str, arrangement: str | None = None,
 # Solves
 
 
-def solve_node(session: Session, node: str, progress: ProgressCallback = no_progress,
+def solve_session(session: Session, node: str, progress: ProgressCallback = no_progress,
                T_init: np.ndarray | None = None) -> dict[str, Any]:
     """Solve ``T_world_node`` from every capture of ``node`` (floor, tables, lines and surveyed points of the
     layout; :func:`backend.calib.depth.node.solve_depth_node`) from ``T_init`` (default: the rig's current
@@ -311,7 +311,7 @@ def solve_network(session: Session, nodes: Sequence[str] | None = None, *, icp: 
     for i, node in enumerate(nodes):
         progress(i / max(len(nodes), 1) * (0.8 if icp else 1.0), f"solving {node}")
         try:
-            result_id = solve_node(session, node)["id"]
+            result_id = solve_session(session, node)["id"]
             out["results"][node] = result_id
             accept_node(session, node, result_id, confirm)
             out["accepted"].append(result_id)

@@ -167,7 +167,7 @@ def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
     rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
 
 
-def calibrate_folder(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
+def solve_files(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
                      progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
     """The CLI's path: every image in a folder, no session. Returns the result and skipped images."""
     files = image_files(images_dir)

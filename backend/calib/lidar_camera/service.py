@@ -41,7 +41,8 @@ from backend.calib.lidar_lidar.accumulation import accumulate_scans
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
-from backend.core.overlay import mosaic, render_overlay
+from backend.core.overlay import ColourScale, OverlayStyle, mosaic, render_overlay, render_overlays
+from backend.core.projection import Projection
 from backend.core.result import ProgressCallback, StoredResult, TransformResult, no_progress
 from backend.core.transforms import check_transform
 from backend.devices.cloud_files import read_cloud
@@ -275,6 +276,27 @@ def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] |
                          "moments first", "pairs")
     return [PairData(p.name, p.name, session.capture_image(camera, p.image.id),
                      *session.capture_cloud(lidar, p.cloud.id)) for p in found]
+
+
+def overlay_scene(session: Session, camera: str, lidar: str, image_id: str, cloud_id: str | None = None) -> PairData:
+    """The scene an overlay draws: the image capture ``image_id`` with its stored pair's cloud, or with the LiDAR's
+    cloud capture ``cloud_id`` (any two captures)."""
+    if cloud_id is None:
+        return load_pairs(session, camera, lidar, [image_id])[0]
+    return PairData(image_id, image_id, session.capture_image(camera, image_id),
+                    *session.capture_cloud(lidar, cloud_id))
+
+
+def render_scenes(session: Session, camera: str, lidar: str, scenes: Sequence[PairData], T_camera_lidar: np.ndarray,
+                  style: OverlayStyle) -> tuple[list[np.ndarray], list[Projection], ColourScale]:
+    """The LiDAR's cloud drawn on each scene's image with ``T_camera_lidar`` (4x4, m): the one overlay the API,
+    the studio and the stored results show (:func:`backend.core.overlay.render_overlays`, heights from the rig's
+    root). Each image must have the size the camera's intrinsics are for (:class:`InputError` naming it)."""
+    intrinsics = camera_intrinsics(session, camera)
+    for scene in scenes:
+        check_image_size(scene.image, intrinsics, scene.image_source)
+    return render_overlays([(s.image, s.points, s.intensity) for s in scenes], T_camera_lidar, intrinsics, style,
+                           session.rig.T_root_frame(lidar))
 
 
 def overlay_files(loaded: Sequence[PairData], camera: CameraIntrinsics, T_before: np.ndarray,

@@ -351,7 +351,7 @@ def parse_named(values: Sequence[str], what: str) -> dict[str, Path]:
     return named
 
 
-def solve_folders(folders: dict[str, Path], board: BoardSpec, intrinsics_files: dict[str, Path], *,
+def solve_files(folders: dict[str, Path], board: BoardSpec, intrinsics_files: dict[str, Path], *,
                   refine_intrinsics: bool = False, progress: ProgressCallback = no_progress
                   ) -> tuple[MulticamResult, list[str]]:
     """The CLI's path: calibrate the rig of ``folders`` (camera -> images, the first the reference) with the

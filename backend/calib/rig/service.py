@@ -21,7 +21,8 @@ import numpy as np
 
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.multicam import service as multicam_service
-from backend.calib.rig.graph import FLAG_SIGMA, EdgeResidual, RigEdge, RigTree, solve_rig_graph
+from backend.calib.rig.graph import FLAG_SIGMA as FLAG_SIGMA  # re-exported: the studio names the limit
+from backend.calib.rig.graph import EdgeResidual, RigEdge, RigTree, solve_rig_graph
 from backend.calib.sweep import service as sweep_service
 from backend.core.errors import InputError
 from backend.core.result import EDGE_KINDS, StoredResult, TransformResult
@@ -152,19 +153,6 @@ class RigUpdate:
                 "conflicts": [c.to_dict() for c in self.conflicts], "problems": self.tree.problems(),
                 "rig": self.tree.summary()}
 
-    def markdown(self) -> str:
-        """Which frames move, by how much against their sigma, and what disagrees (for the result card)."""
-        lines = []
-        for move in self.moves:
-            ratio = "" if move.sigma_ratio is None else f" ({move.sigma_ratio:.1f} sigma)"
-            lines.append(f"- **{move.frame}** moves {move.trans_m * 1000:.2f} mm, {move.rot_deg:.3f} deg{ratio}")
-        if not lines:
-            lines.append("- no frame moves")
-        for conflict in self.conflicts:
-            lines.append(f"- 🔴 {conflict.edge.label} disagrees with the rest by {conflict.disagreement_sigma:.1f} "
-                         f"sigma (beyond {FLAG_SIGMA:g}) and is left out of the tree")
-        lines += [f"- ⚠️ {problem}" for problem in self.tree.problems() if "not connected" in problem]
-        return "\n".join(lines)
 
 
 def _moves(before: RigTree, after: RigTree) -> list[FrameMove]:

@@ -103,7 +103,7 @@ def rig_geometry(rig: Rig, sensor: str) -> SweepGeometry:
         raise InputError(f"sensor {sensor!r}: bad device geometry: {exc}", "device.geometry") from None
 
 
-def calibrate(session: Session, sensor: str, capture_id: str | None = None, *,
+def solve_session(session: Session, sensor: str, capture_id: str | None = None, *,
               settings: SweepCalibrationSettings | None = None, progress: ProgressCallback = no_progress) -> str:
     """Calibrate the sweep geometry from one stored sweep and store the result (not yet accepted).
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from backend.calib.board.detection import detect_board
-from backend.calib.intrinsics.service import calibrate_folder
+from backend.calib.intrinsics.service import solve_files
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 
@@ -113,7 +113,7 @@ def test_correlation_matrix_is_a_correlation_matrix(result):
 def test_folder_service_reports_per_view_and_skips_nothing(stereo_chessboard, tmp_path):
     for path in sorted(stereo_chessboard.glob("left*.jpg")):
         (tmp_path / path.name).write_bytes(path.read_bytes())
-    result, skipped = calibrate_folder(tmp_path, BOARD, SETTINGS)
+    result, skipped = solve_files(tmp_path, BOARD, SETTINGS)
     assert skipped == []
     assert [v.name for v in result.views][:3] == ["left01.jpg", "left02.jpg", "left03.jpg"]
     assert max(v.rms_px for v in result.views) < 0.5

@@ -363,7 +363,7 @@ def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_p
     """``--pair`` per scene, and ``--init-xyzypr -0.7,...`` (a value that starts with '-') after a space.
 
     Source and target are swapped here, so the initial T_target_source is the inverse of T_TRUE: x < 0."""
-    from test_lidar_lidar_scenes import PLACEMENTS
+    from tests.calib.lidar_lidar.test_scenes import PLACEMENTS
 
     args = []
     for i, placement in enumerate(PLACEMENTS[:2]):

@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from backend.api.app import create_app
-from backend.calib.intrinsics.service import calibrate_folder
+from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.multicam import service
 from backend.calib.multicam.capture import capture_set
@@ -53,7 +53,8 @@ def folders(stereo_chessboard: Path, tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def left_yaml(folders, tmp_path_factory) -> Path:
-    result, _ = calibrate_folder(folders["left"], BoardSpec.parse(BOARD), IntrinsicsSettings(jackknife=False))
+    result, _ = intrinsics_service.solve_files(folders["left"], BoardSpec.parse(BOARD),
+                                               IntrinsicsSettings(jackknife=False))
     path = tmp_path_factory.mktemp("yaml") / "left.yaml"
     write_camera_info(path, result.camera, "left")
     return path
@@ -132,7 +133,7 @@ def test_frames_some_cameras_lack_are_reported(folders, left_yaml, tmp_path):
     shutil.copytree(folders["right"], partial)
     (partial / "right05.jpg").unlink()
     (partial / "right12.jpg").unlink()
-    result, warnings = service.solve_folders({"left": folders["left"], "right": partial},
+    result, warnings = service.solve_files({"left": folders["left"], "right": partial},
                                              BoardSpec.parse(BOARD), {"left": left_yaml, "right": left_yaml})
     assert "camera right has no image for frames 5, 12" in warnings[0]
     assert result.converged and result.graph.shared_frames == {("left", "right"): 11}

@@ -156,7 +156,7 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
     bad_id = _store(session, bad)
     preview = rig_service.preview(session, bad_id)
     assert [c.edge.result_id for c in preview.conflicts] == [bad_id]
-    assert "disagrees" in preview.markdown() and bad_id in preview.markdown()
+    assert preview.conflicts[0].disagreement_sigma > rig_service.FLAG_SIGMA
     np.testing.assert_array_equal(session.rig.T_root_frame("lidar_front"), before["lidar_front"])  # nothing written
 
     update = rig_service.accept(session, bad_id)

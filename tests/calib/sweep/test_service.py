@@ -64,7 +64,7 @@ def calibrated(nominal_sweep, tmp_path_factory) -> tuple[Session, str, str, floa
     session = SessionStore(tmp_path_factory.mktemp("calibrated")).create("sweep", rig=demo_rig())
     capture = service.capture_sweep(session, SENSOR)  # the studio's path: the rig's device, one sweep, stored
     started = time.monotonic()
-    result_id = service.calibrate(session, SENSOR)
+    result_id = service.solve_session(session, SENSOR)
     return session, capture.id, result_id, time.monotonic() - started
 
 
@@ -216,7 +216,7 @@ def test_calibration_can_be_cancelled_and_leaves_no_result(nominal_sweep, sessio
             raise CancelledError("cancelled")
 
     with pytest.raises(CancelledError):
-        service.calibrate(session, SENSOR, progress=progress)
+        service.solve_session(session, SENSOR, progress=progress)
     assert session.results(SENSOR) == []
 
 
@@ -238,31 +238,31 @@ def test_sweep_image_of_a_stored_sweep(calibrated):
 
 def test_errors_name_the_sensor_and_the_capture(session):
     with pytest.raises(InputError, match="'lidar_top' is not a swept scanner") as info:
-        service.calibrate(session, "lidar_top")
+        service.solve_session(session, "lidar_top")
     assert info.value.input == "sensor"
     with pytest.raises(NotFoundError, match="no sensor or frame named 'nope'"):
-        service.calibrate(session, "nope")
+        service.solve_session(session, "nope")
     with pytest.raises(InputError, match="no sweep captured for sweep_3d yet") as info:
-        service.calibrate(session, SENSOR)
+        service.solve_session(session, SENSOR)
     assert info.value.input == SENSOR and info.value.status_code == 422
     plain = store_cloud(session, SENSOR, Sample(0.0, points=np.ones((5, 3))), device="upload")
     with pytest.raises(InputError, match=f"capture {plain.id} of sweep_3d holds no sweep .*step_counts") as info:
-        service.calibrate(session, SENSOR, plain.id)
+        service.solve_session(session, SENSOR, plain.id)
     assert info.value.input == "capture"
     with pytest.raises(NotFoundError, match="no cloud capture '00042' for sensor 'sweep_3d'"):
-        service.calibrate(session, SENSOR, "00042")
+        service.solve_session(session, SENSOR, "00042")
     # a sweep too short to calibrate: the solver says so
     points = np.column_stack([np.linspace(1, 2, 50), np.zeros(50), np.zeros(50)])
     short = Sample(0.0, points=points, meta={"servo_angles_rad": [0.0, 0.1], "step_counts": [25, 25],
                                              "geometry": SWEEP_NOMINAL_GEOMETRY})
     store_cloud(session, SENSOR, short, device="sim")
     with pytest.raises(InputError, match="too short to calibrate"):
-        service.calibrate(session, SENSOR)
+        service.solve_session(session, SENSOR)
     broken = Sample(0.0, points=points, meta={"servo_angles_rad": [0.0, 0.1], "step_counts": [25, 20],
                                               "geometry": SWEEP_NOMINAL_GEOMETRY})
     broken_id = store_cloud(session, SENSOR, broken, device="sim").id
     with pytest.raises(InputError, match=f"capture {broken_id} of sweep_3d: step_counts"):
-        service.calibrate(session, SENSOR)
+        service.solve_session(session, SENSOR)
 
 
 # ---------------------------------------------------------------- API

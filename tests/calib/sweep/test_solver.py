@@ -18,6 +18,7 @@ from backend.core.sweep_geometry import SweepGeometry, intensity_image
 from backend.core.transforms import from_xyz_ypr, make_T, transform_error, transform_points
 from backend.devices.base import DeviceError, create_device
 from backend.devices.dynamixel_servo import (
+    SIM_LATENCY_MS,
     DynamixelServo,
     SweptScanner,
     angle_to_ticks,
@@ -105,7 +106,7 @@ def test_simulator_speaks_the_sdk_crc_and_rejects_bad_crc():
 
 def test_servo_round_trip_over_pty_with_corrupt_status_packets():
     with DynamixelSimulator(speed_deg_s=600.0, corrupt_every=3) as sim:
-        servo = DynamixelServo(sim.port)
+        servo = DynamixelServo(sim.port, latency_ms=SIM_LATENCY_MS)  # a simulator thread on a maybe loaded host
         servo.open()
         try:
             assert servo.model_number == 1020
