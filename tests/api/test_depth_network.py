@@ -21,7 +21,7 @@ from backend.core.depth import pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
 from backend.core.transforms import transform_error
 from backend.sim.depth_cell import CellScene
-from tests.calib.depth.test_service import pose_error, render_captures, typed_pose
+from tests.calib.depth.conftest import pose_error, render_captures, typed_pose
 from tests.conftest import wait_job
 
 BASE = "/api/sessions/cell/depth-network"

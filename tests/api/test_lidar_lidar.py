@@ -79,8 +79,7 @@ def test_three_scenes_through_the_api_are_trusted_and_accepted(client, tmp_path)
     import io
 
     from backend.sim.lidar_scene import LidarScene
-    from tests.calib.lidar_lidar.test_gicp import T_TRUE, perturbed, scan_pair
-    from tests.calib.lidar_lidar.test_scenes import PLACEMENTS
+    from tests.calib.lidar_lidar.conftest import PLACEMENTS, T_TRUE, perturbed, scan_pair
 
     scene = LidarScene()
     for i, placement in enumerate(PLACEMENTS):

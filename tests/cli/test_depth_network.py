@@ -13,7 +13,7 @@ import pytest
 from backend.calib.depth import service
 from backend.store.session import Session
 from studio.cli import main
-from tests.calib.depth.test_service import build_cell_session, pose_error
+from tests.calib.depth.conftest import build_cell_session, pose_error
 from tests.conftest import ROOT
 
 REPO = ROOT

@@ -20,8 +20,7 @@ from backend.exports.ros_camera_info import write_camera_info
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from tests.calib.lidar_camera.test_edges import initial_guess, simulated_pairs
-from tests.calib.lidar_camera.test_target import _initial_guess
+from tests.calib.lidar_camera.conftest import initial_guess, simulated_pairs
 from tests.conftest import ROOT
 
 ROOT = ROOT
@@ -69,7 +68,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 def _init(folder: Path) -> Path:
     path = folder / "init.txt"
-    np.savetxt(path, _initial_guess(8))
+    np.savetxt(path, initial_guess(8))
     return path
 
 

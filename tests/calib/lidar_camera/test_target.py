@@ -22,15 +22,19 @@ from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.transforms import invert, make_T, transform_error
 from backend.sim.board_renderer import PLATE_MARGIN_SQUARES, render_board_image
-from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
+from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
+from tests.calib.lidar_camera.conftest import (
+    RIG,
+    T_BASE_CAMERA,
+    T_BASE_LIDAR,
+    TRUTH,
+    errors_and_sigmas,
+    initial_guess,
+)
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 SETTINGS = LidarCameraTargetSettings(plate_margin_m=PLATE_MARGIN_SQUARES * BOARD.square_m)
-RIG = demo_rig()
-T_BASE_CAMERA = RIG.T_root_frame("cam_front")
-T_BASE_LIDAR = RIG.T_root_frame("lidar_front")
-TRUTH = RIG.T_a_b("cam_front", "lidar_front")
 
 
 def _pnp_noise(rng: np.random.Generator, trans_m: float = 0.0005, rot_deg: float = 0.02) -> np.ndarray:
@@ -49,19 +53,6 @@ def _observations(T_base_boards: list[np.ndarray], beams: int, seed: int) -> lis
     return observations
 
 
-def _initial_guess(seed: int) -> np.ndarray:
-    """The truth off by 10 cm and 5 deg in random directions."""
-    rng = np.random.default_rng(seed)
-    axis, direction = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
-    return TRUTH @ make_T(Rotation.from_rotvec(np.radians(5.0) * axis).as_matrix(), 0.1 * direction)
-
-
-def _errors_and_sigmas(result) -> tuple[np.ndarray, np.ndarray]:
-    """(6,) error (m, m, m, deg, deg, deg) against the truth and the reported 1-sigma in the same units."""
-    err_t, err_r = transform_error(result.T_parent_child, TRUTH)
-    return np.r_[err_t, err_r], np.r_[result.std["trans_m"], result.std["rot_deg"]]
-
-
 @pytest.fixture(scope="module")
 def vlp16_poses() -> list[TargetObservation]:
     return _observations(moving_board_poses(12, seed=0), beams=16, seed=1)
@@ -69,14 +60,14 @@ def vlp16_poses() -> list[TargetObservation]:
 
 @pytest.fixture(scope="module")
 def vlp16_result(vlp16_poses):
-    return solve_target(BOARD, vlp16_poses, _initial_guess(2), SETTINGS)
+    return solve_target(BOARD, vlp16_poses, initial_guess(2), SETTINGS)
 
 
 @pytest.mark.slow
 def test_64_beams_40_poses_recover_truth_from_10cm_5deg():
     observations = _observations(moving_board_poses(40, seed=3), beams=64, seed=4)
-    result = solve_target(BOARD, observations, _initial_guess(5), SETTINGS)
-    error, sigma = _errors_and_sigmas(result)
+    result = solve_target(BOARD, observations, initial_guess(5), SETTINGS)
+    error, sigma = errors_and_sigmas(result, TRUTH)
     assert result.converged, result.warnings
     # over five other seeds of this set-up: 0.0-2.2 mm and 0.00-0.054 deg, so these are ~2-sigma bounds
     assert np.all(np.abs(error[:3]) < 0.002), error
@@ -85,7 +76,7 @@ def test_64_beams_40_poses_recover_truth_from_10cm_5deg():
 
 
 def test_vlp16_recovers_truth_within_its_sigmas(vlp16_result):
-    error, sigma = _errors_and_sigmas(vlp16_result)
+    error, sigma = errors_and_sigmas(vlp16_result, TRUTH)
     assert vlp16_result.converged, vlp16_result.warnings
     assert vlp16_result.diagnostics["rounds"] == len(SETTINGS.region_margins_m)
     assert np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.5), error
@@ -121,8 +112,8 @@ def test_board_axes_flipped_by_pnp_give_the_same_result(vlp16_poses):
     flipped = [replace(o, T_camera_board=o.T_camera_board @ half_turn) if i % 2 else o
                for i, o in enumerate(vlp16_poses)]
     settings = replace(SETTINGS, spread=False)
-    a = solve_target(BOARD, vlp16_poses[:6], _initial_guess(2), settings)
-    b = solve_target(BOARD, flipped[:6], _initial_guess(2), settings)
+    a = solve_target(BOARD, vlp16_poses[:6], initial_guess(2), settings)
+    b = solve_target(BOARD, flipped[:6], initial_guess(2), settings)
     np.testing.assert_allclose(b.T_parent_child, a.T_parent_child, atol=1e-6)
 
 
@@ -212,8 +203,8 @@ def test_rendered_images_detected_and_pnp():
         scan = LidarScene(board_pose=T_base_board).scan_3d(T_BASE_LIDAR, beams=64, rng=rng)
         observations.append(TargetObservation(camera_board_pose(image, CAM_FRONT, BOARD, f"image {i + 1}"),
                                               scan.points, f"pose {i + 1}"))
-    result = solve_target(BOARD, observations, _initial_guess(8), SETTINGS)
-    error, sigma = _errors_and_sigmas(result)
+    result = solve_target(BOARD, observations, initial_guess(8), SETTINGS)
+    error, sigma = errors_and_sigmas(result, TRUTH)
     assert result.converged, result.warnings
     assert np.all(np.abs(error) < 3 * sigma), (error, sigma)
     assert np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.5), error

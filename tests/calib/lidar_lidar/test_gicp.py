@@ -17,7 +17,6 @@ from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.transforms import (
     check_transform,
-    from_xyz_ypr,
     invert,
     make_T,
     rotation_angle_deg,
@@ -25,48 +24,13 @@ from backend.core.transforms import (
     transform_error,
     transform_points,
 )
+from tests.calib.lidar_lidar.conftest import PLACEMENTS, SCENE_KEYS, T_TRUE, perturbed, scan_pair
 from tests.conftest import ROOT, SHARED_DATA
 
 REPO = ROOT
 REAL_PAIR = SHARED_DATA / "opencalib_lidar2lidar_pair"
 SUMMARY_KEYS = {"T_target_source", "fitness", "rmse_m", "c2c_m", "std", "seconds", "verdict", "scenes", "scene_spread"}
 """The CLI's JSON (conventions.md)."""
-SCENE_KEYS = {"pairs", "T_target_source", "fitness", "rmse_m", "converged", "std", "deviation", "agrees"}
-"""One scene's own solve, in the CLI's ``scenes`` and the record's ``diagnostics["scenes"]``."""
-
-T_BASE_SOURCE = from_xyz_ypr(np.array([0.4, 0.2, 1.1]), np.radians([0.0, 2.0, 0.0]))
-"""Source LiDAR on the simulated robot (m, rad)."""
-T_BASE_TARGET = from_xyz_ypr(np.array([-0.3, -0.35, 0.9]), np.radians([100.0, 12.0, -5.0]))
-"""Target LiDAR: turned 100 deg, tilted 12 deg."""
-T_TRUE = invert(T_BASE_TARGET) @ T_BASE_SOURCE
-"""Ground-truth T_target_source."""
-
-
-@pytest.fixture(scope="module")
-def scene():
-    from backend.sim.lidar_scene import LidarScene
-
-    return LidarScene()
-
-
-def scan_pair(scene, seed: int, T_world_base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(source, target) points (m, sensor frames) of one frame: VLP-16-like scans, 1 cm range noise.
-    The source's rear quarter is blocked (as by the vehicle), so the overlap is partial."""
-    T_world_base = np.eye(4) if T_world_base is None else T_world_base
-    source = scene.scan_3d(T_world_base @ T_BASE_SOURCE, range_noise_m=0.01, rng=2 * seed + 1)
-    target = scene.scan_3d(T_world_base @ T_BASE_TARGET, range_noise_m=0.01, rng=2 * seed + 2)
-    front = np.abs(np.angle(np.exp(1j * (source.azimuth_rad - np.pi)))) > np.radians(45)
-    return source.points[front], target.points
-
-
-def perturbed(T: np.ndarray, seed: int, trans_m: float, rot_deg: float) -> np.ndarray:
-    """``T`` moved by exactly ``trans_m`` (m) and ``rot_deg`` (deg) in random directions."""
-    rng = np.random.default_rng(seed)
-    t = rng.normal(size=3)
-    axis = rng.normal(size=3)
-    rotation = Rotation.from_rotvec(np.radians(rot_deg) * axis / np.linalg.norm(axis)).as_matrix()
-    return T @ make_T(rotation, trans_m * t / np.linalg.norm(t))
-
 
 def assert_recovered(result, T_true: np.ndarray) -> None:
     """Within 5 mm and 0.1 deg of the truth, and every axis's error below 3 reported sigmas."""
@@ -363,7 +327,6 @@ def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_p
     """``--pair`` per scene, and ``--init-xyzypr -0.7,...`` (a value that starts with '-') after a space.
 
     Source and target are swapped here, so the initial T_target_source is the inverse of T_TRUE: x < 0."""
-    from tests.calib.lidar_lidar.test_scenes import PLACEMENTS
 
     args = []
     for i, placement in enumerate(PLACEMENTS[:2]):

@@ -14,11 +14,8 @@ import pytest
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings
 from backend.calib.lidar_lidar.scenes import register_pairs
 from backend.core.transforms import from_xyz_ypr, transform_error, transform_points
-from tests.calib.lidar_lidar.test_gicp import SCENE_KEYS, T_TRUE, perturbed, scan_pair
+from tests.calib.lidar_lidar.conftest import PLACEMENTS, SCENE_KEYS, T_TRUE, perturbed, scan_pair
 
-PLACEMENTS = [np.eye(4), from_xyz_ypr(np.array([1.0, 0.5, 0.0]), np.radians([30.0, 0, 0])),
-              from_xyz_ypr(np.array([-0.5, -1.0, 0.0]), np.radians([-50.0, 0, 0]))]
-"""Three places of the robot in the yard (T_world_base, m, rad)."""
 KNOCKED = from_xyz_ypr(np.array([0.04, -0.03, 0.0]), np.radians([1.0, 0.0, 0.0]))
 """The source LiDAR knocked by 5 cm and 1 deg before the last scene (its cloud moved by this)."""
 NO_SPREAD = LidarLidarSettings(spread=False)
@@ -27,13 +24,6 @@ NO_SPREAD = LidarLidarSettings(spread=False)
 @pytest.fixture(scope="module")
 def scenes(scene) -> list[tuple[np.ndarray, np.ndarray]]:
     return [scan_pair(scene, 10 + i, T) for i, T in enumerate(PLACEMENTS)]
-
-
-@pytest.fixture(scope="module")
-def scene():
-    from backend.sim.lidar_scene import LidarScene
-
-    return LidarScene()
 
 
 @pytest.mark.slow
