@@ -345,6 +345,19 @@ def _uncovered(row: Locator, timeout_s: float) -> bool:
     return True
 
 
+def wait_still(locator: Locator, timeout_s: float = 10.0) -> None:
+    """Wait until ``locator``'s box stops moving (an animation such as a notification sliding in has ended)."""
+    deadline = time.monotonic() + timeout_s
+    box = locator.bounding_box()
+    while True:
+        locator.page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 100))")
+        now = locator.bounding_box()
+        if now == box:
+            return
+        assert time.monotonic() < deadline, f"still moving after {timeout_s:g} s: {box} -> {now}"
+        box = now
+
+
 def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s

@@ -22,7 +22,7 @@ from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
 from backend.exports.target_pdf import board_sheet
-from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
+from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body, wait_still
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -75,19 +75,26 @@ def _settled_views(page: Page, quiet_s: float = 4.0, timeout_s: float = 60.0) ->
 def _scroll_to_result(page: Page) -> None:
     page.get_by_text("Per-view RMS", exact=True).scroll_into_view_if_needed()
     page.get_by_text(re.compile(r"^reprojection RMS \d")).scroll_into_view_if_needed()
-    time.sleep(0.5)
+
+
+def _scene_view(page: Page) -> tuple[float, int]:
+    """The 3D view's spread of grey levels and its number of distinct colours, from a screenshot."""
+    shot = page.screenshot(path=ARTIFACTS / "studio_demo.png")
+    rgb = np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
+    view = rgb[:, : int(PANEL_LEFT_PX * rgb.shape[1] / VIEWPORT["width"])]
+    return float(view.std()), len(np.unique(view.reshape(-1, 3), axis=0))
 
 
 def test_demo_page_renders_rig(page: Page) -> None:
-    time.sleep(4)  # frusta, boards and the live thumbnail arrive over the socket and render in software
     ARTIFACTS.mkdir(exist_ok=True)
-    shot = page.screenshot(path=ARTIFACTS / "studio_demo.png")
-
-    rgb = np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
-    scale = rgb.shape[1] / VIEWPORT["width"]
-    view = rgb[:, : int(PANEL_LEFT_PX * scale)]
-    colours = len(np.unique(view.reshape(-1, 3), axis=0))
-    assert view.std() > 10.0, f"the 3D view looks blank (std {view.std():.1f} grey levels)"
+    # frusta, boards and the live thumbnail arrive over the socket and render in software: wait until they show
+    deadline = time.monotonic() + 60
+    while (drawn := _scene_view(page))[0] <= 10.0 or drawn[1] <= 200:
+        if time.monotonic() > deadline:
+            break
+        page.wait_for_function("() => new Promise(done => requestAnimationFrame(() => done(true)))")
+    spread, colours = drawn
+    assert spread > 10.0, f"the 3D view looks blank (std {spread:.1f} grey levels)"
     assert colours > 200, f"the 3D view has only {colours} distinct colours"
 
     # The demo session opens on cam_front, calibrated and accepted when the session was built.
@@ -200,7 +207,7 @@ def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_c
     expect(notice).to_be_visible(timeout=15_000)
     expect(notice).to_contain_text("broken_shot.jpg")
     expect(notice).to_contain_text("not a readable image")
-    page.wait_for_timeout(1000)  # let the toast finish sliding in before the picture
+    wait_still(notice)  # the toast has finished sliding in before the picture
     page.screenshot(path=ARTIFACTS / "studio_bad_upload.png")
     assert httpx.get(captures_url).json() == before
 
