@@ -8,7 +8,6 @@ before anything is coloured or drawn.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from backend.core.colour_maps import colormap, height_colours, intensity_colours
@@ -75,42 +74,3 @@ def colour_points(mode: str, points: np.ndarray, intensity: np.ndarray | None, T
     if mode == "intensity" and intensity is not None and len(points):
         return intensity_colours(intensity)
     return np.array(sensor_colour(sensor_index), np.uint8)
-
-
-def distance_colours(distances_m: np.ndarray, max_m: float) -> np.ndarray:
-    """Cloud-to-cloud distances (m) on VIRIDIS from 0 (dark) to ``max_m`` (yellow); beyond (inf too) is red."""
-    d = np.asarray(distances_m, np.float32)
-    colours = colormap(np.where(np.isfinite(d), d, max_m), 0.0, max_m, cv2.COLORMAP_VIRIDIS)
-    colours[~(d <= max_m)] = (230, 40, 40)
-    return colours
-
-
-def distance_histogram(distances_m: np.ndarray, max_m: float, width: int = 480, height: int = 170,
-                       bins: int = 40) -> np.ndarray:
-    """Histogram of cloud-to-cloud distances (mm on the axis), bars coloured as in the 3D view (RGB)."""
-    canvas = np.full((height, width, 3), 255, np.uint8)
-    d = np.asarray(distances_m, float)
-    d = d[np.isfinite(d)]
-    left, bottom, top = 40, height - 28, 18
-    cv2.line(canvas, (left, bottom), (width - 8, bottom), (0, 0, 0), 1)
-    if d.size == 0:
-        cv2.putText(canvas, "no distances yet", (left + 10, height // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (90, 90, 90),
-                    1)
-        return canvas
-    counts, edges = np.histogram(np.clip(d, 0, max_m), bins=bins, range=(0.0, max_m))
-    colours = distance_colours((edges[:-1] + edges[1:]) / 2, max_m)
-    bar_w = (width - 8 - left) / bins
-    scale = (bottom - top) / max(counts.max(), 1)
-    for i, count in enumerate(counts):
-        x0, x1 = int(left + i * bar_w), int(left + (i + 1) * bar_w) - 1
-        cv2.rectangle(canvas, (x0, bottom - int(count * scale)), (max(x0, x1), bottom),
-                      tuple(int(c) for c in colours[i]), -1)
-    for fraction in (0.0, 0.25, 0.5, 0.75, 1.0):
-        x = int(left + fraction * (width - 8 - left))
-        cv2.line(canvas, (x, bottom), (x, bottom + 4), (0, 0, 0), 1)
-        cv2.putText(canvas, f"{fraction * max_m * 1000:.0f}", (x - 10, bottom + 17), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 0), 1)
-    cv2.putText(canvas, f"{counts.max()} pts", (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
-    cv2.putText(canvas, "cloud-to-cloud distance (mm)", (width - 235, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0),
-                1)
-    return canvas

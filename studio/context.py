@@ -73,6 +73,17 @@ class StudioContext:
         for listener in self._step_listeners:
             self._call(listener, step, during="the step change")
 
+    def after_switch(self, action: Callable[[], None]) -> Callable[[viser.GuiEvent], None]:
+        """A click handler running ``action()`` once any session switch in progress has finished: a Start clicked
+        while the steps still follow a new session acts on that session, and the switch's own stop of the old one's
+        streams cannot undo it."""
+
+        def handler(_event: viser.GuiEvent) -> None:
+            with self._switching:
+                action()
+
+        return handler
+
     def open_session(self, session: Session) -> None:
         """Leave the open session, make ``session`` current, draw its rig and tell every step."""
         with self._switching:

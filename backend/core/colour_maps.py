@@ -100,3 +100,11 @@ def height_colours(points_sensor: np.ndarray, T_root_sensor: np.ndarray, lo_m: f
     """(M, 3) uint8 RGB of the points' height (z in the rig's root frame, m) on TURBO, ``lo_m`` to ``hi_m``."""
     z_root = np.asarray(points_sensor, dtype=np.float64) @ T_root_sensor[2, :3] + T_root_sensor[2, 3]
     return colormap(z_root, lo_m, hi_m)
+
+
+def distance_colours(distances_m: np.ndarray, max_m: float) -> np.ndarray:
+    """Cloud-to-cloud distances (m) on VIRIDIS from 0 (dark) to ``max_m`` (yellow); beyond (inf too) is red."""
+    d = np.asarray(distances_m, np.float32)
+    colours = colormap(np.where(np.isfinite(d), d, max_m), 0.0, max_m, cv2.COLORMAP_VIRIDIS)
+    colours[~(d <= max_m)] = (230, 40, 40)
+    return colours

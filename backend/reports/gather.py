@@ -71,6 +71,21 @@ class CameraReport:
         """Corners of the used views."""
         return sum(len(v.corners_px) for v in self.views if v.used)
 
+    def used_corners(self) -> np.ndarray:
+        """(N, 2) corners (px) of the used views."""
+        corners = [v.corners_px for v in self.views if v.used]
+        return np.vstack(corners) if corners else np.zeros((0, 2))
+
+    def residual_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Corners (N, 2) px, residuals (N, 2) px and view index (N,) of the used views that have residuals."""
+        kept = [(i, v) for i, v in enumerate(self.views) if v.used and v.residuals_px is not None]
+        if not kept:
+            return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, int)
+        corners = np.vstack([v.corners_px for _, v in kept])
+        residuals = np.vstack([v.residuals_px for _, v in kept])
+        views = np.concatenate([np.full(len(v.corners_px), i) for i, v in kept])
+        return corners, residuals, views
+
 
 @dataclass
 class EdgeReport:

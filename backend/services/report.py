@@ -11,11 +11,15 @@ import math
 from collections import Counter
 from typing import Any
 
+import numpy as np
 from markupsafe import Markup
 
 from backend.core.camera import DIST_NAMES
 from backend.core.verdict import Verdict
-from backend.reports import plots
+from backend.plots import intrinsics as intrinsics_plots
+from backend.plots import rig as rig_plots
+from backend.plots.lidar_lidar import c2c_histogram
+from backend.plots.render import to_data_uri
 from backend.reports.gather import CameraReport, EdgeReport, ReportData, gather
 from backend.reports.template import CSS, SECTIONS, TEMPLATE, environment
 from backend.store.session import Session
@@ -46,8 +50,22 @@ def intrinsics_parameters(camera: CameraReport) -> list[dict[str, Any]]:
 
 def transform_plots(edge: EdgeReport) -> dict[str, str | None]:
     """An accepted transform's plots: ``units`` (residual RMS per pose, scene or set) and ``c2c`` (LiDAR-LiDAR)."""
-    return {"units": plots.unit_residual_bars(edge),
-            "c2c": plots.c2c_histogram(edge) if edge.c2c_m is not None and len(edge.c2c_m) else None}
+    result = edge.result
+    units = rig_plots.unit_residual_bars(result.diagnostics, result.parent, result.child)
+    has_c2c = edge.c2c_m is not None and len(edge.c2c_m)
+    return {"units": to_data_uri(units) if units else None,
+            "c2c": to_data_uri(c2c_histogram(edge.c2c_m, float(np.max(edge.c2c_m)),
+                                             f"{result.child} -> {result.parent}: cloud-to-cloud distance"))
+            if has_c2c else None}
+
+
+def camera_plots(camera: CameraReport) -> dict[str, str | None]:
+    """A camera's intrinsics plots: per-view RMS, residual vectors, corner coverage and projection maps."""
+    maps = intrinsics_plots.projection_maps(camera.record)
+    return {"rms": to_data_uri(intrinsics_plots.view_rms_bars(camera.sensor, camera.record)),
+            "vectors": to_data_uri(intrinsics_plots.residual_vectors(*camera.residual_arrays(), camera.image_size)),
+            "coverage": to_data_uri(intrinsics_plots.coverage_map(camera.used_corners(), camera.image_size)),
+            "maps": to_data_uri(maps) if maps else None}
 
 
 def page_context(data: ReportData) -> dict[str, Any]:
@@ -56,8 +74,7 @@ def page_context(data: ReportData) -> dict[str, Any]:
     verdicts = [Verdict.from_record(c.record).level for c in data.cameras]
     verdicts += [e.result.verdict.level if e.result.verdict else "check" for e in data.edges]
     edge_counts = Counter(name for r in accepted_edges for name in (r.edge.parent, r.edge.child))
-    graph_plot = plots.observation_graph(data.tree)
-    rig_plot, ellipsoid_scale = plots.rig_drawing(data.tree)
+    rig_figure, ellipsoid_scale = rig_plots.rig_drawing(data.tree)
     return {
         "css": Markup(CSS), "sections": SECTIONS, "session": data.session, "generated_at": data.generated_at,
         "tree": data.tree, "frames": data.frames, "cameras": data.cameras, "edges": data.edges,
@@ -69,11 +86,10 @@ def page_context(data: ReportData) -> dict[str, Any]:
         "camera_rms": {c.sensor: f"{c.record['camera']['model']}, RMS {c.record['rms_px']:.3f} px ({c.result_id})"
                        for c in data.cameras},
         "params": {c.sensor: intrinsics_parameters(c) for c in data.cameras},
-        "camera_plots": {c.sensor: {"rms": plots.view_rms_bars(c), "vectors": plots.residual_vectors(c),
-                                    "coverage": plots.coverage_map(c), "maps": plots.projection_maps(c)}
-                         for c in data.cameras},
+        "camera_plots": {c.sensor: camera_plots(c) for c in data.cameras},
         "edge_plots": [transform_plots(e) for e in data.edges],
         "geometry_plots": [transform_plots(e) for e in data.geometries], "geometries": data.geometries,
         "problems": data.tree.problems(), "units": DATA_UNITS,
-        "graph_plot": graph_plot, "rig_plot": rig_plot, "ellipsoid_scale": ellipsoid_scale,
+        "graph_plot": to_data_uri(rig_plots.observation_graph(data.tree)), "rig_plot": to_data_uri(rig_figure),
+        "ellipsoid_scale": ellipsoid_scale,
     }

@@ -11,6 +11,8 @@ from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
+from backend.plots.intrinsics import projection_maps, view_rms_bars
+from backend.plots.render import PANEL_WIDTH_PX, to_rgb
 from backend.services.live_capture import (
     PARAM_NAMES,
     Coverage,
@@ -22,13 +24,17 @@ from backend.services.live_capture import (
     last_capture,
 )
 from backend.store.schema import CaptureRecord
-from studio import plots
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.live_preview import live_view
 from studio.live_toggle import LiveToggle
 from studio.result_card import ResultCard
 
 NO_CAMERA = "(no camera)"
+RMS_PLOT_WIDTH_IN = 5.0
+"""The per-view RMS plot's width as drawn (in): the report's 7 in would shrink its labels in the panel."""
+NO_MAPS = np.full((270, PANEL_WIDTH_PX, 3), 255, np.uint8)
+"""The projection-maps image before a result (blank)."""
 STEP = "intrinsics"
 """The step's layer group in the 3D view (the boards it draws)."""
 GUIDANCE = (
@@ -74,16 +80,15 @@ class IntrinsicsStep:
                 self.card = ResultCard(ctx)
                 self.parameters_text = gui.add_markdown("")
                 self.checks_text = gui.add_markdown("")
-                self.rms_plot = gui.add_image(plots.view_rms_bars([], [], []), label="Per-view RMS")
-                self.uncertainty_plot = gui.add_image(np.full((270, 480, 3), 255, np.uint8),
-                                                      label="Projection σ (px, far points)")
+                self.rms_plot = gui.add_image(to_rgb(view_rms_bars("", None, RMS_PLOT_WIDTH_IN)), label="Per-view RMS")
+                self.uncertainty_plot = gui.add_image(NO_MAPS, label="Projection σ and cross-validation (px)")
             with gui.add_folder("Export"):
                 self.export_ros = gui.add_button("Download ROS camera_info YAML")
                 self.export_opencv = gui.add_button("Download OpenCV YAML")
                 self.export_rig = gui.add_button("Download rig transforms YAML")
 
         self.camera.on_update(lambda _: self._select_camera())
-        self.start_button.on_click(lambda _: self._start_live())
+        self.start_button.on_click(ctx.after_switch(self._start_live))
         self.stop_button.on_click(lambda _: self.stop_live())
         self.auto.on_update(lambda _: setattr(self.live, "auto_capture", self.auto.value) if self.live else None)
         self.capture_button.on_click(lambda _: self._capture_now())
@@ -117,7 +122,7 @@ class IntrinsicsStep:
         last = None if sensor is None else last_capture(session, sensor)
         if last is not None:
             image, detection = last
-            self.preview.image = plots.live_view(image, board, detection, coverage.heatmap if coverage else None)
+            self.preview.image = live_view(image, board, detection, coverage.heatmap if coverage else None)
             self.ctx.scene.show_camera_image(sensor, image)
         else:  # not the previous camera's (or session's) last frame
             self.preview.image = np.full((270, 480, 3), 40, np.uint8)
@@ -191,7 +196,7 @@ class IntrinsicsStep:
         self._last_preview = now
         board = self.live.board if self.live else session_board(self.ctx.session)
         heatmap = frame.coverage.heatmap if frame.coverage else None
-        self.preview.image = plots.live_view(frame.image, board, frame.detection, heatmap)
+        self.preview.image = live_view(frame.image, board, frame.detection, heatmap)
         self.ctx.scene.show_camera_image(self.sensor, frame.image)
         if frame.T_camera_board is not None:
             self.ctx.scene.show_boards("intrinsics", self.ctx.session.rig, self.sensor, board,
@@ -257,8 +262,8 @@ class IntrinsicsStep:
             self.card.show(None, None)
             self.parameters_text.content = ""
             self.checks_text.content = ""
-            self.rms_plot.image = plots.view_rms_bars([], [], [])
-            self.uncertainty_plot.image = np.full((270, 480, 3), 255, np.uint8)
+            self.rms_plot.image = to_rgb(view_rms_bars("", None, RMS_PLOT_WIDTH_IN))
+            self.uncertainty_plot.image = NO_MAPS
             self.ctx.scene.clear_boards("intrinsics")
             return
         record = session.result(result_id)
@@ -266,9 +271,9 @@ class IntrinsicsStep:
         self.parameters_text.content = parameters_markdown(record)
         self.checks_text.content = checks_markdown(record)
         views = record["views"]
-        self.rms_plot.image = plots.view_rms_bars([v["image"] for v in views], [v["rms_px"] for v in views],
-                                                  [v["used"] for v in views])
-        self.uncertainty_plot.image = plots.uncertainty_map(record["projection_uncertainty"]["sigma_px"])
+        self.rms_plot.image = to_rgb(view_rms_bars(self.sensor, record, RMS_PLOT_WIDTH_IN))
+        maps = projection_maps(record)
+        self.uncertainty_plot.image = to_rgb(maps) if maps else NO_MAPS
         board = session_board(session)
         poses = [np.array(v["T_camera_board"]) for v in views if v["used"] and v["T_camera_board"]]
         self.ctx.scene.show_boards("intrinsics", session.rig, self.sensor, board, poses)

@@ -36,8 +36,11 @@ from backend.calib.lidar_lidar import service as lidar_service
 from backend.calib.lidar_lidar.service import LidarLidarSettings
 from backend.calib.rig import service as rig_service
 from backend.calib.sweep import service as sweep_service
+from backend.core.colour_maps import distance_colours
 from backend.core.errors import InputError
 from backend.core.transforms import to_xyz_ypr
+from backend.plots.lidar_lidar import c2c_histogram
+from backend.plots.render import to_rgb
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from studio import cloud_colours as cc
 from studio.context import StudioContext
@@ -147,10 +150,10 @@ class LidarStep:
                                              hint="every solve of this pair; pick one to inspect or accept")
                 self.card = ResultCard(ctx, empty_text="No LiDAR-to-LiDAR result yet.")
                 self.scenes_text = gui.add_markdown("")
-                self.histogram = gui.add_image(cc.distance_histogram(np.zeros(0), self.max_correspondence_m),
+                self.histogram = gui.add_image(to_rgb(c2c_histogram(np.zeros(0), self.max_correspondence_m)),
                                                label="Cloud-to-cloud distances")
 
-        self.start_button.on_click(lambda _: self.start_live())
+        self.start_button.on_click(ctx.after_switch(self.start_live))
         self.stop_button.on_click(lambda _: self.stop_live())
         self.accumulate.on_update(lambda _: self._set_accumulate())
         self.capture_button.on_click(lambda _: self._capture())
@@ -179,7 +182,7 @@ class LidarStep:
         for node in nodes.values():
             node.remove()
         self.live_text.content = "Not live."
-        self.histogram.image = cc.distance_histogram(np.zeros(0), self.max_correspondence_m)
+        self.histogram.image = to_rgb(c2c_histogram(np.zeros(0), self.max_correspondence_m))
 
     def _on_session(self, session) -> None:
         lidars = self._lidars()
@@ -485,10 +488,10 @@ class LidarStep:
         max_m = self.max_correspondence_m
         fit = lidar_service.fit_at(points, tree, self.slider_T(), max_m)
         try:
-            node.colors = cc.distance_colours(fit["distances_m"], max_m)
+            node.colors = distance_colours(fit["distances_m"], max_m)
         except RuntimeError:  # the cloud was replaced (new capture, accept) while this ran
             return
-        self.histogram.image = cc.distance_histogram(fit["inliers_m"], max_m)
+        self.histogram.image = to_rgb(c2c_histogram(fit["inliers_m"], max_m, "at the slider pose"))
         self.jobs.text.content = (f"At the slider pose: fitness {fit['fitness']:.3f}, c2c mean "
                                   f"{1000 * fit['c2c_mean_m']:.1f} mm (distances in mm: 0 dark … "
                                   f"{max_m * 1000:.0f} yellow, beyond red).")

@@ -31,7 +31,8 @@ from backend.calib.multicam import service as multicam_service
 from backend.calib.multicam.service import LINE_COLOUR_BGR, Rectification
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
-from studio import plots
+from backend.plots.multicam import covisibility_graph, frame_residual_bars
+from backend.plots.render import to_rgb
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_card import ResultCard
@@ -116,8 +117,8 @@ class MulticamStep:
             self.rig_text = gui.add_markdown("")
             self.show_3d = gui.add_checkbox("Show the solved rig in 3D", initial_value=True,
                                             hint="orange frusta and the board poses, placed from the reference")
-            self.graph_image = gui.add_image(plots.observation_graph_image([], {}, []), label="Observation graph")
-            self.residual_image = gui.add_image(plots.frame_residual_bars([], []), label="Per-frame RMS")
+            self.graph_image = gui.add_image(to_rgb(covisibility_graph([], {}, [])), label="Observation graph")
+            self.residual_image = gui.add_image(to_rgb(frame_residual_bars([], [])), label="Per-frame RMS")
             with gui.add_folder("Stereo check", expand_by_default=False):
                 self.stereo_pair = gui.add_dropdown("Stereo pair", options=[NONE])
                 self.stereo_set = gui.add_dropdown("Stereo set", options=[NONE])
@@ -271,16 +272,16 @@ class MulticamStep:
         self.card.show(record, accepted)
         if record is None:
             self.rig_text.content = ""
-            self.graph_image.image = plots.observation_graph_image([], {}, [])
-            self.residual_image.image = plots.frame_residual_bars([], [])
+            self.graph_image.image = to_rgb(covisibility_graph([], {}, []))
+            self.residual_image.image = to_rgb(frame_residual_bars([], []))
             self.ctx.scene.clear_solved_cameras()
             self._fill_pairs()
             return
         self.rig_text.content = rig_markdown(record)
         graph = record["graph"]
-        self.graph_image.image = plots.observation_graph_image(graph["cameras"], graph["frames_seen"],
-                                                               graph["edges"], record["reference"])
-        self.residual_image.image = plots.frame_residual_bars(record["camera_order"], record["frames"])
+        self.graph_image.image = to_rgb(covisibility_graph(graph["cameras"], graph["frames_seen"], graph["edges"],
+                                                           record["reference"]))
+        self.residual_image.image = to_rgb(frame_residual_bars(record["camera_order"], record["frames"]))
         self._fill_pairs()
         if draw:
             self._draw_3d()

@@ -7,42 +7,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from backend.calib.board.detection import Detection, _agrees_with_neighbours, detect_board
+from backend.calib.board.detection import Detection, _agrees_with_neighbours
 from backend.calib.intrinsics.crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
 from backend.calib.intrinsics.models import SIMPLE, compare_models, solve_auto
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
-from backend.core.transforms import transform_points
-from backend.sim.board_motion import board_poses
-from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
 FAST = IntrinsicsSettings(jackknife=False)
-
-
-def rendered(camera: str, count: int) -> tuple[CameraIntrinsics, list[View], list[np.ndarray]]:
-    """The true camera, the detected views and each view's true corners (px, all ids) of ``count`` renders."""
-    truth = demo_rig().get(camera).intrinsics
-    rng = np.random.default_rng(0)
-    views, true_corners = [], []
-    for i, T in enumerate(board_poses(truth, BOARD, count, 0)):
-        detection = detect_board(render_board_image(truth, BOARD, T, rng), BOARD)
-        if detection is not None:
-            views.append(View(f"{camera}{i:02d}", detection))
-            true_corners.append(truth.project(transform_points(T, BOARD.object_points)))
-    return truth, views, true_corners
-
-
-@pytest.fixture(scope="module")
-def mild():
-    return rendered("cam_front", 16)
-
-
-@pytest.fixture(scope="module")
-def wide():
-    return rendered("cam_wide", 12)
 
 
 def truth_error_px(camera: CameraIntrinsics, truth: CameraIntrinsics) -> float:

@@ -21,26 +21,8 @@ from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.transforms import invert
 from backend.devices.image_io import read_image
-from backend.sim.multicam_rig import SimulatedMulticam, simulated_ring
 
-NOISE_PX = 0.3
 STEREO_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
-
-
-@pytest.fixture(scope="module")
-def ring() -> SimulatedMulticam:
-    """Six cameras 40 deg apart: neighbours share frames, cam0 and cam5 never do."""
-    return simulated_ring(6, 245, seed=0)
-
-
-@pytest.fixture(scope="module")
-def ring_observations(ring) -> list[Observation]:
-    return ring.observations(NOISE_PX, seed=1)
-
-
-@pytest.fixture(scope="module")
-def ring_result(ring, ring_observations) -> MulticamResult:
-    return calibrate_multicam(ring.cameras, ring.board, ring_observations)
 
 
 def _rotation_deg(R: np.ndarray) -> float:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -132,21 +131,6 @@ def test_servo_that_never_answers_is_reported():
 
 
 # ---------------------------------------------------------------- the swept scanner
-
-
-@pytest.fixture(scope="module")
-def full_sweep():
-    """One 173-step half-sphere sweep of the simulated yard, assembled with the TRUE geometry."""
-    dev = create_device({"driver": "swept_scanner", "servo_port": "sim", "steps": 173, "geometry": DEFAULT_SIM_GEOMETRY,
-                         "scanner": {"driver": "sim", "seed": 1}})
-    dev.open()
-    try:
-        started = time.monotonic()
-        sample = dev.read()
-        seconds = time.monotonic() - started
-    finally:
-        dev.close()
-    return sample, seconds
 
 
 @pytest.mark.slow
