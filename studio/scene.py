@@ -123,6 +123,7 @@ class RigScene:
         """Steps whose layer group is hidden; kept across a redrawn rig."""
         self._tree: list[viser.SceneNodeHandle] = []
         server.scene.set_up_direction("+z")
+        server.scene.configure_default_lights(cast_shadow=False)
         server.initial_camera.position = INITIAL_CAMERA_POSITION_M
         server.initial_camera.look_at = INITIAL_LOOK_AT_M
         server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, section_size=1.0)

@@ -273,7 +273,7 @@ def studio_page(browser: Browser, url: str, viewport: dict[str, int]) -> Iterato
     try:
         page = context.new_page()
         page.set_default_timeout(30_000)
-        page.goto(url)
+        page.goto(f"{url}?fixedDpr=0.5")
         expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
         expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
         dismiss_webgl_warning(page)
