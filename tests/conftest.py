@@ -358,6 +358,25 @@ def wait_still(locator: Locator, timeout_s: float = 10.0) -> None:
         box = now
 
 
+def wait_settled(image: Locator, timeout_s: float = 20.0, quiet_polls: int = 5) -> str:
+    """Wait until ``image``'s source has stopped changing (the same blob URL over ``quiet_polls`` polls 0.2 s
+    apart: the last redraw of a burst has landed); its source. viser swaps the blob URL on every update."""
+    deadline = time.monotonic() + timeout_s
+    source, same = image.get_attribute("src"), 0
+    while same < quiet_polls:
+        assert time.monotonic() < deadline, f"the image kept changing for {timeout_s:g} s"
+        image.page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 200))")
+        now = image.get_attribute("src")
+        same = same + 1 if now == source else 0
+        source = now
+    return source
+
+
+def wait_frame(page: Page) -> None:
+    """Wait until the page has drawn its next animation frame (the 3D view's latest state is on screen)."""
+    page.wait_for_function("() => new Promise(done => requestAnimationFrame(() => done(true)))")
+
+
 def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s

@@ -20,7 +20,7 @@ from playwright.sync_api import Browser, Page, expect
 from backend.core.transforms import invert
 from backend.services.demo import DEMO_PAIRS
 from backend.sim.demo_rig import demo_rig
-from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body
+from tests.conftest import ARTIFACTS, Studio, button, choose, labelled_image, studio_page, wait_body, wait_settled
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -35,6 +35,11 @@ FRAME_RATE_JS = """() => new Promise(resolve => {
     requestAnimationFrame(tick);
 })"""
 """Frames the page paints per second: a frozen page paints none."""
+
+
+def _live_rates(match: re.Match) -> tuple[float, float]:
+    """The two LiDARs' draw rates (Hz) in the live line."""
+    return float(match.group(1)), float(match.group(3))
 
 
 def test_lidar_to_lidar_in_the_studio(browser: Browser, studio: Studio) -> None:
@@ -54,14 +59,13 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     idle_fps = page.evaluate(FRAME_RATE_JS)
     button(page, "Start live").click()
     expect(button(page, "Stop live")).to_be_visible()
-    wait_body(page, LIVE_RE, timeout_s=30)
-    time.sleep(3)  # let the rate settle
+    deadline = time.monotonic() + 30
+    while min(rates := _live_rates(match := wait_body(page, LIVE_RE, timeout_s=30))) <= 0:
+        assert time.monotonic() < deadline, f"not both LiDARs stream: {match.group(0)}"  # their speed is benchmarks/
+        page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 200))")  # live_clouds.py's
     page_fps = page.evaluate(FRAME_RATE_JS)
-    match = wait_body(page, LIVE_RE, timeout_s=5)
-    rates = float(match.group(1)), float(match.group(3))
     print(f"live: server draw rate {rates[0]:.1f} / {rates[1]:.1f} Hz "
           f"({match.group(2)} / {match.group(4)} pts), page paints {page_fps:.1f} fps (idle {idle_fps:.1f} fps)")
-    assert min(rates) > 0, match.group(0)  # both stream; their speed is benchmarks/live_clouds.py's to measure
     # Software WebGL (SwiftShader, 2 cores) decodes each new cloud slowly: the page paints fewer frames while
     # streaming, but it must keep painting and answer clicks (a frozen page paints none).
     assert page_fps > 0, f"the page froze while clouds streamed ({page_fps:.1f} fps, idle {idle_fps:.1f})"
@@ -92,7 +96,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     wait_body(page, re.compile(r"Verdict: \S+ check\..*no cross-check across scenes: only one scene", re.S),
               timeout_s=5)
     page.get_by_text("One scene: capture the rig in two more places for a cross-check.").scroll_into_view_if_needed()
-    time.sleep(2)  # c2c colours and the histogram arrive after the result
+    wait_settled(labelled_image(page, "Cloud-to-cloud distances"))  # it arrives after the result
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=ARTIFACTS / "studio_lidar.png")
 

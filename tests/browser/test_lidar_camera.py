@@ -25,6 +25,7 @@ from tests.conftest import (
     text_input,
     unfold,
     wait_body,
+    wait_settled,
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -74,8 +75,8 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         expect(page.get_by_label("Onto camera", exact=True)).to_have_value("cam_front")  # the first camera
         choose(page, "From LiDAR", "lidar_front")
         first = wait_body(page, DRAWN_RE, timeout_s=30)
-        time.sleep(1)
         overlay = labelled_image(page, "Overlay")
+        wait_settled(overlay)
         overlay.scroll_into_view_if_needed()
         source_before = overlay.get_attribute("src")
         coloured = _coloured_pixels(overlay.screenshot())
@@ -98,7 +99,7 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
             assert time.monotonic() < deadline, "the overlay did not change after the yaw slider moved"
             time.sleep(0.2)
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
-        time.sleep(1)
+        wait_settled(overlay)
         ARTIFACTS.mkdir(exist_ok=True)
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera.png")
         second = wait_body(page, DRAWN_RE, timeout_s=5)

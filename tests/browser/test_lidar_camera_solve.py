@@ -34,6 +34,7 @@ from tests.conftest import (
     text_input,
     unfold,
     wait_body,
+    wait_settled,
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -196,7 +197,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         assert int(drawn.group(1).replace(",", "")) > 1000, drawn.group(0)
         assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
         overlay = labelled_image(page, "Overlay")
-        time.sleep(1)  # the last redraw of the selection lands
+        wait_settled(overlay)  # the last redraw of the selection has landed
         at_truth = decoded_image(overlay)
         assert at_truth.shape[1] == 960 and at_truth.shape[0] > 540, f"not a mosaic: {at_truth.shape}"
         blue_span, red_span = _legend_range(at_truth[-40:])  # the depth legend beneath the mosaic
@@ -218,7 +219,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         _press(page, "l", yaw_off - 0.5, overlay)  # L: yaw minus, coarse step (0.5°)
         _press(page, "Shift+J", yaw_off - 0.45, overlay)  # Shift+J: yaw plus, fine step (0.05°)
         _press(page, "z", yaw_off - 0.5, overlay)  # Z: undo the fine step
-        time.sleep(1)
+        wait_settled(overlay)
         off = decoded_image(overlay)
         T_off = _slider_T(page)
         off_m, off_deg = _errors(T_off, truth)
@@ -254,8 +255,8 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         assert sliders_m < TOLERANCE_M and sliders_deg < TOLERANCE_DEG, (sliders_m, sliders_deg)
         assert any(r["id"] == result_id for r in studio.get("/api/sessions/demo/results"))
 
-        source = _wait_new_source(overlay, source, "the solve moved the sliders")
-        time.sleep(1)
+        _wait_new_source(overlay, source, "the solve moved the sliders")
+        wait_settled(overlay)
         solved = decoded_image(overlay)
         cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_solve_overlay_solved.png"), solved)
         near, far = _difference(solved, at_truth), _difference(off, at_truth)

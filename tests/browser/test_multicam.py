@@ -36,6 +36,7 @@ from tests.conftest import (
     studio_page,
     text_input,
     wait_body,
+    wait_frame,
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -234,8 +235,8 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         page.mouse.move(800, 700)
         for _ in range(2):
             page.mouse.wheel(0, 300)
-            time.sleep(0.3)
-        time.sleep(2)
+            wait_frame(page)
+        wait_frame(page)
         page.screenshot(path=ARTIFACTS / "studio_multicam_3d.png")
     print(f"solve {result_id} in {solve_s:.1f} s: {OTHER} {error_m * 1000:.1f} mm / {error_deg:.2f}° from the truth; "
           f"1σ {sigma_mm} mm, {sigma_deg}°; RMS {rms}; baseline {baseline_mm} mm, epipolar {epipolar_px} px; "

@@ -27,6 +27,7 @@ from tests.conftest import (
     studio_page,
     text_input,
     unfold,
+    wait_frame,
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -73,7 +74,6 @@ def _expect_start_only(page: Page, when: str) -> None:
     """Start shows and Stop does not, and it stays so (a late update from the capture thread would flip it)."""
     expect(button(page, "Start live capture")).to_be_visible(timeout=10_000)
     expect(button(page, "Stop")).to_be_hidden(timeout=10_000)
-    page.wait_for_timeout(300)
     assert _live_buttons(page) == (True, False), f"{when}: (Start, Stop) visible = {_live_buttons(page)}"
 
 
@@ -137,7 +137,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         _check_blank(page)
         _expect_start_only(page, "in the new session, after a reload")
         page.get_by_text("3 · Camera intrinsics", exact=True).scroll_into_view_if_needed()
-        page.wait_for_timeout(1500)  # the 3D view renders in software
+        wait_frame(page)
         page.screenshot(path=ARTIFACTS / "studio_state_new_session.png")
 
     log = studio.log.read_text(errors="replace")
