@@ -111,8 +111,8 @@ class NodeProcesses:
         self._exit_hook = False
 
     def command(self, name: str, device: str) -> list[str]:
-        """The agent's command line: ``python -m studio.cli node --name NAME --device SPEC --connect ENDPOINT``."""
-        command = [*_death_signal_prefix(), sys.executable, "-m", "studio.cli", "node", "--name", name,
+        """The agent's command line: ``python -m backend.cli node --name NAME --device SPEC --connect ENDPOINT``."""
+        command = [*_death_signal_prefix(), sys.executable, "-m", "backend.cli", "node", "--name", name,
                    "--device", device, "--connect", self.connect]
         if self.rate_hz is not None:
             command += ["--rate", f"{self.rate_hz:g}"]

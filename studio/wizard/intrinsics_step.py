@@ -23,10 +23,10 @@ from backend.services.live_capture import (
     data_enough,
     last_capture,
 )
+from backend.plots.board import live_view
 from backend.store.schema import CaptureRecord
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
-from studio.live_preview import live_view
 from studio.live_toggle import LiveToggle
 from studio.result_card import ResultCard
 

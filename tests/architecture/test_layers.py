@@ -5,8 +5,8 @@
 - drivers (``backend/devices``) never import a simulator (``backend/sim``);
 - ``backend/`` never imports ``studio/``;
 - the studio and the API never import a solver: from a problem's folder (``backend/calib/<problem>/``) they
-  import its services only (``service``, ``guided_service``, ``capture``). The board target's detection
-  (``backend/calib/board/detection``: the ``Detection`` record and its drawing) is shared by every layer.
+  import its services only (``service``, ``guided_service``, ``capture``); what they draw comes from
+  ``backend/plots``.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("backend", "studio")
 SERVICE_MODULES = {"service", "guided_service", "capture"}
-SHARED_CALIB = {"backend.calib.board.detection"}
 
 
 def module_name(path: Path) -> str:
@@ -106,8 +105,7 @@ def violations(importer_prefix: str, forbidden) -> list[str]:
 
 def is_solver(name: str) -> bool:
     parts = name.split(".")
-    return (len(parts) == 4 and parts[:2] == ["backend", "calib"] and parts[3] not in SERVICE_MODULES
-            and name not in SHARED_CALIB)
+    return (len(parts) == 4 and parts[:2] == ["backend", "calib"] and parts[3] not in SERVICE_MODULES)
 
 
 def test_no_import_cycle() -> None:

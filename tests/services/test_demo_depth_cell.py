@@ -49,7 +49,7 @@ class CellStudio(Studio):
 
 
 def agent_processes(parent: int) -> dict[str, int]:
-    """``{node name: pid}`` of the ``studio.cli node`` processes whose parent is ``parent`` (read from /proc)."""
+    """``{node name: pid}`` of the ``backend.cli node`` processes whose parent is ``parent`` (read from /proc)."""
     agents = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -59,7 +59,7 @@ def agent_processes(parent: int) -> dict[str, int]:
             argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
         except (OSError, IndexError, ValueError):
             continue  # gone meanwhile
-        if ppid == parent and "studio.cli" in argv and "node" in argv and "--name" in argv:
+        if ppid == parent and "backend.cli" in argv and "node" in argv and "--name" in argv:
             agents[argv[argv.index("--name") + 1]] = int(entry.name)
     return agents
 
@@ -206,7 +206,7 @@ def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: 
     try:
         agent = int(parent.stdout.readline())
         # Once the agent runs Python (setpriv has set its death signal and executed it), kill its parent.
-        wait_for(lambda: b"studio.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(), START_TIMEOUT_S,
+        wait_for(lambda: b"backend.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(), START_TIMEOUT_S,
                  lambda: (tmp_path / "sn1.log").read_text())
     finally:
         parent.kill()

@@ -256,7 +256,7 @@ def _treat(treated: dict[str, np.ndarray], name: str) -> np.ndarray:
     return treated[name]
 
 
-def _normalised(gray: np.ndarray) -> np.ndarray:
+def normalised(gray: np.ndarray) -> np.ndarray:
     """uint8 image with the :data:`STRETCH_PERCENTILES` of ``gray`` (any depth) stretched to 0..255."""
     low, high = np.percentile(gray, STRETCH_PERCENTILES)
     if high <= low:
@@ -275,25 +275,5 @@ def _clahe(gray: np.ndarray) -> np.ndarray:
     return cv2.createCLAHE(CLAHE_CLIP_LIMIT, CLAHE_TILES).apply(gray)
 
 
-_STEPS = {"normalised": _normalised, "inverted": _inverted, "clahe": _clahe}
+_STEPS = {"normalised": normalised, "inverted": _inverted, "clahe": _clahe}
 """The single steps a treatment name is made of."""
-
-
-def draw_detection(image: np.ndarray, board: BoardSpec, detection: Detection | None) -> np.ndarray:
-    """BGR uint8 copy of ``image`` with the detected corners drawn (or a red 'no board' banner).
-
-    Images deeper than 8 bits (thermal raw counts) are shown ``normalised``.
-    """
-    if image.dtype != np.uint8:
-        image = _normalised(to_gray(image))
-    canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
-    if detection is None:
-        cv2.putText(canvas, "board not found", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.2, (0, 0, 255), 3)
-        return canvas
-    if board.kind == "checkerboard":
-        cv2.drawChessboardCorners(canvas, board.corner_grid, detection.corners_px.astype(np.float32).reshape(-1, 1, 2),
-                                  True)
-    else:
-        cv2.aruco.drawDetectedCornersCharuco(canvas, detection.corners_px.astype(np.float32).reshape(-1, 1, 2),
-                                             detection.ids.reshape(-1, 1))
-    return canvas

@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.calib.board.detection import FALLBACKS, Detection, detect_board, draw_detection
+from backend.calib.board.detection import FALLBACKS, Detection, detect_board
+from backend.plots.board import draw_detection
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
