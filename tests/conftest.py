@@ -255,6 +255,14 @@ def wait_health(api: str, process: subprocess.Popen, log_tail: Callable[[], str]
         time.sleep(0.2)
 
 
+UI_WAIT_S = 60.0
+"""The longest a browser test waits for the page to show what a click or a server event caused. A bound for
+failing, never a delay (every wait returns as soon as its condition holds): generous, because a 2-core machine
+under load draws the page, runs the studio and solves at once."""
+UI_WAIT_MS = int(UI_WAIT_S * 1000)
+""":data:`UI_WAIT_S` in Playwright's milliseconds."""
+
+
 def dismiss_webgl_warning(page: Page) -> None:
     """Close viser's "Software WebGL rendering detected" toast (SwiftShader) so it hides nothing."""
     toast = page.locator(".mantine-Notification-root", has_text="Software WebGL")
@@ -272,7 +280,7 @@ def studio_page(browser: Browser, url: str, viewport: dict[str, int]) -> Iterato
     context = browser.new_context(viewport=viewport)
     try:
         page = context.new_page()
-        page.set_default_timeout(30_000)
+        page.set_default_timeout(UI_WAIT_MS)
         page.goto(f"{url}?fixedDpr=0.5")
         expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
         expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
@@ -323,7 +331,7 @@ COVERED_JS = """el => { el.scrollIntoView({block: "center"}); const r = el.getBo
 """Whether something else than the element (or a child of it) is under the element's centre (scrolled into view)."""
 
 
-def assert_uncovered(row: Locator, timeout_s: float = 15.0) -> None:
+def assert_uncovered(row: Locator, timeout_s: float = UI_WAIT_S) -> None:
     """Fail unless ``row`` shows and, within ``timeout_s``, nothing covers its centre.
 
     A viser 1.1.1 folder (Mantine 9's ``Collapse``) that went empty and was filled again while a folder around it
@@ -345,7 +353,7 @@ def _uncovered(row: Locator, timeout_s: float) -> bool:
     return True
 
 
-def wait_still(locator: Locator, timeout_s: float = 10.0) -> None:
+def wait_still(locator: Locator, timeout_s: float = UI_WAIT_S) -> None:
     """Wait until ``locator``'s box stops moving (an animation such as a notification sliding in has ended)."""
     deadline = time.monotonic() + timeout_s
     box = locator.bounding_box()
@@ -358,7 +366,7 @@ def wait_still(locator: Locator, timeout_s: float = 10.0) -> None:
         box = now
 
 
-def wait_settled(image: Locator, timeout_s: float = 20.0, quiet_polls: int = 5) -> str:
+def wait_settled(image: Locator, timeout_s: float = UI_WAIT_S, quiet_polls: int = 5) -> str:
     """Wait until ``image``'s source has stopped changing (the same blob URL over ``quiet_polls`` polls 0.2 s
     apart: the last redraw of a burst has landed); its source. viser swaps the blob URL on every update."""
     deadline = time.monotonic() + timeout_s
@@ -377,7 +385,7 @@ def wait_frame(page: Page) -> None:
     page.wait_for_function("() => new Promise(done => requestAnimationFrame(() => done(true)))")
 
 
-def wait_body(page: Page, pattern: re.Pattern, timeout_s: float) -> re.Match:
+def wait_body(page: Page, pattern: re.Pattern, timeout_s: float = UI_WAIT_S) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while (match := pattern.search(page.inner_text("body"))) is None:

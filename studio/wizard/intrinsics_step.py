@@ -11,6 +11,7 @@ from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
+from backend.plots.board import live_view
 from backend.plots.intrinsics import projection_maps, view_rms_bars
 from backend.plots.render import PANEL_WIDTH_PX, to_rgb
 from backend.services.live_capture import (
@@ -23,7 +24,6 @@ from backend.services.live_capture import (
     data_enough,
     last_capture,
 )
-from backend.plots.board import live_view
 from backend.store.schema import CaptureRecord
 from studio.context import StudioContext
 from studio.job_panel import JobPanel

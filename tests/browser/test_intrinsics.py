@@ -22,7 +22,7 @@ from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
 from backend.exports.target_pdf import board_sheet
-from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, wait_body, wait_still
+from tests.conftest import ARTIFACTS, UI_WAIT_MS, Studio, button, choose, studio_page, wait_body, wait_still
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -146,7 +146,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     choose(page, "Model", "auto")
     button(page, "Solve").click()
     expect(page.get_by_text(re.compile(r"^Solved in \d"))).to_be_visible(timeout=90_000)
-    match = wait_body(page, RESULT_RE, timeout_s=15)  # the result lands just after the status line
+    match = wait_body(page, RESULT_RE)  # the result lands just after the status line
     assert match.group(2) == "not accepted", _body(page)
     result_id = match.group(1)
     body = _body(page)
@@ -155,7 +155,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
                  "held-out RMS (px)", "pinhole-rational", "Corners:"):
         assert text in body, f"{text!r} missing from the result"
     # the enough-data line now judges the solve's projection sigma, not coverage alone (it follows the result)
-    wait_body(page, re.compile(r"Enough data|px in the [a-z ]+: add views there"), timeout_s=15)
+    wait_body(page, re.compile(r"Enough data|px in the [a-z ]+: add views there"))
     summaries = studio.get("/api/sessions/demo/results?sensor=cam_wide&kind=intrinsics")
     assert [r["id"] for r in summaries] == [result_id], summaries
     _scroll_to_result(page)
@@ -172,7 +172,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     expect(page.get_by_text(f"Accepting {result_id} would:", exact=False)).to_be_visible()
     if level == "check":  # a 'check' is refused until confirmed
         button(page, "Apply accept").first.click()
-        expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=15_000)
+        expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=UI_WAIT_MS)
         assert not studio.get("/api/sessions/demo")["accepted"].get("cam_wide/intrinsics")
         page.get_by_label("Confirm the check").first.check()
     button(page, "Apply accept").first.click()
@@ -204,7 +204,7 @@ def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_c
         button(page, "Import an image file").click()
     chooser.value.set_files({"name": "broken_shot.jpg", "mimeType": "image/jpeg", "buffer": data[: len(data) // 2]})
     notice = page.locator(".mantine-Notification-root", has_text="Image not added")
-    expect(notice).to_be_visible(timeout=15_000)
+    expect(notice).to_be_visible(timeout=UI_WAIT_MS)
     expect(notice).to_contain_text("broken_shot.jpg")
     expect(notice).to_contain_text("not a readable image")
     wait_still(notice)  # the toast has finished sliding in before the picture

@@ -60,7 +60,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     button(page, "Start live").click()
     expect(button(page, "Stop live")).to_be_visible()
     deadline = time.monotonic() + 30
-    while min(rates := _live_rates(match := wait_body(page, LIVE_RE, timeout_s=30))) <= 0:
+    while min(rates := _live_rates(match := wait_body(page, LIVE_RE))) <= 0:
         assert time.monotonic() < deadline, f"not both LiDARs stream: {match.group(0)}"  # their speed is benchmarks/
         page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 200))")  # live_clouds.py's
     page_fps = page.evaluate(FRAME_RATE_JS)
@@ -73,7 +73,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     clicked = time.monotonic()
     button(page, "Capture clouds").click()
     # The demo session holds DEMO_PAIRS clouds of lidar_top already (its pairs with cam_front).
-    wait_body(page, re.compile(rf"lidar_top: {DEMO_PAIRS + 1} · lidar_front: 1"), timeout_s=15)
+    wait_body(page, re.compile(rf"lidar_top: {DEMO_PAIRS + 1} · lidar_front: 1"))
     print(f"capture answered in {time.monotonic() - clicked:.2f} s while streaming")
     button(page, "Stop live").click()
     expect(button(page, "Start live")).to_be_visible()
@@ -93,8 +93,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
                  "One scene: capture the rig in two more places for a cross-check."):
         assert text in body, f"{text!r} missing from the result"
     # one place only: no cross-check, so the verdict is 'check' and says why
-    wait_body(page, re.compile(r"Verdict: \S+ check\..*no cross-check across scenes: only one scene", re.S),
-              timeout_s=5)
+    wait_body(page, re.compile(r"Verdict: \S+ check\..*no cross-check across scenes: only one scene", re.S))
     page.get_by_text("One scene: capture the rig in two more places for a cross-check.").scroll_into_view_if_needed()
     wait_settled(labelled_image(page, "Cloud-to-cloud distances"))  # it arrives after the result
     ARTIFACTS.mkdir(exist_ok=True)
@@ -112,15 +111,15 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     # first the rig preview; this step's Accept is the one right above its scenes list (other steps have theirs)
     page.get_by_text("Scenes (x, y, z · yaw, pitch, roll):").locator(
         "xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
-    wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+    wait_body(page, re.compile(rf"Accepting {result_id} would:"))
     button(page, "Apply accept").click()  # a 'check' is refused until confirmed
-    wait_body(page, re.compile(rf"result {result_id} was judged 'check'"), timeout_s=15)
+    wait_body(page, re.compile(rf"result {result_id} was judged 'check'"))
     # the step's own box sits right above its Accept
     confirm = button(page, "Apply accept").locator("xpath=preceding::input[@type='checkbox'][1]")
     expect(confirm).to_have_accessible_name("Confirm the check")
     confirm.check()
     button(page, "Apply accept").click()
-    wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
+    wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("lidar_front/T_lidar_top_lidar_front") == result_id, session["accepted"]
     # the rig now holds the fused tree, which the accepted edge decides against the weak mounting guesses (5 cm)

@@ -65,16 +65,16 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         for name, live in (("lidar_top", False), ("scanner_2d", False), ("sweep_3d", False), ("lidar_front", True)):
             _tick(page, name, live)
         button(page, "Start live").click()
-        wait_body(page, re.compile(r"lidar_front\s+[\d.]+ Hz, [\d,]+ pts drawn"), timeout_s=30)
+        wait_body(page, re.compile(r"lidar_front\s+[\d.]+ Hz, [\d,]+ pts drawn"))
         button(page, "Capture clouds").click()
-        wait_body(page, re.compile(r"lidar_front: 1"), timeout_s=15)
+        wait_body(page, re.compile(r"lidar_front: 1"))
         button(page, "Stop live").click()
         page.get_by_text("4 · LiDARs", exact=True).click()  # fold it away
 
         unfold(page, "6 · LiDAR to camera", page.get_by_label("Onto camera", exact=True))
         expect(page.get_by_label("Onto camera", exact=True)).to_have_value("cam_front")  # the first camera
         choose(page, "From LiDAR", "lidar_front")
-        first = wait_body(page, DRAWN_RE, timeout_s=30)
+        first = wait_body(page, DRAWN_RE)
         overlay = labelled_image(page, "Overlay")
         wait_settled(overlay)
         overlay.scroll_into_view_if_needed()
@@ -85,11 +85,10 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         hues = _hues(shown[:-40])
         assert hues >= 4, f"depth colours cover {hues} of 12 hue bins: the scene is painted in one colour"
         assert _hues(shown[-40:]) >= 6, "no colour bar beneath the overlay"
-        legend = wait_body(page, re.compile(r"colours: depth \(m\) ([\d.]+)–([\d.]+)"), timeout_s=5)
+        legend = wait_body(page, re.compile(r"colours: depth \(m\) ([\d.]+)–([\d.]+)"))
         assert 0.5 <= float(legend.group(1)) < float(legend.group(2)) <= 40, legend.group(0)
         # The read-only pose beside the sliders.
-        wait_body(page, re.compile(r"x \(m\)\s+y \(m\)\s+z \(m\)\s+yaw \(°\)\s+pitch \(°\)\s+roll \(°\)"),
-                  timeout_s=5)
+        wait_body(page, re.compile(r"x \(m\)\s+y \(m\)\s+z \(m\)\s+yaw \(°\)\s+pitch \(°\)\s+roll \(°\)"))
 
         turn = text_input(page, "Δ about z (°)")  # about the camera's z (the parent's axes, the default)
         turn.fill("8")
@@ -102,20 +101,20 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         wait_settled(overlay)
         ARTIFACTS.mkdir(exist_ok=True)
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera.png")
-        second = wait_body(page, DRAWN_RE, timeout_s=5)
+        second = wait_body(page, DRAWN_RE)
         print(f"overlay: {first.group(0)} -> {second.group(0)}; {coloured} coloured px before the nudge")
         expect_line = "--frame-id cam_front --child-frame-id lidar_front"
         assert expect_line in page.inner_text("body")
 
-        wait_body(page, re.compile(r"From where it was put: turned 8\.000°"), timeout_s=10)
+        wait_body(page, re.compile(r"From where it was put: turned 8\.000°"))
         button(page, "Keep the sliders' transform").click()
-        kept = wait_body(page, re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · manual"), timeout_s=10)
-        wait_body(page, re.compile(r"set by hand: no uncertainty, no cross-check"), timeout_s=5)
+        kept = wait_body(page, re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · manual"))
+        wait_body(page, re.compile(r"set by hand: no uncertainty, no cross-check"))
         button(page, "Accept").filter(visible=True).last.click()  # the rig preview first
-        wait_body(page, re.compile(f"Accepting {kept.group(1)} would:"), timeout_s=15)
+        wait_body(page, re.compile(f"Accepting {kept.group(1)} would:"))
         page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()  # hand-set: "check"
         button(page, "Apply accept").filter(visible=True).last.click()
-        wait_body(page, re.compile(f"{kept.group(1)} \\(✅ accepted\\) · lidar_camera · manual"), timeout_s=15)
+        wait_body(page, re.compile(f"{kept.group(1)} \\(✅ accepted\\) · lidar_camera · manual"))
     result_id = studio.get("/api/sessions/demo")["accepted"]["lidar_front/T_cam_front_lidar_front"]
     assert result_id == kept.group(1)
     record = studio.get(f"/api/sessions/demo/results/{result_id}")

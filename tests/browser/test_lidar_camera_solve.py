@@ -192,7 +192,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         # 1. The mosaic of all pairs, drawn at the rig's (true) transform.
         expect(page.get_by_label("Scene", exact=True)).to_have_value("all pairs")
         expect(page.get_by_text("10 pair(s) stored · showing 6", exact=True)).to_be_visible()
-        drawn = wait_body(page, DRAWN_RE, timeout_s=30)
+        drawn = wait_body(page, DRAWN_RE)
         assert int(drawn.group(3)) == 6, drawn.group(0)
         assert int(drawn.group(1).replace(",", "")) > 1000, drawn.group(0)
         assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
@@ -211,7 +211,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         _type(page, "Δ about z (°)", YAW_OFF_DEG)  # about the camera's z: the same as yaw
         _type(page, "Δx (m)", X_OFF_M)
         _wait_yaw(page, yaw_off, "typing 3° about z")
-        wait_body(page, re.compile(r"From where it was put: turned 3\.000°"), timeout_s=10)
+        wait_body(page, re.compile(r"From where it was put: turned 3\.000°"))
         source = _wait_new_source(overlay, source, "the sliders were typed away from the truth")
 
         # 3. Keyboard nudges (viser command hotkeys, delivered while no input has the focus).
@@ -277,16 +277,15 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
 
         # 5. Accept on the result card: the solve itself is accepted, not a manual copy. Its verdict is on the card;
         # one that says 'check' needs the box ticked. The first click shows what moves in the rig, the second applies.
-        verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)"), timeout_s=5).group(1)
+        verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)")).group(1)
         assert verdict != "reject", page.inner_text("body")[-2000:]
         button(page, "Accept").filter(visible=True).last.click()
-        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Apply accept"),
-                            timeout_s=15)
+        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Apply accept"))
         assert re.search(rf"{LIDAR} moves [\d.]+ mm", preview.group(1)), preview.group(1)  # the solve is mm off
         _visible(page, "Confirm the check").check()
         button(page, "Apply accept").filter(visible=True).last.click()
-        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · lidar_camera · target"), timeout_s=15)
-        wait_body(page, re.compile(r"Accepted\.\s+"), timeout_s=5)
+        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · lidar_camera · target"))
+        wait_body(page, re.compile(r"Accepted\.\s+"))
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_accepted.png")
     session = studio.get("/api/sessions/demo")

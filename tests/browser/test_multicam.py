@@ -28,6 +28,7 @@ from backend.services.demo import DEMO_SET_CAMERAS
 from backend.sim.demo_rig import demo_rig
 from tests.conftest import (
     ARTIFACTS,
+    UI_WAIT_MS,
     Studio,
     button,
     choose,
@@ -79,7 +80,7 @@ def _open_step(page: Page) -> None:
     for _ in range(3):
         page.get_by_text(STEP, exact=True).click()
         try:
-            expect(solve).to_be_visible(timeout=10_000)
+            expect(solve).to_be_visible(timeout=UI_WAIT_MS)
             return
         except AssertionError:
             continue
@@ -87,7 +88,7 @@ def _open_step(page: Page) -> None:
 
 
 def _set_count(page: Page) -> int:
-    return int(wait_body(page, SETS_RE, timeout_s=10).group(1))
+    return int(wait_body(page, SETS_RE).group(1))
 
 
 def _set_tolerance(page: Page, ms: int) -> None:
@@ -111,7 +112,7 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         expect(page.get_by_label("Reference camera", exact=True)).to_have_value(REFERENCE)
         sets_before = _set_count(page)
         assert sets_before == 10, sets_before
-        wait_body(page, re.compile(rf"set00010\s+{REFERENCE}, {OTHER}\s+set00009"), timeout_s=5)
+        wait_body(page, re.compile(rf"set00010\s+{REFERENCE}, {OTHER}\s+set00009"))
 
         # 2. Solve: a job, then the result card (the partner's pose and sigma) and the step's table of both cameras.
         started = time.monotonic()
@@ -119,8 +120,8 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         result = wait_body(page, RESULT_RE, timeout_s=120)
         solve_s = time.monotonic() - started
         result_id = result.group(1)
-        wait_body(page, re.compile(r"Solved in [\d.]+ s\."), timeout_s=10)
-        used = wait_body(page, USED_RE, timeout_s=10)
+        wait_body(page, re.compile(r"Solved in [\d.]+ s\."))
+        used = wait_body(page, USED_RE)
         assert (int(used.group(1)), int(used.group(2)), int(used.group(3))) == (10, 20, 0), used.group(0)
         body = page.inner_text("body")
         rows = {m.group(1): m.groups()[1:] for m in ROW_RE.finditer(body)}
@@ -175,13 +176,13 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         #    confirmed: nothing is mounted. (This step's card sits right above its 'Show the solved rig' box.)
         show_3d = page.get_by_role("checkbox", name="Show the solved rig in 3D", exact=True)
         show_3d.locator("xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
-        wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+        wait_body(page, re.compile(rf"Accepting {result_id} would:"))
         apply = show_3d.locator("xpath=preceding::button[normalize-space(.)='Apply accept'][1]")
         confirm = apply.locator("xpath=preceding::input[@type='checkbox'][1]")
         expect(confirm).to_have_accessible_name("Confirm the check")
         confirm.check()
         apply.click()
-        wait_body(page, re.compile(f"result {result_id} was judged 'reject' and cannot be accepted"), timeout_s=15)
+        wait_body(page, re.compile(f"result {result_id} was judged 'reject' and cannot be accepted"))
         session = studio.get("/api/sessions/demo")
         assert SLOT not in session["accepted"], session["accepted"]
 
@@ -210,7 +211,7 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         page.get_by_text("Stereo check", exact=True).click()
         expect(page.get_by_label("Stereo pair", exact=True)).to_have_value(f"{REFERENCE} + {OTHER}")
         choose(page, "Stereo set", "set00003")
-        stereo = wait_body(page, re.compile(STEREO_RE.pattern.replace(r"(set\d+)", "(set00003)")), timeout_s=20)
+        stereo = wait_body(page, re.compile(STEREO_RE.pattern.replace(r"(set\d+)", "(set00003)")))
         corners, set_epipolar_px, row_px = int(stereo.group(2)), float(stereo.group(3)), float(stereo.group(5))
         assert corners == 54 and set_epipolar_px < 1.0 and row_px < 2.0, stereo.group(0)
         preview = decoded_image(labelled_image(page, "Rectified (rows should match)"))

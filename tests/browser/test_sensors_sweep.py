@@ -45,7 +45,7 @@ def test_add_a_simulated_velodyne_and_stream_it(browser: Browser, studio: Studio
         expect(text_input(page, "Source")).to_have_value("sim")
         expect(page.get_by_text("Velodyne VLP-16 over UDP", exact=False)).to_be_visible()
         button(page, "Add sensor").click()
-        wait_body(page, re.compile(r"velo_sim \(lidar3d\) under base_link · velodyne"), timeout_s=15)
+        wait_body(page, re.compile(r"velo_sim \(lidar3d\) under base_link · velodyne"))
         frames = {f["name"]: f for f in studio.get("/api/sessions/demo/rig")["frames"]}
         assert frames["velo_sim"]["device"] == {"driver": "velodyne", "host": "sim"}
 
@@ -64,11 +64,11 @@ def _stream_and_capture(page: Page, studio: Studio) -> None:
         page.get_by_label(name, exact=True).uncheck()
     page.get_by_label("velo_sim", exact=True).check()
     button(page, "Start live").click()
-    match = wait_body(page, VELO_LIVE_RE, timeout_s=30)
+    match = wait_body(page, VELO_LIVE_RE)
     # It streams whole turns; its 10 Hz (the packets' own clock) is test_velodyne's, the page's speed a benchmark's.
     assert float(match.group(1)) > 0 and int(match.group(2).replace(",", "")) > 10_000, match.group(0)
     button(page, "Capture clouds").click()
-    wait_body(page, re.compile(r"velo_sim: 1"), timeout_s=15)
+    wait_body(page, re.compile(r"velo_sim: 1"))
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=ARTIFACTS / "studio_velodyne_sim.png")
     button(page, "Stop live").click()
@@ -86,20 +86,20 @@ def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
         source.fill(str(bag))
         source.press("Enter")
         button(page, "List the bag's topics").click()
-        wait_body(page, re.compile(r"/lidar/points\s+PointCloud2\s+3"), timeout_s=15)
+        wait_body(page, re.compile(r"/lidar/points\s+PointCloud2\s+3"))
         expect(text_input(page, "Topic")).to_have_value("/lidar/padded")  # the first topic a LiDAR can replay
         topic = text_input(page, "Topic")
         topic.fill("/lidar/points")
         topic.press("Enter")
         button(page, "Add sensor").click()
-        wait_body(page, re.compile(r"bag_lidar \(lidar3d\) under base_link · rosbag"), timeout_s=15)
+        wait_body(page, re.compile(r"bag_lidar \(lidar3d\) under base_link · rosbag"))
 
         page.get_by_text("4 · LiDARs", exact=True).click()
         page.get_by_text("Import", exact=True).click()
         choose(page, "Into LiDAR", "bag_lidar")
-        wait_body(page, re.compile(r"Recording: rosbag · path .*drive, topic /lidar/points"), timeout_s=10)
+        wait_body(page, re.compile(r"Recording: rosbag · path .*drive, topic /lidar/points"))
         button(page, "Import its recording").click()
-        wait_body(page, re.compile(r"3 scans into bag_lidar; end of bag after 3 messages"), timeout_s=30)
+        wait_body(page, re.compile(r"3 scans into bag_lidar; end of bag after 3 messages"))
         page.screenshot(path=ARTIFACTS / "studio_bag_import.png")
     captures = studio.get("/api/sessions/demo/sensors/bag_lidar/captures")
     assert [c["source"] for c in captures] == ["/lidar/points #0", "/lidar/points #1", "/lidar/points #2"]
@@ -115,9 +115,8 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
         match = wait_body(page, SWEEP_RESULT_RE, timeout_s=120)
         result_id = match.group(1)
         # the result card (the scanner's pose at servo zero, its sigma, the verdict) and the sweep's own panel
-        wait_body(page, re.compile(r"sweep_3d → sweep_3d_scanner: .* m · .*\s+1σ: n/a, \d+\.\d+, \d+\.\d+ mm"),
-                  timeout_s=5)
-        wait_body(page, re.compile("Sweep geometry · "), timeout_s=5)  # sent after the card: it can arrive later
+        wait_body(page, re.compile(r"sweep_3d → sweep_3d_scanner: .* m · .*\s+1σ: n/a, \d+\.\d+, \d+\.\d+ mm"))
+        wait_body(page, re.compile("Sweep geometry · "))  # sent after the card: it can arrive later
         body = page.inner_text("body")
         for text in ("Verdict:", "Sweep geometry · ", "Optical centre in the servo frame (mm)", "servo zero offset (°)",
                      "Estimated (1σ): offset u ± ", "rms_after "):
@@ -128,9 +127,9 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
         # the card's Accept (the one after this step's Calibrate) first previews what the rig would do, then applies
         calibrate = button(page, "Calibrate")
         calibrate.locator("xpath=following::button[normalize-space(.)='Accept'][1]").click()
-        wait_body(page, re.compile(rf"Accepting {result_id} would:"), timeout_s=15)
+        wait_body(page, re.compile(rf"Accepting {result_id} would:"))
         calibrate.locator("xpath=following::button[normalize-space(.)='Apply accept'][1]").click()
-        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), timeout_s=15)
+        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
         page.screenshot(path=ARTIFACTS / "studio_sweep_accepted.png")
 
     record = studio.get(f"/api/sessions/demo/results/{result_id}")

@@ -18,6 +18,7 @@ from playwright.sync_api import Browser, Page, expect
 
 from tests.conftest import (
     ARTIFACTS,
+    UI_WAIT_MS,
     Studio,
     button,
     choose,
@@ -72,8 +73,8 @@ def _live_buttons(page: Page) -> tuple[bool, bool]:
 
 def _expect_start_only(page: Page, when: str) -> None:
     """Start shows and Stop does not, and it stays so (a late update from the capture thread would flip it)."""
-    expect(button(page, "Start live capture")).to_be_visible(timeout=10_000)
-    expect(button(page, "Stop")).to_be_hidden(timeout=10_000)
+    expect(button(page, "Start live capture")).to_be_visible(timeout=UI_WAIT_MS)
+    expect(button(page, "Stop")).to_be_hidden(timeout=UI_WAIT_MS)
     assert _live_buttons(page) == (True, False), f"{when}: (Start, Stop) visible = {_live_buttons(page)}"
 
 
@@ -100,10 +101,10 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         failure = page.locator(".mantine-Notification-root", has_text="could not open camera")
         for attempt in range(FAILED_STARTS):
             button(page, "Start live capture").click()
-            expect(failure.first).to_be_visible(timeout=15_000)
+            expect(failure.first).to_be_visible(timeout=UI_WAIT_MS)
             _expect_start_only(page, f"failed start {attempt + 1}")
             failure.first.locator("button").first.click()  # close it, so the next failure shows a new one
-            expect(failure).to_have_count(0, timeout=10_000)
+            expect(failure).to_have_count(0, timeout=UI_WAIT_MS)
         page.screenshot(path=ARTIFACTS / "studio_state_failed_live.png")
 
         # ... and after a session switch the live capture of a working camera starts and stops
@@ -111,7 +112,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         expect(page.get_by_label("Camera", exact=True)).to_have_value("cam_front")
         _expect_start_only(page, "after the switch to demo")
         button(page, "Start live capture").click()
-        expect(button(page, "Stop")).to_be_visible(timeout=15_000)
+        expect(button(page, "Stop")).to_be_visible(timeout=UI_WAIT_MS)
         expect(button(page, "Start live capture")).to_be_hidden()
         button(page, "Stop").click()
         _expect_start_only(page, "after Stop")
