@@ -261,6 +261,7 @@ failing, never a delay (every wait returns as soon as its condition holds): gene
 under load draws the page, runs the studio and solves at once."""
 UI_WAIT_MS = int(UI_WAIT_S * 1000)
 """:data:`UI_WAIT_S` in Playwright's milliseconds."""
+expect.set_options(timeout=UI_WAIT_MS)  # Playwright's ``expect`` keeps its own 5 s default beside the page's
 
 
 def dismiss_webgl_warning(page: Page) -> None:
