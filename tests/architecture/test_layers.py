@@ -105,7 +105,7 @@ def violations(importer_prefix: str, forbidden) -> list[str]:
 
 def is_solver(name: str) -> bool:
     parts = name.split(".")
-    return (len(parts) == 4 and parts[:2] == ["backend", "calib"] and parts[3] not in SERVICE_MODULES)
+    return len(parts) == 4 and parts[:2] == ["backend", "calib"] and parts[3] not in SERVICE_MODULES
 
 
 def test_no_import_cycle() -> None:
