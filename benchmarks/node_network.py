@@ -13,7 +13,9 @@ What it measures, in one run:
   once every node streams: received ``frames_per_s`` and ``mb_per_s``, latency ``p50_ms``/``p95_ms`` (studio
   receive time minus the node's send stamp; one host, one clock), ``dropped`` (gaps in each node's sequence
   numbers), ``sent_hz`` (what the publishers managed), the studio's CPU (``studio_cpu``: cores busy receiving)
-  and ``scaling`` = frames/s against N times the in-run baseline N = 1.
+  and ``scaling`` = frames/s against N times the in-run baseline N = 1; ``clock_rtt_ms`` and
+  ``clock_offset_error_ms``, a clock estimate's round trip and error while they stream (one host, one clock: the
+  offset should be 0, and its error is at most half the round trip).
 - ``estimate``: the nodes at 30 Hz one studio core receives (from its CPU per frame), one Gigabit link carries
   (from the frame size), and where it broke here.
 
@@ -145,6 +147,7 @@ def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
     time.sleep(seconds)
     window["open"] = False
     cpu_end, wall_s = resource.getrusage(resource.RUSAGE_SELF), time.time() - wall_start
+    clock = network.estimate_clock(names[0])  # one host, one clock: the whole offset is the estimate's error
     after = {s.name: s for s in network.nodes()}
     for process in processes:
         process.send_signal(signal.SIGTERM)
@@ -162,7 +165,8 @@ def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
             "sent_hz": round(float(np.mean([r["sent_hz"] for r in reports])), 1),
             "studio_cpu": round(studio_cpu_s / wall_s, 2),
             "studio_cpu_ms_per_frame": round(1000 * studio_cpu_s / max(frames, 1), 3),
-            "publisher_cpu": round(sum(r["cpu"] for r in reports), 2)}
+            "publisher_cpu": round(sum(r["cpu"] for r in reports), 2),
+            "clock_rtt_ms": round(1000 * clock.rtt_s, 2), "clock_offset_error_ms": round(1000 * abs(clock.offset_s), 3)}
 
 
 def main() -> None:

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import httpx
@@ -32,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 STEREO_CHESSBOARD = SHARED_DATA / "opencv_stereo_chessboard"
 OPENCALIB = SHARED_DATA / "opencalib_lidar2camera"
+T = TypeVar("T")
 
 
 @dataclass
@@ -141,17 +142,50 @@ def stop_process(process: subprocess.Popen) -> None:
         process.wait(timeout=10)
 
 
-def wait_job(client, job_id: str, timeout_s: float = 30.0) -> dict:
-    """Poll ``/api/jobs/{job_id}`` through an HTTP client until the job has finished; its last status."""
+UI_WAIT_S = 60.0
+"""The longest a browser test waits for the page to show what a click or a server event caused. A bound for
+failing, never a delay (every wait returns as soon as its condition holds): generous, because a 2-core machine
+under load draws the page, runs the studio and solves at once."""
+UI_WAIT_MS = int(UI_WAIT_S * 1000)
+""":data:`UI_WAIT_S` in Playwright's milliseconds."""
+expect.set_options(timeout=UI_WAIT_MS)  # Playwright's ``expect`` keeps its own 5 s default beside the page's
+
+
+def poll(check: Callable[[], T], failure: str | Callable[[], str], timeout_s: float = UI_WAIT_S,
+         interval_s: float = 0.2) -> T:
+    """Call ``check`` every ``interval_s`` until it returns something true; that value. Fail with ``failure`` (or
+    what it returns, called then) once ``timeout_s`` has passed. Every wait in the suite is one of these (or
+    :func:`steady`): it returns as soon as its condition holds, and its bound is for failing, never a delay."""
     deadline = time.monotonic() + timeout_s
-    while True:
+    while not (value := check()):
+        assert time.monotonic() < deadline, failure() if callable(failure) else failure
+        time.sleep(interval_s)
+    return value
+
+
+def steady(read: Callable[[], T], failure: str, quiet_polls: int, interval_s: float,
+           timeout_s: float = UI_WAIT_S) -> T:
+    """Call ``read`` every ``interval_s`` until it has returned the same value ``quiet_polls`` times running (a
+    burst of updates has landed); that value. Fail with ``failure`` once ``timeout_s`` has passed."""
+    deadline = time.monotonic() + timeout_s
+    value, same = read(), 0
+    while same < quiet_polls:
+        assert time.monotonic() < deadline, failure
+        time.sleep(interval_s)
+        now = read()
+        same = same + 1 if now == value else 0
+        value = now
+    return value
+
+
+def wait_job(client, job_id: str, timeout_s: float = UI_WAIT_S) -> dict:
+    """Poll ``/api/jobs/{job_id}`` through an HTTP client until the job has finished; its last status."""
+    def finished() -> dict | None:
         response = client.get(f"/api/jobs/{job_id}")
         assert response.status_code == 200, response.text
-        status = response.json()
-        if status["state"] != "running":
-            return status
-        assert time.monotonic() < deadline, f"job still running after {timeout_s:.0f} s: {status}"
-        time.sleep(0.05)
+        return None if response.json()["state"] == "running" else response.json()
+
+    return poll(finished, f"job {job_id} still running after {timeout_s:.0f} s", timeout_s, interval_s=0.05)
 
 
 @dataclass
@@ -170,25 +204,33 @@ class Studio:
         return response.json()
 
 
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], object]) -> Path:
+    """The folder ``name`` that ``build(folder)`` fills once per run, for every test process: under pytest-xdist
+    the first worker to need it builds it in the run's common temp folder while holding a lock, the others wait
+    and read it. It is built in a staging folder and renamed, so a build that fails leaves nothing half made."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    shared = tmp_path_factory.getbasetemp() if worker is None else tmp_path_factory.getbasetemp().parent
+    folder = shared / name
+    # fcntl rather than the filelock package (not a dependency): one POSIX lock file, released when closed
+    with (shared / f"{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not folder.exists():
+            staging = shared / f"{name}.building"
+            shutil.rmtree(staging, ignore_errors=True)
+            staging.mkdir()
+            build(staging)
+            staging.rename(folder)
+    return folder
+
+
 @pytest.fixture(scope="session")
 def demo_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A sessions folder holding the demo session, built once per run (about 40 s) and copied by every test
-    that wants a demo of its own (:func:`fresh_demo`). Under pytest-xdist the workers share one: the first to
-    need it builds it in the run's common temp folder while holding a lock, the others wait and read it."""
+    """A sessions folder holding the demo session, built once per run (about 40 s, :func:`built_once`) and copied
+    by every test that wants a demo of its own (:func:`fresh_demo`)."""
     from backend.services.demo import ensure_demo_session
     from backend.store.session import SessionStore
 
-    if os.environ.get("PYTEST_XDIST_WORKER") is None:
-        root = tmp_path_factory.mktemp("demo_template")
-        ensure_demo_session(SessionStore(root))
-        return root
-    shared = tmp_path_factory.getbasetemp().parent  # this run's folder, above every worker's own
-    root = shared / "demo_template"
-    # fcntl rather than the filelock package (not a dependency): one POSIX lock file, released when closed
-    with (shared / "demo_template.lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        ensure_demo_session(SessionStore(root))  # builds it when missing, else only reads it
-    return root
+    return built_once(tmp_path_factory, "demo_template", lambda root: ensure_demo_session(SessionStore(root)))
 
 
 def fresh_demo(template: Path, sessions: Path) -> Path:
@@ -241,27 +283,17 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
         stop_process(process)
 
 
-def wait_health(api: str, process: subprocess.Popen, log_tail: Callable[[], str], timeout_s: float = 60.0) -> None:
+def wait_health(api: str, process: subprocess.Popen, log_tail: Callable[[], str], timeout_s: float = UI_WAIT_S
+                ) -> None:
     """Wait until ``api``'s ``/api/health`` answers 200; fail with the studio's log if it exits or never answers."""
-    deadline = time.monotonic() + timeout_s
-    while True:
+    def healthy() -> bool:
         assert process.poll() is None, f"the studio exited with {process.returncode}:\n{log_tail()}"
         try:
-            if httpx.get(f"{api}/api/health", timeout=5).status_code == 200:
-                return
+            return httpx.get(f"{api}/api/health", timeout=5).status_code == 200
         except httpx.TransportError:
-            pass
-        assert time.monotonic() < deadline, f"/api/health never answered 200:\n{log_tail()}"
-        time.sleep(0.2)
+            return False
 
-
-UI_WAIT_S = 60.0
-"""The longest a browser test waits for the page to show what a click or a server event caused. A bound for
-failing, never a delay (every wait returns as soon as its condition holds): generous, because a 2-core machine
-under load draws the page, runs the studio and solves at once."""
-UI_WAIT_MS = int(UI_WAIT_S * 1000)
-""":data:`UI_WAIT_S` in Playwright's milliseconds."""
-expect.set_options(timeout=UI_WAIT_MS)  # Playwright's ``expect`` keeps its own 5 s default beside the page's
+    poll(healthy, lambda: f"/api/health never answered 200:\n{log_tail()}", timeout_s)
 
 
 def dismiss_webgl_warning(page: Page) -> None:
@@ -283,7 +315,7 @@ def studio_page(browser: Browser, url: str, viewport: dict[str, int]) -> Iterato
         page = context.new_page()
         page.set_default_timeout(UI_WAIT_MS)
         page.goto(f"{url}?fixedDpr=0.5")
-        expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
+        expect(page.get_by_text("Connected", exact=True)).to_be_visible()
         expect(page.get_by_text("Calibration Studio", exact=True)).to_be_visible()
         dismiss_webgl_warning(page)
         yield page
@@ -341,44 +373,20 @@ def assert_uncovered(row: Locator, timeout_s: float = UI_WAIT_S) -> None:
     the folder's frame covers them ("... mantine-Paper-root intercepts pointer events"), for a user too. A folder
     still opening covers its rows for a moment (seconds on a loaded machine), hence the wait."""
     expect(row).to_be_visible()
-    assert _uncovered(row, timeout_s), f"{row} is covered by its folder's frame (a folder stuck at height 0?)"
-
-
-def _uncovered(row: Locator, timeout_s: float) -> bool:
-    """Poll until nothing covers ``row``'s centre; False if something still does after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while row.evaluate(COVERED_JS):
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.2)
-    return True
+    poll(lambda: not row.evaluate(COVERED_JS), f"{row} is covered by its folder's frame (a folder stuck at height 0?)",
+         timeout_s)
 
 
 def wait_still(locator: Locator, timeout_s: float = UI_WAIT_S) -> None:
     """Wait until ``locator``'s box stops moving (an animation such as a notification sliding in has ended)."""
-    deadline = time.monotonic() + timeout_s
-    box = locator.bounding_box()
-    while True:
-        locator.page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 100))")
-        now = locator.bounding_box()
-        if now == box:
-            return
-        assert time.monotonic() < deadline, f"still moving after {timeout_s:g} s: {box} -> {now}"
-        box = now
+    steady(locator.bounding_box, f"{locator} still moving after {timeout_s:g} s", 1, 0.1, timeout_s)
 
 
 def wait_settled(image: Locator, timeout_s: float = UI_WAIT_S, quiet_polls: int = 5) -> str:
     """Wait until ``image``'s source has stopped changing (the same blob URL over ``quiet_polls`` polls 0.2 s
     apart: the last redraw of a burst has landed); its source. viser swaps the blob URL on every update."""
-    deadline = time.monotonic() + timeout_s
-    source, same = image.get_attribute("src"), 0
-    while same < quiet_polls:
-        assert time.monotonic() < deadline, f"the image kept changing for {timeout_s:g} s"
-        image.page.wait_for_function("() => new Promise(done => setTimeout(() => done(true), 200))")
-        now = image.get_attribute("src")
-        same = same + 1 if now == source else 0
-        source = now
-    return source
+    return steady(lambda: image.get_attribute("src"), f"the image kept changing for {timeout_s:g} s", quiet_polls,
+                  0.2, timeout_s)
 
 
 def wait_frame(page: Page) -> None:
@@ -388,11 +396,14 @@ def wait_frame(page: Page) -> None:
 
 def wait_body(page: Page, pattern: re.Pattern, timeout_s: float = UI_WAIT_S) -> re.Match:
     """Poll the page's text until ``pattern`` matches; fail with the text's tail after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while (match := pattern.search(page.inner_text("body"))) is None:
-        assert time.monotonic() < deadline, f"{pattern.pattern!r} never appeared:\n{page.inner_text('body')[-2000:]}"
-        time.sleep(0.5)
-    return match
+    return poll(lambda: pattern.search(page.inner_text("body")),
+                lambda: f"{pattern.pattern!r} never appeared:\n{page.inner_text('body')[-2000:]}", timeout_s, 0.5)
+
+
+def wait_new_source(image: Locator, old_source: str | None, what: str, timeout_s: float = UI_WAIT_S) -> str:
+    """Wait until ``image`` shows a new picture (viser swaps the blob URL on every update); the new source."""
+    return poll(lambda: (source := image.get_attribute("src")) != old_source and source,
+                f"the image did not change after {what}", timeout_s)
 
 
 BLOB_BYTES_JS = """async img => {

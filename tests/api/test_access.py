@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +24,7 @@ from backend.api.app import create_app
 from backend.api.origin import OriginPolicy
 from backend.api.viewer_guard import origin_check, start_viewer
 from backend.api.viewer_proxy import mount_viewer_proxy
-from tests.conftest import ARTIFACTS, ROOT, stop_process
+from tests.conftest import ARTIFACTS, ROOT, stop_process, wait_health
 
 API, VIEWER = 8000, 8080
 BASE = f"http://127.0.0.1:{API}"
@@ -209,14 +208,7 @@ def served(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
     try:
         assert process.stdout.readline().strip() == f"http://127.0.0.1:{viewer_port}/"
         base = f"http://127.0.0.1:{api_port}"
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                assert httpx.get(f"{base}/api/health").status_code == 200
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline, "the server never answered"
-                time.sleep(0.2)
+        wait_health(base, process, lambda: "(stderr discarded)")
         yield Served(base, viewer_port)
     finally:
         stop_process(process)

@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.conftest import ROOT, stop_process
+from tests.conftest import ROOT, poll, stop_process
 
-ROOT = ROOT
+
+def _answer(url: str) -> httpx.Response | None:
+    """``GET url``'s response, or None while nothing listens there yet."""
+    try:
+        return httpx.get(url)
+    except httpx.TransportError:
+        return None
 
 
 @pytest.mark.slow
@@ -27,14 +32,7 @@ def test_serve_with_token_guards_api_and_studio(tmp_path: Path, free_port: Calla
         url = process.stdout.readline().strip()
         assert url == f"http://127.0.0.1:{api_port}/studio/?token=t0ken"
         base = f"http://127.0.0.1:{api_port}"
-        deadline = time.monotonic() + 30
-        while True:
-            try:
-                response = httpx.get(f"{base}/api/health")
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline, "the server never answered"
-                time.sleep(0.2)
+        response = poll(lambda: _answer(f"{base}/api/health"), "the server never answered")
         assert response.status_code == 401
         assert response.json()["error"]["input"] == "token"
         assert httpx.get(f"{base}/api/health", headers={"Authorization": "Bearer t0ken"}).json() == {"status": "ok"}

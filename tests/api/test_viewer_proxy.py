@@ -4,7 +4,6 @@ own port refuses whoever lacks the proxy's secret."""
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -21,7 +20,7 @@ from websockets.sync.client import connect
 from backend.api.app import create_app
 from backend.api.viewer_guard import SECRET_HEADER, secret_check, start_viewer
 from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
-from tests.conftest import ARTIFACTS
+from tests.conftest import ARTIFACTS, UI_WAIT_MS, poll, wait_frame
 
 TOKEN = "secret"
 VIEWER_SECRET = "proxy-only"
@@ -67,10 +66,7 @@ def servers(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], in
     api = uvicorn.Server(config)
     thread = threading.Thread(target=api.run, daemon=True)
     thread.start()
-    deadline = time.monotonic() + 10
-    while not api.started:
-        assert time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.05)
+    poll(lambda: api.started, "uvicorn did not start", interval_s=0.05)
     try:
         yield Servers(viewer, api_port)
     finally:
@@ -162,14 +158,9 @@ def test_websocket_relays_viser_messages(servers: Servers, path: str, auth: dict
         message = ws.recv(timeout=5)
         assert isinstance(message, bytes) and message
         ws.send(CAMERA)  # viser lists a client once its first camera message arrives
-        deadline = time.monotonic() + 5
-        while not servers.viewer.get_clients():
-            assert time.monotonic() < deadline, "viser never saw the proxied client"
-            time.sleep(0.05)
-    deadline = time.monotonic() + 5
-    while servers.viewer.get_clients():  # closing the proxied socket disconnects the viser client
-        assert time.monotonic() < deadline, "viser client outlived the proxied websocket"
-        time.sleep(0.05)
+        poll(servers.viewer.get_clients, "viser never saw the proxied client", interval_s=0.05)
+    # closing the proxied socket disconnects the viser client
+    poll(lambda: not servers.viewer.get_clients(), "viser client outlived the proxied websocket", interval_s=0.05)
 
 
 def test_viewer_side_close_reaches_client(servers: Servers) -> None:
@@ -190,13 +181,11 @@ def test_browser_renders_studio_through_proxy(servers: Servers, browser: Browser
         sockets: list[str] = []
         page.on("websocket", lambda ws: sockets.append(ws.url))
         page.goto(f"{servers.base}/studio/?token={TOKEN}")
-        page.get_by_text("proxy-ok").first.wait_for(timeout=20_000)
-        deadline = time.monotonic() + 10
-        while not servers.viewer.get_clients():
-            assert time.monotonic() < deadline, "viser never saw the browser"
-            page.wait_for_timeout(100)
+        page.get_by_text("proxy-ok").first.wait_for(timeout=UI_WAIT_MS)
+        poll(servers.viewer.get_clients, "viser never saw the browser", interval_s=0.1)
         assert f"ws://127.0.0.1:{servers.api_port}/studio" in sockets
-        page.wait_for_timeout(1000)  # let the 3D canvas draw a few frames
+        for _ in range(3):  # the 3D canvas has drawn a few frames
+            wait_frame(page)
         page.screenshot(path=str(ARTIFACTS / "viewer_proxy.png"))
     finally:
         page.close()

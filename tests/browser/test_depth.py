@@ -19,7 +19,6 @@ import queue
 import re
 import shutil
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -43,6 +42,7 @@ from tests.conftest import (
     Studio,
     button,
     choose,
+    poll,
     start_demo,
     stop_process,
     studio_page,
@@ -104,15 +104,15 @@ def _heights_within(page: Page, tolerance_m: float) -> list[float]:
 def _apply_until_done(page: Page, shot: str) -> None:
     """Click the step's suggestion and wait for its done tick; the screenshot ``shot``."""
     apply = page.get_by_role("button", name=re.compile(r"^Apply ")).filter(visible=True)
-    expect(apply).to_be_enabled(timeout=60_000)
+    expect(apply).to_be_enabled()
     apply.click()
-    expect(page.get_by_text("Done", exact=True).filter(visible=True)).to_be_visible(timeout=60_000)
+    expect(page.get_by_text("Done", exact=True).filter(visible=True)).to_be_visible()
     page.screenshot(path=ARTIFACTS / shot)
 
 
 def _tables_step(page: Page, label: str, shot: str) -> None:
     """Place the simulated tables for the step, capture the node, apply the suggestion until done."""
-    expect(page.get_by_label("Guided step", exact=True)).to_have_value(label, timeout=30_000)
+    expect(page.get_by_label("Guided step", exact=True)).to_have_value(label)
     button(page, "Place tables (simulation)").click()
     wait_body(page, re.compile(r"Tables placed (behind|beside) each other"), 30)
     button(page, "Capture this node").click()
@@ -129,7 +129,7 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         choose(page, "Session", DEPTH_CELL_NAME)
         button(page, "Open session").click()
         listen = text_input(page, "Listen on")  # step 9 shows, unfolded, once a rig with depth nodes is open
-        expect(listen).to_be_visible(timeout=60_000)
+        expect(listen).to_be_visible()
         listen.fill(endpoint)
         listen.press("Enter")
         button(page, "Listen for nodes").click()
@@ -144,7 +144,7 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         button(page, "Start from this pose").click()
         _tables_step(page, "2 · Tables behind each other", "studio_depth_behind.png")
         _tables_step(page, "3 · Tables beside each other", "studio_depth_beside.png")
-        expect(page.get_by_label("Guided step", exact=True)).to_have_value("4 · Lines and points", timeout=30_000)
+        expect(page.get_by_label("Guided step", exact=True)).to_have_value("4 · Lines and points")
         _apply_until_done(page, "studio_depth_lines.png")
         _heights_within(page, TABLE_TOLERANCE_M)  # the lines' distances, same tolerance
         button(page, "Keep this pose as the node's result").click()
@@ -186,9 +186,8 @@ def test_network_panel_in_process(cell: Studio, tmp_path: Path, free_port: Calla
         step._draw_map()
         step.map_jobs.job.wait(120)
         nodes = server.scene._handle_from_node_name
-        wait_for_node = time.monotonic() + 10
-        while "/steps/depth_network/map" not in nodes and time.monotonic() < wait_for_node:
-            time.sleep(0.1)  # on_done runs on the panel's watcher thread
+        poll(lambda: "/steps/depth_network/map" in nodes, "the merged map was never drawn",  # drawn by on_done,
+             interval_s=0.1)                                                                   # on a watcher thread
         assert len(np.asarray(nodes["/steps/depth_network/map"].points)) == len(voxels.counts)
         assert {f"/steps/depth_network/cell/line_labels/{line.name}" for line in default_cell_layout().lines} <= set(
             nodes)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import io
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,7 +21,20 @@ from PIL import Image
 from playwright.sync_api import Browser, Page, expect
 
 from backend.exports.target_pdf import board_sheet
-from tests.conftest import ARTIFACTS, UI_WAIT_MS, Studio, button, choose, studio_page, wait_body, wait_still
+from tests.conftest import (
+    ARTIFACTS,
+    UI_WAIT_MS,
+    UI_WAIT_S,
+    Studio,
+    button,
+    choose,
+    poll,
+    steady,
+    studio_page,
+    wait_body,
+    wait_frame,
+    wait_still,
+)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -52,24 +64,15 @@ def _views(page: Page) -> int:
     return int(match.group(1)) if match else 0
 
 
-def _wait_views(page: Page, at_least: int, timeout_s: float) -> int:
-    deadline = time.monotonic() + timeout_s
-    while (views := _views(page)) < at_least:
-        assert time.monotonic() < deadline, f"only {views} views after {timeout_s:.0f} s:\n{_body(page)[-1500:]}"
-        time.sleep(0.5)
-    return views
+def _wait_views(page: Page, at_least: int, timeout_s: float = UI_WAIT_S) -> int:
+    return poll(lambda: (views := _views(page)) >= at_least and views,
+                lambda: f"fewer than {at_least} views after {timeout_s:.0f} s:\n{_body(page)[-1500:]}", timeout_s, 0.5)
 
 
-def _settled_views(page: Page, quiet_s: float = 4.0, timeout_s: float = 60.0) -> int:
-    """The view count once it has not changed for ``quiet_s`` (an auto-capture in flight has landed)."""
-    deadline = time.monotonic() + timeout_s
-    views, since = _views(page), time.monotonic()
-    while time.monotonic() - since < quiet_s:
-        assert time.monotonic() < deadline, f"the view count kept changing for {timeout_s:.0f} s"
-        time.sleep(0.5)
-        if (now := _views(page)) != views:
-            views, since = now, time.monotonic()
-    return views
+def _settled_views(page: Page, quiet_polls: int = 8) -> int:
+    """The view count once it has not changed over ``quiet_polls`` polls 0.5 s apart (an auto-capture in flight
+    has landed)."""
+    return steady(lambda: _views(page), "the view count kept changing", quiet_polls, 0.5)
 
 
 def _scroll_to_result(page: Page) -> None:
@@ -88,14 +91,12 @@ def _scene_view(page: Page) -> tuple[float, int]:
 def test_demo_page_renders_rig(page: Page) -> None:
     ARTIFACTS.mkdir(exist_ok=True)
     # frusta, boards and the live thumbnail arrive over the socket and render in software: wait until they show
-    deadline = time.monotonic() + 60
-    while (drawn := _scene_view(page))[0] <= 10.0 or drawn[1] <= 200:
-        if time.monotonic() > deadline:
-            break
-        page.wait_for_function("() => new Promise(done => requestAnimationFrame(() => done(true)))")
-    spread, colours = drawn
-    assert spread > 10.0, f"the 3D view looks blank (std {spread:.1f} grey levels)"
-    assert colours > 200, f"the 3D view has only {colours} distinct colours"
+    def scene_drawn() -> bool:
+        wait_frame(page)
+        spread, colours = _scene_view(page)
+        return spread > 10.0 and colours > 200
+
+    poll(scene_drawn, lambda: "the 3D view looks blank (std {:.1f} grey levels, {} colours)".format(*_scene_view(page)))
 
     # The demo session opens on cam_front, calibrated and accepted when the session was built.
     expect(page.get_by_label("Camera", exact=True)).to_have_value("cam_front")
@@ -130,7 +131,7 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     page.get_by_label("Auto-capture when it adds coverage").uncheck()
     before = _settled_views(page)  # an auto-capture already in flight lands first, however loaded the machine
     button(page, "Capture this frame").click()
-    _wait_views(page, before + 1, timeout_s=60)
+    _wait_views(page, before + 1)
     after = _settled_views(page)
     assert after == before + 1, "a manual capture must keep exactly one frame"
 

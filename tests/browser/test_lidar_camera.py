@@ -6,7 +6,6 @@ kept as a result and accepted on the result card once its 'check' verdict is con
 from __future__ import annotations
 
 import re
-import time
 
 import cv2
 import numpy as np
@@ -25,6 +24,7 @@ from tests.conftest import (
     text_input,
     unfold,
     wait_body,
+    wait_new_source,
     wait_settled,
 )
 
@@ -93,10 +93,7 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         turn = text_input(page, "Δ about z (°)")  # about the camera's z (the parent's axes, the default)
         turn.fill("8")
         turn.press("Enter")
-        deadline = time.monotonic() + 20
-        while overlay.get_attribute("src") == source_before:
-            assert time.monotonic() < deadline, "the overlay did not change after the yaw slider moved"
-            time.sleep(0.2)
+        wait_new_source(overlay, source_before, "the yaw slider moved")
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
         wait_settled(overlay)
         ARTIFACTS.mkdir(exist_ok=True)

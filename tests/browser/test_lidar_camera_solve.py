@@ -30,10 +30,12 @@ from tests.conftest import (
     choose,
     decoded_image,
     labelled_image,
+    poll,
     studio_page,
     text_input,
     unfold,
     wait_body,
+    wait_new_source,
     wait_settled,
 )
 
@@ -55,15 +57,6 @@ YAW_OFF_DEG, X_OFF_M = 3.0, 0.05
 TOLERANCE_M, TOLERANCE_DEG = 0.015, 0.3
 
 
-def _wait_new_source(image: Locator, old_source: str | None, what: str, timeout_s: float = 20.0) -> str:
-    """Wait until ``image`` shows a new picture (viser swaps the blob URL on every update); the new source."""
-    deadline = time.monotonic() + timeout_s
-    while (source := image.get_attribute("src")) == old_source:
-        assert time.monotonic() < deadline, f"the overlay did not change after {what}"
-        time.sleep(0.2)
-    return source
-
-
 def _slider_values(page: Page) -> list[float]:
     """x, y, z (m), yaw, pitch, roll (°) of the step's read-only pose table."""
     table = page.locator("table", has_text="pitch (°)").filter(visible=True)
@@ -78,11 +71,9 @@ def _slider_T(page: Page) -> np.ndarray:
     return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
 
 
-def _wait_yaw(page: Page, expected: float, what: str, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while abs((yaw := _slider_values(page)[3]) - expected) > 0.0015:  # the pose shows three decimals
-        assert time.monotonic() < deadline, f"after {what} yaw is {yaw}°, expected {expected:.3f}°"
-        time.sleep(0.1)
+def _wait_yaw(page: Page, expected: float, what: str) -> None:
+    poll(lambda: abs(_slider_values(page)[3] - expected) <= 0.0015,  # the pose shows three decimals
+         lambda: f"after {what} yaw is {_slider_values(page)[3]}°, expected {expected:.3f}°", interval_s=0.1)
 
 
 def _type(page: Page, label: str, value: float) -> None:
@@ -112,7 +103,7 @@ def _full_size_page(page: Page) -> None:
         link.click()
     view = popup.value
     view.set_viewport_size({"width": 1600, "height": 1000})
-    expect(view.locator("body[data-ready=true]")).to_have_count(1, timeout=60_000)
+    expect(view.locator("body[data-ready=true]")).to_have_count(1)
     expect(view.locator("#error")).to_be_hidden()
     images = view.locator("#content img")
     expect(images).to_have_count(10)  # every stored pair, not only the six the panel tiles
@@ -176,7 +167,7 @@ def _press(page: Page, key: str, yaw_expected: float, overlay: Locator) -> None:
     source = overlay.get_attribute("src")
     page.keyboard.press(key)
     _wait_yaw(page, yaw_expected, f"pressing {key}")
-    _wait_new_source(overlay, source, f"pressing {key}")
+    wait_new_source(overlay, source, f"pressing {key}")
 
 
 def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
@@ -212,7 +203,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         _type(page, "Δx (m)", X_OFF_M)
         _wait_yaw(page, yaw_off, "typing 3° about z")
         wait_body(page, re.compile(r"From where it was put: turned 3\.000°"))
-        source = _wait_new_source(overlay, source, "the sliders were typed away from the truth")
+        source = wait_new_source(overlay, source, "the sliders were typed away from the truth")
 
         # 3. Keyboard nudges (viser command hotkeys, delivered while no input has the focus).
         _focus_outside_inputs(page)
@@ -247,15 +238,13 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         T_solved = np.array(record["T_parent_child"])
         solved_m, solved_deg = _errors(T_solved, truth)
         assert solved_m < TOLERANCE_M and solved_deg < TOLERANCE_DEG, (solved_m, solved_deg)
-        deadline = time.monotonic() + 10
-        while max(np.array(_errors(_slider_T(page), T_solved)) / (1e-3, 0.02)) > 1:
-            assert time.monotonic() < deadline, f"the sliders show {_slider_values(page)}, not the result"
-            time.sleep(0.2)
+        poll(lambda: max(np.array(_errors(_slider_T(page), T_solved)) / (1e-3, 0.02)) <= 1,
+             lambda: f"the sliders show {_slider_values(page)}, not the result")
         sliders_m, sliders_deg = _errors(_slider_T(page), truth)
         assert sliders_m < TOLERANCE_M and sliders_deg < TOLERANCE_DEG, (sliders_m, sliders_deg)
         assert any(r["id"] == result_id for r in studio.get("/api/sessions/demo/results"))
 
-        _wait_new_source(overlay, source, "the solve moved the sliders")
+        wait_new_source(overlay, source, "the solve moved the sliders")
         wait_settled(overlay)
         solved = decoded_image(overlay)
         cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_solve_overlay_solved.png"), solved)

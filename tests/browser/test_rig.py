@@ -111,18 +111,18 @@ def test_rig_step_in_the_browser(browser: Browser, studio: Studio, accepted: dic
         page.screenshot(path=ARTIFACTS / "studio_rig.png")
 
         choose(page, "Step in view", STEPS["lidar"])  # the checkboxes follow within seconds on a loaded machine
-        expect(page.get_by_label("Rig tree (step 8)")).not_to_be_checked(timeout=30_000)
-        expect(page.get_by_label("LiDAR clouds (step 4)")).to_be_checked(timeout=30_000)
+        expect(page.get_by_label("Rig tree (step 8)")).not_to_be_checked()
+        expect(page.get_by_label("LiDAR clouds (step 4)")).to_be_checked()
         page.screenshot(path=ARTIFACTS / "studio_rig_layers_lidar.png")
         choose(page, "Step in view", STEPS["rig"])
-        expect(page.get_by_label("Rig tree (step 8)")).to_be_checked(timeout=30_000)
-        expect(page.get_by_label("LiDAR clouds (step 4)")).not_to_be_checked(timeout=30_000)
+        expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
+        expect(page.get_by_label("LiDAR clouds (step 4)")).not_to_be_checked()
 
         slot = next(s for s, r in accepted.items() if s.startswith(SECOND_LIDAR))
         unfold(page, "Revert an edge", button(page, "Revert slot"))
         choose(page, "Accepted slot", slot)
         button(page, "Revert slot").click()
-        expect(page.get_by_text(f"{slot} reverted.", exact=True)).to_be_visible(timeout=30_000)
+        expect(page.get_by_text(f"{slot} reverted.", exact=True)).to_be_visible()
         expect(page.locator("table", has_text="disagreement (σ)").locator("td", has_text="lidar_lidar")
                ).to_have_count(0)
         page.screenshot(path=ARTIFACTS / "studio_rig_reverted.png")

@@ -55,7 +55,7 @@ def test_add_a_simulated_velodyne_and_stream_it(browser: Browser, studio: Studio
 
 def _stream_and_capture(page: Page, studio: Studio) -> None:
     # The "Sensor added" toast floats over the panel until it closes itself (8 s): wait, or it takes the clicks.
-    expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden(timeout=30_000)
+    expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden()
     page.get_by_text("4 · LiDARs", exact=True).click()
     button(page, "Start live").scroll_into_view_if_needed()
     # Adding velo_sim changed the closed step's live boxes: a titled viser folder filled while closed can stay at

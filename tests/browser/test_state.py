@@ -130,7 +130,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
         expect(page.get_by_text(re.compile(r"^blank\s*$")).first).to_be_visible()
         expect(text_input(page, "New name")).to_have_value("")  # the name is taken now
         page.reload()  # the page shows the server's state: the buttons too
-        expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=30_000)
+        expect(page.get_by_text("Connected", exact=True)).to_be_visible()
         dismiss_webgl_warning(page)
         for folder, inside in (("4 · LiDARs", "Source LiDAR"), ("6 · LiDAR to camera", "Onto camera"),
                                ("7 · Multi-camera", "Reference camera")):

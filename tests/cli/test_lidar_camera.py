@@ -20,10 +20,9 @@ from backend.exports.ros_camera_info import write_camera_info
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from tests.calib.lidar_camera.conftest import initial_guess, simulated_pairs
-from tests.conftest import ROOT
+from tests.calib.lidar_camera.conftest import edge_pairs_folder, initial_guess
+from tests.conftest import ROOT, cli_in_process
 
-ROOT = ROOT
 RIG = demo_rig()
 TRUTH = RIG.T_a_b("cam_front", "lidar_front")
 
@@ -53,17 +52,19 @@ def edge_recording(tmp_path_factory) -> tuple[Path, list[str]]:
     folder = tmp_path_factory.mktemp("lidar_camera_edges")
     write_camera_info(folder / "camera.yaml", CAM_FRONT, "cam_front")
     np.savetxt(folder / "init.txt", initial_guess(2))
-    pairs = []
-    for i, pair in enumerate(simulated_pairs(4)):
-        cv2.imwrite(str(folder / f"scene{i}.png"), pair.image)
-        np.save(folder / f"scene{i}.npy", pair.points_lidar)
-        pairs.append(f"{folder / f'scene{i}.png'}:{folder / f'scene{i}.npy'}")
-    return folder, pairs
+    scenes = edge_pairs_folder(tmp_path_factory)
+    return folder, [f"{png}:{png.with_suffix('.npy')}" for png in sorted(scenes.glob("scene*.png"))]
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
+    """``calib-studio lidar-camera ARGS`` as a user runs it: a process of its own (the contract's test)."""
     return subprocess.run([sys.executable, "-m", "studio.cli", "lidar-camera", *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=300)
+
+
+def run_in_process(*args: str) -> subprocess.CompletedProcess:
+    """The same command through :func:`~tests.conftest.cli_in_process` (no interpreter start-up)."""
+    return cli_in_process("lidar-camera", *args)
 
 
 def _init(folder: Path) -> Path:
@@ -92,8 +93,8 @@ def test_target_method_recovers_the_truth_with_the_conventions_json(recording):
 @pytest.mark.slow
 def test_edges_method_recovers_the_truth_without_a_board(edge_recording):
     folder, pairs = edge_recording
-    done = run("--camera", str(folder / "camera.yaml"), *[a for p in pairs for a in ("--pair", p)],
-               "--method", "edges", "--init", str(folder / "init.txt"), "--json")
+    done = run_in_process("--camera", str(folder / "camera.yaml"), *[a for p in pairs for a in ("--pair", p)],
+                          "--method", "edges", "--init", str(folder / "init.txt"), "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
@@ -127,7 +128,7 @@ def test_bad_input_exits_non_zero_naming_it(recording, tmp_path):
          "too few edges: the image has 0 edge pixels"),
     ]
     for extra, where, message in cases:
-        done = run("--camera", camera, "--pair", *extra, "--json")
+        done = run_in_process("--camera", camera, "--pair", *extra, "--json")
         assert done.returncode != 0, (extra, done.stdout)
         error = json.loads(done.stdout)["error"]
         assert error["input"] == where and message in error["message"], (extra, error)

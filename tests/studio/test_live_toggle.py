@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass
 
 from studio.live_toggle import WATCH_PERIOD_S, LiveToggle
+from tests.conftest import poll
 
 
 @dataclass
@@ -15,13 +15,18 @@ class FakeButton:
 
 
 class FakeStream:
-    """Stands in for a SensorStream: ``running`` until :meth:`end`."""
+    """Stands in for a SensorStream: ``running`` until :meth:`end`; counts how often the watcher looked."""
 
     def __init__(self, running: bool = True):
-        self.running = running
+        self._running, self.looks = running, 0
+
+    @property
+    def running(self) -> bool:
+        self.looks += 1
+        return self._running
 
     def end(self) -> None:
-        self.running = False
+        self._running = False
 
 
 def _toggle() -> tuple[LiveToggle, FakeButton, FakeButton, list]:
@@ -30,8 +35,16 @@ def _toggle() -> tuple[LiveToggle, FakeButton, FakeButton, list]:
     return LiveToggle(start, stop, on_ended=ended.append), start, stop, ended
 
 
-def _settle() -> None:
-    time.sleep(3 * WATCH_PERIOD_S)
+def _watchers() -> int:
+    return sum(thread.name == "live-watch" and thread.is_alive() for thread in threading.enumerate())
+
+
+def _settle(*running: FakeStream) -> None:
+    """Wait until the watchers have acted on every change so far: each stream of ``running`` (one per run still
+    watched) looked at twice more, and no other watcher left."""
+    looks = [stream.looks + 2 for stream in running]
+    poll(lambda: all(s.looks >= n for s, n in zip(running, looks, strict=True)) and _watchers() == len(running),
+         lambda: f"{_watchers()} watchers left, {len(running)} expected", interval_s=WATCH_PERIOD_S / 4)
 
 
 def test_a_stream_that_failed_before_the_click_returned_gives_start_back() -> None:
@@ -49,7 +62,7 @@ def test_stop_shows_while_any_stream_runs() -> None:
     toggle.started([a, b])
     assert (start.visible, stop.visible) == (False, True) and toggle.live
     a.end()
-    _settle()
+    _settle(b)
     assert (start.visible, stop.visible) == (False, True) and ended == []
     b.end()
     _settle()
@@ -63,7 +76,7 @@ def test_an_old_run_ending_late_leaves_the_new_run_alone() -> None:
     toggle.stopped()
     toggle.started([new])
     old.end()
-    _settle()
+    _settle(new)
     assert (start.visible, stop.visible) == (False, True) and ended == []
     toggle.stopped()
     new.end()

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from backend.calib.board.detection import FALLBACKS, Detection, detect_board
-from backend.plots.board import draw_detection
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
+from backend.plots.board import draw_detection
 from backend.sim.board_motion import board_poses, project_corners
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD

@@ -1,13 +1,15 @@
 """The LiDAR-to-camera scene the problem's tests share: ``cam_front`` and ``lidar_front`` of the demo rig in the
 simulated yard, the truth between them (:data:`TRUTH`), starts off it (:func:`initial_guess`) and targetless image
-and cloud pairs (:func:`simulated_pairs`, rendered once per test process).
+and cloud pairs (:func:`edge_pairs_folder`, rendered once per run).
 """
 
 from __future__ import annotations
 
-import functools
+from pathlib import Path
 
+import cv2
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from backend.calib.lidar_camera.edges import EdgeObservation
@@ -15,6 +17,7 @@ from backend.core.transforms import from_xyz_ypr, make_T, transform_error
 from backend.sim.demo_rig import CAM_FRONT, demo_rig
 from backend.sim.lidar_scene import LidarScene
 from backend.sim.scene_camera import render_scene_image
+from tests.conftest import built_once
 
 RIG = demo_rig()
 T_BASE_CAMERA = RIG.T_root_frame("cam_front")
@@ -33,23 +36,29 @@ def scan_and_image(scene: LidarScene, robot_pose: tuple[float, float, float], rn
     return scan, render_scene_image(scene, CAM_FRONT, T_world_base @ T_BASE_CAMERA, rng)
 
 
-def simulated_pairs(n: int, seed: int = 0) -> list[EdgeObservation]:
-    """``n`` image and cloud (x, y, z, intensity) pairs of the yard, without the board: a targetless scene.
+def edge_pairs_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The targetless scene as files, rendered once per run (:func:`~tests.conftest.built_once`): for each of
+    :data:`ROBOT_POSES`, ``sceneN.png`` (cam_front's image) and ``sceneN.npy`` (lidar_front's dense scan: x, y,
+    z in m and the intensity) of the yard without the board.
 
-    The board is left out here because a checkerboard is a periodic pattern (its own tests are under "a repeating
-    pattern in view"). Rendered once per process: the CLI tests write the same pairs to files.
+    The board is left out because a checkerboard is a periodic pattern (its own tests are under "a repeating
+    pattern in view"). The solver's tests read them (:func:`edge_pairs`), the CLI's pass the files.
     """
-    return list(_simulated_pairs(n, seed))
+    return built_once(tmp_path_factory, "lidar_camera_edge_pairs", _write_edge_pairs)
 
 
-@functools.cache
-def _simulated_pairs(n: int, seed: int) -> tuple[EdgeObservation, ...]:
-    scene, rng = LidarScene(include_board=False), np.random.default_rng(seed)
-    pairs = []
-    for i, pose in enumerate(ROBOT_POSES[:n]):
+def _write_edge_pairs(folder: Path) -> None:
+    scene, rng = LidarScene(include_board=False), np.random.default_rng(0)
+    for i, pose in enumerate(ROBOT_POSES):
         scan, image = scan_and_image(scene, pose, rng)
-        pairs.append(EdgeObservation(image, np.column_stack([scan.points, scan.intensity]), f"pose {i + 1}"))
-    return tuple(pairs)
+        cv2.imwrite(str(folder / f"scene{i}.png"), image)
+        np.save(folder / f"scene{i}.npy", np.column_stack([scan.points, scan.intensity]))
+
+
+def edge_pairs(folder: Path) -> list[EdgeObservation]:
+    """The pairs of :func:`edge_pairs_folder`, read back (the PNGs are lossless)."""
+    return [EdgeObservation(cv2.imread(str(folder / f"scene{i}.png"), cv2.IMREAD_UNCHANGED),
+                            np.load(folder / f"scene{i}.npy"), f"pose {i + 1}") for i in range(len(ROBOT_POSES))]
 
 
 def initial_guess(seed: int) -> np.ndarray:

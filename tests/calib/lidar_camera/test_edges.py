@@ -36,17 +36,18 @@ from tests.calib.lidar_camera.conftest import (
     T_BASE_CAMERA,
     T_BASE_LIDAR,
     TRUTH,
+    edge_pairs,
+    edge_pairs_folder,
     errors_and_sigmas,
     initial_guess,
     scan_and_image,
-    simulated_pairs,
 )
 from tests.conftest import opencalib_frame
 
 
 @pytest.fixture(scope="module")
-def sim_pairs() -> list[EdgeObservation]:
-    return simulated_pairs(4)
+def sim_pairs(tmp_path_factory: pytest.TempPathFactory) -> list[EdgeObservation]:
+    return edge_pairs(edge_pairs_folder(tmp_path_factory))
 
 
 @pytest.fixture(scope="module")
