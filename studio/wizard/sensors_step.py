@@ -154,7 +154,8 @@ class SensorsStep:
                 min=(0.0, 0.0), hint="how well the mounting above is known (tape, CAD): a weak prior the calibrations "
                 "override; 0, 0 means unknown, so only calibrations place the sensor")
             self.driver = gui.add_dropdown("Device", options=drivers_for("camera"), initial_value="uvc")
-            self.source = gui.add_text("Source", initial_value="0", hint=DRIVERS["uvc"].hint)
+            self.source = gui.add_text("Source", initial_value=DRIVERS["uvc"].default_source, hint=DRIVERS["uvc"].hint)
+            self._example_source = DRIVERS["uvc"].default_source
             self.source_help = gui.add_markdown(DRIVERS["uvc"].hint)
             self.topic = gui.add_text("Topic", initial_value="", visible=False, hint="the bag topic to replay")
             self.time_window = gui.add_vector2("Time window (s)", initial_value=(0.0, 0.0), step=0.1, visible=False,
@@ -183,8 +184,13 @@ class SensorsStep:
                 handle.visible = False
 
     def _on_driver(self) -> None:
+        """Show the chosen device's fields. Its example source replaces the source box's text only while that is
+        still the previous device's example: a source typed meanwhile (this runs after the click, later on a busy
+        server) is kept."""
         choice = DRIVERS[self.driver.value]
-        self.source.value = choice.default_source
+        if self.source.value in ("", self._example_source):
+            self.source.value = choice.default_source
+        self._example_source = choice.default_source
         self.source_help.content = choice.hint
         self.topic.visible = self.time_window.visible = self.topics_button.visible = self.driver.value == "rosbag"
         self.scanner_port.visible = self.driver.value == "swept_scanner"

@@ -86,7 +86,10 @@ def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
         source = text_input(page, "Source")
         source.fill(str(bag))
         source.press("Enter")
-        button(page, "List the bag's topics").click()
+        list_topics = button(page, "List the bag's topics")
+        expect(list_topics).to_be_visible()  # the server has taken the device (a typed source outlives that)
+        expect(source).to_have_value(str(bag))
+        list_topics.click()
         wait_body(page, re.compile(r"/lidar/points\s+PointCloud2\s+3"))
         expect(text_input(page, "Topic")).to_have_value("/lidar/padded")  # the first topic a LiDAR can replay
         topic = text_input(page, "Topic")

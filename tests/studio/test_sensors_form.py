@@ -8,10 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import viser
 
 from backend.core.errors import InputError
 from backend.devices.base import create_device, driver_names
-from studio.wizard.sensors_step import DRIVERS, RANGE_KINDS, device_settings, drivers_for
+from backend.services.jobs import JobRunner
+from backend.store.session import SessionStore
+from studio.context import StudioContext
+from studio.scene import RigScene
+from studio.wizard.sensors_step import DRIVERS, RANGE_KINDS, SensorsStep, device_settings, drivers_for
 
 
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
@@ -74,3 +79,24 @@ def test_the_simulated_range_sensors_open_from_the_form(driver):
     with create_device(device_settings(driver, DRIVERS[driver].default_source)) as device:
         sample = device.read()
     assert sample.points is not None and len(sample.points) > 1000 and np.isfinite(sample.points).all()
+
+
+def test_a_typed_source_outlives_the_device_choice(tmp_path, free_port):
+    """Picking a device puts its example source in the box, but never over what the user typed: on a busy server
+    the device's update can land after the user has typed the path."""
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    jobs = JobRunner()
+    try:
+        step = SensorsStep(StudioContext(server, SessionStore(tmp_path), jobs, RigScene(server)))
+        step.kind.value = "lidar3d"
+        step._on_kind()
+        step.driver.value = "velodyne"
+        step._on_driver()
+        assert step.source.value == DRIVERS["velodyne"].default_source  # the example replaced the last example
+        step.source.value = str(tmp_path / "drive")  # typed before the server took the next choice
+        step.driver.value = "rosbag"
+        step._on_driver()
+        assert step.source.value == str(tmp_path / "drive") and step.topics_button.visible
+    finally:
+        jobs.shutdown()
+        server.stop()
