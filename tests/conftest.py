@@ -149,6 +149,9 @@ under load draws the page, runs the studio and solves at once."""
 UI_WAIT_MS = int(UI_WAIT_S * 1000)
 """:data:`UI_WAIT_S` in Playwright's milliseconds."""
 expect.set_options(timeout=UI_WAIT_MS)  # Playwright's ``expect`` keeps its own 5 s default beside the page's
+START_WAIT_S = 180.0
+"""The longest a studio or agent process may take to start (print its URL, build a session, connect): about 10 s
+on a quiet 2-core machine, but one took more than 90 s with 4 busy processes beside the suite (load 13)."""
 
 
 def poll(check: Callable[[], T], failure: str | Callable[[], str], timeout_s: float = UI_WAIT_S,
@@ -272,7 +275,7 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
     studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
     try:
         try:
-            first = lines.get(timeout=90)
+            first = lines.get(timeout=START_WAIT_S)
         except queue.Empty:
             pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
         studio.url = first.strip()

@@ -39,6 +39,7 @@ from backend.store.session import SessionStore
 from studio.app import StudioApp
 from tests.conftest import (
     ARTIFACTS,
+    START_WAIT_S,
     Studio,
     button,
     choose,
@@ -83,7 +84,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int])
     studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
     try:
         try:
-            studio.url = lines.get(timeout=60).strip()
+            studio.url = lines.get(timeout=START_WAIT_S).strip()
         except queue.Empty:
             pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
         wait_health(studio.api, process, studio.log_tail)

@@ -26,14 +26,11 @@ from backend.core.depth_cell import PAPER_NODE_POSES
 from backend.core.transforms import transform_error
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, MOUNT_SIGMA, TAPE_ERROR_DEG, TAPE_ERROR_M, TRUTH_FILE
 from backend.services.node_processes import NodeProcesses, free_tcp_port
-from tests.conftest import ROOT, Studio, poll, start_demo, stop_process, wait_health
+from tests.conftest import ROOT, START_WAIT_S, Studio, poll, start_demo, stop_process, wait_health
 
 pytestmark = pytest.mark.slow
 
 NODES = sorted(PAPER_NODE_POSES)
-START_TIMEOUT_S = 120.0
-"""How long (s) the studio, the session build and the six agents may take to start on a loaded machine (the build
-alone takes about 5 s on a quiet one; with the shared cores at a load of 20-50 everything took 50-90 s)."""
 
 
 @dataclass
@@ -73,7 +70,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int])
     studio = CellStudio("", f"http://127.0.0.1:{api_port}", process, log, viewer_port, tmp / "sessions")
     try:
         try:
-            studio.url = lines.get(timeout=START_TIMEOUT_S).strip()
+            studio.url = lines.get(timeout=START_WAIT_S).strip()
         except queue.Empty:
             pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
         wait_health(studio.api, process, studio.log_tail)
@@ -91,7 +88,7 @@ def test_first_line_is_the_url_and_the_api_answers(cell: CellStudio) -> None:
 def built(cell: CellStudio) -> CellStudio:
     """The studio once its depth-cell session is built (listed by the API)."""
     poll(lambda: DEPTH_CELL_NAME in [s["name"] for s in cell.get("/api/sessions")],
-         lambda: f"the depth-cell session was never built:\n{cell.log_tail()}", START_TIMEOUT_S)
+         lambda: f"the depth-cell session was never built:\n{cell.log_tail()}", START_WAIT_S)
     return cell
 
 
@@ -134,7 +131,7 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
             assert response.status_code < 500, response.text
             return response if response.status_code == 201 else None
 
-        return poll(captured, lambda: f"{node}: {capture(node).text}", START_TIMEOUT_S, 0.5)
+        return poll(captured, lambda: f"{node}: {capture(node).text}", START_WAIT_S, 0.5)
 
     with ThreadPoolExecutor(len(NODES)) as pool:  # as the studio's Capture all: the nodes answer at once
         responses = dict(zip(NODES, pool.map(capture_when_seen, NODES), strict=True))
@@ -150,9 +147,9 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
 
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:
     poll(lambda: sorted(agent_processes(cell.process.pid)) == NODES,
-         lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_tail()}", START_TIMEOUT_S)
+         lambda: f"agents: {agent_processes(cell.process.pid)}\n{cell.log_tail()}", START_WAIT_S)
     os.kill(agent_processes(cell.process.pid)["sn6"], signal.SIGKILL)
-    poll(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), cell.log_tail, START_TIMEOUT_S)
+    poll(lambda: "node agent sn6 was killed (SIGKILL)" in cell.log_text(), cell.log_tail, START_WAIT_S)
     assert sorted(agent_processes(cell.process.pid)) == NODES[:5]
 
 
@@ -169,13 +166,13 @@ def test_stopping_the_studio_stops_its_agents(cell: CellStudio) -> None:
             return True
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie has stopped
 
-    poll(lambda: all(gone(pid) for pid in agents.values()), lambda: f"agents left running: {agents}", START_TIMEOUT_S)
+    poll(lambda: all(gone(pid) for pid in agents.values()), lambda: f"agents left running: {agents}", START_WAIT_S)
 
 
 def test_an_agent_that_cannot_start_is_named_with_its_reason(tmp_path: Path) -> None:
     with NodeProcesses(f"tcp/127.0.0.1:{free_tcp_port()}", tmp_path) as agents:
         agents.start({"sn9": "no-such-device"})
-        poll(agents.dead, lambda: f"still running: {agents.status()}", START_TIMEOUT_S)
+        poll(agents.dead, lambda: f"still running: {agents.status()}", START_WAIT_S)
         why = agents.dead()["sn9"]
     assert why.startswith("exited with code 2") and "unknown device spec" in why, why
     assert agents.alive() == []
@@ -198,7 +195,7 @@ def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: 
         agent = int(parent.stdout.readline())
         # Once the agent runs Python (setpriv has set its death signal and executed it), kill its parent.
         poll(lambda: b"backend.cli" in Path(f"/proc/{agent}/cmdline").read_bytes(),
-             lambda: (tmp_path / "sn1.log").read_text(), START_TIMEOUT_S)
+             lambda: (tmp_path / "sn1.log").read_text(), START_WAIT_S)
     finally:
         parent.kill()
         parent.wait(timeout=10)
@@ -211,4 +208,4 @@ def test_a_studio_killed_outright_leaves_no_agent(tmp_path: Path, death_signal: 
 
     # The signal may land while the agent still starts (its handler then lets it finish opening the device and
     # Zenoh first): allow it the start-up time of a loaded machine.
-    poll(gone, f"agent {agent} outlived its killed parent", START_TIMEOUT_S)
+    poll(gone, f"agent {agent} outlived its killed parent", START_WAIT_S)
