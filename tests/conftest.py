@@ -183,12 +183,15 @@ def steady(read: Callable[[], T], failure: str, quiet_polls: int, interval_s: fl
 
 def wait_job(client, job_id: str, timeout_s: float = UI_WAIT_S) -> dict:
     """Poll ``/api/jobs/{job_id}`` through an HTTP client until the job has finished; its last status."""
+    last: dict = {}
+
     def finished() -> dict | None:
         response = client.get(f"/api/jobs/{job_id}")
         assert response.status_code == 200, response.text
-        return None if response.json()["state"] == "running" else response.json()
+        last.update(response.json())
+        return None if last["state"] == "running" else last
 
-    return poll(finished, f"job {job_id} still running after {timeout_s:.0f} s", timeout_s, interval_s=0.05)
+    return poll(finished, lambda: f"job still running after {timeout_s:.0f} s: {last}", timeout_s, interval_s=0.05)
 
 
 @dataclass

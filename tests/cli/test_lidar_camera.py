@@ -20,7 +20,7 @@ from backend.exports.ros_camera_info import write_camera_info
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
-from tests.calib.lidar_camera.conftest import edge_pairs_folder, initial_guess
+from tests.calib.lidar_camera.conftest import edge_pair_files, edge_pairs_folder, initial_guess
 from tests.conftest import ROOT, cli_in_process
 
 RIG = demo_rig()
@@ -52,8 +52,7 @@ def edge_recording(tmp_path_factory) -> tuple[Path, list[str]]:
     folder = tmp_path_factory.mktemp("lidar_camera_edges")
     write_camera_info(folder / "camera.yaml", CAM_FRONT, "cam_front")
     np.savetxt(folder / "init.txt", initial_guess(2))
-    scenes = edge_pairs_folder(tmp_path_factory)
-    return folder, [f"{png}:{png.with_suffix('.npy')}" for png in sorted(scenes.glob("scene*.png"))]
+    return folder, [f"{image}:{cloud}" for image, cloud in edge_pair_files(edge_pairs_folder(tmp_path_factory))]
 
 
 def run(*args: str) -> subprocess.CompletedProcess:

@@ -49,16 +49,21 @@ def edge_pairs_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _write_edge_pairs(folder: Path) -> None:
     scene, rng = LidarScene(include_board=False), np.random.default_rng(0)
-    for i, pose in enumerate(ROBOT_POSES):
+    for pose, (image_file, cloud_file) in zip(ROBOT_POSES, edge_pair_files(folder), strict=True):
         scan, image = scan_and_image(scene, pose, rng)
-        cv2.imwrite(str(folder / f"scene{i}.png"), image)
-        np.save(folder / f"scene{i}.npy", np.column_stack([scan.points, scan.intensity]))
+        cv2.imwrite(str(image_file), image)
+        np.save(cloud_file, np.column_stack([scan.points, scan.intensity]))
+
+
+def edge_pair_files(folder: Path) -> list[tuple[Path, Path]]:
+    """The (image, cloud) files of :func:`edge_pairs_folder`, one per robot pose, in pose order."""
+    return [(folder / f"scene{i}.png", folder / f"scene{i}.npy") for i in range(len(ROBOT_POSES))]
 
 
 def edge_pairs(folder: Path) -> list[EdgeObservation]:
     """The pairs of :func:`edge_pairs_folder`, read back (the PNGs are lossless)."""
-    return [EdgeObservation(cv2.imread(str(folder / f"scene{i}.png"), cv2.IMREAD_UNCHANGED),
-                            np.load(folder / f"scene{i}.npy"), f"pose {i + 1}") for i in range(len(ROBOT_POSES))]
+    return [EdgeObservation(cv2.imread(str(image), cv2.IMREAD_UNCHANGED), np.load(cloud), f"pose {i + 1}")
+            for i, (image, cloud) in enumerate(edge_pair_files(folder))]
 
 
 def initial_guess(seed: int) -> np.ndarray:
