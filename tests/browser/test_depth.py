@@ -115,9 +115,9 @@ def _tables_step(page: Page, label: str, shot: str) -> None:
     """Place the simulated tables for the step, capture the node, apply the suggestion until done."""
     expect(page.get_by_label("Guided step", exact=True)).to_have_value(label)
     button(page, "Place tables (simulation)").click()
-    wait_body(page, re.compile(r"Tables placed (behind|beside) each other"), 30)
+    wait_body(page, re.compile(r"Tables placed (behind|beside) each other"))
     button(page, "Capture this node").click()
-    wait_body(page, re.compile(r"Stored 1 capture\(s\)"), 60)
+    wait_body(page, re.compile(r"Stored 1 capture\(s\)"))
     _apply_until_done(page, shot)
     _heights_within(page, TABLE_TOLERANCE_M)
     button(page, "Next step").click()
@@ -135,7 +135,7 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         listen.press("Enter")
         button(page, "Listen for nodes").click()
         agents.start({NODE: f"sim-cell:{NODE}"})
-        wait_body(page, re.compile(rf"{NODE}\s+🟢 alive\s+sim-cell:{NODE}"), 60)  # through Zenoh liveliness
+        wait_body(page, re.compile(rf"{NODE}\s+🟢 alive\s+sim-cell:{NODE}"))  # through Zenoh liveliness
         page.screenshot(path=ARTIFACTS / "studio_depth_nodes.png")
 
         for label, value in TYPED.items():
@@ -149,12 +149,12 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         _apply_until_done(page, "studio_depth_lines.png")
         _heights_within(page, TABLE_TOLERANCE_M)  # the lines' distances, same tolerance
         button(page, "Keep this pose as the node's result").click()
-        result_id = wait_body(page, re.compile(r"Kept as (r\d+) \(guided, verdict trusted\)"), 90).group(1)
-        wait_body(page, re.compile(rf"{result_id} \(not accepted\) · depth_node · guided"), 30)
+        result_id = wait_body(page, re.compile(r"Kept as (r\d+) \(guided, verdict trusted\)"), timeout_s=90).group(1)
+        wait_body(page, re.compile(rf"{result_id} \(not accepted\) · depth_node · guided"))
         page.screenshot(path=ARTIFACTS / "studio_depth_result.png")
         page.get_by_role("button", name="Accept", exact=True).filter(visible=True).last.click()
         page.get_by_role("button", name="Apply accept", exact=True).filter(visible=True).click()
-        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"), 30)
+        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
         page.screenshot(path=ARTIFACTS / "studio_depth_accepted.png")
 
     state = httpx.get(f"{cell.api}{API}/guided/{NODE}", timeout=30).json()

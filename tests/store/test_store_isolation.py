@@ -421,7 +421,7 @@ def test_studio_lists_a_broken_session_with_its_reason(studio, browser):
         if not open_button.is_visible():
             unfold(page, "1 · Session", open_button)
         open_button.click()  # reopening the demo refreshes the step's list of sessions
-        match = wait_body(page, re.compile(r"Broken sessions.*\n+.*wrecked.*not valid JSON"), 60)
+        match = wait_body(page, re.compile(r"Broken sessions.*\n+.*wrecked.*not valid JSON"))
         assert "session.json" in match.group(0)
         page.screenshot(path=str(ROOT / "tests" / "artifacts" / "store_isolation_broken_session.png"))
     assert "wrecked" in {e["name"] for e in studio.get("/api/sessions") if e["broken"]}
