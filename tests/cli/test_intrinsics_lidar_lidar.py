@@ -210,14 +210,14 @@ def test_export_camera_info_from_session(left_images, tmp_path: Path):
     assert result.verdict.level == "check", result.verdict
     rig_service.accept(session, result_id, confirm=True)
 
-    run = cli("export", session.path, "--format", "camera_info", "--sensor", "cam_left")
+    run = cli_in_process("export", session.path, "--format", "camera_info", "--sensor", "cam_left")
     assert run.returncode == 0, run.stderr
     doc = yaml.safe_load(run.stdout)
     assert doc["camera_name"] == "cam_left" and doc["image_width"] == 640 and doc["image_height"] == 480
     np.testing.assert_allclose(doc["camera_matrix"]["data"], result.camera.K.ravel(), rtol=1e-12)
 
     out = tmp_path / "cam_left.yaml"
-    run = cli("export", session.path, "--format", "camera_info", "--sensor", "cam_left", "--out", out)
+    run = cli_in_process("export", session.path, "--format", "camera_info", "--sensor", "cam_left", "--out", out)
     assert run.returncode == 0 and run.stdout == ""
     camera, _ = load_camera_info(out)
     np.testing.assert_allclose(camera.K, result.camera.K, rtol=1e-12)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +17,7 @@ from backend.exports.kalibr_camchain import K3_TOLERANCE_PX, dump_kalibr_camchai
 from backend.services import exports as export_service
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
-from tests.conftest import ROOT
+from tests.conftest import cli_in_process
 
 LEFT = CameraIntrinsics(
     "pinhole-radtan", 752, 480,
@@ -354,14 +352,9 @@ def test_kalibr_through_api_and_cli(session, tmp_path: Path) -> None:
         assert response.json()["error"]["message"].startswith("cam_wide: k3 = -0.0115")
     app.state.studio.jobs.shutdown()
 
-    run = cli("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_right")
+    run = cli_in_process("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_right")
     assert run.returncode == 0, run.stderr
     assert [name for name, _ in load_kalibr_camchain(run.stdout)[0]] == ["cam_front", "cam_right"]
-    run = cli("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_wide")
+    run = cli_in_process("export", demo.path, "--format", "kalibr", "--cameras", "cam_front,cam_wide")
     assert run.returncode == 2 and run.stdout == ""
     assert run.stderr.strip().splitlines()[-1].startswith("error: cam_wide: k3 = -0.0115")
-
-
-def cli(*args: str | Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=120)

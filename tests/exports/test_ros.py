@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import re
-import subprocess
 import sys
 import types
 import warnings
@@ -33,9 +32,8 @@ from backend.exports.urdf import dump_urdf
 from backend.services import exports as export_service
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
-from tests.conftest import ROOT
+from tests.conftest import cli_in_process
 
-REPO = ROOT
 R_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 """Optical axes in body axes, written out here as REP 103 states them (optical z forward = body x, x right =
 body -y, y down = body -z), independently of the exporter's constant."""
@@ -422,32 +420,27 @@ def test_kalibr_leaves_out_a_camera_no_edge_connects(loose_session) -> None:
 
 @pytest.mark.slow
 def test_an_unconnected_frame_through_the_cli(loose_session) -> None:
-    run = cli("export", loose_session.path, "--format", "urdf")
+    run = cli_in_process("export", loose_session.path, "--format", "urdf")
     assert run.returncode == 2 and run.stdout == ""
     last = run.stderr.strip().splitlines()[-1]
     assert last.startswith("error: lidar_rear, cam_rear: not connected to base_link by any edge"), run.stderr
 
 
-def cli(*args: str | Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=REPO, capture_output=True,
-                          text=True, timeout=120)
-
-
 @pytest.mark.slow
 def test_exports_through_the_cli(session, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out = tmp_path / "rig.urdf"
-    run = cli("export", session.path, "--format", "urdf", "--convention", "body", "--out", out)
+    run = cli_in_process("export", session.path, "--format", "urdf", "--convention", "body", "--out", out)
     assert run.returncode == 0 and run.stdout == "", run.stderr
     assert out.read_text() == dump_urdf(session.rig, "ros_rig", "body")
-    run = cli("export", session.path, "--format", "launch")
+    run = cli_in_process("export", session.path, "--format", "launch")
     assert run.returncode == 0, run.stderr
     assert run.stdout == dump_ros2_launch(session.rig, "optical", "for session ros_rig")
     launch_file = tmp_path / "rig.launch.py"
     launch_file.write_text(run.stdout)
     assert len(run_launch_file(launch_file, monkeypatch)) == len(session.rig.frames) - 1
 
-    run = cli("export", session.path, "--format", "kalibr", "--convention", "body")
+    run = cli_in_process("export", session.path, "--format", "kalibr", "--convention", "body")
     assert run.returncode == 2 and run.stdout == ""
     assert run.stderr.strip().splitlines()[-1].startswith("error: convention: the kalibr export has no convention")
-    run = cli("export", session.path, "--format", "urdf", "--convention", "sideways")
+    run = cli_in_process("export", session.path, "--format", "urdf", "--convention", "sideways")
     assert run.returncode == 2 and "invalid choice: 'sideways'" in run.stderr

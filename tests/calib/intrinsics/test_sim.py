@@ -16,7 +16,9 @@ from backend.devices.base import create_device
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 
 BOARD = BoardSpec.parse(DEMO_BOARD)
-HONESTY_SEEDS = 8
+HONESTY_SEEDS = 6
+"""Seeds of the honesty test: 48 normalised errors. With 15 views all 48 (and all 64 of 8 seeds) lie within
+3 sigma, rms 1.08 (1.09); with 12 views the jackknife is too short for its sigmas (95 % within, rms 1.06)."""
 VIEWS = 15
 
 

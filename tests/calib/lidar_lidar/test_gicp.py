@@ -25,7 +25,7 @@ from backend.core.transforms import (
     transform_points,
 )
 from tests.calib.lidar_lidar.conftest import PLACEMENTS, SCENE_KEYS, T_TRUE, perturbed, scan_pair
-from tests.conftest import ROOT, SHARED_DATA
+from tests.conftest import ROOT, SHARED_DATA, cli_in_process
 
 REPO = ROOT
 REAL_PAIR = SHARED_DATA / "opencalib_lidar2lidar_pair"
@@ -249,6 +249,8 @@ def test_real_pair_p64_to_qt() -> None:
 
 
 def cli(*args: str | Path) -> subprocess.CompletedProcess:
+    """The command as a user runs it, for the JSON contract (one line on stdout, progress on stderr); the refusals
+    and the other runs use :func:`~tests.conftest.cli_in_process`."""
     return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=REPO, capture_output=True,
                           text=True, timeout=120)
 
@@ -299,11 +301,10 @@ def test_cli_json_is_the_contract(cloud_files: tuple[Path, Path], tmp_path: Path
     assert body["verdict"]["level"] == "check" and body["seconds"] > 0
 
 
-@pytest.mark.slow
 def test_cli_bad_init_file_and_mm_cloud(cloud_files: tuple[Path, Path], tmp_path: Path) -> None:
     bad = tmp_path / "T.txt"
     bad.write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n")
-    run = cli("lidar-lidar", *cloud_files, "--init", bad, "--json")
+    run = cli_in_process("lidar-lidar", *cloud_files, "--init", bad, "--json")
     assert run.returncode != 0
     body = json.loads(run.stdout)
     assert body["error"]["input"] == str(bad) and "4x4" in body["error"]["message"]
@@ -313,12 +314,12 @@ def test_cli_bad_init_file_and_mm_cloud(cloud_files: tuple[Path, Path], tmp_path
     np.savetxt(good, T_TRUE)
     mm = tmp_path / "mm.npy"
     np.save(mm, np.load(cloud_files[0]) * 1000.0)
-    run = cli("lidar-lidar", mm, cloud_files[1], "--init", good, "--json")
+    run = cli_in_process("lidar-lidar", mm, cloud_files[1], "--init", good, "--json")
     assert run.returncode != 0
     body = json.loads(run.stdout)
     assert body["error"]["input"] == str(mm) and "millimetres" in body["error"]["message"]
 
-    run = cli("lidar-lidar", *cloud_files, "--init-xyzypr", "1,2,3", "--json")
+    run = cli_in_process("lidar-lidar", *cloud_files, "--init-xyzypr", "1,2,3", "--json")
     assert run.returncode != 0 and json.loads(run.stdout)["error"]["input"] == "--init-xyzypr"
 
 
@@ -338,7 +339,7 @@ def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_p
     xyz, ypr = to_xyz_ypr(perturbed(T_true, 9, 0.05, 3.0))
     init = ",".join(f"{v:.6f}" for v in [*xyz, *np.degrees(ypr)])
     assert init.startswith("-")
-    run = cli("lidar-lidar", *args, "--init-xyzypr", init, "--json")
+    run = cli_in_process("lidar-lidar", *args, "--init-xyzypr", init, "--json")
     assert run.returncode == 0, run.stderr
     body = json.loads(run.stdout)
     assert set(body) == SUMMARY_KEYS and len(body["scenes"]) == 2 and set(body["scenes"][0]) == SCENE_KEYS
@@ -350,24 +351,22 @@ def test_cli_pairs_of_two_scenes_with_a_negative_init_after_a_space(scene, tmp_p
     assert "verdict:" in run.stderr
 
 
-@pytest.mark.slow
 def test_cli_negative_values_after_a_space_reach_the_command(tmp_path: Path) -> None:
     """argparse alone takes ``-0.07,...`` for an unknown option; every subcommand now takes it as the value."""
     missing = tmp_path / "missing.npy"
-    run = cli("lidar-lidar", missing, missing, "--init-xyzypr", "-0.07,0.63,-0.35,90,0,0", "--json")
+    run = cli_in_process("lidar-lidar", missing, missing, "--init-xyzypr", "-0.07,0.63,-0.35,90,0,0", "--json")
     assert run.returncode != 0 and "expected one argument" not in run.stderr
     assert json.loads(run.stdout)["error"]["input"] == str(missing)
-    run = cli("lidar-camera", "--camera", tmp_path / "none.yaml", "--pair", "a.png:b.npy", "--init-xyzypr",
-              "-0.07,0.63,-0.35,90,0,0", "--json")
+    run = cli_in_process("lidar-camera", "--camera", tmp_path / "none.yaml", "--pair", "a.png:b.npy",
+                         "--init-xyzypr", "-0.07,0.63,-0.35,90,0,0", "--json")
     assert run.returncode != 0 and "expected one argument" not in run.stderr
     assert json.loads(run.stdout)["error"]["input"] == str(tmp_path / "none.yaml")
-    run = cli("lidar-lidar", "--init-xyzypr", "-1,2", missing, missing, "--json")
+    run = cli_in_process("lidar-lidar", "--init-xyzypr", "-1,2", missing, missing, "--json")
     assert json.loads(run.stdout)["error"]["input"] == "--init-xyzypr"  # parsed as the value, then refused
 
 
-@pytest.mark.slow
 def test_cli_pair_and_positional_clouds_are_exclusive(cloud_files: tuple[Path, Path]) -> None:
-    run = cli("lidar-lidar", *cloud_files, "--pair", f"{cloud_files[0]}:{cloud_files[1]}", "--json")
+    run = cli_in_process("lidar-lidar", *cloud_files, "--pair", f"{cloud_files[0]}:{cloud_files[1]}", "--json")
     assert run.returncode != 0 and json.loads(run.stdout)["error"]["input"] == "--pair"
-    run = cli("lidar-lidar", "--pair", str(cloud_files[0]), "--json")
+    run = cli_in_process("lidar-lidar", "--pair", str(cloud_files[0]), "--json")
     assert json.loads(run.stdout)["error"]["message"].startswith("expected SRC:TGT")

@@ -33,7 +33,7 @@ from backend.exports.rig_transforms import load_rig_transforms
 from backend.exports.ros_camera_info import load_camera_info, write_camera_info
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import Session, SessionStore
-from tests.conftest import fresh_demo, wait_job
+from tests.conftest import cli_in_process, fresh_demo, wait_job
 
 BOARD = "checkerboard:9x6:0.025"
 FRAMES = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
@@ -61,6 +61,7 @@ def left_yaml(folders, tmp_path_factory) -> Path:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
+    """``calib-studio multicam ARGS`` as a user runs it, for the JSON contract; the refusals run in process."""
     return subprocess.run([sys.executable, "-m", "studio.cli", "multicam", *args], capture_output=True, text=True,
                           timeout=300)
 
@@ -105,8 +106,8 @@ def test_cli_refusals_are_one_line_and_json(folders, tmp_path):
         folder.mkdir()
         for frame in FRAMES[:3]:
             shutil.copy(folders[side] / f"{side}{frame}.jpg", folder)
-    run = _cli("--camera", f"left={few['left']}", "--camera", f"right={few['right']}", "--board",
-               "checkerboard:10x7:0.025", "--json")
+    run = cli_in_process("multicam", "--camera", f"left={few['left']}", "--camera", f"right={few['right']}",
+                         "--board", "checkerboard:10x7:0.025", "--json")
     assert run.returncode != 0 and run.stderr.strip().splitlines()[-1].startswith("error: "), run.stderr
     error = json.loads(run.stdout)["error"]
     assert "was not found in any of camera left's 3 images" in error["message"] and error["input"] == "left"
@@ -114,16 +115,18 @@ def test_cli_refusals_are_one_line_and_json(folders, tmp_path):
     unnumbered = tmp_path / "unnumbered"
     unnumbered.mkdir()
     shutil.copy(folders["right"] / "right01.jpg", unnumbered / "right.jpg")
-    run = _cli("--camera", f"left={folders['left']}", "--camera", f"right={unnumbered}", "--board", BOARD, "--json")
+    run = cli_in_process("multicam", "--camera", f"left={folders['left']}", "--camera", f"right={unnumbered}",
+                         "--board", BOARD, "--json")
     error = json.loads(run.stdout)["error"]
     assert run.returncode != 0 and "right.jpg has no frame number in its name" in error["message"]
 
-    run = _cli("--camera", f"left={folders['left']}", "--board", BOARD, "--json")
+    run = cli_in_process("multicam", "--camera", f"left={folders['left']}", "--board", BOARD, "--json")
     assert "needs at least two cameras" in json.loads(run.stdout)["error"]["message"]
-    run = _cli("--camera", f"left={folders['left']}", "--camera", f"right={folders['right']}", "--board", BOARD,
-               "--intrinsics", "middle=x.yaml", "--json")
+    run = cli_in_process("multicam", "--camera", f"left={folders['left']}", "--camera", f"right={folders['right']}",
+                         "--board", BOARD, "--intrinsics", "middle=x.yaml", "--json")
     assert json.loads(run.stdout)["error"]["input"] == "middle"
-    run = _cli("--camera", f"left{folders['left']}", "--camera", f"right={folders['right']}", "--board", BOARD)
+    run = cli_in_process("multicam", "--camera", f"left{folders['left']}", "--camera", f"right={folders['right']}",
+                         "--board", BOARD)
     assert run.returncode != 0 and "expected NAME=IMAGES_DIR" in run.stderr
 
 
