@@ -48,6 +48,10 @@ Mahalanobis distance of the 6-vector difference, said as the Gaussian sigma of e
 chi-square 20.1 on 6 degrees of freedom), so a consistent rig raises a false flag on 0.27 % of its edges."""
 UNDETERMINED_SIGMA = (100.0, np.pi)
 """Sigma (m, rad) given to an axis whose covariance is NaN: the edge says nothing along it."""
+REFIT_LEVERAGE = 1e-4
+"""An edge whose hat block leaves the other edges less than this of any direction is checked by a refit without
+it rather than from the one fit (a tenth of that direction's sigma from them, or less: 0.1 mm beside a 1 mm
+edge)."""
 JACOBIAN_STEP = 1e-7
 """Finite-difference step of the Jacobians (m, rad)."""
 CONSISTENT_PROBABILITY = 0.9973
@@ -322,20 +326,33 @@ def _as_sigma(mahalanobis2: float, dof: int = 6) -> float:
     return float(norm.isf(chi2.sf(mahalanobis2, dof) / 2))
 
 
-def _leave_one_out(graph: _Graph, kept: list[int], x: np.ndarray) -> dict[int, tuple[float | None, float]]:
-    """Every kept edge against a fit of all the others: ``k -> (disagreement in sigma, or None when the others do
-    not reach both its frames; the others' total chi-square)``.
+def _leave_one_out(graph: _Graph, kept: list[int], x: np.ndarray, covariance: np.ndarray, chi2_total: float
+                   ) -> dict[int, tuple[float | None, float]]:
+    """Every kept edge against the fit of all the others: ``k -> (disagreement in sigma, or None when the others
+    do not reach both its frames; the others' total chi-square)``.
 
-    Each edge is checked by refitting without it (:func:`_against_fit`), not by Cook's identities from the one
-    fit: those read an edge's leverage as ``I - P_k``, about 1e-8 for a stereo pair (sigma 0.01 mm) beside its
-    cameras' mounting priors (50 mm), where the solver's tolerance and the Jacobian's error are as large; from the
-    one fit such a pair came out unconstrained in some fresh demos, or flagged in others.
+    From the one fit, by the linear least-squares identities (Cook's leave-one-out): with the whitened Jacobian's
+    hat block ``P_k = J_k (J^T J)^-1 J_k^T`` of edge ``k``, its measurement differs from the others' prediction by
+    ``(I - P_k)^-1 r_k`` with covariance ``(I - P_k)^-1``, so its squared Mahalanobis distance is
+    ``r_k^T (I - P_k)^-1 r_k``, which is also what leaving it out takes off the total chi-square.
+
+    An edge that leaves the others less than :data:`REFIT_LEVERAGE` of some direction is refitted without instead
+    (:func:`_against_fit`): a stereo pair (sigma 0.01 mm) beside its cameras' mounting priors (50 mm) leaves them
+    1e-8, as small as the solver's tolerance and the Jacobian's error, and from the one fit it came out
+    unconstrained in some fresh demos and flagged in others.
     """
+    J, r = graph.jacobian(x, kept), graph.residuals(x, kept)
     out = {}
-    for k in kept:
-        others = [j for j in kept if j != k]
-        x_k, covariance_k, chi2_k = graph.fit(others, x)
-        out[k] = (_against_fit(graph, k, others, x_k, covariance_k), chi2_k)
+    for row, k in enumerate(kept):
+        rows = slice(6 * row, 6 * row + 6)
+        complement = np.eye(6) - J[rows] @ covariance @ J[rows].T
+        if np.linalg.eigvalsh(0.5 * (complement + complement.T)).min() < REFIT_LEVERAGE:
+            others = [j for j in kept if j != k]
+            x_k, covariance_k, chi2_k = graph.fit(others, x)
+            out[k] = (_against_fit(graph, k, others, x_k, covariance_k), chi2_k)
+            continue
+        mahalanobis2 = float(r[rows] @ np.linalg.solve(complement, r[rows]))
+        out[k] = (_as_sigma(mahalanobis2), max(chi2_total - mahalanobis2, 0.0))
     return out
 
 
@@ -437,7 +454,7 @@ def solve_rig_graph(root: str, parents: dict[str, str | None], edges: list[RigEd
     disagreements: dict[int, float | None] = {}
     x, covariance, chi2_total = graph.fit(kept)
     while True:
-        checks = _leave_one_out(graph, kept, x)
+        checks = _leave_one_out(graph, kept, x, covariance, chi2_total)
         disagreements.update({k: sigma for k, (sigma, _) in checks.items()})
         rest_chi2 = {k: rest for k, (_, rest) in checks.items()}
         candidates = [k for k in kept if (d := disagreements[k]) is not None and d > FLAG_SIGMA]
