@@ -50,8 +50,9 @@ UNDETERMINED_SIGMA = (100.0, np.pi)
 """Sigma (m, rad) given to an axis whose covariance is NaN: the edge says nothing along it."""
 REFIT_LEVERAGE = 1e-4
 """An edge whose hat block leaves the other edges less than this of any direction is checked by a refit without
-it rather than from the one fit (a tenth of that direction's sigma from them, or less: 0.1 mm beside a 1 mm
-edge)."""
+it rather than from the one fit: along that direction the edge is about 100 times tighter than what the others
+say (0.5 mm beside a 50 mm mounting prior), and the one fit's leverage, ``(sigma_edge / sigma_others)^2``, nears
+the solver's tolerance."""
 JACOBIAN_STEP = 1e-7
 """Finite-difference step of the Jacobians (m, rad)."""
 CONSISTENT_PROBABILITY = 0.9973
