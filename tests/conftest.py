@@ -186,9 +186,10 @@ def wait_job(client, job_id: str, timeout_s: float = UI_WAIT_S) -> dict:
     last: dict = {}
 
     def finished() -> dict | None:
+        nonlocal last
         response = client.get(f"/api/jobs/{job_id}")
         assert response.status_code == 200, response.text
-        last.update(response.json())
+        last = response.json()  # the whole answer: a key of an earlier one must not linger
         return None if last["state"] == "running" else last
 
     return poll(finished, lambda: f"job still running after {timeout_s:.0f} s: {last}", timeout_s, interval_s=0.05)

@@ -349,6 +349,9 @@ def _leave_one_out(graph: _Graph, kept: list[int], x: np.ndarray, covariance: np
         complement = np.eye(6) - J[rows] @ covariance @ J[rows].T
         if np.linalg.eigvalsh(0.5 * (complement + complement.T)).min() < REFIT_LEVERAGE:
             others = [j for j in kept if j != k]
+            if not _reaches(graph, k, others):  # a frame's only edge (a prior alone): nothing to refit
+                out[k] = (None, chi2_total)
+                continue
             x_k, covariance_k, chi2_k = graph.fit(others, x)
             out[k] = (_against_fit(graph, k, others, x_k, covariance_k), chi2_k)
             continue
@@ -360,11 +363,16 @@ def _leave_one_out(graph: _Graph, kept: list[int], x: np.ndarray, covariance: np
 def _against_fit(graph: _Graph, k: int, kept: list[int], x: np.ndarray, covariance: np.ndarray) -> float | None:
     """A left-out edge ``k`` against the fit of ``kept``, in sigma (None when ``kept`` does not reach both its
     frames)."""
-    reachable = _reachable(graph.root, [graph.edges[j] for j in kept])
-    if graph.edges[k].parent not in reachable or graph.edges[k].child not in reachable:
+    if not _reaches(graph, k, kept):
         return None
     J, r = graph.jacobian(x, [k]), graph.residuals(x, [k])
     return _as_sigma(float(r @ np.linalg.solve(np.eye(6) + J @ covariance @ J.T, r)))
+
+
+def _reaches(graph: _Graph, k: int, kept: list[int]) -> bool:
+    """Whether the edges ``kept`` connect both frames of edge ``k`` to the root."""
+    reachable = _reachable(graph.root, [graph.edges[j] for j in kept])
+    return graph.edges[k].parent in reachable and graph.edges[k].child in reachable
 
 
 def _reachable(root: str, edges: list[RigEdge]) -> set[str]:
