@@ -39,9 +39,13 @@ def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def invert(T_a_b: np.ndarray) -> np.ndarray:
-    """Return ``T_b_a`` for a rigid ``T_a_b``."""
-    R = T_a_b[:3, :3]
-    return make_T(R.T, -R.T @ T_a_b[:3, 3])
+    """Return ``T_b_a`` for a rigid ``T_a_b``, or for each of a stack of them (``(..., 4, 4)``)."""
+    R_b_a = np.swapaxes(T_a_b[..., :3, :3], -1, -2)
+    T_b_a = np.zeros(np.shape(T_a_b))
+    T_b_a[..., :3, :3] = R_b_a
+    T_b_a[..., :3, 3] = -np.einsum("...ij,...j->...i", R_b_a, T_a_b[..., :3, 3])
+    T_b_a[..., 3, 3] = 1.0
+    return T_b_a
 
 
 def from_rvec_tvec(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
