@@ -71,6 +71,21 @@ def opencalib_frame() -> OpenCalibFrame:
     return OpenCalibFrame(read_image(OPENCALIB / "calib.png"), cloud.points, cloud.intensity, camera, T)
 
 
+CLI_TIMEOUT_S = 300
+"""How long one ``calib-studio`` subprocess may run: the longest, a multicam or depth-network solve, takes about a
+minute on a loaded machine."""
+
+
+def cli_subprocess(*args: str | Path, cwd: Path = ROOT,
+                   env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``calib-studio ARGS`` as a user runs it, a process of its own started in ``cwd``, with ``env`` added to this
+    process's environment: its exit code, stdout and stderr. For the contracts a process answers for (one JSON line
+    on stdout, progress on stderr, the exit code, the environment); everything else runs in process
+    (:func:`cli_in_process`)."""
+    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, timeout=CLI_TIMEOUT_S, env={**os.environ, **(env or {})})
+
+
 def cli_in_process(*args: str | Path, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     """``calib-studio ARGS`` through :func:`studio.cli.main` in this process, run in ``cwd``: its exit code, stdout
     and stderr. It is the code ``python -m studio.cli`` runs (its ``__main__`` exits with what ``main`` returns), less

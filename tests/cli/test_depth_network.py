@@ -4,8 +4,6 @@ JSON contract of ../shared/conventions.md, the solve it runs, the verification r
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,22 +12,16 @@ from backend.calib.depth import service
 from backend.store.session import Session
 from studio.cli import main
 from tests.calib.depth.conftest import build_cell_session, pose_error
-from tests.conftest import ROOT
+from tests.conftest import cli_subprocess
 
-REPO = ROOT
 NODE = "sn4"
-
-
-def cli(*args: str | Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "studio.cli", "depth-network", *map(str, args)], cwd=REPO,
-                          capture_output=True, text=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
 def solved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     folder = tmp_path_factory.mktemp("cli") / "cell"
     build_cell_session(folder, [NODE], seed=11)
-    run = cli(folder, "--solve", "--json")
+    run = cli_subprocess("depth-network", folder, "--solve", "--json")
     assert run.returncode == 0, run.stderr
     return folder, json.loads(run.stdout)
 

@@ -7,11 +7,9 @@ as a subprocess."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import stat
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,18 +22,10 @@ from backend.exports.ros_camera_info import dump_camera_info, load_camera_info
 from backend.sim.demo_rig import CAM_FRONT
 from backend.store.session import SessionStore
 from studio import cli as cli_module
-from tests.cli.test_intrinsics_lidar_lidar import BOARD, REPO, assert_json_failure, copy_images
-from tests.conftest import cli_in_process
+from tests.cli.test_intrinsics_lidar_lidar import BOARD, assert_json_failure, copy_images
+from tests.conftest import cli_in_process, cli_subprocess
 
 PAIR = "board.png:board.pcd"  # never read: every refusal below comes first
-
-
-def cli(*args: str | Path, tmpdir: Path | None = None) -> subprocess.CompletedProcess:
-    """The command as a user runs it; ``tmpdir`` becomes its ``TMPDIR`` (where a result that could not be written
-    is kept)."""
-    env = dict(os.environ, **({"TMPDIR": str(tmpdir)} if tmpdir is not None else {}))
-    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=REPO, capture_output=True,
-                          text=True, timeout=300, env=env)
 
 
 def assert_plain_failure(run: subprocess.CompletedProcess) -> str:
@@ -123,8 +113,8 @@ def test_out_failing_after_the_solve_keeps_the_result_json(images, tmp_path: Pat
     keep.mkdir()
     # /dev/full passes every check before the solve (it exists and is writable, by root too) and then fails the
     # write with ENOSPC: a full disk after a long solve
-    run = cli("intrinsics", images, "--board", BOARD, "--out", "/dev/full", "--camera-name", "left", "--json",
-              tmpdir=keep)
+    run = cli_subprocess("intrinsics", images, "--board", BOARD, "--out", "/dev/full", "--camera-name", "left",
+                         "--json", env={"TMPDIR": str(keep)})
     error = assert_json_failure(run)
     assert "detecting the board" in run.stderr and "Traceback" not in run.stderr  # it failed after the solve
     assert error["input"] == "/dev/full"
@@ -144,7 +134,7 @@ def test_out_failing_after_the_solve_keeps_the_result_json(images, tmp_path: Pat
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs Linux's /dev/full (every write: no space left)")
 @pytest.mark.slow
 def test_out_failing_after_the_solve_without_json(images, tmp_path: Path):
-    run = cli("intrinsics", images, "--board", BOARD, "--out", "/dev/full", tmpdir=tmp_path)
+    run = cli_subprocess("intrinsics", images, "--board", BOARD, "--out", "/dev/full", env={"TMPDIR": str(tmp_path)})
     last = assert_plain_failure(run)
     assert last.startswith("error: /dev/full: cannot write the file (No space left on device); the result is kept")
     folder = _kept_folder(last, tmp_path)
@@ -236,7 +226,7 @@ def test_error_line_bounded_whatever_the_message():
 # -- every other failure is the one-line error too ---------------------------------------------------------------
 
 def test_argument_errors_follow_the_contract():
-    error = assert_json_failure(cli("intrinsics", "--json"))
+    error = assert_json_failure(cli_in_process("intrinsics", "--json"))
     assert "required" in error["message"] and "--board" in error["message"]
     assert error["input"] == "calib-studio intrinsics"
 

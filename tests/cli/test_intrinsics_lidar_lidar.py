@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,15 +18,9 @@ from backend.calib.rig import service as rig_service
 from backend.core.rig import Frame
 from backend.exports.ros_camera_info import load_camera_info
 from backend.store.session import SessionStore
-from tests.conftest import ROOT, cli_in_process
+from tests.conftest import cli_in_process, cli_subprocess
 
-REPO = ROOT
 BOARD = "checkerboard:9x6:0.025"
-
-
-def cli(*args: str | Path, cwd: Path = REPO) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True, timeout=120)
 
 
 def assert_json_failure(run: subprocess.CompletedProcess) -> dict:
@@ -55,8 +48,8 @@ def copy_images(paths: list[Path], folder: Path) -> Path:
 def intrinsics_run(left_images, tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     work = tmp_path_factory.mktemp("cli_intrinsics")
     images = copy_images(left_images, work / "images")
-    run = cli("intrinsics", images, "--board", BOARD, "--json", "--fix-aspect", "--k3", "--out", "camera.yaml",
-              cwd=work)
+    run = cli_subprocess("intrinsics", images, "--board", BOARD, "--json", "--fix-aspect", "--k3",
+                         "--out", "camera.yaml", cwd=work)
     return run, work
 
 
@@ -113,8 +106,8 @@ def test_intrinsics_json_contract(intrinsics_run):
 
 @pytest.mark.slow
 def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_path: Path):
-    run = cli("intrinsics", copy_images(left_images, tmp_path / "images"), "--board", BOARD, "--model", "auto",
-              "--fix-aspect", "--json")
+    run = cli_subprocess("intrinsics", copy_images(left_images, tmp_path / "images"), "--board", BOARD,
+                         "--model", "auto", "--fix-aspect", "--json")
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
     comparison = out["model_comparison"]

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -21,7 +20,7 @@ from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import CAM_FRONT, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LidarScene, moving_board_poses
 from tests.calib.lidar_camera.conftest import edge_pair_files, edge_pairs_folder, initial_guess
-from tests.conftest import ROOT, cli_in_process
+from tests.conftest import cli_in_process, cli_subprocess
 
 RIG = demo_rig()
 TRUTH = RIG.T_a_b("cam_front", "lidar_front")
@@ -55,12 +54,6 @@ def edge_recording(tmp_path_factory) -> tuple[Path, list[str]]:
     return folder, [f"{image}:{cloud}" for image, cloud in edge_pair_files(edge_pairs_folder(tmp_path_factory))]
 
 
-def run(*args: str) -> subprocess.CompletedProcess:
-    """``calib-studio lidar-camera ARGS`` as a user runs it: a process of its own (the contract's test)."""
-    return subprocess.run([sys.executable, "-m", "studio.cli", "lidar-camera", *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300)
-
-
 def run_in_process(*args: str) -> subprocess.CompletedProcess:
     """The same command through :func:`~tests.conftest.cli_in_process` (no interpreter start-up)."""
     return cli_in_process("lidar-camera", *args)
@@ -75,8 +68,9 @@ def _init(folder: Path) -> Path:
 @pytest.mark.slow
 def test_target_method_recovers_the_truth_with_the_conventions_json(recording):
     folder, pairs = recording
-    done = run("--camera", str(folder / "camera.yaml"), *[a for p in pairs for a in ("--pair", p)],
-               "--method", "target", "--board", DEMO_BOARD, "--init", str(_init(folder)), "--json")
+    pair_args = [arg for pair in pairs for arg in ("--pair", pair)]
+    done = cli_subprocess("lidar-camera", "--camera", folder / "camera.yaml", *pair_args, "--method", "target",
+                          "--board", DEMO_BOARD, "--init", _init(folder), "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}

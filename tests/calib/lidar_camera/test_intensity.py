@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import functools
 import json
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -35,7 +33,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.transforms import apply_params, invert, make_T, params_between, transform_points
 from backend.exports.ros_camera_info import write_camera_info
-from tests.conftest import ROOT, opencalib_frame
+from tests.conftest import cli_in_process, opencalib_frame
 
 CAMERA = CameraIntrinsics("pinhole-radtan", 640, 480, np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]))
 LIDAR_TO_OPTICAL = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
@@ -175,10 +173,9 @@ def test_the_cli_merges_scans_and_refuses_clouds_without_intensity(tmp_path):
     np.save(tmp_path / "b.npy", pair.points_lidar[half:])
     write_camera_info(tmp_path / "camera.yaml", CAMERA, "cam")
     np.savetxt(tmp_path / "init.txt", TRUTH)
-    command = [sys.executable, "-m", "studio.cli", "lidar-camera", "--camera", str(tmp_path / "camera.yaml"),
-               "--pair", f"{tmp_path / 'wall.png'}:{tmp_path / 'a.npy'},{tmp_path / 'b.npy'}",
-               "--method", "intensity", "--init", str(tmp_path / "init.txt"), "--json"]
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = cli_in_process("lidar-camera", "--camera", tmp_path / "camera.yaml",
+                          "--pair", f"{tmp_path / 'wall.png'}:{tmp_path / 'a.npy'},{tmp_path / 'b.npy'}",
+                          "--method", "intensity", "--init", tmp_path / "init.txt", "--json")
     assert done.returncode != 0
     error = json.loads(done.stdout)["error"]
     assert error["input"] == "wall.png:a.npy,b.npy: cloud"

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +23,8 @@ from backend.core.transforms import (
     transform_points,
 )
 from tests.calib.lidar_lidar.conftest import PLACEMENTS, SCENE_KEYS, T_TRUE, perturbed, scan_pair
-from tests.conftest import ROOT, SHARED_DATA, cli_in_process
+from tests.conftest import SHARED_DATA, cli_in_process, cli_subprocess
 
-REPO = ROOT
 REAL_PAIR = SHARED_DATA / "opencalib_lidar2lidar_pair"
 SUMMARY_KEYS = {"T_target_source", "fitness", "rmse_m", "c2c_m", "std", "seconds", "verdict", "scenes", "scene_spread"}
 """The CLI's JSON (conventions.md)."""
@@ -248,13 +245,6 @@ def test_real_pair_p64_to_qt() -> None:
 # --- the CLI ------------------------------------------------------------------------------------------------------
 
 
-def cli(*args: str | Path) -> subprocess.CompletedProcess:
-    """The command as a user runs it, for the JSON contract (one line on stdout, progress on stderr); the refusals
-    and the other runs use :func:`~tests.conftest.cli_in_process`."""
-    return subprocess.run([sys.executable, "-m", "studio.cli", *map(str, args)], cwd=REPO, capture_output=True,
-                          text=True, timeout=120)
-
-
 @pytest.fixture(scope="module")
 def cloud_files(scene, tmp_path_factory) -> tuple[Path, Path]:
     folder = tmp_path_factory.mktemp("lidar_lidar")
@@ -268,7 +258,7 @@ def cloud_files(scene, tmp_path_factory) -> tuple[Path, Path]:
 def test_cli_json_with_init_xyzypr(cloud_files: tuple[Path, Path]) -> None:
     xyz, ypr = to_xyz_ypr(perturbed(T_TRUE, 9, 0.10, 5.0))
     init = ",".join(f"{v:.6f}" for v in [*xyz, *np.degrees(ypr)])
-    run = cli("lidar-lidar", *cloud_files, "--init-xyzypr", init, "--json")
+    run = cli_subprocess("lidar-lidar", *cloud_files, "--init-xyzypr", init, "--json")
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip().count("\n") == 0  # exactly one JSON object, progress on stderr
     body = json.loads(run.stdout)

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -33,7 +31,7 @@ from backend.exports.rig_transforms import load_rig_transforms
 from backend.exports.ros_camera_info import load_camera_info, write_camera_info
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import Session, SessionStore
-from tests.conftest import cli_in_process, fresh_demo, wait_job
+from tests.conftest import cli_in_process, cli_subprocess, fresh_demo, wait_job
 
 BOARD = "checkerboard:9x6:0.025"
 FRAMES = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
@@ -60,18 +58,12 @@ def left_yaml(folders, tmp_path_factory) -> Path:
     return path
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    """``calib-studio multicam ARGS`` as a user runs it, for the JSON contract; the refusals run in process."""
-    return subprocess.run([sys.executable, "-m", "studio.cli", "multicam", *args], capture_output=True, text=True,
-                          timeout=300)
-
-
 @pytest.mark.slow
 def test_cli_prints_the_conventions_json_and_writes_kalibr_and_transforms(folders, left_yaml, tmp_path):
     camchain, transforms = tmp_path / "camchain.yaml", tmp_path / "rig.yaml"
-    run = _cli("--camera", f"left={folders['left']}", "--camera", f"right={folders['right']}", "--board", BOARD,
-               "--intrinsics", f"left={left_yaml}", "--kalibr", str(camchain), "--transforms", str(transforms),
-               "--json")
+    run = cli_subprocess("multicam", "--camera", f"left={folders['left']}", "--camera", f"right={folders['right']}",
+                         "--board", BOARD, "--intrinsics", f"left={left_yaml}", "--kalibr", camchain,
+                         "--transforms", transforms, "--json")
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
     assert set(summary) == {"cameras", "T_ref_cam", "std", "rms_px", "seconds", "verdict"}
