@@ -38,8 +38,8 @@ T = TypeVar("T")
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Test files with the longest work first: those with browser tests, then those with slow tests, then the rest,
     each group in the usual order and each file's tests as written. ``scripts/test`` hands files to its processes
-    in this order (``--dist loadfile --no-loadscope-reorder``), so the short files fill the gaps at the end instead
-    of one long file running alone while the other processes wait."""
+    in this order (``--dist loadfile``), so the short files fill the gaps at the end instead of one long file
+    running alone while the other processes wait."""
     def rank(item: pytest.Item) -> int:
         return 0 if item.get_closest_marker("browser") else 1 if item.get_closest_marker("slow") else 2
 
