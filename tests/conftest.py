@@ -35,21 +35,6 @@ OPENCALIB = SHARED_DATA / "opencalib_lidar2camera"
 T = TypeVar("T")
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Test files with the longest work first: those with browser tests, then those with slow tests, then the rest,
-    each group in the usual order and each file's tests as written. ``scripts/test`` hands files to its processes
-    in this order (``--dist loadfile``), so the short files fill the gaps at the end instead of one long file
-    running alone while the other processes wait."""
-    def rank(item: pytest.Item) -> int:
-        return 0 if item.get_closest_marker("browser") else 1 if item.get_closest_marker("slow") else 2
-
-    file_rank: dict[Path, int] = {}
-    for item in items:
-        file_rank[item.path] = min(file_rank.get(item.path, 2), rank(item))
-    first_seen = {path: index for index, path in enumerate(dict.fromkeys(item.path for item in items))}
-    items.sort(key=lambda item: (file_rank[item.path], first_seen[item.path]))
-
-
 @dataclass
 class OpenCalibFrame:
     """The real OpenCalib LiDAR + camera frame (see its README): BGR image, cloud, camera, reference extrinsic."""
