@@ -6,7 +6,6 @@ and dense scans with intensities, the camera as the ROS YAML `intrinsics --out` 
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -54,11 +53,6 @@ def edge_recording(tmp_path_factory) -> tuple[Path, list[str]]:
     return folder, [f"{image}:{cloud}" for image, cloud in edge_pair_files(edge_pairs_folder(tmp_path_factory))]
 
 
-def run_in_process(*args: str) -> subprocess.CompletedProcess:
-    """The same command through :func:`~tests.conftest.cli_in_process` (no interpreter start-up)."""
-    return cli_in_process("lidar-camera", *args)
-
-
 def _init(folder: Path) -> Path:
     path = folder / "init.txt"
     np.savetxt(path, initial_guess(8))
@@ -86,8 +80,9 @@ def test_target_method_recovers_the_truth_with_the_conventions_json(recording):
 @pytest.mark.slow
 def test_edges_method_recovers_the_truth_without_a_board(edge_recording):
     folder, pairs = edge_recording
-    done = run_in_process("--camera", str(folder / "camera.yaml"), *[a for p in pairs for a in ("--pair", p)],
-                          "--method", "edges", "--init", str(folder / "init.txt"), "--json")
+    pair_args = [arg for pair in pairs for arg in ("--pair", pair)]
+    done = cli_in_process("lidar-camera", "--camera", folder / "camera.yaml", *pair_args, "--method", "edges",
+                          "--init", folder / "init.txt", "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert set(result) == {"T_camera_lidar", "std", "residuals", "seconds", "verdict"}
@@ -121,7 +116,7 @@ def test_bad_input_exits_non_zero_naming_it(recording, tmp_path):
          "too few edges: the image has 0 edge pixels"),
     ]
     for extra, where, message in cases:
-        done = run_in_process("--camera", camera, "--pair", *extra, "--json")
+        done = cli_in_process("lidar-camera", "--camera", camera, "--pair", *extra, "--json")
         assert done.returncode != 0, (extra, done.stdout)
         error = json.loads(done.stdout)["error"]
         assert error["input"] == where and message in error["message"], (extra, error)
