@@ -3,7 +3,7 @@
 Real frames (OpenCV's left stereo set, 640x480, its second search at half size) and simulated 1280x720
 frames of the demo rig's mild and wide lenses, with and without a board, each with both searches and with
 the second (shrunk) search alone; a board too small for the shrunk frame; weak thermal contrast and 16-bit
-counts, which need a contrast treatment.
+counts, which need a contrast treatment. The simulated frames are the board problem's scene (``conftest.py``).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from backend.sim.board_motion import board_poses, project_corners
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.thermal import thermal_image
+from tests.calib.board.conftest import BoardScene
 
 REAL_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 BOARD = BoardSpec.parse(DEMO_BOARD)
@@ -34,8 +35,6 @@ answer from different starts; measured: up to 0.10 on the real set from the clas
 the shrunk search's and on the simulated frames."""
 TRUTH_RMS_PX = 0.3
 """RMS distance (px) of live corners from the rendered truth (measured: 0.02-0.1 on the simulated frames)."""
-BEHIND_CAMERA = np.diag([1.0, 1.0, -1.0, 1.0])
-"""A board pose behind the camera: the renderer draws the background alone."""
 WEAK_THERMAL = {"contrast": 10.0, "gradient": 60.0}
 """About 6 grey levels between squares under a 60-level ramp (as in test_thermal_detection)."""
 
@@ -55,11 +54,13 @@ def truth_rms_px(detection: Detection, truth_px: np.ndarray, corners_px: np.ndar
                for ids in (detection.ids, BOARD.n_corners - 1 - detection.ids))
 
 
-def assert_same_as_accurate(images: list[np.ndarray], board: BoardSpec, **live_options) -> list[Detection | None]:
-    """The live detector finds the board in the same images as the accurate one, at the same corners."""
+def assert_same_as_accurate(images: list[np.ndarray], board: BoardSpec, accurate_detections: list[Detection | None],
+                            **live_options) -> list[Detection | None]:
+    """The live detector finds the board in the same images as the accurate one did (``accurate_detections``: its
+    answer for each image), at the same corners."""
     found = []
-    for i, image in enumerate(images):
-        live, accurate = detect_board_live(image, board, **live_options), detect_board(image, board)
+    for i, (image, accurate) in enumerate(zip(images, accurate_detections, strict=True)):
+        live = detect_board_live(image, board, **live_options)
         assert (live is None) == (accurate is None), f"image {i}: live {live}, accurate {accurate}"
         if live is not None:
             assert live.image_size == (image.shape[1], image.shape[0])
@@ -81,22 +82,18 @@ def searches(request, monkeypatch) -> str:
 @pytest.mark.slow
 def test_real_frames(left_images, searches):
     images = [cv2.imread(str(path)) for path in left_images]
-    found = assert_same_as_accurate(images, REAL_BOARD, search_side_px=320)
+    found = assert_same_as_accurate(images, REAL_BOARD, [detect_board(image, REAL_BOARD) for image in images],
+                                    search_side_px=320)
     assert sum(d is not None for d in found) == len(images)  # OpenCV's set shows the board in every frame
 
 
-@pytest.mark.parametrize("camera_name", ["cam_front", "cam_wide"])
 @pytest.mark.slow
-def test_simulated_720p_frames(camera_name, searches):
-    camera = demo_rig().get(camera_name).intrinsics
-    rng = np.random.default_rng(3)
-    poses = board_poses(camera, BOARD, 8, seed=11, max_tilt_deg=50)
-    images = [render_board_image(camera, BOARD, T, rng) for T in poses]
-    images += [render_board_image(camera, BOARD, BEHIND_CAMERA, rng) for _ in range(2)]
+def test_simulated_720p_frames(board_scene: BoardScene, searches):
+    camera = board_scene.camera
     assert (camera.width, camera.height) == (1280, 720)
-    found = assert_same_as_accurate(images, BOARD)
+    found = assert_same_as_accurate(board_scene.images, BOARD, board_scene.accurate)
     assert found[-2:] == [None, None]
-    for detection, T in zip(found[:-2], poses, strict=True):
+    for detection, T in zip(found[:-2], board_scene.T_camera_boards, strict=True):
         assert detection is not None
         assert truth_rms_px(detection, project_corners(camera, BOARD, T)) < TRUTH_RMS_PX
 

@@ -1,8 +1,5 @@
-"""The rig as one fused tree: a simulated rig with known truth, noisy accepted results forming a loop.
-
-Truth: a camera and two LiDARs on ``base_link``, mounted as the demo rig is. Mounting guesses are
-the truth off by tape-measure errors (2 cm, 2 deg, stated as such); results are the truth off by
-their own stated noise (LiDAR-camera 3 mm / 0.1 deg, LiDAR-LiDAR 2 mm / 0.05 deg).
+"""The rig as one fused tree: a simulated rig with known truth, noisy accepted results forming a loop (the rig
+problem's scene, ``conftest.py``: a camera and two LiDARs, tape-measured mounting guesses, three results).
 """
 
 from __future__ import annotations
@@ -23,43 +20,7 @@ from backend.core.transforms import apply_params, invert, make_T, params_between
 from backend.core.verdict import Verdict
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
-
-FRAMES = ("cam_front", "lidar_top", "lidar_front")
-PRIOR_SIGMA = (0.02, 2.0)
-"""Tape-measure mounting guesses: m, deg."""
-EDGES = [("cam_front", "lidar_top", 0.003, 0.1, "lidar_camera"),
-         ("cam_front", "lidar_front", 0.003, 0.1, "lidar_camera"),
-         ("lidar_top", "lidar_front", 0.002, 0.05, "lidar_lidar")]
-"""(parent, child, sigma m, sigma deg, kind) of the three results forming the loop."""
-
-
-def _truth() -> dict[str, np.ndarray]:
-    rig = demo_rig()
-    return {name: rig.T_root_frame(name) for name in FRAMES}
-
-
-def _noise(rng: np.random.Generator, sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """A random step and the covariance it was drawn from (TRANSFORM_PARAMETERS)."""
-    sigma = np.r_[np.full(3, sigma_m), np.full(3, np.radians(sigma_deg))]
-    return rng.normal(0.0, sigma), np.diag(sigma**2)
-
-
-def _measured(truth: dict[str, np.ndarray], rng: np.random.Generator) -> list[TransformResult]:
-    results = []
-    for parent, child, sigma_m, sigma_deg, kind in EDGES:
-        step, covariance = _noise(rng, sigma_m, sigma_deg)
-        T = apply_params(invert(truth[parent]) @ truth[child], step)
-        results.append(TransformResult(kind, "sim", parent, child, T, covariance, verdict=Verdict("trusted", [])))
-    return results
-
-
-def _rig(truth: dict[str, np.ndarray], rng: np.random.Generator) -> Rig:
-    rig = Rig()
-    for name in FRAMES:
-        step, _ = _noise(rng, *PRIOR_SIGMA)
-        rig.add(Frame(name, "base_link", apply_params(truth[name], step), kind="camera" if "cam" in name else "lidar3d",
-                      mount_sigma=PRIOR_SIGMA))
-    return rig
+from tests.calib.rig.conftest import EDGES, FRAMES, loop_truth, measured_results, mounted_rig
 
 
 def _session(tmp_path: Path, rig: Rig, name: str = "loop"):
@@ -83,15 +44,15 @@ def _error(T_estimate: np.ndarray, T_true: np.ndarray) -> np.ndarray:
 def test_the_fused_tree_beats_every_single_chain_and_its_sigma_covers_the_error() -> None:
     """Over many noisy draws, every pair's fused relation is closer to the truth than the direct edge or the
     two-edge chain around the loop, and the fused sigma covers the error (99.7 % within 3 sigma per axis)."""
-    truth = _truth()
+    truth = loop_truth()
     parents = {"base_link": None} | dict.fromkeys(FRAMES, "base_link")
     fused_err = {pair: [] for pair in [(p, c) for p, c, *_ in EDGES]}
     direct_err, chain_err = {k: [] for k in fused_err}, {k: [] for k in fused_err}
     normalised, false_flags = [], 0
     for seed in range(40):
         rng = np.random.default_rng(seed)
-        rig = _rig(truth, rng)
-        results = _measured(truth, rng)
+        rig = mounted_rig(truth, rng)
+        results = measured_results(truth, rng)
         edges = rig_service.prior_edges(rig) + [
             RigEdge(r.parent, r.child, r.T_parent_child, r.covariance, r.kind, f"r{i}") for i, r in enumerate(results)]
         tree = solve_rig_graph("base_link", parents, edges)
@@ -122,9 +83,9 @@ def test_the_fused_tree_beats_every_single_chain_and_its_sigma_covers_the_error(
 @pytest.mark.slow
 def test_accepting_a_loop_through_the_service_keeps_every_edge_within_3_sigma(tmp_path: Path) -> None:
     rng = np.random.default_rng(7)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    for result in _measured(truth, rng):
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    for result in measured_results(truth, rng):
         update = rig_service.accept(session, _store(session, result))
         assert not update.conflicts
     tree = rig_service.solve_rig(session)
@@ -146,9 +107,9 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
     """The last accepted result is 5 cm off: its preview names it; accepted all the same, it is the one flagged
     (its residual named), it is left out of the tree, and the frames stay where the other edges put them."""
     rng = np.random.default_rng(3)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    good, good_again, bad = _measured(truth, rng)
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    good, good_again, bad = measured_results(truth, rng)
     bad = _shifted(bad, [0.05, 0, 0])
     for result in (good, good_again):
         rig_service.accept(session, _store(session, result))
@@ -174,9 +135,9 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
 @pytest.mark.slow
 def test_keeping_the_new_edge_reverts_the_one_it_disagrees_with(tmp_path: Path) -> None:
     rng = np.random.default_rng(5)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    first, second, third = _measured(truth, rng)
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    first, second, third = measured_results(truth, rng)
     wrong = _shifted(first, [0, 0.05, 0])
     wrong_id = _store(session, wrong)
     for result in (wrong, second):
@@ -193,11 +154,11 @@ def test_keeping_the_new_edge_reverts_the_one_it_disagrees_with(tmp_path: Path) 
 
 def test_reverting_an_edge_refits_without_it(tmp_path: Path) -> None:
     rng = np.random.default_rng(11)
-    truth = _truth()
-    rig = _rig(truth, rng)
+    truth = loop_truth()
+    rig = mounted_rig(truth, rng)
     mounted = {name: rig.T_root_frame(name) for name in FRAMES}
     session = _session(tmp_path, rig)
-    result = _measured(truth, rng)[0]
+    result = measured_results(truth, rng)[0]
     rig_service.accept(session, _store(session, result))
     assert not np.allclose(session.rig.T_root_frame("lidar_top"), mounted["lidar_top"])
     update = rig_service.revert(session, "lidar_top/T_cam_front_lidar_top")
@@ -226,9 +187,9 @@ def test_a_frame_no_edge_connects_to_the_root_is_named_with_what_it_connects_to(
 
 def test_a_result_that_did_not_converge_or_was_rejected_is_refused(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    result = _measured(truth, rng)[0]
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    result = measured_results(truth, rng)[0]
     unconverged = _store(session, replace(result, converged=False, warnings=["GICP ran out of iterations"]))
     with pytest.raises(InputError, match="did not converge.*GICP ran out"):
         rig_service.accept(session, unconverged)
@@ -240,9 +201,9 @@ def test_a_result_that_did_not_converge_or_was_rejected_is_refused(tmp_path: Pat
 
 def test_a_hand_set_transform_is_an_edge_with_a_stated_assumed_sigma(tmp_path: Path) -> None:
     rng = np.random.default_rng(4)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    result = _measured(truth, rng)[0]
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    result = measured_results(truth, rng)[0]
     manual = replace(result, method="manual", covariance=np.full((6, 6), np.nan), verdict=Verdict("check", ["by hand"]))
     rig_service.accept(session, _store(session, manual), confirm=True)
     [edge] = [e for e in rig_service.solve_rig(session).edges if e.edge.kind != "prior"]
@@ -254,9 +215,9 @@ def test_a_hand_set_transform_is_an_edge_with_a_stated_assumed_sigma(tmp_path: P
 def _loop_session(tmp_path: Path, corrupt_last: bool = False):
     """A saved session with the three results of the loop accepted (the last 5 cm off with ``corrupt_last``)."""
     rng = np.random.default_rng(9)
-    truth = _truth()
-    session = _session(tmp_path, _rig(truth, rng))
-    results = _measured(truth, rng)
+    truth = loop_truth()
+    session = _session(tmp_path, mounted_rig(truth, rng))
+    results = measured_results(truth, rng)
     if corrupt_last:
         results[-1] = _shifted(results[-1], [0, 0, 0.05])
     ids = [_store(session, result) for result in results]
@@ -310,7 +271,7 @@ def test_api_rig_preview_accept_and_revert(tmp_path: Path) -> None:
     from backend.api.app import create_app
 
     session, ids = _loop_session(tmp_path)
-    extra = _store(session, _measured(_truth(), np.random.default_rng(1))[0])
+    extra = _store(session, measured_results(loop_truth(), np.random.default_rng(1))[0])
     with TestClient(create_app(tmp_path / "sessions")) as client:
         tree = client.get("/api/sessions/loop/rig/tree")
         assert tree.status_code == 200
