@@ -23,12 +23,11 @@ from backend.calib.board.live_detection import FALLBACK_EVERY, SEARCH_FLAGS, Liv
 from backend.core.boards import BoardSpec
 from backend.sim.board_motion import board_poses, project_corners
 from backend.sim.board_renderer import render_board_image
-from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.demo_rig import demo_rig
 from backend.sim.thermal import thermal_image
-from tests.calib.board.conftest import BoardScene
+from tests.calib.board.conftest import BOARD, BoardScene
 
 REAL_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
-BOARD = BoardSpec.parse(DEMO_BOARD)
 SAME_CORNER_PX = 0.15
 """Largest distance (px) between a live corner and the accurate detector's refined one. Both are cornerSubPix's
 answer from different starts; measured: up to 0.10 on the real set from the classic search's corners, 0.05 from
@@ -79,11 +78,17 @@ def searches(request, monkeypatch) -> str:
     return request.param
 
 
-@pytest.mark.slow
-def test_real_frames(left_images, searches):
+@pytest.fixture(scope="module")
+def real_frames(left_images) -> tuple[list[np.ndarray], list[Detection | None]]:
+    """OpenCV's left frames and the accurate detector's answer for each (made once for both searches)."""
     images = [cv2.imread(str(path)) for path in left_images]
-    found = assert_same_as_accurate(images, REAL_BOARD, [detect_board(image, REAL_BOARD) for image in images],
-                                    search_side_px=320)
+    return images, [detect_board(image, REAL_BOARD) for image in images]
+
+
+@pytest.mark.slow
+def test_real_frames(real_frames, searches):
+    images, accurate = real_frames
+    found = assert_same_as_accurate(images, REAL_BOARD, accurate, search_side_px=320)
     assert sum(d is not None for d in found) == len(images)  # OpenCV's set shows the board in every frame
 
 

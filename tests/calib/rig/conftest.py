@@ -29,12 +29,15 @@ EDGES = [("cam_front", "lidar_top", 0.003, 0.1, "lidar_camera"),
 
 @functools.cache
 def loop_truth() -> dict[str, np.ndarray]:
-    """Each frame's true pose in ``base_link`` (``T_root_frame``); do not change the arrays."""
+    """Each frame's true pose in ``base_link`` (``T_root_frame``), read-only: every test shares them."""
     rig = demo_rig()
-    return {name: rig.T_root_frame(name) for name in FRAMES}
+    truth = {name: rig.T_root_frame(name) for name in FRAMES}
+    for T_root_frame in truth.values():
+        T_root_frame.setflags(write=False)
+    return truth
 
 
-def noise(rng: np.random.Generator, sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
+def _noise(rng: np.random.Generator, sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """A random step and the covariance it was drawn from (TRANSFORM_PARAMETERS)."""
     sigma = np.r_[np.full(3, sigma_m), np.full(3, np.radians(sigma_deg))]
     return rng.normal(0.0, sigma), np.diag(sigma**2)
@@ -44,7 +47,7 @@ def measured_results(truth: dict[str, np.ndarray], rng: np.random.Generator) -> 
     """The three results of :data:`EDGES`, each the truth off by a step drawn from its stated covariance."""
     results = []
     for parent, child, sigma_m, sigma_deg, kind in EDGES:
-        step, covariance = noise(rng, sigma_m, sigma_deg)
+        step, covariance = _noise(rng, sigma_m, sigma_deg)
         T = apply_params(invert(truth[parent]) @ truth[child], step)
         results.append(TransformResult(kind, "sim", parent, child, T, covariance, verdict=Verdict("trusted", [])))
     return results
@@ -54,7 +57,7 @@ def mounted_rig(truth: dict[str, np.ndarray], rng: np.random.Generator) -> Rig:
     """The rig as mounted: each frame on ``base_link`` at the truth off by a tape measure (:data:`PRIOR_SIGMA`)."""
     rig = Rig()
     for name in FRAMES:
-        step, _ = noise(rng, *PRIOR_SIGMA)
+        step, _ = _noise(rng, *PRIOR_SIGMA)
         rig.add(Frame(name, "base_link", apply_params(truth[name], step), kind="camera" if "cam" in name else "lidar3d",
                       mount_sigma=PRIOR_SIGMA))
     return rig
