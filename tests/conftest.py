@@ -117,10 +117,14 @@ def left_images(stereo_chessboard: Path) -> list[Path]:
 ARTIFACTS = Path(__file__).parent / "artifacts"
 """Screenshots the browser tests leave for a person to look at."""
 CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
-                 "--no-first-run"]
-"""Debian's chromium with software WebGL (see ../shared/stack-notes.md); Playwright cannot fetch its own."""
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--use-gl=angle", "--use-angle=gl-egl",
+                 "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--disable-background-networking",
+                 "--disable-component-update", "--no-first-run"]
+"""Debian's chromium (Playwright cannot fetch its own) with software WebGL: Mesa's llvmpipe through ANGLE's EGL back
+end where Mesa's drivers are installed (chromium recommends ``libgl1-mesa-dri``), else chromium's own SwiftShader,
+which it falls back to by itself. llvmpipe first because the studio's point clouds are drawn from their vertices, and
+SwiftShader's GPU process spent 611 of the browser tests' 1,085 busy core-seconds on them (3 workers, 2 cores), where
+llvmpipe's spends 168 of 750 (``../shared/stack-notes.md`` names SwiftShader only)."""
 
 
 def _free_port() -> int:
