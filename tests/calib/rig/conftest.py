@@ -43,8 +43,9 @@ def _noise(rng: np.random.Generator, sigma_m: float, sigma_deg: float) -> tuple[
     return rng.normal(0.0, sigma), np.diag(sigma**2)
 
 
-def measured_results(truth: dict[str, np.ndarray], rng: np.random.Generator) -> list[TransformResult]:
+def measured_results(rng: np.random.Generator) -> list[TransformResult]:
     """The three results of :data:`EDGES`, each the truth off by a step drawn from its stated covariance."""
+    truth = loop_truth()
     results = []
     for parent, child, sigma_m, sigma_deg, kind in EDGES:
         step, covariance = _noise(rng, sigma_m, sigma_deg)
@@ -53,8 +54,9 @@ def measured_results(truth: dict[str, np.ndarray], rng: np.random.Generator) -> 
     return results
 
 
-def mounted_rig(truth: dict[str, np.ndarray], rng: np.random.Generator) -> Rig:
+def mounted_rig(rng: np.random.Generator) -> Rig:
     """The rig as mounted: each frame on ``base_link`` at the truth off by a tape measure (:data:`PRIOR_SIGMA`)."""
+    truth = loop_truth()
     rig = Rig()
     for name in FRAMES:
         step, _ = _noise(rng, *PRIOR_SIGMA)

@@ -51,8 +51,8 @@ def test_the_fused_tree_beats_every_single_chain_and_its_sigma_covers_the_error(
     normalised, false_flags = [], 0
     for seed in range(40):
         rng = np.random.default_rng(seed)
-        rig = mounted_rig(truth, rng)
-        results = measured_results(truth, rng)
+        rig = mounted_rig(rng)
+        results = measured_results(rng)
         edges = rig_service.prior_edges(rig) + [
             RigEdge(r.parent, r.child, r.T_parent_child, r.covariance, r.kind, f"r{i}") for i, r in enumerate(results)]
         tree = solve_rig_graph("base_link", parents, edges)
@@ -84,8 +84,8 @@ def test_the_fused_tree_beats_every_single_chain_and_its_sigma_covers_the_error(
 def test_accepting_a_loop_through_the_service_keeps_every_edge_within_3_sigma(tmp_path: Path) -> None:
     rng = np.random.default_rng(7)
     truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    for result in measured_results(truth, rng):
+    session = _session(tmp_path, mounted_rig(rng))
+    for result in measured_results(rng):
         update = rig_service.accept(session, _store(session, result))
         assert not update.conflicts
     tree = rig_service.solve_rig(session)
@@ -107,9 +107,8 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
     """The last accepted result is 5 cm off: its preview names it; accepted all the same, it is the one flagged
     (its residual named), it is left out of the tree, and the frames stay where the other edges put them."""
     rng = np.random.default_rng(3)
-    truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    good, good_again, bad = measured_results(truth, rng)
+    session = _session(tmp_path, mounted_rig(rng))
+    good, good_again, bad = measured_results(rng)
     bad = _shifted(bad, [0.05, 0, 0])
     for result in (good, good_again):
         rig_service.accept(session, _store(session, result))
@@ -136,8 +135,8 @@ def test_a_corrupted_edge_is_the_one_flagged_and_the_rest_holds_the_tree(tmp_pat
 def test_keeping_the_new_edge_reverts_the_one_it_disagrees_with(tmp_path: Path) -> None:
     rng = np.random.default_rng(5)
     truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    first, second, third = measured_results(truth, rng)
+    session = _session(tmp_path, mounted_rig(rng))
+    first, second, third = measured_results(rng)
     wrong = _shifted(first, [0, 0.05, 0])
     wrong_id = _store(session, wrong)
     for result in (wrong, second):
@@ -154,11 +153,10 @@ def test_keeping_the_new_edge_reverts_the_one_it_disagrees_with(tmp_path: Path) 
 
 def test_reverting_an_edge_refits_without_it(tmp_path: Path) -> None:
     rng = np.random.default_rng(11)
-    truth = loop_truth()
-    rig = mounted_rig(truth, rng)
+    rig = mounted_rig(rng)
     mounted = {name: rig.T_root_frame(name) for name in FRAMES}
     session = _session(tmp_path, rig)
-    result = measured_results(truth, rng)[0]
+    result = measured_results(rng)[0]
     rig_service.accept(session, _store(session, result))
     assert not np.allclose(session.rig.T_root_frame("lidar_top"), mounted["lidar_top"])
     update = rig_service.revert(session, "lidar_top/T_cam_front_lidar_top")
@@ -187,9 +185,8 @@ def test_a_frame_no_edge_connects_to_the_root_is_named_with_what_it_connects_to(
 
 def test_a_result_that_did_not_converge_or_was_rejected_is_refused(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
-    truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    result = measured_results(truth, rng)[0]
+    session = _session(tmp_path, mounted_rig(rng))
+    result = measured_results(rng)[0]
     unconverged = _store(session, replace(result, converged=False, warnings=["GICP ran out of iterations"]))
     with pytest.raises(InputError, match="did not converge.*GICP ran out"):
         rig_service.accept(session, unconverged)
@@ -201,9 +198,8 @@ def test_a_result_that_did_not_converge_or_was_rejected_is_refused(tmp_path: Pat
 
 def test_a_hand_set_transform_is_an_edge_with_a_stated_assumed_sigma(tmp_path: Path) -> None:
     rng = np.random.default_rng(4)
-    truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    result = measured_results(truth, rng)[0]
+    session = _session(tmp_path, mounted_rig(rng))
+    result = measured_results(rng)[0]
     manual = replace(result, method="manual", covariance=np.full((6, 6), np.nan), verdict=Verdict("check", ["by hand"]))
     rig_service.accept(session, _store(session, manual), confirm=True)
     [edge] = [e for e in rig_service.solve_rig(session).edges if e.edge.kind != "prior"]
@@ -215,9 +211,8 @@ def test_a_hand_set_transform_is_an_edge_with_a_stated_assumed_sigma(tmp_path: P
 def _loop_session(tmp_path: Path, corrupt_last: bool = False):
     """A saved session with the three results of the loop accepted (the last 5 cm off with ``corrupt_last``)."""
     rng = np.random.default_rng(9)
-    truth = loop_truth()
-    session = _session(tmp_path, mounted_rig(truth, rng))
-    results = measured_results(truth, rng)
+    session = _session(tmp_path, mounted_rig(rng))
+    results = measured_results(rng)
     if corrupt_last:
         results[-1] = _shifted(results[-1], [0, 0, 0.05])
     ids = [_store(session, result) for result in results]
@@ -271,7 +266,7 @@ def test_api_rig_preview_accept_and_revert(tmp_path: Path) -> None:
     from backend.api.app import create_app
 
     session, ids = _loop_session(tmp_path)
-    extra = _store(session, measured_results(loop_truth(), np.random.default_rng(1))[0])
+    extra = _store(session, measured_results(np.random.default_rng(1))[0])
     with TestClient(create_app(tmp_path / "sessions")) as client:
         tree = client.get("/api/sessions/loop/rig/tree")
         assert tree.status_code == 200
