@@ -43,11 +43,26 @@ class SensorCreate(FiniteModel):
     xyz_m: Vector3 | None = deprecated("pose.xyz_m")
     ypr_deg: Vector3 | None = deprecated("pose.ypr_deg")
     fold_pose = deprecated_pair("pose", "xyz_m", "ypr_deg")
-    mount_sigma: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = Field(
+    mount_sigma: MountSigma | None = Field(
         DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting above (m, deg), a weak prior edge of the rig graph; "
         "null: unknown, only calibrations place the sensor")
     device: FiniteTree = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
                                                                      "height": 720}])
+
+
+MountSigma = tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]]
+"""1-sigma of a mounting guess: translation (m, per axis), rotation (deg, per axis)."""
+
+
+class SensorUpdate(FiniteModel):
+    """An edit of one sensor: every field left out stays as it is."""
+
+    parent: str | None = Field(None, pattern=NAME_PATTERN, description="the frame to hang from; without a pose "
+                               "the sensor keeps its place")
+    pose: Pose | None = Field(None, description="the new mounting guess T_parent_sensor (tape, CAD)")
+    mount_sigma: MountSigma | None = Field(None, description="1-sigma of the mounting guess (m, deg); null: unknown "
+                                           "(left out: kept)")
+    device: FiniteTree | None = Field(None, examples=[{"driver": "uvc", "device": 1}])
 
 
 class IntrinsicsSolveRequest(FiniteModel):

@@ -114,8 +114,6 @@ def read_init(args: argparse.Namespace):
     """The initial transform (``T_target_source``, ``T_camera_lidar``) from ``--init`` or ``--init-xyzypr``, or None."""
     import numpy as np
 
-    from backend.core.transforms import from_xyz_ypr
-
     if args.init is not None:
         expected = "a 4x4 transform as four rows of four whitespace-separated numbers"
         try:
@@ -131,15 +129,25 @@ def read_init(args: argparse.Namespace):
                              f"expected {expected}", str(args.init))
         return T
     if args.init_xyzypr is not None:
-        try:
-            values = [float(v) for v in args.init_xyzypr.split(",")]
-        except ValueError:
-            values = []
-        if len(values) != 6 or not np.isfinite(values).all():
-            raise InputError(f"expected six comma-separated numbers x,y,z (m),yaw,pitch,roll (deg), "
-                             f"got {shorten(args.init_xyzypr)}", "--init-xyzypr")
-        return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
+        return parse_xyzypr(args.init_xyzypr, "--init-xyzypr")
     return None
+
+
+def parse_xyzypr(text: str, option: str):
+    """The 4x4 transform (m) of ``x,y,z,yaw,pitch,roll`` (m, then ROS yaw, pitch, roll in degrees); an
+    :class:`InputError` naming ``option`` for anything else."""
+    import numpy as np
+
+    from backend.core.transforms import from_xyz_ypr
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not np.isfinite(values).all():
+        raise InputError(f"expected six comma-separated numbers x,y,z (m),yaw,pitch,roll (deg), got {shorten(text)}",
+                         option)
+    return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
 
 
 def init_name(args: argparse.Namespace) -> str:

@@ -115,6 +115,49 @@ class Rig:
         except KeyError:
             raise NotFoundError(f"no sensor or frame named {name!r}; known: {sorted(self.frames)}", "sensor") from None
 
+    def children(self, name: str) -> list[str]:
+        """The frames hanging directly from ``name``, in insertion order."""
+        return [f.name for f in self.frames.values() if f.parent == name]
+
+    def subtree(self, name: str) -> list[str]:
+        """``name`` and every frame below it, parents before children."""
+        found = [self.get(name).name]
+        for frame in found:
+            found += self.children(frame)
+        return found
+
+    def remove(self, name: str) -> Frame:
+        """Take the leaf frame ``name`` out of the tree; a frame others hang from (or the root) is refused, naming
+        them."""
+        frame = self.get(name)
+        if frame.parent is None:
+            raise InputError(f"{name!r} is the rig's root and cannot be removed", "sensor", 409)
+        if children := self.children(name):
+            raise InputError(f"{name!r} cannot be removed while {', '.join(map(repr, children))} "
+                             f"{'hangs' if len(children) == 1 else 'hang'} from it: give "
+                             f"{'it' if len(children) == 1 else 'them'} another parent first", "sensor", 409)
+        return self.frames.pop(name)
+
+    def reparent(self, name: str, parent: str, T_parent_child: np.ndarray | None = None) -> None:
+        """Hang ``name`` (with the frames below it) from ``parent`` at ``T_parent_child`` (4x4, m; None keeps the
+        frame where it is now). A parent that is not in the rig, or that is ``name`` or hangs below it (a cycle),
+        is refused, naming it.
+
+        The moved frames go to the end of the frame order, so every frame still comes after its parent (the
+        order the session file is stored and read in)."""
+        moved = self.subtree(name)
+        if parent not in self.frames:
+            raise InputError(f"parent frame {parent!r} is not in the rig; known: {sorted(self.frames)}", "parent")
+        if parent in moved:
+            raise InputError(f"{name!r} cannot hang from {parent!r}: {parent!r} "
+                             f"{'is the frame itself' if parent == name else f'hangs below {name!r}'}, which would "
+                             "make a cycle", "parent")
+        T = self.T_a_b(parent, name) if T_parent_child is None else np.asarray(T_parent_child, dtype=float)
+        frame = self.frames[name]
+        frame.parent, frame.T_parent_child = parent, T.reshape(4, 4)
+        for moved_name in moved:
+            self.frames[moved_name] = self.frames.pop(moved_name)
+
     def sensors(self, kind: SensorKind | None = None) -> list[Frame]:
         """Frames that are sensors (optionally of one kind), in insertion order."""
         return [f for f in self.frames.values() if f.kind != "frame" and (kind is None or f.kind == kind)]

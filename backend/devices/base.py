@@ -17,6 +17,8 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from backend.core.errors import InputError
+
 
 class DeviceError(RuntimeError):
     """A device could not be opened or configured; the message says which and why."""
@@ -118,6 +120,15 @@ def driver_names() -> list[str]:
     from backend import devices  # noqa: F401  (importing registers the built-in drivers)
 
     return sorted(_DRIVERS)
+
+
+def check_settings(settings: dict[str, Any]) -> None:
+    """Refuse (:class:`InputError` naming ``device``) settings no driver takes: an unknown driver, or options its
+    driver does not have or lacks. The device is built, not opened."""
+    try:
+        create_device(settings)
+    except DeviceError as exc:
+        raise InputError(f"device {exc.device}: {exc.message}", "device") from None
 
 
 def create_device(settings: dict[str, Any]) -> CaptureDevice:

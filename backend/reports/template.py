@@ -384,9 +384,10 @@ several nodes is their weighted mean); error = estimated - measured.</p>
 
 <section id="log">
 <h2>Acceptance log</h2>
-<table><tr><th>when</th><th>slot</th><th>result</th><th>verdict</th><th>confirmed</th></tr>
-{% for a in acceptance_log %}<tr><td>{{ a.at | utc }}</td><td>{{ a.slot }}</td><td>{{ a.result_id or "reverted" }}</td>
-<td>{{ a.verdict or "—" }}</td><td>{{ "yes" if a.confirmed else "" }}</td></tr>{% endfor %}
+<table><tr><th>when</th><th>slot</th><th>result</th><th>verdict</th><th>confirmed</th><th>note</th></tr>
+{% for a in acceptance_log %}<tr><td>{{ a.at | utc }}</td><td>{{ a.slot }}</td><td>{{ a.result_id or ("emptied" if
+a.note else "reverted") }}</td><td>{{ a.verdict or "—" }}</td><td>{{ "yes" if a.confirmed else "" }}</td>
+<td>{{ a.note or "" }}</td></tr>{% endfor %}
 </table>
 </section>
 </body>

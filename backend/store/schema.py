@@ -18,6 +18,8 @@ SCHEMA_VERSION = 1
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$"
 FILE_NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\.[a-z0-9]{1,5}"
 """A file kept in a session folder: a plain name and one extension, never a path."""
+REMOVAL_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}-[0-9]{1,6}$"
+"""A sensor removal's id: the sensor's name, ``-`` and its removal's number (``lidar_top-1``)."""
 
 
 class FiniteModel(BaseModel):
@@ -94,6 +96,22 @@ class Acceptance(FiniteModel):
     verdict: Literal["trusted", "check", "reject"] | None = Field(
         None, description="the result's verdict when accepted (None in logs from before verdicts)")
     confirmed: bool = Field(False, description="the user confirmed a 'check' verdict to accept it")
+    note: str | None = Field(None, description="why the slot changed when no accept or revert did it (its sensor "
+                             "was removed or restored)")
+
+
+class Removal(FiniteModel):
+    """A sensor taken out of the rig: its frame as it was, the slots it emptied and where its captures went.
+    Nothing is deleted: the captures move to ``removed/<id>/captures``, the results stay in ``results/``."""
+
+    id: str = Field(pattern=REMOVAL_ID_PATTERN, description="'<sensor>-<n>', the folder under 'removed/'")
+    sensor: str = Field(pattern=NAME_PATTERN)
+    frame: FrameModel = Field(description="the frame as it was when removed")
+    slots: dict[str, str] = Field(default_factory=dict, description="accepted slot -> result id the removal emptied")
+    results: list[str] = Field(default_factory=list, description="the sensor's results, left out of its listings "
+                               "while it is removed")
+    at: float = Field(description="when it was removed, s since the epoch")
+    restored_at: float | None = Field(None, description="when it was restored; None while it is removed")
 
 
 class SessionFile(FiniteModel):
@@ -105,6 +123,7 @@ class SessionFile(FiniteModel):
     rig: RigModel
     accepted: dict[str, str] = Field(default_factory=dict, description="slot -> result id")
     acceptance_log: list[Acceptance] = Field(default_factory=list)
+    removals: list[Removal] = Field(default_factory=list, description="every sensor removal, oldest first")
 
 
 class CaptureRecord(BaseModel):

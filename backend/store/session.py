@@ -10,6 +10,7 @@ Layout::
     <root>/<name>/depth_network.json              a depth cell's layout, guided state, verification (atomic)
     <root>/<name>/quarantine/<same path>          a broken capture or result, moved aside
     <root>/<name>/quarantine/<folder>/<id>.why.json   why it was moved: file, moved, to, reason, at
+    <root>/<name>/removed/<sensor>-<n>/captures/  a removed sensor's captures, until it is restored
 
 Nothing is ever overwritten but ``session.json``, and that only atomically, so
 captures and results survive crashes, and accepting an older result (revert) is
@@ -20,6 +21,10 @@ is moved to ``quarantine/`` (never deleted, its id never reused), reported by na
 a 422, and left out of listings, which list it under :meth:`Session.quarantined`. A
 session whose ``session.json`` cannot be read stays where it is and is listed as broken
 with its reason (:meth:`SessionStore.listing`) so the user can repair it.
+
+Removing a sensor deletes nothing either (:meth:`Session.remove_sensor`): ``session.json`` records the removal
+(the frame as it was, the slots it emptied, the sensor's results) first, then the captures folder moves aside;
+a move that a crash interrupted is finished when the session is next opened (:meth:`Session._settle_removals`).
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ from backend.core.rig import Frame, Rig
 from backend.core.verdict import Verdict
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import remove_stale_temp_files, write_bytes_atomic, write_json_atomic
-from backend.store.rig_io import rig_from_model, rig_to_model
+from backend.store.rig_io import frame_from_model, frame_to_model, rig_from_model, rig_to_model
 from backend.store.schema import (
     DEPTH_NETWORK_VERSION,
     FILE_NAME_PATTERN,
@@ -56,6 +61,7 @@ from backend.store.schema import (
     Acceptance,
     CaptureRecord,
     DepthNetworkFile,
+    Removal,
     SessionFile,
 )
 
@@ -64,6 +70,7 @@ DEPTH_NETWORK_FILE = "depth_network.json"
 DEPTH_ARRAYS = ("depth", "amplitude")
 """The arrays of a depth capture's ``.npz``: depth along the optical axis (m, 0 = no return) and IR amplitude."""
 QUARANTINE = "quarantine"
+REMOVED = "removed"
 _NOTE_SUFFIX = ".why.json"
 
 
@@ -135,12 +142,13 @@ class Session:
         if version != SCHEMA_VERSION:
             raise InputError(f"{file}: field 'schema_version' is {version!r}, expected {SCHEMA_VERSION}", str(file))
         try:
-            data = SessionFile.model_validate(raw)
-            return cls(path, data)
+            session = cls(path, SessionFile.model_validate(raw))
         except ValidationError as exc:
             raise InputError(_validation_message(file, exc), str(file)) from None
         except InputError as exc:  # a rig that is valid JSON but not a tree (an unknown parent, a repeated name)
             raise InputError(f"{file}: {exc.message}", str(file)) from None
+        session._settle_removals()
+        return session
 
     @classmethod
     def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None,
@@ -200,6 +208,7 @@ class Session:
             "accepted": dict(self._data.accepted),
             "acceptance_log": [entry.model_dump() for entry in self._data.acceptance_log],
             "quarantined": self.quarantined(),
+            "removed": self.removed(),
         }
 
     # -- quarantine -------------------------------------------------------------------
@@ -271,6 +280,104 @@ class Session:
         """Replace a sensor's capture-device settings (a driver name and its options)."""
         with self._change():
             self.rig.get(sensor).device = copy.deepcopy(device)
+
+    def edit_rig(self, apply: Callable[[Rig], None]) -> None:
+        """Change the rig with ``apply(rig)`` in one saved change; if it raises, nothing changes."""
+        with self._change():
+            apply(self.rig)
+
+    def remove_sensor(self, sensor: str, slots: Sequence[str], apply: Callable[[Rig], None]) -> Removal:
+        """Take the leaf frame ``sensor`` out of the rig, empty its accepted ``slots`` and let ``apply(rig)`` re-fit
+        the rest, in one saved change; then move its captures to ``removed/<id>/captures``.
+
+        The removal is recorded first (the frame as it was, the emptied slots, the sensor's results, which its
+        listings then leave out), so a crash before the move loses nothing: the next open finishes it.
+        """
+        with self.lock:
+            frame = self.rig.get(sensor)
+            with self._change():
+                now = time.time()
+                removal = Removal(id=self._new_removal_id(sensor), sensor=sensor, frame=frame_to_model(frame),
+                                  slots={slot: self._data.accepted[slot] for slot in slots},
+                                  results=[record["id"] for record in self.results(sensor)], at=now)
+                self.rig.remove(sensor)
+                for slot in slots:
+                    self._empty(slot, now, note=f"{sensor} removed ({removal.id})")
+                self._data.removals.append(removal)
+                apply(self.rig)
+            self._settle_removals()
+            return removal.model_copy(deep=True)
+
+    def restore_sensor(self, removal_id: str, slots: Sequence[str], apply: Callable[[Rig], None]) -> Removal:
+        """Put a removed sensor back: its frame as it was, its captures, and those of its emptied ``slots`` the
+        caller can restore (their results made current again); ``apply(rig)`` re-fits, all in one saved change.
+        A name now taken or a parent no longer there is refused (409), naming it."""
+        with self.lock:
+            removal = self.restorable(removal_id)
+            with self._change():
+                now = time.time()
+                self.rig.add(frame_from_model(removal.frame))
+                for slot in slots:
+                    result_id = removal.slots[slot]
+                    self._data.accepted[slot] = result_id
+                    verdict = Verdict.from_record(self.result(result_id)).level
+                    self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=now, verdict=verdict,
+                                                                note=f"{removal.sensor} restored ({removal.id})"))
+                self._removal(removal_id).restored_at = now
+                apply(self.rig)
+            self._settle_removals()
+            return self._removal(removal_id).model_copy(deep=True)
+
+    def restorable(self, removal_id: str) -> Removal:
+        """The removal ``removal_id`` (a copy) if its sensor can be restored now; else a 404 (no such removal) or a
+        409 saying why not (restored already, its name taken, its parent gone)."""
+        with self.lock:
+            removal = self._removal(removal_id)
+            if removal.restored_at is not None:
+                raise InputError(f"removal {removal_id!r} was restored already", "removal", 409)
+            if removal.sensor in self.rig.frames:
+                raise InputError(f"cannot restore {removal.sensor!r}: a frame of that name is in the rig now; remove "
+                                 "it first", "removal", 409)
+            if removal.frame.parent not in self.rig.frames:
+                raise InputError(f"cannot restore {removal.sensor!r}: its parent {removal.frame.parent!r} is not in "
+                                 "the rig; restore or add it first", "removal", 409)
+            return removal.model_copy(deep=True)
+
+    def removed(self) -> list[dict[str, Any]]:
+        """The sensors removed and not restored, oldest first: ``id``, ``sensor``, ``kind``, ``parent``, ``at``
+        (s since the epoch), the ``slots`` they emptied, their ``results`` and how many ``captures`` were kept."""
+        return [{"id": r.id, "sensor": r.sensor, "kind": r.frame.kind, "parent": r.frame.parent, "at": r.at,
+                 "slots": dict(r.slots), "results": list(r.results),
+                 "captures": len(list(self._removed_captures(r).glob("*.json")))}
+                for r in self._data.removals if r.restored_at is None]
+
+    def _removal(self, removal_id: str) -> Removal:
+        for removal in self._data.removals:
+            if removal.id == removal_id:
+                return removal
+        raise NotFoundError(f"no removal {removal_id!r} in session {self.name!r}; removals: "
+                            f"{[r.id for r in self._data.removals]}", "removal")
+
+    def _new_removal_id(self, sensor: str) -> str:
+        number = sum(r.sensor == sensor for r in self._data.removals) + 1
+        while (self.path / REMOVED / f"{sensor}-{number}").exists():
+            number += 1
+        return f"{sensor}-{number}"
+
+    def _removed_captures(self, removal: Removal) -> Path:
+        return self.path / REMOVED / removal.id / "captures"
+
+    def _settle_removals(self) -> None:
+        """Move each removed sensor's captures aside, and each restored one's back, where ``session.json`` says
+        the move should have happened and it has not (it runs after every removal and restore, and on open)."""
+        with self.lock:
+            for removal in self._data.removals:
+                live, aside = self.path / "captures" / removal.sensor, self._removed_captures(removal)
+                in_rig = removal.sensor in self.rig.frames
+                source, target = (aside, live) if removal.restored_at is not None else (live, aside)
+                if source.is_dir() and not target.exists() and in_rig == (removal.restored_at is not None):
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(source, target)
 
     # -- captures ---------------------------------------------------------------------
     def _capture_dir(self, sensor: str) -> Path:
@@ -489,9 +596,13 @@ class Session:
         return self.path / "results" / result_id / file_name
 
     def results(self, sensor: str | None = None, kind: str | None = None) -> list[dict[str, Any]]:
-        """All stored results, oldest first, optionally for one sensor and kind (broken ones quarantined, left out)."""
+        """All stored results, oldest first, optionally for one sensor and kind (broken ones quarantined and those
+        of a removed sensor left out; :meth:`result` still reads both kinds' ids)."""
+        removed = {result_id for r in self._data.removals if r.restored_at is None for result_id in r.results}
         out = []
         for path in sorted((self.path / "results").glob("r*.json")):
+            if path.stem in removed:
+                continue
             try:
                 record = self._read_result(path)
             except InputError:
@@ -569,11 +680,11 @@ class Session:
             self._empty(slot, time.time())
             apply(self.rig)
 
-    def _empty(self, slot: str, at: float) -> None:
+    def _empty(self, slot: str, at: float, note: str | None = None) -> None:
         if slot not in self._data.accepted:
             raise NotFoundError(f"nothing is accepted for {slot!r}; accepted: {sorted(self._data.accepted)}", "slot")
         del self._data.accepted[slot]
-        self._data.acceptance_log.append(Acceptance(slot=slot, result_id=None, at=at))
+        self._data.acceptance_log.append(Acceptance(slot=slot, result_id=None, at=at, note=note))
 
 
 class SessionStore:

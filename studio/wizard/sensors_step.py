@@ -1,28 +1,39 @@
-"""Step 2: add sensors to the rig, with their mounting guess and capture device.
+"""Step 2: add sensors to the rig, with their mounting guess and capture device; edit, remove and restore them.
 
 Every capture driver of :mod:`backend.devices` can be picked here, real or simulated:
 the form's *Device* lists the drivers that fit the chosen *Kind*, and its *Source*
 field takes what that driver needs (a port, a path, a simulated sensor's name, or
 ``sim`` for the byte-level simulators of the serial and network sensors).
+
+One form adds and edits: *Sensor* picks a new sensor or one of the rig's, whose parent,
+mounting guess, mount sigma and device the form then shows. A change or a removal is
+previewed first (what it empties, what moves) and made with a second button; a removed
+sensor keeps its captures and results aside and can be restored.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.rig import DEFAULT_MOUNT_SIGMA, Frame
-from backend.core.transforms import from_xyz_ypr
+from backend.core.transforms import from_xyz_ypr, to_xyz_ypr
 from backend.services import recordings
+from backend.store.session import Session
 from studio.context import StudioContext
 
 CAMERA_KINDS = ("camera",)
 RANGE_KINDS = ("lidar3d", "lidar2d", "depth")
 DEPTH_KINDS = ("depth",)
 KINDS = ("camera", "lidar3d", "lidar2d", "depth", "imu", "frame")
+NEW_SENSOR = "(new sensor)"
+"""*Sensor*'s choice for adding one."""
 
 
 @dataclass(frozen=True)
@@ -138,12 +149,69 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
     raise InputError(f"unknown device {driver!r}; known: {', '.join(DRIVERS)}", "device")
 
 
+@dataclass(frozen=True)
+class DeviceForm:
+    """The form's device fields, as :func:`device_settings` takes them."""
+
+    driver: str
+    source: str = ""
+    width: int = 0
+    height: int = 0
+    topic: str = ""
+    time_window_s: tuple[float, float] = (0.0, 0.0)
+    scanner_port: str = ""
+
+    def settings(self) -> dict:
+        return device_settings(self.driver, self.source, width=self.width, height=self.height, topic=self.topic,
+                               time_window_s=self.time_window_s, scanner_port=self.scanner_port)
+
+
+def device_form(device: dict[str, Any]) -> DeviceForm | None:
+    """The form fields that give ``device`` (a sensor's settings), or None when the form has no driver for it."""
+    driver, text = device.get("driver"), lambda key: "" if device.get(key) is None else str(device[key])
+    if driver == "uvc":
+        return DeviceForm("uvc", text("device"), device.get("width") or 0, device.get("height") or 0)
+    if driver in ("simulated", "simulated_lidar", "ydlidar", "node", "sim_depth", "kinect2", "realsense"):
+        key = {"simulated": "camera", "simulated_lidar": "sensor", "ydlidar": "port", "node": "node",
+               "sim_depth": "node"}.get(driver, "serial")
+        return DeviceForm(driver, text(key))
+    if driver == "velodyne":
+        host, port = device.get("host"), device.get("port")
+        return DeviceForm(driver, "sim" if host == "sim" else f"{'' if host == VELODYNE_LISTEN_HOST else host + ':'}"
+                          f"{port}")
+    if driver == "swept_scanner":
+        return DeviceForm(driver, text("servo_port"), scanner_port=str(device.get("scanner", {}).get("port", "")))
+    if driver in PATH_DRIVERS:
+        return DeviceForm(driver, text("path"), topic=text("topic"),
+                          time_window_s=(device.get("start_s", 0.0), device.get("end_s", 0.0)))
+    return None
+
+
+def change_text(change: dict[str, Any]) -> str:
+    """A previewed or made sensor change (:meth:`SensorChange.to_dict`) as the panel says it."""
+    verb = "" if change["applied"] else "would be "
+    lines = [f"- `{slot}` {verb}emptied: its result stays in the history" for slot in change["emptied"]]
+    lines += [f"- `{slot}` {verb}restored" for slot in change["restored"]]
+    lines += [f"- `{slot}` stays empty: {why}" for slot, why in change["not_restored"].items()]
+    for move in change["moves"]:
+        ratio = "" if move["sigma_ratio"] is None else f" ({move['sigma_ratio']:.1f}σ)"
+        lines.append(f"- `{move['frame']}` {'moved' if change['applied'] else 'would move'} "
+                     f"{1000 * move['trans_m']:.1f} mm, {move['rot_deg']:.2f}°{ratio}")
+    lines += [f"- **Look at:** {problem}" for problem in change["problems"]]
+    return "\n".join(lines) or "Nothing else in the rig moves."
+
+
 class SensorsStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
+        self._loaded: tuple[str, str, np.ndarray, tuple[float, float] | None, DeviceForm | None] | None = None
+        """The sensor the form shows: name, parent, mounting guess, mount sigma and device form as loaded."""
+        self._pending: rig_service.SensorEdit | None = None
         gui = ctx.server.gui
         with gui.add_folder("2 · Sensors", expand_by_default=False):
             self.listing = gui.add_markdown("Open a session first.")
+            self.sensor = gui.add_dropdown("Sensor", options=[NEW_SENSOR], hint="a new sensor, or one of the rig's to "
+                                           "edit or remove")
             self.name = gui.add_text("Name", initial_value="cam_new")
             self.kind = gui.add_dropdown("Kind", options=list(KINDS))
             self.parent = gui.add_dropdown("Parent", options=["base_link"])
@@ -165,10 +233,28 @@ class SensorsStep:
                                              hint="serial port of the 2D scanner the servo turns")
             self.size = gui.add_vector2("Resolution (px)", initial_value=(1280, 720), step=1)
             self.add_button = gui.add_button("Add sensor")
+            self.preview_button = gui.add_button("Preview change", visible=False,
+                                                 hint="what the change above would empty and move; nothing is written")
+            self.remove_button = gui.add_button("Remove sensor…", color="red", visible=False,
+                                                hint="what removing it would empty and move; nothing is written yet")
+            self.change = gui.add_markdown("", visible=False)
+            self.apply_button = gui.add_button("Apply change", visible=False)
+            self.confirm_remove_button = gui.add_button("Confirm removal", color="red", visible=False,
+                                                        hint="its captures and results are kept aside, restorable")
+            with gui.add_folder("Removed sensors", expand_by_default=False):
+                self.removed = gui.add_markdown("None.")
+                self.removal = gui.add_dropdown("Removal", options=["-"])
+                self.restore_button = gui.add_button("Restore sensor", disabled=True)
+        self.sensor.on_update(lambda _: self._on_sensor())
         self.kind.on_update(lambda _: self._on_kind())
         self.driver.on_update(lambda _: self._on_driver())
         self.topics_button.on_click(lambda _: self._list_topics())
         self.add_button.on_click(lambda _: self._add())
+        self.preview_button.on_click(lambda _: self._preview_edit())
+        self.apply_button.on_click(lambda _: self._apply_edit())
+        self.remove_button.on_click(lambda _: self._preview_removal())
+        self.confirm_remove_button.on_click(lambda _: self._remove())
+        self.restore_button.on_click(lambda _: self._restore())
         ctx.on_session_changed(self._show)
 
     def _on_kind(self) -> None:
@@ -211,23 +297,35 @@ class SensorsStep:
         if fitting and not self.topic.value.strip():
             self.topic.value = fitting[0]
 
-    def _add(self) -> None:
-        session = self.ctx.session
-        if session is None:
+    # -- the form's values -------------------------------------------------------------
+    def _pose(self) -> np.ndarray:
+        return from_xyz_ypr(np.array(self.xyz.value), np.radians(self.ypr.value))
+
+    def _sigma(self) -> tuple[float, float] | None:
+        sigma_mm, sigma_deg = self.mount_sigma.value
+        return None if sigma_mm == 0 and sigma_deg == 0 else (sigma_mm / 1000, sigma_deg)
+
+    def _device_form(self) -> DeviceForm | None:
+        if not drivers_for(self.kind.value):
+            return None
+        return DeviceForm(self.driver.value, self.source.value, int(self.size.value[0]), int(self.size.value[1]),
+                          self.topic.value, tuple(self.time_window.value), self.scanner_port.value)
+
+    def _session(self) -> Session | None:
+        if self.ctx.session is None:
             self.ctx.notify("No session", "Open or create a session first.", error=True)
+        return self.ctx.session
+
+    # -- adding ------------------------------------------------------------------------
+    def _add(self) -> None:
+        session = self._session()
+        if session is None:
             return
-        T = from_xyz_ypr(np.array(self.xyz.value), np.radians(self.ypr.value))
         try:
-            device = {}
-            if drivers_for(self.kind.value):
-                device = device_settings(self.driver.value, self.source.value, width=int(self.size.value[0]),
-                                         height=int(self.size.value[1]), topic=self.topic.value,
-                                         time_window_s=tuple(self.time_window.value),
-                                         scanner_port=self.scanner_port.value)
-            sigma_mm, sigma_deg = self.mount_sigma.value
-            mount_sigma = None if sigma_mm == 0 and sigma_deg == 0 else (sigma_mm / 1000, sigma_deg)
-            session.add_sensor(Frame(self.name.value.strip(), self.parent.value, T, kind=self.kind.value,
-                                     device=device, mount_sigma=mount_sigma))
+            form = self._device_form()
+            device = {} if form is None else form.settings()
+            rig_service.add_sensor(session, Frame(self.name.value.strip(), self.parent.value, self._pose(),
+                                                  kind=self.kind.value, device=device, mount_sigma=self._sigma()))
         except InputError as exc:
             self.ctx.notify("Cannot add sensor", exc.one_line().removeprefix("error: "), error=True)
             return
@@ -235,12 +333,148 @@ class SensorsStep:
                         f"{', ' + device['driver'] if device else ''})")
         self.ctx.open_session(session)
 
-    def _show(self, session) -> None:
+    # -- editing and removing ----------------------------------------------------------
+    def _on_sensor(self) -> None:
+        """Show the picked sensor's values (editing) or a blank form (adding)."""
+        session, name = self.ctx.session, self.sensor.value
+        editing = session is not None and name in session.rig.frames
+        self._pending = None
+        self.change.visible = self.apply_button.visible = self.confirm_remove_button.visible = False
+        self.name.disabled = self.kind.disabled = editing
+        self.add_button.visible = not editing
+        self.preview_button.visible = self.remove_button.visible = editing
+        if not editing:
+            self._loaded = None
+            if session is not None:
+                self.parent.options = list(session.rig.frames)
+            return
+        frame = session.rig.get(name)
+        self.parent.options = [f for f in session.rig.frames if f not in session.rig.subtree(name)]
+        self.parent.value = frame.parent
+        self.name.value, self.kind.value = frame.name, frame.kind
+        xyz, ypr = to_xyz_ypr(frame.T_mount)
+        self.xyz.value, self.ypr.value = tuple(float(v) for v in xyz), tuple(float(v) for v in np.degrees(ypr))
+        self.mount_sigma.value = (0.0, 0.0) if frame.mount_sigma is None else (1000 * frame.mount_sigma[0],
+                                                                                frame.mount_sigma[1])
+        form = device_form(frame.device)
+        if form is not None:
+            self.driver.value = form.driver
+            self.source.value, self.topic.value, self.scanner_port.value = form.source, form.topic, form.scanner_port
+            self.time_window.value = form.time_window_s
+            if form.width and form.height:
+                self.size.value = (form.width, form.height)
+        self._loaded = (name, frame.parent, self._pose(), self._sigma(), self._device_form())
+
+    def _edit(self) -> rig_service.SensorEdit:
+        """The form's changes to the loaded sensor (a field left as loaded is kept: a device the form cannot show
+        whole, like the demo's simulated boards, is only replaced when its fields are changed)."""
+        name, parent, pose, sigma, device = self._loaded
+        form = self._device_form()
+        return rig_service.SensorEdit(
+            parent=None if self.parent.value == parent else self.parent.value,
+            T_mount=None if np.allclose(self._pose(), pose, atol=1e-9) else self._pose(),
+            mount_sigma=rig_service.KEEP if self._sigma() == sigma else self._sigma(),
+            device=None if form == device or form is None else form.settings())
+
+    def _attempt(self, failure: str, make: Callable[[Session], rig_service.SensorChange]
+                 ) -> rig_service.SensorChange | None:
+        """``make(session)`` on the open session; None when there is none, or when it raised an :class:`InputError`,
+        which is shown under ``failure``."""
+        session = self._session()
+        if session is None:
+            return None
+        try:
+            return make(session)
+        except InputError as exc:
+            self.ctx.notify(failure, exc.one_line().removeprefix("error: "), error=True)
+            return None
+
+    def _preview_edit(self) -> None:
+        if self._loaded is None:
+            return
+        name = self._loaded[0]
+
+        def preview(session: Session) -> rig_service.SensorChange:
+            self._pending = self._edit()
+            return rig_service.edit_sensor(session, name, self._pending, preview=True)
+
+        if (change := self._attempt("Cannot change the sensor", preview)) is not None:
+            self._say(f"**Changing `{name}`**\n\n{change_text(change.to_dict())}")
+            self.apply_button.visible = True
+
+    def _apply_edit(self) -> None:
+        if self._loaded is None or (edit := self._pending) is None:
+            return
+        name = self._loaded[0]
+        change = self._attempt("Cannot change the sensor", lambda session: rig_service.edit_sensor(session, name, edit))
+        if change is not None:
+            self.ctx.notify("Sensor changed", f"{name}: {len(change.moves)} frame(s) moved")
+            self._reopen(name, f"**Changed `{name}`**\n\n{change_text(change.to_dict())}")
+
+    def _preview_removal(self) -> None:
+        if self._loaded is None:
+            return
+        name = self._loaded[0]
+        change = self._attempt("Cannot remove the sensor",
+                               lambda session: rig_service.remove_sensor(session, name, preview=True))
+        if change is not None:
+            self._say(f"**Removing `{name}`**: its captures and results are kept aside, restorable below.\n\n"
+                      f"{change_text(change.to_dict())}")
+            self.confirm_remove_button.visible = True
+
+    def _remove(self) -> None:
+        if self._loaded is None:
+            return
+        name = self._loaded[0]
+        change = self._attempt("Cannot remove the sensor", lambda session: rig_service.remove_sensor(session, name))
+        if change is not None:
+            removal = change.removal["id"]
+            self.ctx.notify("Sensor removed", f"{name}: kept aside as {removal}")
+            self._reopen(NEW_SENSOR, f"**Removed `{name}`**, kept aside as `{removal}`\n\n"
+                                     f"{change_text(change.to_dict())}")
+
+    def _restore(self) -> None:
+        removal = self.removal.value
+        change = self._attempt("Cannot restore the sensor",
+                               lambda session: rig_service.restore_sensor(session, removal))
+        if change is not None:
+            self.ctx.notify("Sensor restored", f"{change.sensor}: {len(change.restored)} accepted result(s) back")
+            self._reopen(change.sensor, f"**Restored `{change.sensor}`**\n\n{change_text(change.to_dict())}")
+
+    def _say(self, text: str) -> None:
+        self.change.content = text
+        self.change.visible = True
+
+    def _reopen(self, pick: str, said: str) -> None:
+        """Show the changed rig everywhere (every step follows the session again), with ``pick`` in *Sensor* and
+        what the change did under it."""
+        self.ctx.open_session(self.ctx.session)
+        self._pick(pick)
+        self._say(said)
+
+    def _pick(self, name: str) -> None:
+        """Show ``name`` (a frame, or :data:`NEW_SENSOR`) in the form."""
+        if self.sensor.value == name:
+            self._on_sensor()
+        else:
+            self.sensor.value = name  # fires _on_sensor
+
+    def _show(self, session: Session) -> None:
         self.parent.options = list(session.rig.frames)
         lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`"
                  f"{' · ' + f.device.get('driver', '') if f.device else ''} · {_mount_text(f.mount_sigma)}"
                  for f in session.rig.sensors()]
         self.listing.content = "\n".join(lines) or "No sensors yet."
+        names = [f.name for f in session.rig.frames.values() if f.parent is not None]
+        kept = self.sensor.value if self.sensor.value in names else NEW_SENSOR
+        self.sensor.options = [NEW_SENSOR, *names]
+        self._pick(kept)
+        removed = session.removed()
+        self.removed.content = "\n".join(
+            f"- `{r['id']}`: {r['sensor']} ({r['kind']}), {r['captures']} capture(s) and {len(r['results'])} "
+            f"result(s) kept" for r in removed) or "None."
+        self.removal.options = [r["id"] for r in removed] or ["-"]
+        self.restore_button.disabled = not removed
 
 
 def _mount_text(mount_sigma: tuple[float, float] | None) -> str:

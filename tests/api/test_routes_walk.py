@@ -79,7 +79,7 @@ class Walk:
             return [{"driver": "nope"}], [{"driver": None}, "nope", {"driver": "rosbag"}]
         if field == "file_name":
             return ["overlay_before.jpg"], ["nope.jpg", "../session.json", "x\x00.jpg"]
-        if field == "job_id":
+        if field in ("job_id", "removal"):
             return ["nope"], WRONG_NAMES
         if field == "fmt":
             return ["camera_info"], ["nope"]
@@ -90,6 +90,10 @@ class Walk:
             return [[0.0, 0.0, 0.0]], [[0.0], ["a", 0, 0], "1,2"]
         if field == "range_m":
             return ["0.5,50"], ["50,0.5", "a,b", "nan,1"]
+        if field == "parent":
+            return ["base_link"], WRONG_NAMES
+        if field == "mount_sigma":
+            return [[0.01, 1.0]], [[0.0, 1.0], [-1.0, 1.0], "nope", [0.01]]
         if field == "board":
             return ["checkerboard:9x6:0.025"], ["nope", "checkerboard:0x0:0"]
         return [], []
@@ -217,6 +221,8 @@ def _cases(op: Operation, walk: Walk) -> Iterator[tuple[str, dict, dict, Any, bo
     """``(label, path, query, body, a 4xx is due)`` for one route: the baseline, then one value swapped at a time."""
     path = {n: (walk.candidates(n)[0] or ["x"])[0] for n in op.path_params}
     query = {n: walk.candidates(n)[0][0] for n, required in op.query_params if required and walk.candidates(n)[0]}
+    if "preview" in dict(op.query_params):  # an edit or removal only previewed: later routes see the demo's sensors
+        query["preview"] = True
 
     def body(swap: tuple[str, Any] | None = None) -> Any:
         if op.body == "json":

@@ -152,3 +152,36 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
     assert abs(zero_error_deg) < 0.1
     # the offset along the servo axis (x) cannot be seen by planarity; across it, it is recovered
     assert np.abs(offset_error_m[1:]).max() < 0.003
+
+
+def test_remove_a_sensor_and_restore_it(browser: Browser, studio: Studio) -> None:
+    """lidar_top (the demo's board pairs' LiDAR) is removed after its preview, kept aside with its captures, and
+    restored from *Removed sensors*."""
+    captures = [c["id"] for c in studio.get("/api/sessions/demo/sensors/lidar_top/captures")]
+    assert captures, "the demo holds lidar_top's board pairs"
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        page.get_by_text("2 · Sensors", exact=True).click()
+        choose(page, "Sensor", "lidar_top")
+        expect(text_input(page, "Name")).to_have_value("lidar_top")
+        button(page, "Remove sensor…").click()
+        wait_body(page, re.compile(r"Removing lidar_top: its captures and results are kept aside"))
+        expect(button(page, "Confirm removal")).to_be_visible()
+        page.screenshot(path=ARTIFACTS / "studio_sensor_remove_preview.png")
+        assert "lidar_top" in studio.get("/api/sessions/demo")["sensors"], "a preview removed the sensor"
+
+        button(page, "Confirm removal").click()
+        wait_body(page, re.compile(r"Removed lidar_top, kept aside as lidar_top-1"))
+        assert "lidar_top" not in studio.get("/api/sessions/demo")["sensors"]
+        expect(page.get_by_text(re.compile(r"^lidar_top \(lidar3d\) under base_link"))).to_have_count(0)
+        page.get_by_text("Removed sensors", exact=True).click()
+        wait_body(page, re.compile(rf"lidar_top-1: lidar_top \(lidar3d\), {len(captures)} capture\(s\)"))
+        page.screenshot(path=ARTIFACTS / "studio_sensor_removed.png")
+
+        choose(page, "Removal", "lidar_top-1")
+        button(page, "Restore sensor").click()
+        wait_body(page, re.compile(r"Restored lidar_top"))
+        expect(text_input(page, "Name")).to_have_value("lidar_top")
+        page.screenshot(path=ARTIFACTS / "studio_sensor_restored.png")
+    assert "lidar_top" in studio.get("/api/sessions/demo")["sensors"]
+    assert [c["id"] for c in studio.get("/api/sessions/demo/sensors/lidar_top/captures")] == captures
+    assert studio.get("/api/sessions/demo/removed") == []

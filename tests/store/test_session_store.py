@@ -297,3 +297,26 @@ def test_failed_accept_leaves_memory_as_on_disk(tmp_path, monkeypatch):
     assert session.rig.get("cam").intrinsics is None
     assert session.board is None
     assert session.acceptance_log == []
+
+
+def test_a_removal_a_crash_interrupted_is_finished_when_the_session_opens(tmp_path):
+    """The removal is in session.json before the captures move; a crash between the two loses nothing, and the
+    next open moves them. The same for a restore."""
+    store = SessionStore(tmp_path)
+    session = store.create("s", board=BOARD)
+    session.add_sensor(Frame("cam", "base_link", kind="camera"))
+    capture = session.add_capture("cam", image(40), {"timestamp_s": 1.0, "device": "test"})
+    removal = rig_service.remove_sensor(session, "cam").removal["id"]
+    live, aside = tmp_path / "s" / "captures" / "cam", tmp_path / "s" / "removed" / removal / "captures"
+    assert aside.is_dir() and not live.exists()
+
+    os.replace(aside, live)  # as if the process died after writing session.json, before moving the folder
+    reopened = Session.load(tmp_path / "s")
+    assert aside.is_dir() and not live.exists()
+    assert reopened.removed()[0]["captures"] == 1
+
+    rig_service.restore_sensor(reopened, removal)
+    assert live.is_dir() and not aside.exists()
+    os.replace(live, aside)  # died after the restore was written, before the folder came back
+    again = Session.load(tmp_path / "s")
+    assert [c.id for c in again.captures("cam")] == [capture.id]

@@ -16,7 +16,15 @@ from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
 from studio.context import StudioContext
 from studio.scene import RigScene
-from studio.wizard.sensors_step import DRIVERS, RANGE_KINDS, SensorsStep, device_settings, drivers_for
+from studio.wizard.sensors_step import (
+    DRIVERS,
+    RANGE_KINDS,
+    DeviceForm,
+    SensorsStep,
+    device_form,
+    device_settings,
+    drivers_for,
+)
 
 
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
@@ -54,6 +62,25 @@ def test_settings_from_the_form(tmp_path):
     assert device_settings("rosbag", str(bag), topic=" /points ") == {"driver": "rosbag", "path": str(bag),
                                                                       "topic": "/points"}
     assert device_settings("cloud_files", str(tmp_path)) == {"driver": "cloud_files", "path": str(tmp_path)}
+
+
+def test_a_sensors_device_reads_back_into_the_form(tmp_path):
+    """Editing a sensor shows its device in the form's fields, and those fields give the same settings back."""
+    bag = tmp_path / "run.mcap"
+    bag.write_bytes(b"")
+    forms = [DeviceForm("uvc", "/dev/video2", 1280, 720), DeviceForm("simulated", "cam_wide"),
+             DeviceForm("simulated_lidar", "scanner_2d"), DeviceForm("velodyne", "sim"),
+             DeviceForm("velodyne", "2368"), DeviceForm("velodyne", "192.168.1.77:2369"),
+             DeviceForm("ydlidar", "/dev/ttyUSB0"), DeviceForm("kinect2", "0123"), DeviceForm("realsense", ""),
+             DeviceForm("sim_depth", "sn4"), DeviceForm("node", "sn2"), DeviceForm("swept_scanner", "sim"),
+             DeviceForm("swept_scanner", "/dev/ttyUSB1", scanner_port="/dev/ttyUSB0"),
+             DeviceForm("rosbag", str(bag), topic="/points", time_window_s=(1.0, 2.5)),
+             DeviceForm("cloud_files", str(tmp_path))]
+    assert {form.driver for form in forms} >= set(DRIVERS) - {"folder", "velodyne_pcap", "depth_files"}
+    for form in forms:
+        settings = form.settings()
+        assert device_form(settings).settings() == settings, form
+    assert device_form({"driver": "a_driver_of_a_newer_studio"}) is None
 
 
 @pytest.mark.parametrize(("driver", "source", "extra", "field", "message"), [
@@ -97,6 +124,45 @@ def test_a_typed_source_outlives_the_device_choice(tmp_path, free_port):
         step.driver.value = "rosbag"
         step._on_driver()
         assert step.source.value == str(tmp_path / "drive") and step.topics_button.visible
+    finally:
+        jobs.shutdown()
+        server.stop()
+
+
+def test_editing_a_sensor_in_the_form_changes_only_what_was_changed(tmp_path, free_port):
+    """Picking a sensor fills the form with it; a new pose is previewed (nothing written) and applied; a device the
+    form cannot show whole (the simulated board's motion settings) is kept when its fields were left alone."""
+    from backend.calib.rig import service as rig_service
+    from backend.sim.demo_rig import demo_rig
+
+    store = SessionStore(tmp_path)
+    session = store.create("s", rig=demo_rig())
+    session.set_device("lidar_top", {**session.rig.get("lidar_top").device, "board_poses": 12})
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    jobs = JobRunner()
+    try:
+        ctx = StudioContext(server, store, jobs, RigScene(server))
+        step = SensorsStep(ctx)
+        ctx.open_session(session)
+        step.sensor.value = "lidar_top"
+        assert step.name.value == "lidar_top" and step.name.disabled and step.driver.value == "simulated_lidar"
+        assert step.preview_button.visible and not step.add_button.visible
+        np.testing.assert_allclose(step.xyz.value, session.rig.get("lidar_top").T_mount[:3, 3], atol=1e-9)
+
+        step.xyz.value = (0.1, 0.0, 0.9)
+        before = (tmp_path / "s" / "session.json").read_bytes()
+        step._preview_edit()
+        assert "would move" in step.change.content and step.apply_button.visible
+        assert (tmp_path / "s" / "session.json").read_bytes() == before
+        step._apply_edit()
+        frame = store.get("s").rig.get("lidar_top")
+        np.testing.assert_allclose(frame.T_mount[:3, 3], (0.1, 0.0, 0.9), atol=1e-9)
+        assert frame.device["board_poses"] == 12, "the device was replaced though its fields were not touched"
+        assert "moved" in step.change.content
+
+        assert "lidar_top" not in step.parent.options  # its own subtree is not offered, and the service refuses it
+        with pytest.raises(InputError, match="cycle"):
+            rig_service.edit_sensor(session, "lidar_top", rig_service.SensorEdit(parent="lidar_top"))
     finally:
         jobs.shutdown()
         server.stop()

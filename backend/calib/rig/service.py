@@ -9,10 +9,15 @@ After every accept or revert the whole tree is re-fitted and written into the ri
 accepted result silently stops holding: each one's residual, its disagreement with the rest
 and every loop's closure are in :func:`solve_rig`. :func:`preview` shows what an accept would
 move before anything is written.
+
+Editing a sensor (:func:`edit_sensor`: its mounting guess, parent, mount sigma, device), removing one
+(:func:`remove_sensor`: its slots are emptied, its captures moved aside) and restoring one
+(:func:`restore_sensor`) re-fit the tree the same way, and each can be previewed first.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -23,12 +28,17 @@ from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.multicam import service as multicam_service
 from backend.calib.rig.graph import FLAG_SIGMA as FLAG_SIGMA  # re-exported: the studio names the limit
 from backend.calib.rig.graph import EdgeResidual, RigEdge, RigTree, solve_rig_graph
+from backend.calib.rig.sensor_edits import KEEP as KEEP  # re-exported: the API and the studio build edits
+from backend.calib.rig.sensor_edits import SensorEdit as SensorEdit
+from backend.calib.rig.sensor_edits import apply_edit, frames_missing, slots_involving
 from backend.calib.sweep import service as sweep_service
 from backend.core.errors import InputError
 from backend.core.result import EDGE_KINDS, StoredResult, TransformResult
-from backend.core.rig import Rig, edge_slot
+from backend.core.rig import Frame, Rig, edge_slot
 from backend.core.transforms import params_between
 from backend.core.uncertainty import sigmas
+from backend.devices.base import check_settings
+from backend.store.rig_io import frame_from_model
 from backend.store.session import Session
 
 MANUAL_SIGMA = (0.005, 0.3)
@@ -148,11 +158,13 @@ class RigUpdate:
         return self.tree.flagged
 
     def to_dict(self) -> dict[str, Any]:
-        return {"result_id": self.result_id, "slot": self.slot,
-                "moves": [vars(move) for move in self.moves],
-                "conflicts": [c.to_dict() for c in self.conflicts], "problems": self.tree.problems(),
-                "rig": self.tree.summary()}
+        return {"result_id": self.result_id, "slot": self.slot} | _fit_dict(self.tree, self.moves)
 
+
+def _fit_dict(tree: RigTree, moves: list[FrameMove]) -> dict[str, Any]:
+    """``moves``, ``conflicts``, ``problems`` and the ``rig`` summary of a change's tree, as the API sends them."""
+    return {"moves": [vars(move) for move in moves], "conflicts": [c.to_dict() for c in tree.flagged],
+            "problems": tree.problems(), "rig": tree.summary()}
 
 
 def _moves(before: RigTree, after: RigTree) -> list[FrameMove]:
@@ -242,3 +254,108 @@ def revert(session: Session, slot: str) -> RigUpdate:
 
         session.revert(slot, apply)
     return RigUpdate(after[0], _moves(before, after[0]), None, slot)
+
+
+# ---------------------------------------------------------------------------------------------
+# Editing, removing and restoring sensors
+
+
+@dataclass
+class SensorChange:
+    """What an edit, removal or restore of one sensor does (or, previewed, would do) to the rig."""
+
+    sensor: str
+    action: str
+    """``edit``, ``remove`` or ``restore``."""
+    applied: bool
+    """False for a preview: nothing was written."""
+    tree: RigTree
+    moves: list[FrameMove]
+    emptied: list[str]
+    """Accepted slots the change empties (a removal takes its sensor's slots with it)."""
+    restored: list[str]
+    """Slots a restore makes current again."""
+    not_restored: dict[str, str]
+    """Slots a restore leaves empty, and why."""
+    removal: dict[str, Any] | None
+    """The removal's record (``id``, ``sensor``, ``at``, ...) for a removal or restore."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"sensor": self.sensor, "action": self.action, "applied": self.applied, "emptied": self.emptied,
+                "restored": self.restored, "not_restored": self.not_restored,
+                "removal": self.removal} | _fit_dict(self.tree, self.moves)
+
+
+def _sensor_change(session: Session, sensor: str, action: str, rig: Rig, accepted: dict[str, str],
+                   write: Callable[[Callable[[Rig], None]], Any] | None, **details: Any) -> SensorChange:
+    """Fit ``rig`` (the rig after the change) with ``accepted`` (the slots after it); unless previewing (``write``
+    None), ``write(apply)`` makes the change in the session, where ``apply`` writes that fit into the rig."""
+    before, after = solve_rig(session), _fit(session, accepted, rig)
+    written = None if write is None else write(lambda live: _write_tree(live, after))
+    if written is not None:
+        details["removal"] = written.model_dump(mode="json")
+    return SensorChange(sensor, action, write is not None, after, _moves(before, after),
+                        **({"emptied": [], "restored": [], "not_restored": {}, "removal": None} | details))
+
+
+def add_sensor(session: Session, frame: Frame) -> Frame:
+    """Add a sensor (or a plain frame) to the rig; settings no capture driver takes are refused, naming ``device``."""
+    if frame.device:
+        check_settings(frame.device)
+    return session.add_sensor(frame)
+
+
+def edit_sensor(session: Session, sensor: str, edit: SensorEdit, *, preview: bool = False) -> SensorChange:
+    """Change a sensor's mounting guess, parent, mount sigma or device and re-fit the tree (``preview``: only say
+    what would move). A new parent without a pose keeps the sensor where it is now."""
+    if edit.device is not None:
+        check_settings(edit.device)
+    with session.lock:
+        rig = copy.deepcopy(session.rig)
+        apply_edit(rig, sensor, edit)
+
+        def write(fitted: Callable[[Rig], None]) -> None:
+            def apply(live: Rig) -> None:
+                apply_edit(live, sensor, edit)
+                fitted(live)
+            session.edit_rig(apply)
+
+        return _sensor_change(session, sensor, "edit", rig, session.accepted_slots(), None if preview else write)
+
+
+def remove_sensor(session: Session, sensor: str, *, preview: bool = False) -> SensorChange:
+    """Take a sensor out of the rig: the slots that hold it are emptied (their results stay in the history), the
+    tree is re-fitted without its edges and its captures are moved aside, restorable (:func:`restore_sensor`).
+    A sensor other frames hang from is refused, naming them. ``preview``: only say what would move."""
+    with session.lock:
+        accepted = session.accepted_slots()
+        emptied = slots_involving(sensor, accepted, {r: session.result(r) for r in accepted.values()})
+        rig = copy.deepcopy(session.rig)
+        rig.remove(sensor)
+        return _sensor_change(session, sensor, "remove", rig,
+                              {s: r for s, r in accepted.items() if s not in emptied},
+                              None if preview else lambda fitted: session.remove_sensor(sensor, emptied, fitted),
+                              emptied=emptied)
+
+
+def restore_sensor(session: Session, removal_id: str, *, preview: bool = False) -> SensorChange:
+    """Put a removed sensor back with its captures, and make current again each slot it emptied whose frames are
+    all in the rig and which nothing else has filled since (the others are named in ``not_restored``)."""
+    with session.lock:
+        removal = session.restorable(removal_id)
+        rig = copy.deepcopy(session.rig)
+        rig.add(frame_from_model(removal.frame))
+        accepted = session.accepted_slots()
+        restored, not_restored = [], {}
+        for slot, result_id in removal.slots.items():
+            missing = frames_missing(session.result(result_id), rig)
+            if slot in accepted:
+                not_restored[slot] = f"{accepted[slot]} has been accepted for it since"
+            elif missing:
+                not_restored[slot] = f"the rig no longer holds {', '.join(missing)}"
+            else:
+                restored.append(slot)
+        return _sensor_change(session, removal.sensor, "restore", rig,
+                              accepted | {slot: removal.slots[slot] for slot in restored},
+                              None if preview else lambda fitted: session.restore_sensor(removal_id, restored, fitted),
+                              restored=restored, not_restored=not_restored, removal=removal.model_dump(mode="json"))
