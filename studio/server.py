@@ -78,14 +78,14 @@ def serve(args: argparse.Namespace) -> int:
         mount_viewer_proxy(app, viewer_port, token, viewer_secret)
     host = f"[{args.host}]" if ":" in args.host else args.host
     studio = StudioApp(viewer, store, jobs, api_url=f"http://{host}:{args.port}" if token is None else "")
+    print(studio_url, flush=True)  # the first line a user sees (stdout), before any log line (stderr)
+    _log(f"API and docs: http://{args.host}:{args.port}/docs")
     nodes = None
     if args.command == "demo" and args.rig == "depth-cell":
         nodes = _start_depth_cell(args, store, jobs, studio)
     elif args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
         _log(f"preparing the demo session in {store.root}/demo ...")
         studio.session_step.open_when_built(start_demo_build(store, jobs, fresh=args.fresh))
-    print(studio_url, flush=True)
-    _log(f"API and docs: http://{args.host}:{args.port}/docs")
     logging.getLogger("uvicorn.error").setLevel(logging.WARNING)
     try:
         uvicorn.run(app, host=args.host, port=args.port, log_level="warning", ws_max_size=MAX_MESSAGE_BYTES,

@@ -48,6 +48,10 @@ class SensorCreate(FiniteModel):
         "null: unknown, only calibrations place the sensor")
     device: FiniteTree = Field(default_factory=dict, examples=[{"driver": "uvc", "device": 0, "width": 1280,
                                                                      "height": 720}])
+    connected: bool = Field(True, description="false: add as not connected (the rig defined before the hardware is "
+                            "plugged in): the device is not opened now, and the sensor is listed as not connected "
+                            "until it answers; true: the device is opened first, and one that does not answer is "
+                            "refused (422 naming 'device')")
 
 
 MountSigma = tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]]

@@ -21,8 +21,8 @@ import contextlib
 import functools
 import hmac
 import http
+import os
 import secrets
-import sys
 import threading
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -100,6 +100,7 @@ def _checked_serve(check: Check) -> Iterator[None]:
 
 def start_viewer(host: str, port: int, check: Check) -> viser.ViserServer:
     """A started ``ViserServer`` on ``host:port`` (the next free port if taken) that answers only what ``check``
-    lets through; viser's banner goes to stderr."""
-    with _checked_serve(check), contextlib.redirect_stdout(sys.stderr):
+    lets through. viser's banner is not printed: it names the viewer's own address, which behind the token proxy is
+    not the one to open, and the studio's URL must be the first line a user sees."""
+    with _checked_serve(check), open(os.devnull, "w") as devnull, contextlib.redirect_stdout(devnull):
         return viser.ViserServer(host=host, port=port, verbose=False)

@@ -100,6 +100,11 @@ class BoardSpec:
         c, r = self.corner_grid
         return c * r
 
+    @property
+    def n_squares(self) -> int:
+        """Squares of the printed board, the outer ones included (a ChArUco board's white ones hold its markers)."""
+        return (self.cols + 1) * (self.rows + 1) if self.kind == "checkerboard" else self.cols * self.rows
+
     @cached_property
     def object_points(self) -> np.ndarray:
         """(N, 3) float32 inner-corner positions in the board frame (m), row-major ids."""

@@ -49,5 +49,7 @@ MAX_CLOUD_UPLOAD_MB = Limit("CALIB_MAX_CLOUD_UPLOAD_MB", 2000, "MB", "a cloud up
 """Largest request (all its files) that uploads point clouds (alone or in an image + cloud pair)."""
 MAX_CLOUD_POINTS = Limit("CALIB_MAX_CLOUD_POINTS", 50_000_000, "points", "a point cloud")
 """Most points read from one cloud file; checked on the count its header declares where it has one."""
+MAX_TARGET_SQUARES = Limit("CALIB_MAX_TARGET_SQUARES", 10_000, "squares", "a printable target")
+"""Most squares (a ChArUco board's each hold a marker or none) drawn into one target PDF; checked from the spec."""
 
 BYTES_PER_MB = 1_000_000

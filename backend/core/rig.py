@@ -59,6 +59,9 @@ class Frame:
     mount_sigma: tuple[float, float] | None = DEFAULT_MOUNT_SIGMA
     """1-sigma of the mounting guess: translation (m, per axis), rotation (deg, per axis); None when the mounting
     is unknown (then only calibrations place the frame)."""
+    not_connected: bool = False
+    """Added as not connected (the rig defined before the hardware is plugged in): its device has not answered
+    since; the first time it does, this goes back to False."""
 
     def __post_init__(self) -> None:
         """Shape the arrays; a NaN or infinity in the transform or covariance raises :class:`InputError`."""

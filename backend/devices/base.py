@@ -90,6 +90,15 @@ class CaptureDevice(abc.ABC):
         """A short human name for status lines, e.g. ``"uvc /dev/video0 1280x720"``."""
         return self.driver
 
+    def probe(self) -> None:
+        """Check that the device answers, as a sensor is added: open it and close it again (a driver whose open is
+        slow or has side effects may override this with a cheaper check). Raises :class:`DeviceError` saying why
+        it does not."""
+        try:
+            self.open()
+        finally:
+            self.close()
+
     def __enter__(self) -> CaptureDevice:
         self.open()
         return self
@@ -122,13 +131,28 @@ def driver_names() -> list[str]:
     return sorted(_DRIVERS)
 
 
-def check_settings(settings: dict[str, Any]) -> None:
-    """Refuse (:class:`InputError` naming ``device``) settings no driver takes: an unknown driver, or options its
-    driver does not have or lacks. The device is built, not opened."""
+def check_settings(settings: dict[str, Any]) -> CaptureDevice:
+    """The device ``settings`` describe, built and not opened; settings no driver takes (an unknown driver, options
+    its driver does not have or lacks) are refused with an :class:`InputError` naming ``device``."""
     try:
-        create_device(settings)
+        return create_device(settings)
     except DeviceError as exc:
         raise InputError(f"device {exc.device}: {exc.message}", "device") from None
+
+
+def check_device(settings: dict[str, Any]) -> None:
+    """:func:`check_settings`, then the device is opened and closed (:meth:`CaptureDevice.probe`): one that does
+    not answer (a camera index with no camera, a serial port that is not there, a UDP port that is taken, a missing
+    folder or topic) is refused with an :class:`InputError` naming ``device`` and saying why."""
+    device = check_settings(settings)
+    try:
+        device.probe()
+    except DeviceError as exc:
+        raise InputError(f"device {exc.device}: {exc.message}", "device") from None
+    except InputError as exc:  # a recording's own check (a bag without the topic)
+        raise InputError(f"device {device.describe()}: {exc.message}", "device", exc.status_code) from None
+    except OSError as exc:  # a driver's own file or port error that it did not word itself
+        raise InputError(f"device {device.describe()}: {exc.strerror or exc}", "device") from None
 
 
 def create_device(settings: dict[str, Any]) -> CaptureDevice:

@@ -21,6 +21,7 @@ import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError, shorten
+from backend.core.limits import MAX_TARGET_SQUARES
 
 Paper = Literal["auto", "a4", "letter", "a3", "a2", "a1", "a0"]
 PAPERS_MM: dict[str, tuple[float, float]] = {"a4": (210.0, 297.0), "letter": (215.9, 279.4), "a3": (297.0, 420.0),
@@ -72,8 +73,12 @@ class TargetSheet:
 def board_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM) -> TargetSheet:
     """The board ``spec`` on one sheet of ``paper`` (``auto``: the first of :data:`PAPERS_MM` it fits) with white
     margins of ``margin_mm`` (mm). :class:`InputError` for a bad spec, paper or margin, and for a board that does not
-    fit the paper (naming the sheet it needs and a paper it fits, if any). The CLI, the API and the studio call this."""
+    fit the paper (naming the sheet it needs and a paper it fits, if any), and, before any drawing, one of more than
+    :data:`~backend.core.limits.MAX_TARGET_SQUARES` squares. The CLI, the API and the studio call this."""
     board = BoardSpec.parse(spec)
+    if board.n_squares > MAX_TARGET_SQUARES.value():
+        raise InputError(f"board {shorten(spec)} has {board.n_squares:,} squares, more than "
+                         f"{MAX_TARGET_SQUARES.describe()}: nothing was drawn", "board")
     layout = sheet_layout(board, paper, margin_mm)
     return TargetSheet(target_filename(board), layout, render_sheet(board, layout))
 

@@ -94,6 +94,7 @@ class SensorStream(abc.ABC):
             self.status(f"{self.sensor}: the device could not be opened: {shorten(exc)}", True)
             return
         self._device = device
+        self.session.device_answered(self.sensor)
         self.device_name = device.describe()
         self.status(f"{self.sensor}: live from {self.device_name}", False)
         last = time.perf_counter()

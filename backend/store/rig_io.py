@@ -22,6 +22,7 @@ def _frame_fields(f: Frame) -> dict[str, Any]:
         "device": f.device,
         "T_mount": f.T_mount.tolist(),
         "mount_sigma": f.mount_sigma,
+        "not_connected": f.not_connected,
     }
 
 
@@ -42,6 +43,7 @@ def frame_from_model(f: FrameModel) -> Frame:
         device=f.device,
         T_mount=None if f.T_mount is None else np.array(f.T_mount),
         mount_sigma=f.mount_sigma,
+        not_connected=f.not_connected,
     )
 
 

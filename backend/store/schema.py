@@ -66,6 +66,7 @@ class FrameModel(FiniteModel):
                                                "the T_parent_child the frame was made with")
     mount_sigma: tuple[float, float] | None = Field(DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting "
                                                      "guess: m, deg; null when the mounting is unknown")
+    not_connected: bool = Field(False, description="added as not connected; its device has not answered since")
 
     @field_validator("T_parent_child", "T_mount")
     @classmethod

@@ -81,8 +81,8 @@ def _field_problem(error: ValidationError) -> str:
     return f"field '{field}': {first['msg']}"
 
 
-def _validation_message(path: Path, error: ValidationError) -> str:
-    return f"{path}: {_field_problem(error)}"
+def _validation_message(shown: str, error: ValidationError) -> str:
+    return f"{shown}: {_field_problem(error)}"
 
 
 def check_file_name(name: str) -> str:
@@ -119,44 +119,49 @@ def read_bounded_npy(handle: Any, what: str, max_elements: int) -> np.ndarray:
 class Session:
     """An open session. Methods are thread-safe; the studio and the API share instances."""
 
-    def __init__(self, path: Path, data: SessionFile):
+    def __init__(self, path: Path, data: SessionFile, label: str | None = None):
         self.path = path
+        self.label = str(path) if label is None else label
+        """How messages name the session folder: the path a command was given, or the session's name for a server
+        (whose messages never show where its sessions are kept)."""
         self._data = data
         self.rig: Rig = rig_from_model(data.rig)
         self.lock = threading.RLock()
 
     # -- the session file -------------------------------------------------------------
     @classmethod
-    def load(cls, path: Path) -> Session:
-        """Open a session folder, validating its schema and saying what is wrong."""
-        file = path / SESSION_FILE
+    def load(cls, path: Path, label: str | None = None) -> Session:
+        """Open a session folder, validating its schema and saying what is wrong (naming the folder as ``label``
+        says, by default its path)."""
+        label = str(path) if label is None else label
+        file, shown = path / SESSION_FILE, f"{label}/{SESSION_FILE}"
         try:
             raw = json.loads(file.read_text())
         except FileNotFoundError:
-            raise NotFoundError(f"no session at {path} (missing {SESSION_FILE})", str(path)) from None
+            raise NotFoundError(f"no session at {label} (missing {SESSION_FILE})", label) from None
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{file}: not valid JSON ({exc}); the file is corrupt", str(file)) from None
+            raise InputError(f"{shown}: not valid JSON ({exc}); the file is corrupt", shown) from None
         except OSError as exc:
-            raise InputError(f"{file}: cannot read the file ({exc.strerror or exc})", str(file)) from None
+            raise InputError(f"{shown}: cannot read the file ({exc.strerror or exc})", shown) from None
         version = raw.get("schema_version") if isinstance(raw, dict) else None
         if version != SCHEMA_VERSION:
-            raise InputError(f"{file}: field 'schema_version' is {version!r}, expected {SCHEMA_VERSION}", str(file))
+            raise InputError(f"{shown}: field 'schema_version' is {version!r}, expected {SCHEMA_VERSION}", shown)
         try:
-            session = cls(path, SessionFile.model_validate(raw))
+            session = cls(path, SessionFile.model_validate(raw), label)
         except ValidationError as exc:
-            raise InputError(_validation_message(file, exc), str(file)) from None
+            raise InputError(_validation_message(shown, exc), shown) from None
         except InputError as exc:  # a rig that is valid JSON but not a tree (an unknown parent, a repeated name)
-            raise InputError(f"{file}: {exc.message}", str(file)) from None
+            raise InputError(f"{shown}: {exc.message}", shown) from None
         session._settle_removals()
         return session
 
     @classmethod
     def create(cls, path: Path, name: str, rig: Rig | None = None, board: str | None = None,
-               title: str = "") -> Session:
+               title: str = "", label: str | None = None) -> Session:
         data = SessionFile(schema_version=SCHEMA_VERSION, name=name, title=title, created=time.time(),
                            board=board, rig=rig_to_model(rig or Rig()))
         path.mkdir(parents=True, exist_ok=False)
-        session = cls(path, data)
+        session = cls(path, data, label)
         session.save()
         return session
 
@@ -166,8 +171,8 @@ class Session:
             try:
                 self._data.rig = rig_to_model(self.rig)
             except ValidationError as exc:  # e.g. intrinsics holding a NaN: refused rather than written
-                raise InputError(f"not saved: {_validation_message(self.path / SESSION_FILE, exc)}",
-                                 str(self.path / SESSION_FILE)) from None
+                raise InputError(f"not saved: {_validation_message(self.shown(self.path / SESSION_FILE), exc)}",
+                                 self.shown(self.path / SESSION_FILE)) from None
             write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
 
     @contextlib.contextmanager
@@ -242,9 +247,13 @@ class Session:
             target, number = base.with_name(f"{base.name}.{number}"), number + 1
         return target
 
+    def shown(self, file: Path) -> str:
+        """``file`` (in the session folder) as messages name it: ``<label>/<path in the session>``."""
+        return f"{self.label}/{file.relative_to(self.path)}"
+
     def _broken_error(self, broken: Path, reason: str) -> InputError:
-        return InputError(f"{broken}: {reason}; the file is broken and was moved to "
-                          f"{self.path / QUARANTINE / broken.relative_to(self.path)}", str(broken))
+        return InputError(f"{self.shown(broken)}: {reason}; the file is broken and was moved to "
+                          f"{self.shown(self.path / QUARANTINE / broken.relative_to(self.path))}", self.shown(broken))
 
     def _quarantined_error(self, file: Path) -> InputError | None:
         """The 422 for ``file``'s item if it was quarantined earlier, or None if it never was."""
@@ -280,6 +289,14 @@ class Session:
         """Replace a sensor's capture-device settings (a driver name and its options)."""
         with self._change():
             self.rig.get(sensor).device = copy.deepcopy(device)
+
+    def device_answered(self, sensor: str) -> None:
+        """The sensor's device answered (a stream opened it): one added as not connected is connected now."""
+        with self.lock:
+            frame = self.rig.frames.get(sensor)  # None if it was removed while its stream opened
+            if frame is not None and frame.not_connected:
+                with self._change():
+                    frame.not_connected = False
 
     def edit_rig(self, apply: Callable[[Rig], None]) -> None:
         """Change the rig with ``apply(rig)`` in one saved change; if it raises, nothing changes."""
@@ -647,13 +664,14 @@ class Session:
         return list(self._data.acceptance_log)
 
     def accept(self, slot: str, result_id: str, apply: Callable[[Rig, dict[str, Any]], None],
-               confirm: bool = False, revert: Sequence[str] = ()) -> None:
+               confirm: bool = False, revert: Sequence[str] = ()) -> bool:
         """Make ``result_id`` current for ``slot`` and empty the slots in ``revert`` in one change; then
         ``apply(rig, record)`` writes it into the rig (it sees the slots as they now are).
 
         The result's verdict decides (:mod:`backend.core.verdict`): a ``reject`` is refused, a ``check``
         is taken only with ``confirm`` (the user saw its reasons), and the log records the verdict and the
-        confirmation. Accepting an older result is how a user reverts; the log keeps every step.
+        confirmation. Accepting an older result is how a user reverts; the log keeps every step. Accepting the
+        result the slot already holds (two clicks, two tabs) changes nothing and logs nothing: False.
         """
         record = self.result(result_id)
         verdict = Verdict.from_record(record)
@@ -664,15 +682,19 @@ class Session:
         if verdict.level == "check" and not confirm:
             raise InputError(f"result {result_id} was judged 'check' ({reasons}); confirm to accept it as it is",
                              "confirm", 409)
-        with self._change():
-            now = time.time()
-            for other in revert:
-                self._empty(other, now)
-            self._data.accepted[slot] = result_id
-            self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=now,
-                                                        verdict=verdict.level,
-                                                        confirmed=verdict.level == "check"))
-            apply(self.rig, record)
+        with self.lock:
+            if self._data.accepted.get(slot) == result_id and not revert:
+                return False
+            with self._change():
+                now = time.time()
+                for other in revert:
+                    self._empty(other, now)
+                self._data.accepted[slot] = result_id
+                self._data.acceptance_log.append(Acceptance(slot=slot, result_id=result_id, at=now,
+                                                            verdict=verdict.level,
+                                                            confirmed=verdict.level == "check"))
+                apply(self.rig, record)
+        return True
 
     def revert(self, slot: str, apply: Callable[[Rig], None]) -> None:
         """Empty ``slot`` (its result stays in the history) and let ``apply(rig)`` bring the rig up to date."""
@@ -716,14 +738,14 @@ class SessionStore:
         check_name(name, "session")
         with self._lock:
             if name not in self._open:
-                self._open[name] = Session.load(self.root / name)
+                self._open[name] = Session.load(self.root / name, label=name)
             return self._open[name]
 
     def create(self, name: str, rig: Rig | None = None, board: str | None = None, title: str = "") -> Session:
         check_name(name, "session")
         with self._lock:
             if (self.root / name).exists():
-                raise InputError(f"a session named {name!r} already exists in {self.root}", "name", 409)
-            session = Session.create(self.root / name, name, rig, board, title)
+                raise InputError(f"a session named {name!r} already exists", "name", 409)
+            session = Session.create(self.root / name, name, rig, board, title, label=name)
             self._open[name] = session
             return session

@@ -232,6 +232,9 @@ class SensorsStep:
             self.scanner_port = gui.add_text("Scanner port", initial_value="", visible=False,
                                              hint="serial port of the 2D scanner the servo turns")
             self.size = gui.add_vector2("Resolution (px)", initial_value=(1280, 720), step=1)
+            self.not_connected = gui.add_checkbox(
+                "Add as not connected", initial_value=False, hint="define the rig before the hardware is plugged in: "
+                "the device is not opened now, and the sensor is listed as not connected until it answers")
             self.add_button = gui.add_button("Add sensor")
             self.preview_button = gui.add_button("Preview change", visible=False,
                                                  hint="what the change above would empty and move; nothing is written")
@@ -325,7 +328,8 @@ class SensorsStep:
             form = self._device_form()
             device = {} if form is None else form.settings()
             rig_service.add_sensor(session, Frame(self.name.value.strip(), self.parent.value, self._pose(),
-                                                  kind=self.kind.value, device=device, mount_sigma=self._sigma()))
+                                                  kind=self.kind.value, device=device, mount_sigma=self._sigma()),
+                                   connected=not self.not_connected.value)
         except InputError as exc:
             self.ctx.notify("Cannot add sensor", exc.one_line().removeprefix("error: "), error=True)
             return
@@ -341,7 +345,7 @@ class SensorsStep:
         self._pending = None
         self.change.visible = self.apply_button.visible = self.confirm_remove_button.visible = False
         self.name.disabled = self.kind.disabled = editing
-        self.add_button.visible = not editing
+        self.add_button.visible = self.not_connected.visible = not editing
         self.preview_button.visible = self.remove_button.visible = editing
         if not editing:
             self._loaded = None
@@ -462,7 +466,8 @@ class SensorsStep:
     def _show(self, session: Session) -> None:
         self.parent.options = list(session.rig.frames)
         lines = [f"- `{f.name}` ({f.kind}) under `{f.parent}`"
-                 f"{' · ' + f.device.get('driver', '') if f.device else ''} · {_mount_text(f.mount_sigma)}"
+                 f"{' · ' + f.device.get('driver', '') if f.device else ''}"
+                 f"{' · **not connected**' if f.not_connected else ''} · {_mount_text(f.mount_sigma)}"
                  for f in session.rig.sensors()]
         self.listing.content = "\n".join(lines) or "No sensors yet."
         names = [f.name for f in session.rig.frames.values() if f.parent is not None]

@@ -33,8 +33,10 @@ WRONG_NAMES = ["nope", "..", "a" * 300, "x\x00y", "%2e%2e"]
 class Walk:
     """A demo session with results of two kinds, and the values a route's parameters take from it."""
 
-    def __init__(self, client: TestClient):
+    def __init__(self, client: TestClient, root: Path):
         self.client = client
+        self.root = root
+        """The sessions folder, which no answer may name."""
         session = client.get("/api/sessions/demo").json()
         self.sensors: list[str] = session["sensors"]
         manual = client.post("/api/sessions/demo/lidar-camera/manual", json={
@@ -164,8 +166,9 @@ class Multipart:
     data: dict[str, Any]
 
 
-def _problem(response: httpx.Response, want_4xx: bool) -> str | None:
-    """What is wrong with an answer: a 5xx, a 2xx where a 4xx was due, or a 4xx without the JSON error body."""
+def _problem(response: httpx.Response, want_4xx: bool, private: str) -> str | None:
+    """What is wrong with an answer: a 5xx, a 2xx where a 4xx was due, a 4xx without the JSON error body, or one
+    naming the ``private`` path (where the server keeps its sessions)."""
     if response.status_code >= 500:
         return f"{response.status_code}: {response.text[:300]}"
     if want_4xx and not 400 <= response.status_code < 500:
@@ -177,6 +180,8 @@ def _problem(response: httpx.Response, want_4xx: bool) -> str | None:
             return f"{response.status_code} without the JSON error body: {response.text[:200]}"
         if set(error) != {"message", "input"} or not error["message"]:
             return f"{response.status_code} with a malformed error body: {error}"
+        if private in response.text:
+            return f"{response.status_code} naming the server's sessions folder: {error}"
     return None
 
 
@@ -284,7 +289,7 @@ def walk(demo_template: Path, tmp_path_factory: pytest.TempPathFactory) -> Itera
     sessions = fresh_demo(demo_template, tmp_path_factory.mktemp("walk") / "sessions")
     app = create_app(sessions)
     with TestClient(app, raise_server_exceptions=False) as client:
-        yield Walk(client)
+        yield Walk(client, sessions.resolve())
     app.state.studio.jobs.shutdown()
 
 
@@ -310,7 +315,7 @@ def test_route_answers_4xx_never_500(walk: Walk, op: Operation) -> None:
                 if status["state"] != "failed" or not status["error"]:
                     problems.append(f"{label}: 202 and a job that ended {status['state']} ({status['error']})")
                 continue
-        if (problem := _problem(response, want_4xx)) is not None:
+        if (problem := _problem(response, want_4xx, str(walk.root))) is not None:
             problems.append(f"{label}: {problem}")
     assert not problems, "\n".join(problems)
 

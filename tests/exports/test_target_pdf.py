@@ -21,6 +21,7 @@ from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.exports.target_pdf import PAPERS_MM, board_sheet
 from studio import cli
+from tests.conftest import cli_in_process
 
 DPI = 150
 MM_PER_PX = 25.4 / DPI
@@ -203,3 +204,19 @@ def test_api_serves_the_sheet(tmp_path: Path) -> None:
             answer = client.get("/api/targets/pdf", params=params)
             assert answer.status_code == status, (params, answer.text)
             assert answer.json()["error"]["input"] == input_name, (params, answer.json())
+
+
+def test_a_board_of_too_many_squares_is_refused_from_its_spec(tmp_path: Path) -> None:
+    """A 2000 x 2000 board of 0.1 mm squares fits a sheet (20 cm) but would draw four million squares: the CLI and
+    the API refuse it from the spec, naming the limit, and no file is written."""
+    out = tmp_path / "t.pdf"
+    run = cli_in_process("target", "checkerboard:2000x2000:0.0001", "--out", out)
+    assert run.returncode == 2 and not out.exists()
+    assert run.stderr.strip().splitlines()[-1] == (
+        "error: board 'checkerboard:2000x2000:0.0001' has 4,004,001 squares, more than the 10,000 squares limit "
+        "on a printable target (CALIB_MAX_TARGET_SQUARES): nothing was drawn")
+    with TestClient(create_app(tmp_path)) as client:
+        answer = client.get("/api/targets/pdf", params={"board": "checkerboard:200x100:0.001"})
+    assert answer.status_code == 422 and answer.json()["error"]["input"] == "board"
+    assert "20,301 squares" in answer.json()["error"]["message"]
+    assert BoardSpec.parse("checkerboard:99x99:0.002").n_squares == 10_000  # the largest that is drawn

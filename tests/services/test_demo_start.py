@@ -37,6 +37,8 @@ def test_the_page_serves_while_the_demo_is_built_then_opens_it(browser: Browser,
         url = process.stdout.readline().strip()
         assert url == f"http://127.0.0.1:{viewer_port}/"  # still the first line, before the demo exists
         wait_health(base, process, lambda: log.read_text()[-2000:], timeout_s=120)
+        # in a terminal stderr shows too: the URL comes first there as well, with no banner before it
+        assert log.read_text().splitlines()[0] == f"API and docs: http://127.0.0.1:{api_port}/docs"
         assert DEMO_NAME not in _names(base)  # serving already; the demo is still being built
         with studio_page(browser, url, VIEWPORT) as page:
             progress = page.get_by_text(re.compile(r"Preparing the demo session … \d+ %"))

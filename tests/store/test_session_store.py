@@ -320,3 +320,18 @@ def test_a_removal_a_crash_interrupted_is_finished_when_the_session_opens(tmp_pa
     os.replace(live, aside)  # died after the restore was written, before the folder came back
     again = Session.load(tmp_path / "s")
     assert [c.id for c in again.captures("cam")] == [capture.id]
+
+
+def test_two_accepts_of_one_result_at_once_record_one(session: Session):
+    """Two tabs (or a double click) accept the same result together: both answer, one accept is logged."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    result_id = session.add_result("cam", camera_record(500.0), inputs=[])
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        updates = list(pool.map(lambda _: rig_service.accept(session, result_id), range(2)))
+    assert [u.result_id for u in updates] == [result_id, result_id]
+    assert [(e.slot, e.result_id) for e in session.acceptance_log] == [("cam/intrinsics", result_id)]
+    other = session.add_result("cam", camera_record(510.0), inputs=[])
+    rig_service.accept(session, other)
+    rig_service.accept(session, result_id)  # going back to it is a new accept
+    assert [e.result_id for e in session.acceptance_log] == [result_id, other, result_id]

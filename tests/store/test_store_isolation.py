@@ -90,12 +90,12 @@ def test_broken_sessions_are_listed_and_the_others_open(tmp_path: Path, client_f
     for good in ("alpha", "zulu"):
         assert listing[good]["broken"] is None and listing[good]["sensors"] == ["cam"]
     assert "not valid JSON" in listing["mangled"]["broken"]["message"]
-    assert listing["mangled"]["broken"]["input"] == str(mangled)
+    assert listing["mangled"]["broken"]["input"] == "mangled/session.json"  # never where the server keeps it
     reason = listing["nanrig"]["broken"]["message"]
     assert "rig.frames.1.T_parent_child.0.3" in reason and "finite" in reason, reason
 
     assert client.get("/api/sessions/alpha").json()["sensors"] == ["cam"]
-    assert_error(client.get("/api/sessions/mangled"), 422, names=str(mangled))
+    assert_error(client.get("/api/sessions/mangled"), 422, names="mangled/session.json")
     assert_error(client.get("/api/sessions/nanrig"), 422, names="T_parent_child")
     # a broken session file stays where it is, as it was, for the user to repair
     for name, data in before.items():
@@ -156,7 +156,8 @@ def test_corrupt_result_is_quarantined_and_reported_by_name(tmp_path: Path, clie
     base = "/api/sessions/rig"
     error = assert_error(client.post(f"{base}/sensors/cam/intrinsics/accept", json={"result_id": broken_id}), 422,
                          names=f"{broken_id}.json")
-    assert "not valid JSON" in error["message"] and error["input"] == str(broken)
+    assert "not valid JSON" in error["message"] and error["input"] == f"rig/results/{broken_id}.json"
+    assert str(tmp_path) not in error["message"]
 
     # quarantined with its files and a note, never deleted
     quarantined = session.path / "quarantine" / "results"
@@ -231,7 +232,8 @@ def test_truncated_cloud_is_quarantined_and_reported_by_name(tmp_path: Path, cli
     client = client_for(tmp_path)
     error = assert_error(client.post("/api/sessions/car/lidar-lidar/solve", json={"source": "front", "target": "top"}),
                          422, names="00001.npy")
-    assert error["input"] == str(cloud) and "truncated" in error["message"]
+    assert error["input"] == "car/captures/front/00001.npy" and "truncated" in error["message"]
+    assert "car/quarantine/captures/front/00001.npy" in error["message"]
     quarantined = session.path / "quarantine" / "captures" / "front"
     assert (quarantined / "00001.npy").read_bytes() == data and (quarantined / "00001.json").is_file()
     assert not cloud.exists() and not (folder / "00001.json").exists()

@@ -48,7 +48,7 @@ def get_rig(session: deps.SessionDep) -> dict[str, Any]:
 def add_sensor(body: SensorCreate, session: deps.SessionDep) -> dict[str, Any]:
     T = body.pose.matrix()
     rig_service.add_sensor(session, Frame(body.name, body.parent, T, kind=body.kind, device=body.device,
-                                          mount_sigma=body.mount_sigma))
+                                          mount_sigma=body.mount_sigma), connected=body.connected)
     return session.info()
 
 

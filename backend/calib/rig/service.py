@@ -37,7 +37,7 @@ from backend.core.result import EDGE_KINDS, StoredResult, TransformResult
 from backend.core.rig import Frame, Rig, edge_slot
 from backend.core.transforms import params_between
 from backend.core.uncertainty import sigmas
-from backend.devices.base import check_settings
+from backend.devices.base import check_device, check_settings
 from backend.store.rig_io import frame_from_model
 from backend.store.session import Session
 
@@ -231,7 +231,8 @@ def accept(session: Session, result_id: str, *, confirm: bool = False, revert: S
             after.append(_fit(session, session.accepted_slots(), rig))
             _write_tree(rig, after[0])
 
-        session.accept(slot, result_id, apply, confirm, revert)
+        if not session.accept(slot, result_id, apply, confirm, revert):
+            after.append(before)  # the slot held it already: nothing moves
     return RigUpdate(after[0], _moves(before, after[0]), result_id, slot)
 
 
@@ -298,18 +299,25 @@ def _sensor_change(session: Session, sensor: str, action: str, rig: Rig, accepte
                         **({"emptied": [], "restored": [], "not_restored": {}, "removal": None} | details))
 
 
-def add_sensor(session: Session, frame: Frame) -> Frame:
-    """Add a sensor (or a plain frame) to the rig; settings no capture driver takes are refused, naming ``device``."""
+def add_sensor(session: Session, frame: Frame, *, connected: bool = True) -> Frame:
+    """Add a sensor (or a plain frame) to the rig. Its device is opened first, and one that does not answer is
+    refused naming ``device`` and why; ``connected=False`` adds it as not connected (the rig defined before the
+    hardware is plugged in): only its settings are checked, and it is listed as not connected until it answers."""
     if frame.device:
-        check_settings(frame.device)
+        if connected:
+            check_device(frame.device)
+        else:
+            check_settings(frame.device)
+    frame.not_connected = bool(frame.device) and not connected
     return session.add_sensor(frame)
+
 
 
 def edit_sensor(session: Session, sensor: str, edit: SensorEdit, *, preview: bool = False) -> SensorChange:
     """Change a sensor's mounting guess, parent, mount sigma or device and re-fit the tree (``preview``: only say
     what would move). A new parent without a pose keeps the sensor where it is now."""
     if edit.device is not None:
-        check_settings(edit.device)
+        check_device(edit.device)
     with session.lock:
         rig = copy.deepcopy(session.rig)
         apply_edit(rig, sensor, edit)
