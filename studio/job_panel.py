@@ -10,6 +10,7 @@ from backend.core.result import ProgressCallback
 from backend.services.jobs import Job
 from backend.store.session import Session
 from studio.context import StudioContext
+from studio.marks import WARNING
 
 
 class JobPanel:
@@ -67,5 +68,5 @@ class JobPanel:
         elif job.state == "cancelled":
             self.text.content = "Cancelled; nothing was changed."
         else:
-            self.text.content = f"⚠️ {job.message}"
+            self.text.content = f"{WARNING} {job.message}"
             self.ctx.notify(f"{job.title} failed", job.message, error=True)

@@ -16,10 +16,13 @@ from typing import Any
 import numpy as np
 
 from backend.calib.rig import service as rig_service
+from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.result import StoredResult, TransformResult
-from backend.core.transforms import to_xyz_ypr
+from backend.core.transforms import to_rvec_tvec
+from backend.services.exports import camera_exports
 from studio.context import StudioContext
+from studio.marks import WARNING, mark
 from studio.verdict_view import ConfirmCheck, verdict_markdown
 
 KEEP_BOTH = "(revert nothing)"
@@ -29,13 +32,19 @@ def _values(values: list[float | None], scale: float, digits: int) -> str:
     return ", ".join("n/a" if v is None else f"{scale * v:.{digits}f}" for v in values)
 
 
+def rotation_vector_deg(T: np.ndarray) -> np.ndarray:
+    """The rotation of ``T`` as a rotation vector (deg): its axis times its angle, with the same components in the
+    parent's and the child's axes. Shown instead of yaw, pitch and roll wherever a rotation is read, not typed:
+    a small change reads small at any attitude, where near pitch ±90° yaw and roll turn 0.2° into degrees."""
+    return np.degrees(to_rvec_tvec(T)[0])
+
+
 def transform_markdown(transform: TransformResult) -> str:
-    """``parent → child``: x, y, z (m), yaw, pitch, roll (deg) and the 1-sigma (mm, deg)."""
-    xyz, ypr = to_xyz_ypr(transform.T_parent_child)
-    std = transform.std
-    return (f"**{transform.parent} → {transform.child}**: {', '.join(f'{v:.4f}' for v in xyz)} m · "
-            f"{', '.join(f'{v:.3f}' for v in np.degrees(ypr))}° (yaw, pitch, roll)\n\n"
-            f"1σ: {_values(std['trans_m'], 1000, 2)} mm · {_values(std['rot_deg'], 1, 3)}°")
+    """``parent → child``: x, y, z (m), the rotation vector (deg) and the 1-sigma (mm, deg about x, y, z)."""
+    std, T = transform.std, transform.T_parent_child
+    return (f"**{transform.parent} → {transform.child}**: {', '.join(f'{v:.4f}' for v in T[:3, 3])} m · "
+            f"rotation vector {', '.join(f'{v:.3f}' for v in rotation_vector_deg(T))}°\n\n"
+            f"1σ: {_values(std['trans_m'], 1000, 2)} mm · {_values(std['rot_deg'], 1, 3)}° about x, y, z")
 
 
 def _statistic(key: str, value: Any) -> str | None:
@@ -64,6 +73,15 @@ def _intrinsics_markdown(camera: dict[str, Any]) -> str:
             f"cx {K[0, 2]:.1f}, cy {K[1, 2]:.1f} px · dist [{dist}]")
 
 
+def exports_markdown(name: str, camera: CameraIntrinsics) -> str:
+    """Which exports carry the lens as solved, said with the result rather than found out at export time."""
+    support = camera_exports(name, camera)
+    carried = [fmt for fmt, refusal in support.items() if refusal is None]
+    lines = [f"Exports that carry this lens: {', '.join(carried)}"]
+    lines += [f"- not {fmt}: {refusal}" for fmt, refusal in support.items() if refusal is not None]
+    return "\n".join(lines)
+
+
 def update_markdown(update: rig_service.RigUpdate) -> str:
     """What an accept moves in the rig (each frame against its sigma) and what disagrees (markdown)."""
     lines = []
@@ -73,22 +91,24 @@ def update_markdown(update: rig_service.RigUpdate) -> str:
     if not lines:
         lines.append("- no frame moves")
     for conflict in update.conflicts:
-        lines.append(f"- 🔴 {conflict.edge.label} disagrees with the rest by {conflict.disagreement_sigma:.1f} "
-                     f"sigma (beyond {rig_service.FLAG_SIGMA:g}) and is left out of the tree")
-    lines += [f"- ⚠️ {problem}" for problem in update.tree.problems() if "not connected" in problem]
+        lines.append(f"- {mark('flagged', 'bad')} {conflict.edge.label} disagrees with the rest by "
+                     f"{conflict.disagreement_sigma:.1f} sigma (beyond {rig_service.FLAG_SIGMA:g}) and is left out of "
+                     "the tree")
+    lines += [f"- {WARNING} {problem}" for problem in update.tree.problems() if "not connected" in problem]
     return "\n".join(lines)
 
 
 def card_markdown(record: dict[str, Any], accepted_id: str | None) -> str:
     """The card of any stored result (markdown)."""
     result = StoredResult(record)
-    status = "✅ accepted" if result.id == accepted_id else "not accepted"
-    converged = "" if result.converged else " · ⚠️ **not converged**: it cannot be accepted"
+    status = mark("accepted", "good") if result.id == accepted_id else "not accepted"
+    converged = "" if result.converged else f" · {mark('not converged', 'bad')}: it cannot be accepted"
     method = f" · {result.method}" if result.method else ""
     lines = [f"**{result.id}** ({status}) · {result.kind}{method} · {result.seconds:.2f} s{converged}",
              verdict_markdown(result.verdict)]
     if result.camera is not None:
         lines.append(_intrinsics_markdown(result.camera))
+        lines.append(exports_markdown(record["sensor"], CameraIntrinsics.from_dict(result.camera)))
     if result.rms_px is not None:
         lines.append(f"reprojection RMS **{result.rms_px:.3f} px**")
     for transform in result.transforms:
@@ -97,7 +117,7 @@ def card_markdown(record: dict[str, Any], accepted_id: str | None) -> str:
             lines.append(statistics)
     if not result.transforms and (statistics := residuals_markdown(result.residuals)):
         lines.append(statistics)
-    lines += [f"⚠️ {warning}" for warning in result.warnings]
+    lines += [f"{WARNING} {warning}" for warning in result.warnings]
     return "\n\n".join(lines)
 
 
@@ -115,9 +135,12 @@ class ResultCard:
         self.revert_choice = gui.add_dropdown(
             "If it disagrees", options=[KEEP_BOTH], visible=False,
             hint="keep this result over an accepted one it disagrees with: that one is reverted in the same step")
-        self.accept_button = gui.add_button("Accept", hint="first shows what moves in the rig; click again to apply")
+        self.accept_button = gui.add_button("Accept", hint="shows what accepting would move in the rig; nothing is "
+                                            "written until *Confirm accept*")
         self.preview_text = gui.add_markdown("")
-        self.accept_button.on_click(lambda _: self.accept())
+        self.apply_button = gui.add_button("Confirm accept", visible=False)
+        self.accept_button.on_click(lambda _: self.preview())
+        self.apply_button.on_click(lambda _: self.accept())
         self.record: dict[str, Any] | None = None
         self._previewed: str | None = None
 
@@ -125,21 +148,40 @@ class ResultCard:
         """Show ``record`` (None: nothing yet); ``accepted_id`` is the result its slot holds now."""
         self.record = record
         self._previewed = None
-        self.accept_button.label = "Accept"
+        self.apply_button.visible = False
         self.preview_text.content = ""
         self.revert_choice.visible = False
         self.text.content = self.empty_text if record is None else card_markdown(record, accepted_id)
 
-    def accept(self) -> None:
-        """First click: the preview. Second click (on the same result): accept it, with the chosen revert."""
-        session, record = self.ctx.session, self.record
-        if session is None or record is None:
-            self.ctx.notify("Nothing to accept", "Solve first, or pick a result.", error=True)
+    def preview(self) -> None:
+        """*Accept*: what accepting the shown result would move and what it disagrees with; *Confirm accept* shows
+        unless its verdict refuses it (then the preview says why)."""
+        record = self._current()
+        if record is None:
             return
         try:
-            if self._previewed != record["id"]:
-                self._preview(record["id"])
-                return
+            update = rig_service.preview(self.ctx.session, record["id"])
+        except InputError as exc:
+            self.ctx.notify("Cannot accept", exc.message, error=True)
+            return
+        others = [c.edge.slot for c in update.conflicts if c.edge.slot is not None and c.edge.result_id != record["id"]]
+        self.revert_choice.options = [KEEP_BOTH, *dict.fromkeys(others)]
+        self.revert_choice.value = KEEP_BOTH
+        verdict = StoredResult(record).verdict
+        refused = verdict.level == "reject"
+        self.revert_choice.visible = bool(others) and not refused
+        self._previewed = None if refused else record["id"]
+        self.apply_button.visible = not refused
+        tail = (f"It cannot be accepted: its verdict is reject ({'; '.join(verdict.reasons) or 'no reason given'})."
+                if refused else "Click *Confirm accept* to make it current.")
+        self.preview_text.content = f"**Accepting {record['id']} would:**\n\n{update_markdown(update)}\n\n{tail}"
+
+    def accept(self) -> None:
+        """*Confirm accept*: accept the previewed result, with the chosen revert."""
+        session, record = self.ctx.session, self._current()
+        if session is None or record is None or self._previewed != record["id"]:
+            return
+        try:
             revert = [] if self.revert_choice.value == KEEP_BOTH else [self.revert_choice.value]
             update = rig_service.accept(session, record["id"], confirm=self.confirm.take(), revert=revert)
         except InputError as exc:
@@ -153,13 +195,9 @@ class ResultCard:
         if self.on_accepted is not None:
             self.on_accepted(record["id"])
 
-    def _preview(self, result_id: str) -> None:
-        update = rig_service.preview(self.ctx.session, result_id)
-        others = [c.edge.slot for c in update.conflicts if c.edge.slot is not None and c.edge.result_id != result_id]
-        self.revert_choice.options = [KEEP_BOTH, *dict.fromkeys(others)]
-        self.revert_choice.value = KEEP_BOTH
-        self.revert_choice.visible = bool(others)
-        self._previewed = result_id
-        self.accept_button.label = "Apply accept"
-        self.preview_text.content = (f"**Accepting {result_id} would:**\n\n{update_markdown(update)}\n\n"
-                                     "Click *Apply accept*.")
+    def _current(self) -> dict[str, Any] | None:
+        """The shown record, or None (and a toast) when there is no session or no result."""
+        if self.ctx.session is None or self.record is None:
+            self.ctx.notify("Nothing to accept", "Solve first, or pick a result.", error=True)
+            return None
+        return self.record

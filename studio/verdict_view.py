@@ -10,8 +10,9 @@ from __future__ import annotations
 import viser
 
 from backend.core.verdict import Verdict
+from studio.marks import mark
 
-BADGES = {"trusted": "🟢 **trusted**", "check": "🟡 **check**", "reject": "🔴 **reject**"}
+BADGES = {"trusted": mark("trusted", "good"), "check": mark("check", "warn"), "reject": mark("reject", "bad")}
 ADVICE = {
     "trusted": "",
     "check": "Read the reasons; tick *Confirm the check* to accept it as it is.",

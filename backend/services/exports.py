@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from backend.calib.rig.service import solve_rig
-from backend.core.camera import CameraIntrinsics
+from backend.core.camera import ROS_DISTORTION_NAMES, CameraIntrinsics
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, Rig
 from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS, Convention, ExportFormat
@@ -31,6 +31,14 @@ def accepted_camera(session: Session, sensor: str) -> CameraIntrinsics:
     if frame.intrinsics is None:
         raise InputError(f"{sensor} has no intrinsics yet; solve and accept a calibration first", sensor, 409)
     return frame.intrinsics
+
+
+def camera_exports(name: str, camera: CameraIntrinsics) -> dict[str, str | None]:
+    """Each one-camera export and whether it carries ``camera`` as it is: None if it does, else why not (what to
+    do instead). ``camera_info`` writes ROS's ``plumb_bob`` or ``equidistant``, ``opencv`` any model, and Kalibr's
+    camchain radtan [k1, k2, r1, r2] or equidistant, without a k3 that matters."""
+    return {"camera_info": None if camera.model in ROS_DISTORTION_NAMES else f"ROS has no model for {camera.model}",
+            "opencv": None, "kalibr": kalibr_refusal(name, camera)}
 
 
 def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, *,

@@ -43,6 +43,7 @@ from studio.context import StudioContext
 from studio.depth_view import COUNT_COLOUR_MAX, STEP, DepthView
 from studio.job_panel import JobPanel
 from studio.layers import STEPS
+from studio.marks import WARNING, mark
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
@@ -104,15 +105,16 @@ def nodes_markdown(statuses: list, nodes: list[str], captures: dict[str, int]) -
     for name in dict.fromkeys([*nodes, *by_name]):
         status = by_name.get(name)
         if status is None:
-            rows.append(f"| {name} | ⚪ not seen | – | – | – | – | – | – | {captures.get(name, 0)} |")
+            rows.append(f"| {name} | {mark('not seen', 'muted')} | – | – | – | – | – | – | {captures.get(name, 0)} |")
             continue
         offset = "–" if status.clock_offset_s is None else f"{1000.0 * status.clock_offset_s:+.1f}"
         rtt = "–" if status.clock_rtt_s is None else f"{1000.0 * status.clock_rtt_s:.1f}"
         latency = "–" if status.latency_s is None else f"{1000.0 * status.latency_s:.0f}"
-        rows.append(f"| {name} | {'🟢 alive' if status.alive else '🔴 gone'} | {status.device or '–'} | {offset} | "
+        presence = mark("alive", "good") if status.alive else mark("gone", "bad")
+        rows.append(f"| {name} | {presence} | {status.device or '–'} | {offset} | "
                     f"{rtt} | {status.bandwidth_bps / 1000.0:.0f} | {status.rate_hz:.1f} | {latency} | "
                     f"{captures.get(name, 0)} |")
-        warnings += [f"- ⚠️ {name}: {warning}" for warning in status.warnings]
+        warnings += [f"- {WARNING} {name}: {warning}" for warning in status.warnings]
     return "\n".join(rows + ([""] + warnings if warnings else []))
 
 
@@ -140,8 +142,8 @@ def suggestion_label(suggestion: dict[str, float]) -> str:
 def criterion_markdown(advice: dict[str, Any]) -> str:
     """The step's done criterion with its tick and the problems the solver met (``advice``:
     :func:`backend.calib.depth.guided_service.advice_dict`; why the step comes here is in :data:`INSTRUCTIONS`)."""
-    tick = "✅ **Done**" if advice["done"] else "⬜ **Not yet**"
-    return "\n".join([f"{tick}: {advice['criterion']}", *(f"- ⚠️ {problem}" for problem in advice["problems"])])
+    tick = mark("Done", "good") if advice["done"] else mark("Not yet", "muted")
+    return "\n".join([f"{tick}: {advice['criterion']}", *(f"- {WARNING} {problem}" for problem in advice["problems"])])
 
 
 def verification_markdown(rows: list[dict[str, Any]]) -> str:
@@ -358,7 +360,7 @@ class DepthNetworkStep:
             try:
                 self._show_nodes()
             except Exception as exc:  # noqa: BLE001 - the refresher must survive one bad status and say why
-                self.nodes_text.content = f"⚠️ the node status could not be read: {exc}"
+                self.nodes_text.content = f"{WARNING} the node status could not be read: {exc}"
 
     def _show_nodes(self) -> None:
         """The presence table; *Place tables* shows for a table step when the nodes are simulated."""
@@ -399,7 +401,7 @@ class DepthNetworkStep:
         stored, failures = result
         text = f"Stored {len(stored)} capture(s) ({', '.join(stored) or 'none'}) as *{ARRANGEMENTS[self.step]}*."
         if failures:
-            text += "\n\n" + "\n".join(f"- ⚠️ {node}: {why}" for node, why in failures.items())
+            text += "\n\n" + "\n".join(f"- {WARNING} {node}: {why}" for node, why in failures.items())
             self.ctx.notify("Not every node was captured", "; ".join(f"{n}: {w}" for n, w in failures.items()),
                             error=True)
         self.capture_jobs.text.content = text
@@ -511,9 +513,9 @@ class DepthNetworkStep:
                 with self._lock:
                     self._advise()
             except InputError as exc:
-                self._no_advice(f"⚠️ {exc.message}")
+                self._no_advice(f"{WARNING} {exc.message}")
             except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
-                self.criterion_text.content = f"⚠️ the residuals could not be measured: {exc}"
+                self.criterion_text.content = f"{WARNING} the residuals could not be measured: {exc}"
 
     def _advise(self) -> None:
         session, node, step, T = self.ctx.session, self.current, self.step, self.editor.T
@@ -577,7 +579,7 @@ class DepthNetworkStep:
 
     def _on_network_solved(self, out: dict[str, Any]) -> None:
         lines = [f"Solved {len(out['results'])} node(s), accepted {len(out['accepted'])} into the rig."]
-        lines += [f"- ⚠️ {problem}" for problem in out["problems"]]
+        lines += [f"- {WARNING} {problem}" for problem in out["problems"]]
         self.solve_jobs.text.content = "\n".join(lines)
         self.ctx.rig_changed()  # the card, the tables and the scene follow (on_rig_changed)
 
@@ -626,7 +628,7 @@ class DepthNetworkStep:
             try:
                 self._picked = network_service.pick(self.ctx.session, event.ray_origin, event.ray_direction)
             except InputError as exc:
-                self.pick_text.content = f"⚠️ {exc.message}"
+                self.pick_text.content = f"{WARNING} {exc.message}"
                 return
             self.pick_text.content = (f"Picked **{self._picked['name']}** at "
                                       f"{', '.join(f'{v:.3f}' for v in self._picked['point_m'])} m (world).")

@@ -28,6 +28,7 @@ from backend.store.schema import CaptureRecord
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
+from studio.marks import WARNING, mark
 from studio.result_card import ResultCard
 
 NO_CAMERA = "(no camera)"
@@ -206,7 +207,7 @@ class IntrinsicsStep:
         self._show_coverage(coverage)
 
     def _on_status(self, message: str, error: bool) -> None:
-        self.coverage_text.content = f"{'⚠️ ' if error else ''}{message}\n\n" + self._coverage_summary()
+        self.coverage_text.content = f"{WARNING + ' ' if error else ''}{message}\n\n" + self._coverage_summary()
         if error:
             self.ctx.notify("Capture", message, error=True)
 
@@ -216,7 +217,8 @@ class IntrinsicsStep:
             return "No views yet."
         latest = self.ctx.session.results(self.sensor, "intrinsics")[-1:] if self.sensor else []
         enough, missing = data_enough(self.ctx.session, self.sensor, coverage)
-        state = ("✅ **Enough data** - full coverage and the last solve's projection σ is within tolerance."
+        state = (f"{mark('Enough data', 'good')} - full coverage and the last solve's projection σ is within "
+                 "tolerance."
                  if enough else "Not enough data yet: " + "; ".join(missing) + ".")
         solved = f" (last solve: {latest[0]['id']})" if latest else ""
         return (f"**{len(coverage.params)} views** · {coverage.cells_seen:.0%} of the image seen by corners · "
@@ -323,7 +325,7 @@ def checks_markdown(record: dict) -> str:
         lines.append(f"**Model:** {comparison['reason']}")
         if comparison["candidates"]:
             rows = "\n".join(
-                f"| {c['model']}{' ✅' if c.get('recommended') else ''} | {c['n_dist']} | "
+                f"| {c['model']}{' ' + mark('recommended', 'good') if c.get('recommended') else ''} | {c['n_dist']} | "
                 f"{'—' if c['held_out_rms_px'] is None else format(c['held_out_rms_px'], '.3f')} |"
                 for c in comparison["candidates"])
             lines.append(f"| model | dist coeffs | held-out RMS (px) |\n|---|---|---|\n{rows}")

@@ -43,6 +43,7 @@ from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.marks import WARNING
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
@@ -216,7 +217,7 @@ class LidarCameraStep:
                     self._page_scene = {"scene": "all" if choice == ALL_PAIRS else chosen[0].image.id}
                 self.data_text.content = f"{len(stored)} pair(s) stored · showing {len(chosen)}"
             if session.rig.get(camera).intrinsics is None:
-                self.data_text.content += " · ⚠️ this camera has no intrinsics yet: calibrate it in step 3"
+                self.data_text.content += f" · {WARNING} this camera has no intrinsics yet: calibrate it in step 3"
         self._wake.set()
 
     def _load_latest(self, camera: str, lidar: str) -> None:
@@ -310,7 +311,7 @@ class LidarCameraStep:
                 with self._draw_lock:
                     self._redraw()
             except Exception as exc:  # noqa: BLE001 - the worker must survive one bad input and say why
-                self.status.content = f"⚠️ overlay failed: {exc}"
+                self.status.content = f"{WARNING} overlay failed: {exc}"
 
     @property
     def style(self) -> OverlayStyle:
@@ -332,7 +333,7 @@ class LidarCameraStep:
             drawn, projections, scale = lidar_camera_service.render_scenes(session, camera, lidar, scenes,
                                                                            T_camera_lidar, style)
         except InputError as exc:
-            self.status.content = f"⚠️ {exc.input}: {exc.message}"
+            self.status.content = f"{WARNING} {exc.input}: {exc.message}"
             return
         kept = sum(len(p) for p in projections)
         self.overlay.image = with_legend(mosaic(drawn, OVERLAY_WIDTH_PX), scale)[..., ::-1]
@@ -345,8 +346,8 @@ class LidarCameraStep:
                                + (f" over {len(scenes)} pairs" if len(scenes) > 1 else "")
                                + f" · colours: {scale.label} {scale.lo:.{LEGEND_DIGITS}f}–{scale.hi:.{LEGEND_DIGITS}f}")
         if kept == 0:
-            self.status.content += (" · ⚠️ no point lands in the image: the cloud and the camera do not overlap "
-                                    "with this transform (check the range window and the sliders)")
+            self.status.content += (f" · {WARNING} no point lands in the image: the cloud and the camera do not "
+                                    "overlap with this transform (check the range window and the sliders)")
 
     def _page_url(self, T_camera_lidar: np.ndarray, style: OverlayStyle) -> str:
         """The full-size overlay page of the API on the scene on screen, drawn with ``T_camera_lidar`` and ``style``."""

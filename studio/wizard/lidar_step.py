@@ -38,7 +38,6 @@ from backend.calib.rig import service as rig_service
 from backend.calib.sweep import service as sweep_service
 from backend.core.colour_maps import distance_colours
 from backend.core.errors import InputError
-from backend.core.transforms import to_xyz_ypr
 from backend.plots.lidar_lidar import c2c_histogram
 from backend.plots.render import to_rgb
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
@@ -46,7 +45,8 @@ from studio import cloud_colours as cc
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
-from studio.result_card import ResultCard
+from studio.marks import WARNING, mark
+from studio.result_card import ResultCard, rotation_vector_deg
 from studio.result_history import ResultHistory
 from studio.scene import viser_pose
 from studio.transform_sliders import TransformSliders
@@ -321,7 +321,7 @@ class LidarStep:
                 text += f" ({status})"
             text += wire_faults(thread.latest.meta if thread.latest is not None else {})
             if name in self._errors:
-                text += f" · ⚠️ {self._errors[name]}"
+                text += f" · {WARNING} {self._errors[name]}"
             parts.append(text)
         return " · ".join(parts)
 
@@ -330,7 +330,7 @@ class LidarStep:
             sensor, _, reason = message.partition(": ")
             self._errors[sensor] = reason  # stays on the live line; a notification also says it
             self.ctx.notify("LiDAR", message, error=True)
-            self.live_text.content = f"⚠️ {message}"
+            self.live_text.content = f"{WARNING} {message}"
 
     def _capture(self) -> None:
         session = self.ctx.session
@@ -554,16 +554,17 @@ def scenes_markdown(record: dict) -> str:
         return ""
     rows = []
     for k, scene in enumerate(scenes):
-        xyz, ypr = to_xyz_ypr(np.array(scene["T_target_source"]))
+        T = np.array(scene["T_target_source"])
         pairs = ", ".join(inputs[i].replace(":", " ↔ ") if i < len(inputs) else str(i) for i in scene["pairs"])
         deviation = scene.get("deviation")
         off = "-" if deviation is None else (f"{1000 * np.linalg.norm(deviation['trans_m']):.1f} mm / "
                                              f"{np.linalg.norm(deviation['rot_deg']):.3f}°")
-        agrees = {True: " ✅ agrees", False: " ❌ disagrees", None: ""}[scene.get("agrees")]
-        rows.append(f"- **scene {k + 1}** ({pairs}): {', '.join(f'{v:.3f}' for v in xyz)} m · "
-                    f"{', '.join(f'{v:.2f}' for v in np.degrees(ypr))}° · fitness {scene['fitness']:.3f} · "
+        agrees = {True: " " + mark("agrees", "good"), False: " " + mark("disagrees", "bad"),
+                  None: ""}[scene.get("agrees")]
+        rows.append(f"- **scene {k + 1}** ({pairs}): {', '.join(f'{v:.3f}' for v in T[:3, 3])} m · "
+                    f"{', '.join(f'{v:.2f}' for v in rotation_vector_deg(T))}° · fitness {scene['fitness']:.3f} · "
                     f"off the others {off}{agrees}")
     spread = diagnostics.get("scene_spread")
     spread_text = ("One scene: capture the rig in two more places for a cross-check." if spread is None else
                    f"Spread between scenes: **{1000 * spread['trans_m']:.1f} mm / {spread['rot_deg']:.3f}°**.")
-    return "Scenes (x, y, z · yaw, pitch, roll):\n\n" + "\n".join(rows) + f"\n\n{spread_text}"
+    return "Scenes (x, y, z · rotation vector):\n\n" + "\n".join(rows) + f"\n\n{spread_text}"

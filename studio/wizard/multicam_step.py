@@ -35,6 +35,7 @@ from backend.plots.multicam import covisibility_graph, frame_residual_bars
 from backend.plots.render import to_rgb
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.marks import WARNING
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 
@@ -351,7 +352,7 @@ def stereo_markdown(check: multicam_service.StereoCheck) -> str:
             f"epipolar error RMS {check.epipolar_rms_px:.2f} px, max {check.epipolar_max_px:.2f} px")
     rect = check.rectification
     if rect is None:
-        return f"{line}\n\n⚠️ no rectified preview: {check.no_preview}"
+        return f"{line}\n\n{WARNING} no rectified preview: {check.no_preview}"
     across = "column" if rect.vertical else "row"
     return (f"{line} · rectified {across} offset RMS {check.row_offset_rms_px:.2f} px · baseline "
             f"{1e3 * rect.baseline_m:.1f} mm")

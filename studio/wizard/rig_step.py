@@ -16,17 +16,17 @@ import viser
 from backend.calib.rig import service as rig_service
 from backend.calib.rig.service import FLAG_SIGMA, EdgeResidual, RigTree
 from backend.core.errors import InputError
-from backend.core.transforms import to_xyz_ypr
 from studio.context import StudioContext
-from studio.result_card import update_markdown
+from studio.marks import WARNING, mark
+from studio.result_card import rotation_vector_deg, update_markdown
 from studio.scene import ELLIPSOID_MAX_M
 
 NONE = "(no accepted edge)"
 HELP = ("The rig as one tree: every accepted result is an edge between two frames, the mounting guesses weak "
         "priors; the tree is their least-squares fit. An edge whose residual disagrees with the rest beyond "
-        f"{FLAG_SIGMA:g} sigma is marked 🔴 and left out: revert it, or revert what it disagrees with. 🟢: within "
-        f"{FLAG_SIGMA:g} sigma of the rest (the disagreement column says when no other edge checks it); ⚪: not in "
-        "the fit (it reaches no frame connected to the root).")
+        f"{FLAG_SIGMA:g} sigma is *flagged* and left out: revert it, or revert what it disagrees with. *fits*: within "
+        f"{FLAG_SIGMA:g} sigma of the rest; *unverified*: no other edge checks it (a mounting guess no calibration "
+        "has measured yet); *not in the fit*: it reaches no frame connected to the root.")
 ELLIPSOID_SCALES = {"auto": None, "×1": 1.0, "×10": 10.0, "×100": 100.0, "×1000": 1000.0}
 """How much the sigma ellipsoids are scaled up; *auto* is :func:`auto_scale`."""
 AUTO_TARGET_M = 0.1
@@ -49,22 +49,27 @@ def auto_scale(tree: RigTree) -> float:
 
 
 def frames_markdown(tree: RigTree) -> str:
-    """The fused frames as a table: parent, xyz (m), ypr (deg), 1-sigma in the parent (mm, deg about x, y, z)."""
-    rows = ["| frame | parent | x, y, z (m) | yaw, pitch, roll (°) | σ x, y, z (mm) | σ rot x, y, z (°) |",
+    """The fused frames as a table: parent, xyz (m), rotation vector (deg), 1-sigma in the parent (mm, deg about
+    x, y, z)."""
+    rows = ["| frame | parent | x, y, z (m) | rotation vector (°) | σ x, y, z (mm) | σ rot x, y, z (°) |",
             "|---|---|---|---|---|---|"]
     for name, frame in tree.frames.items():
-        xyz_m, ypr_rad = to_xyz_ypr(frame.T_parent_child)
+        xyz_m = frame.T_parent_child[:3, 3]
         std = frame.std
-        rows.append(f"| {name} | {frame.parent} | {_numbers(xyz_m, '.3f')} | {_numbers(np.degrees(ypr_rad), '.2f')} "
+        rows.append(f"| {name} | {frame.parent} | {_numbers(xyz_m, '.3f')} "
+                    f"| {_numbers(rotation_vector_deg(frame.T_parent_child), '.2f')} "
                     f"| {_numbers(std['trans_m'], '.1f', 1000.0)} | {_numbers(std['rot_deg'], '.2f')} |")
     return "\n".join(rows)
 
 
 def edge_mark(residual: EdgeResidual) -> str:
-    """🔴 flagged (beyond :data:`FLAG_SIGMA` of the rest, left out), 🟢 within it, ⚪ not in the fit."""
+    """*flagged* (beyond :data:`FLAG_SIGMA` of the rest, left out), *fits* (within it), *unverified* (no other edge
+    checks it: never shown as fitting), *not in the fit*."""
     if residual.flagged:
-        return "🔴"
-    return "🟢" if np.isfinite(residual.chi2) else "⚪"
+        return mark("flagged", "bad")
+    if not np.isfinite(residual.chi2):
+        return mark("not in the fit", "muted")
+    return mark("unverified", "warn") if residual.disagreement_sigma is None else mark("fits", "good")
 
 
 def edges_markdown(tree: RigTree) -> str:
@@ -87,7 +92,8 @@ def checks_markdown(tree: RigTree) -> str:
     """The loops with their closure errors, then what the user must look at (flagged edges, unconnected frames)."""
     lines = [f"- loop {' → '.join([*loop.frames, loop.frames[0]])}: closes within {loop.trans_m * 1000:.2f} mm, "
              f"{loop.rot_deg:.3f}°" for loop in tree.loops] or ["- no loop of measured edges yet"]
-    lines += [f"- 🔴 {problem}" if "disagrees" in problem else f"- ⚠️ {problem}" for problem in tree.problems()]
+    lines += [f"- {mark('flagged', 'bad') if 'disagrees' in problem else WARNING} {problem}"
+              for problem in tree.problems()]
     return "**Loops and checks**\n\n" + "\n".join(lines)
 
 

@@ -27,6 +27,7 @@ from backend.core.transforms import from_xyz_ypr, to_xyz_ypr
 from backend.services import recordings
 from backend.store.session import Session
 from studio.context import StudioContext
+from studio.marks import WARNING
 
 CAMERA_KINDS = ("camera",)
 RANGE_KINDS = ("lidar3d", "lidar2d", "depth")
@@ -197,7 +198,7 @@ def change_text(change: dict[str, Any]) -> str:
         ratio = "" if move["sigma_ratio"] is None else f" ({move['sigma_ratio']:.1f}σ)"
         lines.append(f"- `{move['frame']}` {'moved' if change['applied'] else 'would move'} "
                      f"{1000 * move['trans_m']:.1f} mm, {move['rot_deg']:.2f}°{ratio}")
-    lines += [f"- **Look at:** {problem}" for problem in change["problems"]]
+    lines += [f"- {WARNING} {problem}" for problem in change["problems"]]
     return "\n".join(lines) or "Nothing else in the rig moves."
 
 

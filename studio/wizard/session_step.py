@@ -9,6 +9,7 @@ from backend.core.errors import InputError
 from backend.exports.target_pdf import PAPERS_MM, board_sheet
 from backend.services.jobs import Job
 from studio.context import StudioContext
+from studio.marks import WARNING
 
 NEW_SESSION = "(new session)"
 BUILD_POLL_S = 0.5
@@ -109,7 +110,7 @@ class SessionStep:
 
     def _built(self, job: Job) -> None:
         if job.state != "done":
-            self.summary.content = f"⚠️ {job.title.capitalize()} failed: {job.message}"
+            self.summary.content = f"{WARNING} {job.title.capitalize()} failed: {job.message}"
             self.ctx.notify(f"{job.title} failed", job.message, error=True)
         elif self.ctx.session is None:
             self.ctx.open_session(job.result)

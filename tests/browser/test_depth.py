@@ -135,7 +135,7 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         listen.press("Enter")
         button(page, "Listen for nodes").click()
         agents.start({NODE: f"sim-cell:{NODE}"})
-        wait_body(page, re.compile(rf"{NODE}\s+🟢 alive\s+sim-cell:{NODE}"))  # through Zenoh liveliness
+        wait_body(page, re.compile(rf"{NODE}\s+alive\s+sim-cell:{NODE}"))  # through Zenoh liveliness
         page.screenshot(path=ARTIFACTS / "studio_depth_nodes.png")
 
         for label, value in TYPED.items():
@@ -153,8 +153,8 @@ def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, t
         wait_body(page, re.compile(rf"{result_id} \(not accepted\) · depth_node · guided"))
         page.screenshot(path=ARTIFACTS / "studio_depth_result.png")
         page.get_by_role("button", name="Accept", exact=True).filter(visible=True).last.click()
-        page.get_by_role("button", name="Apply accept", exact=True).filter(visible=True).click()
-        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
+        page.get_by_role("button", name="Confirm accept", exact=True).filter(visible=True).click()
+        wait_body(page, re.compile(rf"{result_id} \(accepted\)"))
         page.screenshot(path=ARTIFACTS / "studio_depth_accepted.png")
 
     state = httpx.get(f"{cell.api}{API}/guided/{NODE}", timeout=30).json()

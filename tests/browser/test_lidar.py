@@ -95,7 +95,7 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
                  "One scene: capture the rig in two more places for a cross-check."):
         assert text in body, f"{text!r} missing from the result"
     # one place only: no cross-check, so the verdict is 'check' and says why
-    wait_body(page, re.compile(r"Verdict: \S+ check\..*no cross-check across scenes: only one scene", re.S))
+    wait_body(page, re.compile(r"Verdict: check\..*no cross-check across scenes: only one scene", re.S))
     page.get_by_text("One scene: capture the rig in two more places for a cross-check.").scroll_into_view_if_needed()
     wait_settled(labelled_image(page, "Cloud-to-cloud distances"))  # it arrives after the result
     ARTIFACTS.mkdir(exist_ok=True)
@@ -111,17 +111,17 @@ def _run_lidar_step(page: Page, studio: Studio) -> None:
     assert np.linalg.norm(error[:3, 3]) < 0.01
 
     # first the rig preview; this step's Accept is the one right above its scenes list (other steps have theirs)
-    page.get_by_text("Scenes (x, y, z · yaw, pitch, roll):").locator(
+    page.get_by_text("Scenes (x, y, z · rotation vector):").locator(
         "xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
     wait_body(page, re.compile(rf"Accepting {result_id} would:"))
-    button(page, "Apply accept").click()  # a 'check' is refused until confirmed
+    button(page, "Confirm accept").click()  # a 'check' is refused until confirmed
     wait_body(page, re.compile(rf"result {result_id} was judged 'check'"))
     # the step's own box sits right above its Accept
-    confirm = button(page, "Apply accept").locator("xpath=preceding::input[@type='checkbox'][1]")
+    confirm = button(page, "Confirm accept").locator("xpath=preceding::input[@type='checkbox'][1]")
     expect(confirm).to_have_accessible_name("Confirm the check")
     confirm.check()
-    button(page, "Apply accept").click()
-    wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
+    button(page, "Confirm accept").click()
+    wait_body(page, re.compile(rf"{result_id} \(accepted\)"))
     session = studio.get("/api/sessions/demo")
     assert session["accepted"].get("lidar_front/T_lidar_top_lidar_front") == result_id, session["accepted"]
     # the rig now holds the fused tree, which the accepted edge decides against the weak mounting guesses (5 cm)

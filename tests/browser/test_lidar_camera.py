@@ -110,8 +110,8 @@ def test_overlay_follows_the_sliders(browser: Browser, studio: Studio) -> None:
         button(page, "Accept").filter(visible=True).last.click()  # the rig preview first
         wait_body(page, re.compile(f"Accepting {kept.group(1)} would:"))
         page.get_by_label("Confirm the check", exact=True).filter(visible=True).last.check()  # hand-set: "check"
-        button(page, "Apply accept").filter(visible=True).last.click()
-        wait_body(page, re.compile(f"{kept.group(1)} \\(✅ accepted\\) · lidar_camera · manual"))
+        button(page, "Confirm accept").filter(visible=True).last.click()
+        wait_body(page, re.compile(f"{kept.group(1)} \\(accepted\\) · lidar_camera · manual"))
     result_id = studio.get("/api/sessions/demo")["accepted"]["lidar_front/T_cam_front_lidar_front"]
     assert result_id == kept.group(1)
     record = studio.get(f"/api/sessions/demo/results/{result_id}")

@@ -266,14 +266,14 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
 
         # 5. Accept on the result card: the solve itself is accepted, not a manual copy. Its verdict is on the card;
         # one that says 'check' needs the box ticked. The first click shows what moves in the rig, the second applies.
-        verdict = wait_body(page, re.compile(r"Verdict: \S+ (trusted|check|reject)")).group(1)
+        verdict = wait_body(page, re.compile(r"Verdict: (trusted|check|reject)")).group(1)
         assert verdict != "reject", page.inner_text("body")[-2000:]
         button(page, "Accept").filter(visible=True).last.click()
-        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Apply accept"))
+        preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Confirm accept"))
         assert re.search(rf"{LIDAR} moves [\d.]+ mm", preview.group(1)), preview.group(1)  # the solve is mm off
         _visible(page, "Confirm the check").check()
-        button(page, "Apply accept").filter(visible=True).last.click()
-        wait_body(page, re.compile(f"{result_id} \\(✅ accepted\\) · lidar_camera · target"))
+        button(page, "Confirm accept").filter(visible=True).last.click()
+        wait_body(page, re.compile(f"{result_id} \\(accepted\\) · lidar_camera · target"))
         wait_body(page, re.compile(r"Accepted\.\s+"))
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_accepted.png")

@@ -4,7 +4,7 @@ the same session's 3D drawing checked in-process.
 Through the HTTP API, two results of the demo are solved and accepted: LiDAR to camera (cam_front and
 lidar_top, the target method over the demo's board pairs) and LiDAR to LiDAR (lidar_front into lidar_top,
 from one simulated scan of each at the rig's truth). The rig step then lists every frame and edge of the
-fused tree, each accepted edge within 3 sigma of the rest (🟢) and none flagged, as the API's tree says;
+fused tree, each accepted edge within 3 sigma of the rest ("fits") and none flagged, as the API's tree says;
 picking another step in *Step in view* hides the rig tree's layer; *Revert slot* takes the LiDAR-LiDAR
 edge out again. In-process, a studio on a copy of that session draws an ellipsoid per fused frame and a
 line per edge under ``/rig_tree``, shows one step's layer group at a time, and redraws after a revert.
@@ -101,10 +101,11 @@ def test_rig_step_in_the_browser(browser: Browser, studio: Studio, accepted: dic
         assert len(rows) == len(tree["edges"]), rows
         shown = {row[3]: row for row in rows if row[3] != "–"}
         assert set(shown) == set(accepted.values()), rows
-        assert all(row[0] == "🟢" for row in shown.values()), rows
-        assert not [row for row in rows if row[0] == "🔴"], rows
+        assert all(row[0] == "fits" for row in shown.values()), rows
+        assert not [row for row in rows if row[0] == "flagged"], rows
+        assert {row[0] for row in rows if row[3] == "–"} <= {"fits", "unverified"}, rows
         for frame in tree["frames"]:
-            expect(page.locator("table", has_text="yaw, pitch, roll (°)").locator("td", has_text=re.compile(
+            expect(page.locator("table", has_text="rotation vector (°)").locator("td", has_text=re.compile(
                 f"^{frame}$"))).to_have_count(1)
         expect(page.get_by_text(re.compile(r"drawn ×\d+ to be visible"))).to_be_visible()
         expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()

@@ -134,8 +134,8 @@ def test_calibrate_the_swept_scanner(browser: Browser, studio: Studio) -> None:
         calibrate = button(page, "Calibrate")
         calibrate.locator("xpath=following::button[normalize-space(.)='Accept'][1]").click()
         wait_body(page, re.compile(rf"Accepting {result_id} would:"))
-        calibrate.locator("xpath=following::button[normalize-space(.)='Apply accept'][1]").click()
-        wait_body(page, re.compile(rf"{result_id} \(✅ accepted\)"))
+        calibrate.locator("xpath=following::button[normalize-space(.)='Confirm accept'][1]").click()
+        wait_body(page, re.compile(rf"{result_id} \(accepted\)"))
         page.screenshot(path=ARTIFACTS / "studio_sweep_accepted.png")
 
     record = studio.get(f"/api/sessions/demo/results/{result_id}")

@@ -36,12 +36,13 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 VIEWPORT = {"width": 1600, "height": 2000}
 BOARD = "checkerboard:9x6:0.025"
 MISSING_CAMERA = "/dev/video_h5_missing"
-"""A UVC device path that does not exist: live capture from it fails as it opens."""
+"""A UVC device path that does not exist (the camera is added as not connected): live capture from it fails as it
+opens."""
 FAILED_STARTS = 6
 """Failed starts in a row: the failure is reported by the capture thread, racing the click that started it."""
 PREVIEW_GREY = 40
 """The live preview's blank frame (no capture of this camera yet)."""
-RESULT_RE = re.compile(r"r\d{4} \((not accepted|✅ accepted)\) · intrinsics[\s\S]*?"
+RESULT_RE = re.compile(r"r\d{4} \((not accepted|accepted)\) · intrinsics[\s\S]*?"
                        r"(pinhole-radtan|fisheye-equidistant)")
 
 
@@ -86,7 +87,7 @@ def test_studio_state_cannot_wedge(browser: Browser, studio: Studio) -> None:
     # A session whose only camera cannot be opened, and a second LiDAR cloud in the demo, so that the
     # LiDAR-to-LiDAR step draws a source and a target cloud.
     _post(studio, "/api/sessions", json={"name": "wedge", "board": BOARD})
-    _post(studio, "/api/sessions/wedge/sensors", json={"name": "cam_gone", "kind": "camera",
+    _post(studio, "/api/sessions/wedge/sensors", json={"name": "cam_gone", "kind": "camera", "connected": False,
                                                        "device": {"driver": "uvc", "device": MISSING_CAMERA}})
     _post(studio, "/api/sessions/demo/sensors/lidar_front/clouds",
           files=[("files", ("front.npy", _cloud_npy(0), "application/octet-stream"))])

@@ -16,6 +16,7 @@ from backend.services.jobs import JobRunner
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
 from studio.context import StudioContext
+from studio.marks import mark
 from studio.scene import RigScene
 from studio.wizard.lidar_step import LidarStep
 
@@ -68,12 +69,15 @@ def test_clouds_in_the_step_group_follow_the_rig_and_the_card_shows_the_result(s
     assert "fitness" in card and "c2c mean" in card
     assert "scene 1" in step.scenes_text.content and "One scene" in step.scenes_text.content
 
-    step.card.accept()  # the preview: nothing written
+    step.card.accept()  # not previewed yet: nothing happens
+    assert session.accepted(f"{SOURCE}/T_{TARGET}_{SOURCE}") is None and not step.card.apply_button.visible
+    step.card.preview()  # *Accept*: the preview, nothing written
     assert "would" in step.card.preview_text.content and session.accepted(f"{SOURCE}/T_{TARGET}_{SOURCE}") is None
+    assert step.card.accept_button.label == "Accept" and step.card.apply_button.visible  # labels stay as they are
     step.card.confirm.checkbox.value = True  # one scene: a 'check'
-    step.card.accept()
+    step.card.accept()  # *Confirm accept*
     assert session.accepted(f"{SOURCE}/T_{TARGET}_{SOURCE}") == result_id
-    assert f"**{result_id}** (✅ accepted)" in step.card.text.content
+    assert f"**{result_id}** ({mark('accepted', 'good')})" in step.card.text.content
     # the measured edge against two 5 cm mounting guesses moved lidar_top too: its clouds' node followed it
     after = session.rig.T_root_frame(TARGET)[:3, 3]
     assert np.linalg.norm(after - before) > 0.005

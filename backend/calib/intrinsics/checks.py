@@ -7,10 +7,12 @@ from typing import Any
 from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
 
 
-def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, Any]) -> Verdict:
+def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, Any],
+                       models_compared: bool = False) -> Verdict:
     """The verdict of a lens: the worst projection sigma across the image (``projection["max_px"]``) against
     :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`, and the two halves of the views solved apart
-    (``cross_validation``: ``status`` and ``detail``) as the cross-check."""
+    (``cross_validation``: ``status`` and ``detail``) as the cross-check. A failed check advises what to try in
+    words every front-end shares (no command-line flag), and not the model comparison once ``models_compared``."""
     judge = VerdictBuilder()
     judge.sigma("worst projection across the image", projection["max_px"], PROJECTION_TOLERANCE_PX, "px")
     name = "two halves of the views"
@@ -18,6 +20,8 @@ def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, A
         judge.missing_check(name, cross_validation["detail"])
     else:
         passed = cross_validation["status"] == "consistent"
+        model_advice = "estimate k3" if models_compared else "compare the lens models (model auto), or estimate k3"
         judge.cross_check(name, passed, cross_validation["detail"] + (
-            "" if passed else ": model error (try --model auto, or k3) or bad views (drop the outliers)"))
+            "" if passed else f": the lens model does not fit ({model_advice}) or some views are bad (drop the "
+                              "outliers)"))
     return judge.verdict()

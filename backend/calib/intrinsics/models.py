@@ -16,6 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.solver import (
     TERM_CRITERIA,
     IntrinsicsResult,
@@ -165,4 +166,5 @@ def solve_auto(views: list[View], board: BoardSpec, size: tuple[int, int], setti
     comparison = compare_models(picked, board, size, settings)
     result = calibrate_intrinsics(views, board, size, settings_for(comparison["recommended"], settings), progress)
     result.model_comparison = comparison
+    result.verdict = intrinsics_verdict(result.projection_uncertainty, result.cross_validation, models_compared=True)
     return result

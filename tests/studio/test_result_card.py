@@ -1,0 +1,55 @@
+"""The result card every step shows: which exports carry a solved lens, said with the result, and *Accept* that
+previews (a reject too, saying why it cannot be accepted) before *Confirm accept*, each button keeping its label."""
+
+from __future__ import annotations
+
+import numpy as np
+import viser
+
+from backend.core.rig import Frame
+from backend.services.jobs import JobRunner
+from backend.sim.demo_rig import CAM_WIDE
+from backend.store.session import SessionStore
+from studio.context import StudioContext
+from studio.result_card import ResultCard, card_markdown
+from studio.scene import RigScene
+
+
+def intrinsics_record(k3: float, level: str) -> dict:
+    camera = CAM_WIDE.to_dict() | {"dist": [-0.28, 0.09, 0.0005, -0.0003, k3]}
+    return {"id": "r0001", "sensor": "cam_wide", "kind": "intrinsics", "camera": camera, "rms_px": 0.2,
+            "verdict": {"level": level, "reasons": ["a test record"]}, "converged": True, "seconds": 1.0}
+
+
+def test_the_card_says_which_exports_carry_the_lens():
+    with_k3 = card_markdown(intrinsics_record(-0.03, "trusted"), None)
+    assert "Exports that carry this lens: camera_info, opencv" in with_k3
+    assert "- not kalibr: cam_wide: k3 = -0.03 moves the farthest image corner by" in with_k3
+    assert "Exports that carry this lens: camera_info, opencv, kalibr" in card_markdown(intrinsics_record(0.0,
+                                                                                                       "trusted"), None)
+
+
+def test_accept_previews_first_and_a_reject_is_previewed_then_refused(tmp_path, free_port):
+    store = SessionStore(tmp_path)
+    session = store.create("s")
+    session.add_sensor(Frame("cam_wide", "base_link", kind="camera"))
+    record = intrinsics_record(0.0, "reject")
+    record["id"] = session.add_result("cam_wide", {k: v for k, v in record.items() if k not in ("id", "sensor")},
+                                      inputs=[])
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    jobs = JobRunner()
+    try:
+        ctx = StudioContext(server, store, jobs, RigScene(server))
+        ctx.session = session
+        card = ResultCard(ctx)
+        card.show(session.result(record["id"]), None)
+        card.preview()
+        assert f"Accepting {record['id']} would:" in card.preview_text.content
+        assert "It cannot be accepted: its verdict is reject (a test record)." in card.preview_text.content
+        assert not card.apply_button.visible and card.accept_button.label == "Accept"
+        card.accept()  # nothing previewed that can be accepted: nothing happens
+        assert session.accepted("cam_wide/intrinsics") is None and session.acceptance_log == []
+        np.testing.assert_equal(session.rig.get("cam_wide").intrinsics, None)
+    finally:
+        jobs.shutdown()
+        server.stop()
