@@ -6,7 +6,6 @@ A session a running studio has open is changed under it: stop the studio, or edi
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -38,8 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     sigma.add_argument("--mount-sigma", metavar="M,DEG", help="1-sigma of the mounting guess: m, deg")
     sigma.add_argument("--mount-unknown", action="store_true", help="the mounting is unknown: only calibrations "
                        "place the sensor")
-    edit.add_argument("--device", metavar="JSON", help='capture-device settings, e.g. \'{"driver": "uvc", '
-                      '"device": 1}\'')
+    edit.add_argument("--device", metavar="SPEC", help="the capture device, as 'calib-studio node --device' takes it: "
+                      "a short form (sim-lidar:lidar_top, kinect2:SERIAL, ...) or a driver's JSON settings, e.g. "
+                      "'{\"driver\": \"uvc\", \"device\": 1}'")
     _preview_and_json(edit)
 
     remove = command("remove", "remove a sensor: its accepted results leave the rig, its captures are kept aside",
@@ -93,24 +93,13 @@ def _mount_sigma(args: argparse.Namespace):
     return sigma_m, sigma_deg
 
 
-def _device(text: str | None) -> dict[str, Any] | None:
-    if text is None:
-        return None
-    try:
-        device = json.loads(text)
-    except ValueError as exc:
-        raise InputError(f"not JSON ({exc}); expected an object such as {{\"driver\": \"uvc\", \"device\": 1}}",
-                         "--device") from None
-    if not isinstance(device, dict) or not isinstance(device.get("driver"), str):
-        raise InputError(f"expected a JSON object with a 'driver', got {shorten(text)}", "--device")
-    return device
-
-
 def run_edit(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.rig.service import SensorEdit, edit_sensor
+    from backend.devices.device_spec import parse_device_spec
 
     T_mount = None if args.xyzypr is None else parse_xyzypr(args.xyzypr, "--xyzypr")
-    edit = SensorEdit(parent=args.parent, T_mount=T_mount, mount_sigma=_mount_sigma(args), device=_device(args.device))
+    device = None if args.device is None else parse_device_spec(args.device)
+    edit = SensorEdit(parent=args.parent, T_mount=T_mount, mount_sigma=_mount_sigma(args), device=device)
     return _report(edit_sensor(_session(args), args.name, edit, preview=args.preview).to_dict(), args.json)
 
 

@@ -38,6 +38,10 @@ def test_edit_remove_and_restore_from_the_command_line(demo):
     np.testing.assert_allclose(frame.T_mount, from_xyz_ypr(np.array([0.4, -0.05, 0.2]), np.radians([-5, 0, 0])),
                                atol=1e-12)
     assert frame.mount_sigma == (0.01, 1.0)
+    # --device takes what 'calib-studio node --device' takes: a short form, opened before anything is written
+    device = run_json("edit", demo, "scanner_2d", "--device", "sim-lidar:lidar_front", "--preview")
+    assert device["applied"] is False and device["moves"] == []
+    assert Session.load(demo).rig.get("scanner_2d").device["sensor"] == "scanner_2d"
 
     text = cli_in_process("sensor", "remove", demo, "cam_front")
     assert text.returncode == 0, text.stderr
@@ -52,7 +56,8 @@ def test_edit_remove_and_restore_from_the_command_line(demo):
     (("edit", "DEMO", "ghost", "--parent", "base_link"), "sensor", "no sensor or frame named 'ghost'"),
     (("edit", "DEMO", "cam_front", "--xyzypr", "1,2,3"), "--xyzypr", "six comma-separated numbers"),
     (("edit", "DEMO", "cam_front", "--mount-sigma", "0.01"), "--mount-sigma", "two comma-separated numbers"),
-    (("edit", "DEMO", "cam_front", "--device", "{uvc"), "--device", "not JSON"),
+    (("edit", "DEMO", "cam_front", "--device", "{uvc"), "device", "not valid JSON"),
+    (("edit", "DEMO", "cam_front", "--device", "sim-cam:cam_wide"), "device", "unknown device spec"),
     (("edit", "DEMO", "cam_front"), "body", "nothing to change"),
     (("remove", "DEMO", "base_link"), "sensor", "the rig's root"),
     (("restore", "DEMO", "cam_front-9"), "removal", "no removal 'cam_front-9'"),

@@ -312,7 +312,6 @@ def add_sensor(session: Session, frame: Frame, *, connected: bool = True) -> Fra
     return session.add_sensor(frame)
 
 
-
 def edit_sensor(session: Session, sensor: str, edit: SensorEdit, *, preview: bool = False) -> SensorChange:
     """Change a sensor's mounting guess, parent, mount sigma or device and re-fit the tree (``preview``: only say
     what would move). A new parent without a pose keeps the sensor where it is now."""
