@@ -67,11 +67,12 @@ def publish(name: str, endpoint: str, frame_file: str) -> None:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     session = open_session([], [endpoint], "connect")
     info = json.dumps({"name": name, "kind": "depth", "device": "benchmark", "rate_hz": RATE_HZ, "voxel_m": VOXEL_M})
-    entities = [session.declare_queryable(node_key(name, "info"), lambda q: q.reply(q.key_expr, info)),
-                session.declare_queryable(node_key(name, "clock"),
+    zid = str(session.zid())
+    entities = [session.declare_queryable(node_key(name, zid, "info"), lambda q: q.reply(q.key_expr, info)),
+                session.declare_queryable(node_key(name, zid, "clock"),
                                           lambda q: q.reply(q.key_expr, CLOCK_REPLY.pack(time.time())))]
-    publisher = session.declare_publisher(node_key(name, "frames"))
-    token = session.liveliness().declare_token(node_key(name, "alive"))
+    publisher = session.declare_publisher(node_key(name, zid, "frames"))
+    token = session.liveliness().declare_token(node_key(name, zid, "alive"))
     sent, started_s, next_s, cpu_start_s = 0, time.monotonic(), time.monotonic(), time.process_time()
     while not stop.is_set():
         publisher.put(payload, attachment=FRAME_STAMP.pack(sent, time.time()))

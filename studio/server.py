@@ -39,7 +39,7 @@ def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRu
     """
     from backend.services import demo_depth_cell as cell  # zenoh and the simulator only for this demo
 
-    nodes = cell.start_depth_cell_nodes(store.root / cell.NODE_LOG_DIR,
+    nodes = cell.start_depth_cell_nodes(store.root / cell.NODE_LOG_DIR, store.root / cell.NODE_KEYS_DIR,
                                         lambda name, why: _log(f"node agent {name} {why}"))
     studio.attach_node_network(nodes.network)
     _log(f"node agents {', '.join(nodes.agents.agents)} connect to {nodes.endpoint} (logs in {nodes.agents.log_dir})")

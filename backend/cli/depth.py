@@ -27,15 +27,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     node.add_argument("--device", required=True,
                       help="what to capture from: sim-cell:NODE, kinect2[:SERIAL], realsense[:SERIAL], "
                            "depth-files:DIR, or a driver's JSON settings")
-    node.add_argument("--connect", action="append", default=[], metavar="tcp/HOST:7447",
+    node.add_argument("--connect", action="append", default=[], metavar="tls/HOST:7447",
                       help="a Zenoh endpoint to connect to (the studio's or a router's); repeatable")
-    node.add_argument("--listen", action="append", default=[], metavar="tcp/0.0.0.0:7448",
+    node.add_argument("--listen", action="append", default=[], metavar="tls/0.0.0.0:7448",
                       help="a Zenoh endpoint to listen on; repeatable")
+    node.add_argument("--keys", type=Path, default=None, metavar="FILE",
+                      help="this node's key bundle from the studio (NAME.keys.pem); default: the file the "
+                           "environment variable CALIB_NODE_KEYS names; without either the node joins only a "
+                           "network without keys (tcp/ endpoints)")
     node.add_argument("--rate", type=float, default=None, metavar="HZ",
                       help="frames published per second (default: the device's own rate)")
     node.add_argument("--voxel", type=float, default=0.02, metavar="M",
                       help="voxel size (m) of the published, compressed clouds (default 0.02; captures are full)")
     node.set_defaults(handler=run_node)
+
+    keys = sub.add_parser("node-keys", help="make a node network's keys: the folder the studio listens with, and "
+                                            "one file per node to copy to its computer")
+    keys.add_argument("keys_dir", type=Path, help="a new folder for the keys, e.g. sessions/depth-cell/network-keys")
+    keys.add_argument("--nodes", required=True, metavar="sn1,sn2",
+                      help="the node names (comma-separated), each the --name its agent runs with")
+    keys.add_argument("--add", action="store_true",
+                      help="issue keys for more nodes of the network already in keys_dir (signed by its CA)")
+    keys.add_argument("--json", action="store_true", help="print the folder and each node's key file as JSON")
+    keys.set_defaults(handler=prints_summary(run_node_keys))
 
 
 def run_depth_network(args: argparse.Namespace) -> dict[str, Any]:
@@ -54,10 +68,29 @@ def run_depth_network(args: argparse.Namespace) -> dict[str, Any]:
 def run_node(args: argparse.Namespace) -> int:
     """Serve one sensor over Zenoh until interrupted (or, started by a studio, until that studio ends)."""
     import backend.sim.devices  # noqa: F401  (the node reaches devices without services: register the simulated ones)
-    from backend.devices.node_agent import PARENT_PID_ENV, run_agent, stop_with_parent
+    from backend.devices.node_agent import KEYS_ENV, PARENT_PID_ENV, run_agent, stop_with_parent
+    from backend.devices.node_keys import read_bundle
 
+    keys_file = args.keys or (Path(os.environ[KEYS_ENV]) if os.environ.get(KEYS_ENV, "").strip() else None)
+    keys = None if keys_file is None else read_bundle(keys_file)
     stop = threading.Event()
     if os.environ.get(PARENT_PID_ENV, "").isdigit():
         stop_with_parent(int(os.environ[PARENT_PID_ENV]), stop)
     return run_agent(name=args.name, device=args.device, connect=args.connect, listen=args.listen,
-                     rate_hz=args.rate, voxel_m=args.voxel, stop=stop)
+                     rate_hz=args.rate, voxel_m=args.voxel, stop=stop, keys=keys)
+
+
+def run_node_keys(args: argparse.Namespace) -> dict[str, Any]:
+    """Make (or, with ``--add``, extend) a network's keys; the summary names the file each node takes."""
+    from backend.services.network_keys import add_node_keys, create_network_keys
+
+    names = [name.strip() for name in args.nodes.split(",") if name.strip()]
+    keys = (add_node_keys if args.add else create_network_keys)(args.keys_dir, names)
+    summary = {"keys_dir": str(keys.folder), "network": keys.studio.fingerprint,
+               "nodes": {node: str(keys.bundle_path(node)) for node in keys.nodes}, "problems": list(keys.problems)}
+    if not args.json:
+        print(f"network {keys.studio.fingerprint}: keys in {keys.folder}")
+        for node in names:
+            print(f"  {node}: copy {keys.bundle_path(node)} to its computer; run calib-studio node --name {node} "
+                  f"--keys {node}.keys.pem --connect tls/STUDIO_HOST:7447 ...")
+    return summary

@@ -53,3 +53,5 @@ MAX_TARGET_SQUARES = Limit("CALIB_MAX_TARGET_SQUARES", 10_000, "squares", "a pri
 """Most squares (a ChArUco board's each hold a marker or none) drawn into one target PDF; checked from the spec."""
 
 BYTES_PER_MB = 1_000_000
+MAX_NODE_FRAME_MB = Limit("CALIB_MAX_NODE_FRAME_MB", 256, "MB", "a node's frame")
+"""Largest frame a node agent's stream or capture may send; Zenoh drops a bigger message before it is taken in."""

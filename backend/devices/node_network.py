@@ -1,11 +1,17 @@
 """The studio's side of a sensor network over Zenoh: which nodes are there, their clocks, streams and captures.
 
 :class:`NodeNetwork` opens one Zenoh peer session (listening on ``tcp/127.0.0.1:7447`` unless told otherwise;
-multicast scouting off) that the node agents (:mod:`backend.devices.node_agent`) connect to, and keeps:
+multicast scouting off) that the node agents (:mod:`backend.devices.node_agent`) connect to. With the network's
+keys (:class:`~backend.devices.node_keys.NetworkKeys`) it listens on ``tls/`` with mutual authentication and
+Zenoh's access control: only peers holding keys the network issued get a link, and each speaks only under its
+own name. It keeps:
 
 - **presence** from the agents' liveliness tokens (a subscriber with history, so nodes already there count):
   a node appears, its ``info`` and clock are fetched in the background, and it disappears when its agent ends
-  or its computer drops off (Zenoh closes the link);
+  or its computer drops off (Zenoh closes the link). A name belongs to the first agent (Zenoh session) that
+  claims it: a second agent claiming it while the first is there is refused (told so, named in the node's
+  status and logged) and nothing of it is taken in. A node that comes back with another device or sensor serial
+  is *held*: its captures wait until :meth:`NodeNetwork.confirm_device`;
 - **clock offsets** from request/reply stamps, NTP style: ``offset = t_node - (t_send + t_recv) / 2`` for the
   round with the smallest round-trip time (its error is at most half that RTT);
 - **bandwidth** and frame rate per node over a sliding window of its stream, with dropped frames counted
@@ -22,6 +28,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import json
+import logging
 import queue
 import threading
 import time
@@ -35,6 +42,7 @@ import zenoh
 
 from backend.core.depth_cell import TablePlacement
 from backend.core.errors import InputError, clip, shorten
+from backend.core.limits import MAX_NODE_FRAME_MB
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
 from backend.devices.cloud_codec import decode_frame
 from backend.devices.node_agent import (
@@ -44,7 +52,11 @@ from backend.devices.node_agent import (
     SIM_PLACEMENTS_KEY,
     node_key,
     open_session,
+    parse_node_key,
 )
+from backend.devices.node_keys import NetworkKeys, studio_access_control
+
+log = logging.getLogger(__name__)
 
 DEFAULT_LISTEN = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 WINDOW_S = 5.0
@@ -68,6 +80,12 @@ class NodeStatus:
     """``depth``, ``lidar`` or ``camera`` (from the node's info; None until it answered)."""
     device: str | None = None
     """The node's device spec, e.g. ``sim-cell:sn1``."""
+    zid: str | None = None
+    """The Zenoh session id of the agent that holds the name."""
+    refused: list[str] = field(default_factory=list)
+    """Zenoh ids of other agents claiming this name while it is held, refused."""
+    held: str | None = None
+    """Why the node's captures wait for the user (its device changed), else None."""
     first_seen_s: float = 0.0
     last_seen_s: float = 0.0
     """Last liveliness change or streamed frame."""
@@ -123,11 +141,17 @@ class _Stream:
 class NodeNetwork:
     """The studio's Zenoh session with the node agents; thread-safe."""
 
-    def __init__(self, listen: list[str] | None = None, connect: list[str] | None = None):
-        """``listen``: endpoints the agents connect to (default ``tcp/127.0.0.1:7447``); ``connect``: endpoints
-        to connect to (agents that listen, or a Zenoh router)."""
-        self.listen = [DEFAULT_LISTEN] if listen is None else list(listen)
+    def __init__(self, listen: list[str] | None = None, connect: list[str] | None = None,
+                 keys: NetworkKeys | None = None):
+        """``listen``: endpoints the agents connect to (default ``tcp/127.0.0.1:7447``, ``tls/...`` with keys);
+        ``connect``: endpoints to connect to (agents that listen, or a Zenoh router); ``keys``: the network's keys
+        (None: no authentication, anyone who reaches the port joins)."""
+        self.keys = keys
+        default = DEFAULT_LISTEN if keys is None else DEFAULT_LISTEN.replace("tcp/", "tls/", 1)
+        self.listen = [default] if listen is None else list(listen)
         self.connect = list(connect or [])
+        self._identities: dict[str, tuple[str | None, str | None]] = {}
+        """Per node name, the (device spec, sensor) it first came with: a change holds its captures."""
         self._session: zenoh.Session | None = None
         self._entities: list[Any] = []
         self._lock = threading.Lock()
@@ -135,7 +159,8 @@ class NodeNetwork:
         self._streams: dict[str, _Stream] = {}
         self._change_callbacks: list[Callable[[NodeStatus], None]] = []
         self._frame_callbacks: list[Callable[[str, int, float | None], None]] = []
-        self._jobs: queue.Queue[str | None] = queue.Queue()
+        self._jobs: queue.Queue[tuple[str, str, str] | None] = queue.Queue()
+        """(``info`` or ``refuse``, node name, agent's Zenoh id) for the background worker."""
         self._worker: threading.Thread | None = None
 
     # -- lifetime
@@ -145,14 +170,17 @@ class NodeNetwork:
         refuses the endpoints (e.g. the port is taken)."""
         if self._session is not None:
             return
-        self._session = open_session(self.listen, self.connect, "listen")
+        keys = self.keys
+        self._session = open_session(self.listen, self.connect, "listen", None if keys is None else keys.studio,
+                                     None if keys is None else studio_access_control(list(keys.nodes)),
+                                     max_message_bytes=MAX_NODE_FRAME_MB.value() * 1_000_000 + FRAME_SLACK_BYTES)
         _OPEN.append(self)
         self._worker = threading.Thread(target=self._work, name="node-network", daemon=True)
         self._worker.start()
         liveliness = self._session.liveliness()
         self._entities = [
-            liveliness.declare_subscriber(node_key("*", "alive"), self._on_liveliness, history=True),
-            self._session.declare_subscriber(node_key("*", "frames"), self._on_frame),
+            liveliness.declare_subscriber(node_key("*", "*", "alive"), self._on_liveliness, history=True),
+            self._session.declare_subscriber(node_key("*", "*", "frames"), self._on_frame),
         ]
 
     def close(self) -> None:
@@ -177,6 +205,15 @@ class NodeNetwork:
         self.close()
 
     # -- presence and status
+
+    @property
+    def secure(self) -> bool:
+        """Whether links need the network's keys (mutual TLS and access control)."""
+        return self.keys is not None
+
+    def admitted(self) -> list[str]:
+        """The node names the network's keys admit ([] without keys: any name)."""
+        return [] if self.keys is None else list(self.keys.nodes)
 
     def nodes(self) -> list[NodeStatus]:
         """Every node seen since :meth:`open`, alive or gone, by name (copies, with the window's figures)."""
@@ -221,11 +258,11 @@ class NodeNetwork:
     def estimate_clock(self, node: str, rounds: int = CLOCK_ROUNDS) -> ClockEstimate:
         """The node's clock offset from ``rounds`` clock requests (the round with the smallest round trip); kept
         in its status, with a warning when it is more than :data:`CLOCK_WARN_S` off."""
-        session = self._require_node(node)
+        session, zid = self._require_node(node)
         best: tuple[float, float] | None = None
         for _ in range(max(1, rounds)):
             sent_s = time.time()
-            replies = list(session.get(node_key(node, "clock"), timeout=2.0))
+            replies = list(session.get(node_key(node, zid, "clock"), timeout=2.0))
             received_s = time.time()
             for reply in replies:
                 if reply.ok is not None and len(payload := reply.ok.payload.to_bytes()) == CLOCK_REPLY.size:
@@ -254,18 +291,21 @@ class NodeNetwork:
         ``meta`` gets ``node``, ``node_time_s`` (the node's clock when it read the frame), ``studio_time_s``
         (the same instant on the studio's clock, by the clock offset), ``clock_offset_s`` and ``capture_s``
         (request to decoded frame); ``timestamp_s`` is ``studio_time_s``. Raises :class:`InputError` naming the
-        node when it is not on the network, disappears while asked, refuses, or does not answer within
-        ``timeout_s``.
+        node when it is not on the network, is held (its device changed: 409), disappears while asked, refuses,
+        does not answer within ``timeout_s``, or sends a frame over the limits (nothing of it is kept).
         """
-        session = self._require_node(node)
+        session, zid = self._require_node(node)
         with self._lock:
+            held = self._nodes[node].held
             offset_s, checked_s = self._nodes[node].clock_offset_s, self._nodes[node].clock_checked_s
+        if held is not None:
+            raise InputError(held, node, status_code=409)
         if offset_s is None or checked_s is None or time.time() - checked_s > CLOCK_MAX_AGE_S:
             offset_s = self.estimate_clock(node).offset_s
         done = threading.Event()
         replies: list[zenoh.Reply] = []
         started_s = time.time()
-        session.get(node_key(node, "capture"), zenoh.handlers.Callback(replies.append, done.set),
+        session.get(node_key(node, zid, "capture"), zenoh.handlers.Callback(replies.append, done.set),
                     timeout=timeout_s)
         while not done.wait(QUERY_POLL_S):
             if not self.is_alive(node):
@@ -279,7 +319,10 @@ class NodeNetwork:
                 raise InputError(f"node {node} disappeared during the capture", node, status_code=503)
             raise InputError(f"node {node} did not answer the capture within {timeout_s:g} s", node,
                              status_code=504)
-        sample = decode_frame(ok[0].payload.to_bytes(), source=f"capture from node {node}")
+        data = ok[0].payload.to_bytes()
+        if (refusal := _oversized(node, len(data))) is not None:
+            raise InputError(refusal, node, status_code=413)
+        sample = decode_frame(data, source=f"capture from node {node}")
         node_time_s = float(sample.meta.get("node_time_s", sample.timestamp_s))
         sample.meta.update(node=node, node_time_s=node_time_s, studio_time_s=node_time_s - offset_s,
                            clock_offset_s=offset_s, capture_s=time.time() - started_s)
@@ -329,7 +372,24 @@ class NodeNetwork:
             raise InputError("the node network is not open", "network", status_code=409)
         return self._session
 
-    def _require_node(self, node: str) -> zenoh.Session:
+    def confirm_device(self, node: str) -> NodeStatus:
+        """The user confirms that ``node``'s new device is meant: its captures no longer wait (404 for a node
+        never seen, 409 for one that is not held)."""
+        with self._lock:
+            status = self._nodes.get(node)
+            if status is None:
+                raise InputError(f"node {clip(str(node), 64)} was never on the network", str(node), status_code=404)
+            if status.held is None:
+                raise InputError(f"node {node} has no device change to confirm", node, status_code=409)
+            self._identities[node] = (status.device, status.info.get("sensor"))
+            status.warnings = [w for w in status.warnings if w != status.held]
+            status.held = None
+        log.warning("node %s: its new device %s was confirmed by the user", node, status.device)
+        self._changed(node)
+        return next(s for s in self.nodes() if s.name == node)
+
+    def _require_node(self, node: str) -> tuple[zenoh.Session, str]:
+        """The session and the Zenoh id of the agent holding ``node``'s name."""
         session = self._open_session()
         with self._lock:
             status = self._nodes.get(node)
@@ -337,10 +397,10 @@ class NodeNetwork:
         if status is None:
             raise InputError(f"node {clip(str(node), 64)} is not on the network; nodes present: "
                              f"{', '.join(known) or 'none'}", str(node), status_code=404)
-        if not status.alive:
+        if not status.alive or status.zid is None:
             raise InputError(f"node {node} left the network {time.time() - status.last_seen_s:.1f} s ago", node,
                              status_code=503)
-        return session
+        return session, status.zid
 
     def _status(self, name: str, now: float) -> NodeStatus:
         """A copy of the node's status with its window's bandwidth, rate and latency (lock held)."""
@@ -359,29 +419,44 @@ class NodeNetwork:
         return status
 
     def _on_liveliness(self, message: zenoh.Sample) -> None:
-        """A node's token appeared (PUT) or went (DELETE)."""
-        name = str(message.key_expr).split("/")[2]
+        """An agent's token appeared (PUT) or went (DELETE). The name goes to the first agent claiming it; another
+        claiming it meanwhile is refused."""
+        name, zid = parse_node_key(str(message.key_expr))
         now = time.time()
         alive = message.kind == zenoh.SampleKind.PUT
         with self._lock:
             status = self._nodes.get(name)
-            if status is None or (alive and not status.alive):
-                status = self._nodes[name] = NodeStatus(name, True, first_seen_s=now)
-                self._streams[name] = _Stream()
-            status.alive, status.last_seen_s = alive, now
-        if alive:
-            self._jobs.put(name)  # info and clock, off the Zenoh thread
+            if status is not None and status.alive and status.zid != zid:
+                if alive and zid not in status.refused:  # a second agent claims a name that is held
+                    status.refused.append(zid)
+                    self._jobs.put(("refuse", name, zid))
+                elif not alive and zid in status.refused:
+                    status.refused.remove(zid)  # its refusal stays among the warnings
+                refused = True
+            else:
+                refused = False
+                if status is None or (alive and not status.alive):
+                    status = self._nodes[name] = NodeStatus(name, True, zid=zid, first_seen_s=now)
+                    self._streams[name] = _Stream()
+                status.alive, status.last_seen_s = alive, now
+        if alive and not refused:
+            self._jobs.put(("info", name, zid))  # info and clock, off the Zenoh thread
         self._changed(name)
 
     def _on_frame(self, message: zenoh.Sample) -> None:
-        """One streamed frame: count it, keep its bytes (decoded only on request)."""
+        """One streamed frame of the agent holding its name: count it, keep its bytes (decoded only on request);
+        a frame over :data:`~backend.core.limits.MAX_NODE_FRAME_MB` is refused and named in the node's status."""
         received_s = time.time()
-        name = str(message.key_expr).split("/")[2]
+        name, zid = parse_node_key(str(message.key_expr))
         data = message.payload.to_bytes()
         latency_s = None
+        refusal = _oversized(name, len(data))
         with self._lock:
             status, stream = self._nodes.get(name), self._streams.get(name)
-            if status is None or stream is None:
+            if status is None or stream is None or status.zid != zid:
+                return
+            if refusal is not None:
+                status.warnings = [w for w in status.warnings if "-byte frame" not in w] + [refusal]
                 return
             attachment = message.attachment
             if attachment is not None and len(stamp := attachment.to_bytes()) == FRAME_STAMP.size:
@@ -400,24 +475,56 @@ class NodeNetwork:
             callback(name, len(data), latency_s)
 
     def _work(self) -> None:
-        """Background: fetch each new node's info and clock offset, then report the change."""
-        while (name := self._jobs.get()) is not None:
+        """Background: fetch each new node's info and clock offset, or tell a refused agent why; then report the
+        change."""
+        while (job := self._jobs.get()) is not None:
+            what, name, zid = job
+            if what == "refuse":
+                self._refuse(name, zid)
+                continue
             if not self.is_alive(name):
                 continue
             try:
-                info = self._fetch_info(name)
-                with self._lock:
-                    status = self._nodes[name]
-                    status.info = info
-                    status.kind, status.device = info.get("kind"), info.get("device")
+                info = self._fetch_info(name, zid)
+                self._check_identity(name, info)
                 self.estimate_clock(name)
             except InputError as exc:
                 with self._lock:
                     self._nodes[name].warnings.append(exc.message)
                 self._changed(name)
 
-    def _fetch_info(self, name: str) -> dict[str, Any]:
-        for reply in self._open_session().get(node_key(name, "info"), timeout=5.0):
+    def _refuse(self, name: str, zid: str) -> None:
+        """Name the second agent claiming ``name`` in the node's status and the log, and tell it (it stops)."""
+        with self._lock:
+            status = self._nodes.get(name)
+            if status is None or zid not in status.refused:
+                return
+            why = (f"another agent (Zenoh id {zid}) claims node name {name}, held since "
+                   f"{time.strftime('%H:%M:%S', time.localtime(status.first_seen_s))} by {status.zid}: refused; "
+                   f"stop it or give it its own --name")
+            status.warnings.append(why)
+        log.warning("node network: %s", why)
+        self._open_session().put(node_key(name, zid, "refused"), why)
+        self._changed(name)
+
+    def _check_identity(self, name: str, info: dict[str, Any]) -> None:
+        """Keep the node's info; hold its captures when it comes back with another device or sensor than the one
+        it first came with."""
+        identity = (info.get("device"), info.get("sensor"))
+        with self._lock:
+            status = self._nodes[name]
+            status.info = info
+            status.kind, status.device = info.get("kind"), info.get("device")
+            first = self._identities.setdefault(name, identity)
+            if first != identity:
+                status.held = (f"node {name}'s device changed from {_identity_text(first)} to "
+                               f"{_identity_text(identity)}: its captures wait until you confirm the change")
+                status.warnings.append(status.held)
+        if first != identity:
+            log.warning("node network: %s", status.held)
+
+    def _fetch_info(self, name: str, zid: str) -> dict[str, Any]:
+        for reply in self._open_session().get(node_key(name, zid, "info"), timeout=5.0):
             if reply.ok is not None:
                 try:
                     info = json.loads(reply.ok.payload.to_bytes())
@@ -508,6 +615,22 @@ def open_network() -> NodeNetwork | None:
     """The node network this process opened last and still holds open (the studio's: the demo's, or the one its
     depth-network step listens on), which the API's live captures and :class:`NetworkNode` use; None without one."""
     return _OPEN[-1] if _OPEN else None
+
+
+FRAME_SLACK_BYTES = 1_000_000
+"""Room above the frame limit that Zenoh still takes in, so the studio itself names a frame over it."""
+
+
+def _oversized(node: str, n_bytes: int) -> str | None:
+    """Why a frame of ``n_bytes`` from ``node`` is refused (over :data:`MAX_NODE_FRAME_MB`), else None."""
+    if n_bytes <= MAX_NODE_FRAME_MB.value() * 1_000_000:
+        return None
+    return f"node {node} sent a {n_bytes:,}-byte frame: over {MAX_NODE_FRAME_MB.describe()}; nothing of it is kept"
+
+
+def _identity_text(identity: tuple[str | None, str | None]) -> str:
+    device, sensor = identity
+    return f"{device or 'an unknown device'} ({sensor or 'unknown sensor'})"
 
 
 def _trim(window: collections.deque, now: float) -> None:

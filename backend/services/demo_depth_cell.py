@@ -38,6 +38,7 @@ from backend.devices.base import create_device
 from backend.devices.node_network import NodeNetwork
 from backend.services.demo import ensure_staged_session
 from backend.services.jobs import Job, JobRunner
+from backend.services.network_keys import ensure_network_keys
 from backend.services.node_processes import NodeProcesses, free_tcp_port
 from backend.sim.depth_cell import table_placements, truth_dict
 from backend.store.atomic import write_json_atomic
@@ -64,6 +65,8 @@ STAGING_DIR = ".depth-cell-building"
 """Folder under the sessions root where the session is built before it is moved into place (not a session)."""
 NODE_LOG_DIR = ".node-logs"
 """Folder under the sessions root holding each demo agent's log, ``<name>.log`` (not a session)."""
+NODE_KEYS_DIR = ".depth-cell-keys"
+"""Folder under the sessions root holding the demo network's keys (made once, then reused; not a session)."""
 BUILD_TITLE = "preparing the depth-cell session"
 
 
@@ -146,17 +149,20 @@ class DepthCellNodes:
         self.network.close()
 
 
-def start_depth_cell_nodes(log_dir: Path, on_exit: Callable[[str, str], None],
+def start_depth_cell_nodes(log_dir: Path, keys_dir: Path, on_exit: Callable[[str, str], None],
                            rate_hz: float = AGENT_RATE_HZ) -> DepthCellNodes:
-    """Listen on a free port of 127.0.0.1 and start one agent per node connecting to it (logs in ``log_dir``).
+    """Listen with the network's keys on a free port of 127.0.0.1 and start one agent per node connecting to it,
+    each with its own key bundle, as six computers would (logs in ``log_dir``).
 
-    ``on_exit(name, why)`` hears of any agent that exits before :meth:`DepthCellNodes.close`. Call from the
-    thread that lives as long as the studio (see :mod:`backend.services.node_processes`).
+    The keys are made in ``keys_dir`` the first time, then reused. ``on_exit(name, why)`` hears of
+    any agent that exits before :meth:`DepthCellNodes.close`. Call from the thread that lives as long as the
+    studio (see :mod:`backend.services.node_processes`).
     """
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    network = NodeNetwork(listen=[endpoint])
+    keys = ensure_network_keys(keys_dir, list(DEPTH_NODES))
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    network = NodeNetwork(listen=[endpoint], keys=keys)
     network.open()
-    agents = NodeProcesses(endpoint, log_dir, rate_hz=rate_hz)
+    agents = NodeProcesses(endpoint, log_dir, rate_hz=rate_hz, keys=keys)
     try:
         agents.start(agent_devices())
     except BaseException:
@@ -165,3 +171,4 @@ def start_depth_cell_nodes(log_dir: Path, on_exit: Callable[[str, str], None],
         raise
     agents.watch(on_exit)
     return DepthCellNodes(network, agents, endpoint)
+

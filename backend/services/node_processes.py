@@ -33,6 +33,7 @@ from typing import Any
 
 from backend.core.errors import InputError
 from backend.devices.node_agent import PARENT_PID_ENV
+from backend.devices.node_keys import NetworkKeys
 
 STOP_TIMEOUT_S = 5.0
 """How long (s) the agents get after SIGTERM before they are killed."""
@@ -98,10 +99,13 @@ class NodeProcess:
 class NodeProcesses:
     """Node-agent subprocesses that connect to one Zenoh endpoint (the studio's ``tcp/127.0.0.1:PORT``)."""
 
-    def __init__(self, connect: str, log_dir: Path, *, rate_hz: float | None = None, voxel_m: float | None = None):
+    def __init__(self, connect: str, log_dir: Path, *, rate_hz: float | None = None, voxel_m: float | None = None,
+                 keys: NetworkKeys | None = None):
         """``rate_hz``: each agent's publishing rate (Hz; None: the device's own); ``voxel_m``: the voxel (m) of
-        its streamed clouds (None: the agent's default). Nothing starts before :meth:`start`."""
+        its streamed clouds (None: the agent's default); ``keys``: the network's keys, each agent joining with its
+        own bundle (``--keys``). Nothing starts before :meth:`start`."""
         self.connect = connect
+        self.keys = keys
         self.log_dir = Path(log_dir)
         self.rate_hz = rate_hz
         self.voxel_m = voxel_m
@@ -111,9 +115,12 @@ class NodeProcesses:
         self._exit_hook = False
 
     def command(self, name: str, device: str) -> list[str]:
-        """The agent's command line: ``python -m backend.cli node --name NAME --device SPEC --connect ENDPOINT``."""
+        """The agent's command line: ``python -m backend.cli node --name NAME --device SPEC --connect ENDPOINT
+        [--keys FILE]``."""
         command = [*_death_signal_prefix(), sys.executable, "-m", "backend.cli", "node", "--name", name,
                    "--device", device, "--connect", self.connect]
+        if self.keys is not None:
+            command += ["--keys", str(self.keys.bundle_path(name))]
         if self.rate_hz is not None:
             command += ["--rate", f"{self.rate_hz:g}"]
         if self.voxel_m is not None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -80,7 +81,9 @@ COLOUR_BY = {"per node": "node", "by count": "count"}
 CLICKED = "(the point picked in 3D)"
 REFRESH_S = 1.0
 """How often the nodes panel is refreshed (s): bandwidth and frames/s move continuously."""
-DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+DEFAULT_LISTEN = "tls/127.0.0.1:7447"
+KEYS_FOLDER = "network-keys"
+"""The network's keys, in the session's folder unless another is typed (made by *Make the nodes' keys*)."""
 HELP = ("Calibrate every depth node of the cell: capture from each node's computer over the network, then either "
         "walk a node through the guided table procedure or solve all nodes at once; check the merged map against "
         "distances measured with the laser meter.")
@@ -97,7 +100,8 @@ def _mm(value: float | None) -> str:
 def nodes_markdown(statuses: list, nodes: list[str], captures: dict[str, int]) -> str:
     """The presence table: every rig node and every node the network sees, alive or not, with its clock offset
     (ms, node minus studio) and round trip (ms), its stream's bandwidth (kB/s), frames/s and latency (ms),
-    and the captures stored; then each node's warnings (a clock far off)."""
+    and the captures stored; then each node's warnings (a clock far off, a second agent refused under its name,
+    a device change that holds its captures)."""
     by_name = {s.name: s for s in statuses}
     rows = ["| node | present | device | clock Δ (ms) | RTT (ms) | kB/s | frames/s | latency (ms) | stored |",
             "|---|---|---|---|---|---|---|---|---|"]
@@ -111,11 +115,35 @@ def nodes_markdown(statuses: list, nodes: list[str], captures: dict[str, int]) -
         rtt = "–" if status.clock_rtt_s is None else f"{1000.0 * status.clock_rtt_s:.1f}"
         latency = "–" if status.latency_s is None else f"{1000.0 * status.latency_s:.0f}"
         presence = mark("alive", "good") if status.alive else mark("gone", "bad")
+        if status.held is not None:
+            presence += " " + mark("held", "warn")
+        if status.refused:
+            presence += " " + mark(f"{len(status.refused)} refused", "bad")
         rows.append(f"| {name} | {presence} | {status.device or '–'} | {offset} | "
                     f"{rtt} | {status.bandwidth_bps / 1000.0:.0f} | {status.rate_hz:.1f} | {latency} | "
                     f"{captures.get(name, 0)} |")
         warnings += [f"- {WARNING} {name}: {warning}" for warning in status.warnings]
     return "\n".join(rows + ([""] + warnings if warnings else []))
+
+
+def network_markdown(network) -> str:
+    """One line on who may join the open network: its keys' fingerprint and the nodes they admit, or a warning
+    that anyone can join; then the node key files it could not read."""
+    if not network.secure:
+        return (f"{WARNING} listening on {', '.join(network.listen)} **without keys**: anyone who reaches the port "
+                f"can join as any node.")
+    lines = [f"{mark('secured', 'good')} with keys {network.keys.studio.fingerprint} on {', '.join(network.listen)}: "
+             f"only {', '.join(network.admitted()) or 'no node'} can join, each under its own name."]
+    return "\n".join(lines + [f"- {WARNING} {problem}" for problem in network.keys.problems])
+
+
+def keys_markdown(keys, shown_folder: str) -> str:
+    """Which key file each node's computer takes, and the command it runs."""
+    rows = [f"Keys of network {keys.studio.fingerprint} in `{shown_folder}`. Copy each node's file to its computer "
+            f"and start its agent there:", ""]
+    rows += [f"- **{node}**: `{keys.bundle_path(node).name}`: `calib-studio node --name {node} --keys "
+             f"{keys.bundle_path(node).name} --connect tls/STUDIO_HOST:7447 --device ...`" for node in keys.nodes]
+    return "\n".join(rows + [f"- {WARNING} {problem}" for problem in keys.problems])
 
 
 def residuals_markdown(residuals: list[dict[str, Any]]) -> str:
@@ -190,8 +218,20 @@ class DepthNetworkStep:
             with gui.add_folder("Nodes", expand_by_default=True):
                 self.listen = gui.add_text("Listen on", DEFAULT_LISTEN, hint="Zenoh endpoint the node agents connect "
                                            "to (calib-studio node --connect ...)")
+                self.keys_folder = gui.add_text("Network keys", KEYS_FOLDER, hint="the folder of the network's keys "
+                                                "(in the session's folder unless a path is typed); only nodes "
+                                                "holding keys from it can join")
+                self.keys_button = gui.add_button("Make the nodes' keys", hint="the network's keys, and one file "
+                                                  "per rig node to copy to its computer")
+                self.open_checkbox = gui.add_checkbox("Without keys", False, hint="listen on tcp/ with no "
+                                                      "authentication: anyone who reaches the port can join as "
+                                                      "any node")
                 self.listen_button = gui.add_button("Listen for nodes")
+                self.network_text = gui.add_markdown("")
                 self.nodes_text = gui.add_markdown("No node network yet: *Listen for nodes*.")
+                self.confirm_button = gui.add_button("Confirm the device change", visible=False, color="orange",
+                                                     hint="this node came back with another device or serial: "
+                                                     "confirm that is meant, and its captures go on")
                 self.capture_button = gui.add_button("Capture this node", color="green", hint="one full frame of the "
                                                      "node, stored with the guided step's table arrangement")
                 self.capture_all_button = gui.add_button("Capture all", hint="every node at once: what arrives is "
@@ -246,6 +286,9 @@ class DepthNetworkStep:
         self.node.on_update(lambda _: self._select())
         self.guided_step.on_update(lambda _: self._show_guided_step())
         self.listen_button.on_click(lambda _: self._open_network())
+        self.keys_button.on_click(lambda _: self._work(self._make_keys))
+        self.open_checkbox.on_update(lambda _: self._toggle_keys())
+        self.confirm_button.on_click(lambda _: self._work(self._confirm_device))
         self.capture_button.on_click(lambda _: self._capture([self.current]))
         self.capture_all_button.on_click(lambda _: self._capture(self.nodes))
         self.start_button.on_click(lambda _: self._work(self._start))
@@ -335,11 +378,34 @@ class DepthNetworkStep:
         return np.array(held) if held is not None else network_service.T_world_node(self.ctx.session, node)
 
     # -- nodes over the network -------------------------------------------------------------------
+    def _keys_path(self) -> Path:
+        """The typed keys folder, relative to the open session's folder unless absolute."""
+        typed = Path(self.keys_folder.value.strip() or KEYS_FOLDER)
+        return typed if typed.is_absolute() else self.ctx.session.path / typed
+
+    def _toggle_keys(self) -> None:
+        """*Without keys* listens on ``tcp/``, with them on ``tls/``: the endpoint follows."""
+        scheme, other = ("tcp/", "tls/") if self.open_checkbox.value else ("tls/", "tcp/")
+        if self.listen.value.startswith(other):
+            self.listen.value = scheme + self.listen.value[len(other):]
+        self.keys_folder.disabled = self.keys_button.disabled = self.open_checkbox.value
+
+    def _make_keys(self) -> None:
+        """Make the network's keys for the rig's nodes (or issue the missing ones) and say which file goes where."""
+        from backend.services.network_keys import ensure_network_keys
+
+        if not self.nodes:
+            raise InputError("the rig has no depth node yet: add the nodes first", "nodes")
+        keys = ensure_network_keys(self._keys_path(), self.nodes)
+        self.network_text.content = keys_markdown(keys, self.ctx.session.shown(keys.folder))
+
     def _open_network(self) -> None:
+        from backend.devices.node_keys import load_network_keys
         from backend.devices.node_network import NodeNetwork
 
-        network = NodeNetwork(listen=[self.listen.value.strip()])
         try:
+            keys = None if self.open_checkbox.value else load_network_keys(self._keys_path())
+            network = NodeNetwork(listen=[self.listen.value.strip()], keys=keys)
             network.open()
         except InputError as exc:
             self.ctx.notify("Cannot listen for nodes", exc.message, error=True)
@@ -349,9 +415,16 @@ class DepthNetworkStep:
     def attach(self, network) -> None:
         """Use ``network`` (an open :class:`~backend.devices.node_network.NodeNetwork`) for presence and capture."""
         self.network = network
-        self.listen.disabled = self.listen_button.disabled = True
+        for handle in (self.listen, self.listen_button, self.keys_folder, self.keys_button, self.open_checkbox):
+            handle.disabled = True
+        self.network_text.content = network_markdown(network)
         network.on_change(lambda _: self._show_nodes())
         self._show_nodes()
+
+    def _confirm_device(self) -> None:
+        if self.network is not None and self.current is not None:
+            self.network.confirm_device(self.current)
+            self._show_nodes()
 
     def _refresh_loop(self) -> None:
         """Bandwidth, frames/s and latency move all the time: refresh the presence table every :data:`REFRESH_S`."""
@@ -369,6 +442,7 @@ class DepthNetworkStep:
             return
         statuses = network.nodes()
         self.nodes_text.content = nodes_markdown(statuses, self.nodes, self._stored)
+        self.confirm_button.visible = any(s.name == self.current and s.held is not None for s in statuses)
         self.place_button.visible = self.step in SIM_ARRANGEMENTS and any(
             s.alive and str(s.device).startswith("sim") for s in statuses)
 

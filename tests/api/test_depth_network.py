@@ -186,6 +186,8 @@ def test_bad_input_is_a_4xx_and_keeps_everything(client: TestClient) -> None:
     assert client.get(f"{BASE}/layout").json()["lines"][0]["axis"] == "x"
     assert error(client.post(f"{BASE}/nodes/sn1/capture-live", json={}), 409)["input"] == "node_network"
     assert "listen for nodes" in error(client.get(f"{BASE}/presence"), 409)["message"]
+    assert error(client.get(f"{BASE}/network"), 409)["input"] == "node_network"
+    assert error(client.post(f"{BASE}/nodes/sn1/confirm-device"), 409)["input"] == "node_network"
 
 
 def test_png_and_integer_uploads_are_millimetres(client: TestClient) -> None:

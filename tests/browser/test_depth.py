@@ -14,6 +14,7 @@ of the truth (truth.json), and the result kept from it is a ``depth_node`` resul
 
 from __future__ import annotations
 
+import contextlib
 import json
 import queue
 import re
@@ -32,6 +33,7 @@ from playwright.sync_api import Browser, Page, expect
 from backend.calib.depth import service as network_service
 from backend.core.depth_cell import PAPER_NODE_POSES, default_cell_layout
 from backend.core.transforms import transform_error
+from backend.devices.node_keys import load_network_keys
 from backend.services.demo_depth_cell import DEPTH_CELL_NAME, TRUTH_FILE, ensure_depth_cell_session
 from backend.services.jobs import JobRunner
 from backend.services.node_processes import NodeProcesses, free_tcp_port
@@ -124,16 +126,20 @@ def _tables_step(page: Page, label: str, shot: str) -> None:
 
 
 def test_one_node_through_the_guided_procedure(browser: Browser, cell: Studio, tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    with studio_page(browser, cell.url, VIEWPORT) as page, NodeProcesses(endpoint, tmp_path,
-                                                                       rate_hz=AGENT_RATE_HZ) as agents:
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    with studio_page(browser, cell.url, VIEWPORT) as page, contextlib.ExitStack() as stack:
         choose(page, "Session", DEPTH_CELL_NAME)
         button(page, "Open session").click()
         listen = text_input(page, "Listen on")  # step 9 shows, unfolded, once a rig with depth nodes is open
         expect(listen).to_be_visible()
         listen.fill(endpoint)
         listen.press("Enter")
+        button(page, "Make the nodes' keys").click()  # in the session's folder, one file per rig node
+        wait_body(page, re.compile(rf"{NODE}: {NODE}.keys.pem: calib-studio node --name {NODE} --keys"))
         button(page, "Listen for nodes").click()
+        wait_body(page, re.compile(r"secured with keys \w+ on tls/127.0.0.1:\d+: only sn1, .*sn6 can join"))
+        keys = load_network_keys(cell.log.parent / "sessions" / DEPTH_CELL_NAME / "network-keys")
+        agents = stack.enter_context(NodeProcesses(endpoint, tmp_path, rate_hz=AGENT_RATE_HZ, keys=keys))
         agents.start({NODE: f"sim-cell:{NODE}"})
         wait_body(page, re.compile(rf"{NODE}\s+alive\s+sim-cell:{NODE}"))  # through Zenoh liveliness
         page.screenshot(path=ARTIFACTS / "studio_depth_nodes.png")

@@ -143,6 +143,9 @@ def test_every_node_captures_over_the_network_through_the_api(built: CellStudio)
     presence = {p["name"]: p for p in built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/presence")}
     assert sorted(presence) == sorted(NODES) and all(p["alive"] for p in presence.values()), presence
     assert all(abs(p["clock_offset_s"]) < 0.05 for p in presence.values()), presence  # one host: one clock
+    network = built.get(f"/api/sessions/{DEPTH_CELL_NAME}/depth-network/network")  # secured, as a user runs it
+    assert network["secure"] and network["admitted"] == sorted(NODES) and network["listen"][0].startswith("tls/")
+    assert all(p["zid"] and p["refused"] == [] and p["held"] is None for p in presence.values()), presence
 
 
 def test_six_agent_processes_run_and_a_dead_one_is_named(cell: CellStudio) -> None:

@@ -37,7 +37,7 @@ from backend.core.depth import pose_row
 from backend.core.errors import InputError
 from backend.core.limits import MAX_IMAGE_UPLOAD_MB
 from backend.devices.base import Sample
-from backend.devices.node_network import NodeNetwork, open_network
+from backend.devices.node_network import NodeNetwork, NodeStatus, open_network
 
 router = APIRouter(prefix="/sessions/{name}/depth-network", tags=["depth network"], route_class=UploadRoute)
 
@@ -114,8 +114,32 @@ def _network() -> NodeNetwork:
 @router.get("/presence", dependencies=[Depends(deps.session)])
 def presence() -> list[dict[str, Any]]:
     """The nodes the open node network sees or saw (alive, clock offset and round trip (s), bandwidth (B/s),
-    frames, rate (Hz), dropped frames, latency (s)); 404 for an unknown session, 409 without a network."""
-    return [{k: v for k, v in asdict(status).items() if k != "info"} for status in _network().nodes()]
+    frames, rate (Hz), dropped frames, latency (s), the Zenoh id holding the name, other agents refused under it,
+    ``held``: why its captures wait); 404 for an unknown session, 409 without a network."""
+    return [_presence_row(status) for status in _network().nodes()]
+
+
+def _presence_row(status: NodeStatus) -> dict[str, Any]:
+    """A node's status as the presence list gives it (its info reply left out)."""
+    return {k: v for k, v in asdict(status).items() if k != "info"}
+
+
+@router.get("/network", dependencies=[Depends(deps.session)])
+def network_info() -> dict[str, Any]:
+    """The open node network: where it listens, whether links need its keys (``secure``), the network's key
+    fingerprint, the nodes its keys admit and the node key files it could not read; 409 without a network."""
+    network = _network()
+    keys = network.keys
+    return {"listen": network.listen, "secure": network.secure, "admitted": network.admitted(),
+            "fingerprint": None if keys is None else keys.studio.fingerprint,
+            "problems": [] if keys is None else list(keys.problems)}
+
+
+@router.post("/nodes/{sensor}/confirm-device", dependencies=[Depends(deps.session)])
+def confirm_device(sensor: str) -> dict[str, Any]:
+    """Confirm that a node which came back with another device or sensor serial is meant to: its live captures
+    no longer wait (404 for a node never seen, 409 for one with no change to confirm)."""
+    return _presence_row(_network().confirm_device(sensor))
 
 
 @router.post("/nodes/{sensor}/capture-live", status_code=201)
