@@ -505,15 +505,17 @@ class LidarStep:
         self.jobs.run(title, work, on_done)
 
     def _global_guess(self) -> None:
-        session, pair, chosen = self.ctx.session, self.pair, self.chosen_pairs() or None
+        """RANSAC's starting pose, or the sliders' own when that fits better (by the same score)."""
+        session, pair, chosen, T_current = self.ctx.session, self.pair, self.chosen_pairs() or None, self.slider_T()
 
         def work(progress):
-            return lidar_service.global_guess(session, *pair, chosen, progress)
+            return lidar_service.global_guess(session, *pair, chosen, progress, T_current)
 
-        def done(result) -> None:
-            T, fitness = result
-            self.editor.set(T)
-            self.ctx.notify("Global guess", f"RANSAC fitness {fitness:.2f}; the sliders hold the guess - press Refine.")
+        def done(start) -> None:
+            if start.kept == "global":
+                self.editor.set(start.T_target_source)
+            self.jobs.text.content = start.message()
+            self.ctx.notify("Global guess", start.message())
 
         self._submit("Global guess", work, done)
 

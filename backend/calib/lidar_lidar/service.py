@@ -12,8 +12,9 @@ here too, so the step only draws.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -121,13 +122,50 @@ def check_result(session: Session, source: str, result_id: str) -> dict[str, Any
     return result_of(session, "lidar_lidar", result_id, source)
 
 
+@dataclass(frozen=True)
+class StartingPose:
+    """What *Global guess* leaves on the sliders: RANSAC's pose or the current one, whichever fits better."""
+
+    T_target_source: np.ndarray
+    """The kept starting pose (4x4, m)."""
+    kept: Literal["global", "current"]
+    global_fitness: float
+    """The RANSAC pose's share of source points within ``max_distance_m`` of the target."""
+    current_fitness: float | None
+    """The current pose's, by the same score (None without a current pose)."""
+    max_distance_m: float
+
+    def message(self) -> str:
+        """Which pose was kept and why, in the scores both were judged by."""
+        scores = f"fitness at {self.max_distance_m:g} m: global {self.global_fitness:.3f}"
+        if self.current_fitness is None:
+            return f"Global guess on the sliders ({scores}); press Refine."
+        scores += f", current {self.current_fitness:.3f}"
+        if self.kept == "current":
+            return f"Kept the current pose: it fits better than the global guess ({scores})."
+        return f"The global guess fits better than the current pose and is on the sliders ({scores}); press Refine."
+
+
 def global_guess(session: Session, source: str, target: str, pairs: list[tuple[str, str]] | None = None,
-                 progress: ProgressCallback = no_progress) -> tuple[np.ndarray, float]:
-    """A starting ``T_target_source`` (4x4, m) from FPFH features and RANSAC on the last of ``pairs`` (default the
-    last of :func:`pair_ids`), and RANSAC's fitness; about a voxel (``global_voxel_m``) accurate, for GICP to refine."""
+                 progress: ProgressCallback = no_progress, T_current: np.ndarray | None = None) -> StartingPose:
+    """A starting ``T_target_source`` from FPFH features and RANSAC on the last of ``pairs`` (default the last of
+    :func:`pair_ids`), about a voxel (``global_voxel_m``) accurate, for GICP to refine; but never worse than
+    ``T_current``: both are scored alike (the share of source points within the fine correspondence distance,
+    ``max_correspondence_m``, of the target) and the better one is kept (the current one on a tie)."""
     progress(0.05, "FPFH features + RANSAC on the last frame pair")
+    settings = LidarLidarSettings()
     source_points, target_points = capture_pairs(session, source, target, pairs)[-1]
-    return global_initial_guess(source_points, target_points, voxel_m=LidarLidarSettings().global_voxel_m)
+    T_global, _ = global_initial_guess(source_points, target_points, voxel_m=settings.global_voxel_m)
+    progress(0.9, "scoring the global guess against the current pose")
+    tree = cKDTree(target_points)
+    distance_m = settings.max_correspondence_m
+    global_fitness = fit_at(source_points, tree, T_global, distance_m)["fitness"]
+    if T_current is None:
+        return StartingPose(T_global, "global", global_fitness, None, distance_m)
+    current_fitness = fit_at(source_points, tree, T_current, distance_m)["fitness"]
+    if current_fitness >= global_fitness:
+        return StartingPose(np.array(T_current, dtype=float), "current", global_fitness, current_fitness, distance_m)
+    return StartingPose(T_global, "global", global_fitness, current_fitness, distance_m)
 
 
 def fit_at(source_points: np.ndarray, target_tree: cKDTree, T_target_source: np.ndarray,

@@ -100,10 +100,20 @@ def test_global_guess_and_the_fit_at_a_nudged_pose(session):
     """The step's nudging: a rough starting pose from RANSAC, and the fit of the clouds at any pose."""
     from scipy.spatial import cKDTree
 
-    T, ransac_fitness = service.global_guess(session, SOURCE, TARGET)
-    assert 0 < ransac_fitness <= 1 and T.shape == (4, 4)
+    start = service.global_guess(session, SOURCE, TARGET)
+    assert start.kept == "global" and 0 < start.global_fitness <= 1 and start.T_target_source.shape == (4, 4)
+    assert start.message().startswith("Global guess on the sliders (fitness at 0.2 m: global ")
     source_points, target_points = service.capture_pairs(session, SOURCE, TARGET)[-1]
     tree = cKDTree(target_points)
+    # a correct current pose is never replaced by a worse guess; a poor one is
+    kept = service.global_guess(session, SOURCE, TARGET, T_current=session.truth)
+    assert kept.kept == "current" and np.array_equal(kept.T_target_source, session.truth)
+    assert kept.current_fitness == service.fit_at(source_points, tree, session.truth, 0.2)["fitness"]
+    assert kept.current_fitness >= kept.global_fitness and kept.message().startswith("Kept the current pose")
+    far = session.truth @ from_xyz_ypr(np.array([3.0, -2.0, 1.0]), np.array([40.0, 0, 0]))
+    replaced = service.global_guess(session, SOURCE, TARGET, T_current=far)
+    assert replaced.kept == "global" and replaced.current_fitness < replaced.global_fitness
+    assert "fits better than the current pose" in replaced.message()
     at_truth = service.fit_at(source_points, tree, session.truth, 0.2)
     nudged = service.fit_at(source_points, tree, session.truth @ from_xyz_ypr(np.array([0.3, 0, 0]), np.zeros(3)), 0.2)
     assert at_truth["distances_m"].shape == (len(source_points),)
