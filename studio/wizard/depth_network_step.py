@@ -35,6 +35,7 @@ import numpy as np
 from backend.calib.depth import guided_service
 from backend.calib.depth import service as network_service
 from backend.calib.depth.guided_service import GUIDED_STEPS
+from backend.calib.rig import service as rig_service
 from backend.core.depth import POSE_COLUMNS, pose_from_row, pose_row
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot
@@ -45,9 +46,10 @@ from studio.depth_view import COUNT_COLOUR_MAX, STEP, DepthView
 from studio.job_panel import JobPanel
 from studio.layers import STEPS
 from studio.marks import WARNING, mark
-from studio.result_card import ResultCard
+from studio.result_card import ResultCard, update_markdown
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
+from studio.verdict_view import BADGES
 
 NONE = "(no depth node)"
 KIND = "depth_node"
@@ -206,6 +208,8 @@ class DepthNetworkStep:
         self._points: tuple[str, np.ndarray] | None = None
         """(``node/capture id``, points (N, 3) m in the node frame) of the node's latest capture, drawn at the
         editor's pose."""
+        self._to_accept: list[str] = []
+        """The trusted results *Solve all nodes* previewed, which *Confirm accept* takes."""
         self._stored: dict[str, int] = {}
         """Depth captures stored per node (the presence table's last column), counted when they change."""
         self._crosses: dict[str, dict[str, Any]] = {}
@@ -258,11 +262,14 @@ class DepthNetworkStep:
                                                          "to accept")
                 self.finish_text = gui.add_markdown("")
             with gui.add_folder("Automatic solve", expand_by_default=True):
-                self.solve_button = gui.add_button("Solve all nodes", color="blue", hint="every node with captures, "
-                                                   "each result accepted when its verdict is trusted")
+                self.solve_button = gui.add_button("Solve all nodes", color="blue", hint="every node with captures; "
+                                                   "then what accepting the trusted results would move, to confirm")
                 self.solve_node_button = gui.add_button("Solve this node", hint="its result on the card below, to "
                                                         "accept after the preview")
                 self.solve_jobs = JobPanel(ctx, [self.solve_button, self.solve_node_button])
+                self.accept_all_button = gui.add_button("Confirm accept of the trusted results", visible=False,
+                                                        color="green", hint="accept every trusted result the "
+                                                        "preview above lists, in one go")
                 self.history = ResultHistory(gui, lambda _: self._show_result(),
                                              hint="every result of this node (guided and automatic), newest first")
                 self.card = ResultCard(ctx, on_accepted=lambda _: self._show_result(),
@@ -297,6 +304,7 @@ class DepthNetworkStep:
         self.next_button.on_click(lambda _: self._work(self._next_step))
         self.finish_button.on_click(lambda _: self._work(self._finish))
         self.solve_button.on_click(lambda _: self._solve_all())
+        self.accept_all_button.on_click(lambda _: self._work(self._accept_all))
         self.solve_node_button.on_click(lambda _: self._solve_node())
         self.map_button.on_click(lambda _: self._draw_map())
         self.pick_button.on_click(lambda _: self._arm_pick())
@@ -643,18 +651,44 @@ class DepthNetworkStep:
         self._show_tables()
 
     def _solve_all(self) -> None:
-        """Solve every node with captures and accept each result its verdict lets in (the CLI's ``--solve``)."""
+        """Solve every node with captures (nothing accepted), then preview accepting the trusted results."""
         session = self.ctx.session
         if session is None:
             return
         self._in_view()
-        self.solve_jobs.run("solve of every node", lambda progress: network_service.solve_network(
+        self._to_accept = []
+        self.accept_all_button.visible = False
+        self.solve_jobs.run("solve of every node", lambda progress: network_service.solve_nodes(
             session, progress=progress), self._on_network_solved)
 
     def _on_network_solved(self, out: dict[str, Any]) -> None:
-        lines = [f"Solved {len(out['results'])} node(s), accepted {len(out['accepted'])} into the rig."]
+        """Say what accepting the trusted results together would move; the others go through their own card."""
+        session = self.ctx.session
+        levels = {node: Verdict.from_record(session.result(result_id)).level
+                  for node, result_id in out["results"].items()}
+        self._to_accept = [out["results"][node] for node, level in levels.items() if level == "trusted"]
+        lines = [f"Solved {len(out['results'])} node(s): " + (", ".join(
+            f"{node} {out['results'][node]} {BADGES[level]}" for node, level in levels.items())
+            or "none") + ". Nothing is accepted yet."]
+        if self._to_accept:
+            update = rig_service.preview_many(session, self._to_accept)
+            lines += ["", f"**Accepting the {len(self._to_accept)} trusted result(s) would:**", "",
+                      update_markdown(update)]
+        lines += [f"- {node}: its result is *{level}*: read why on its card, accept it there"
+                  for node, level in levels.items() if level != "trusted"]
         lines += [f"- {WARNING} {problem}" for problem in out["problems"]]
         self.solve_jobs.text.content = "\n".join(lines)
+        self.accept_all_button.visible = bool(self._to_accept)
+        self._show_result()
+
+    def _accept_all(self) -> None:
+        """*Confirm accept*: the trusted results the preview listed go into the rig."""
+        to_accept, self._to_accept = self._to_accept, []
+        self.accept_all_button.visible = False
+        if not to_accept:
+            return
+        update = rig_service.accept_many(self.ctx.session, to_accept)
+        self.solve_jobs.text.content = (f"**Accepted {', '.join(to_accept)}.**\n\n" + update_markdown(update))
         self.ctx.rig_changed()  # the card, the tables and the scene follow (on_rig_changed)
 
     def _solve_node(self) -> None:

@@ -214,6 +214,18 @@ def test_network_panel_in_process(cell: Studio, tmp_path: Path, free_port: Calla
         (row,) = network_service.verification_rows(session)
         assert (row["a"], row["b"], row["measured_m"]) == ("robot_b1", "robot_b2", 1.555)
         assert f"{row['estimated_m']:.3f} | {1000 * row['error_m']:+.1f}" in step.verification_text.content
+
+        # Solve all nodes: solved, previewed, nothing accepted until confirmed
+        accepted = session.accepted_slots()
+        step._solve_all()
+        text = poll(lambda: "Nothing is accepted yet" in step.solve_jobs.text.content and step.solve_jobs.text.content,
+                    "the network solve never reported", 300)
+        assert session.accepted_slots() == accepted and step.accept_all_button.visible, text
+        trusted = step._to_accept
+        assert trusted and f"**Accepting the {len(trusted)} trusted result(s) would:**" in text, text
+        step._work(step._accept_all)
+        assert set(trusted) <= set(session.accepted_slots().values()) and not step.accept_all_button.visible
+        assert step.solve_jobs.text.content.startswith(f"**Accepted {', '.join(trusted)}.**")
         app.close()
     finally:
         jobs.shutdown()

@@ -298,21 +298,33 @@ def accept_node(session: Session, node: str, result_id: str, confirm: bool = Fal
     return rig_service.accept(session, result_id, confirm=confirm)
 
 
+def solve_nodes(session: Session, nodes: Sequence[str] | None = None,
+                progress: ProgressCallback = no_progress) -> dict[str, Any]:
+    """Solve every node (default: all with captures), accepting none: ``{"results": {node: result_id},
+    "problems": [...]}``, a node that cannot be solved named in ``problems`` and the others solved."""
+    nodes = [n for n in node_names(session) if captures(session, n)] if nodes is None else list(nodes)
+    out: dict[str, Any] = {"results": {}, "problems": []}
+    for i, node in enumerate(nodes):
+        progress(i / max(len(nodes), 1), f"solving {node}")
+        try:
+            out["results"][node] = solve_session(session, node)["id"]
+        except InputError as exc:
+            out["problems"].append(f"{node}: {exc.message}")
+    return out
+
+
 def solve_network(session: Session, nodes: Sequence[str] | None = None, *, icp: bool = False,
                   confirm: bool = False, progress: ProgressCallback = no_progress) -> dict[str, Any]:
-    """Solve and accept every node (default: all with captures); with ``icp``, pairwise ICP between nodes whose
-    clouds overlap is added as extra edges, only between nodes that a constraint solve placed. Returns
-    ``{"results": {node: result_id}, "accepted": [result ids], "icp": [result ids], "problems": [...]}``: a node
-    that cannot be solved, or whose verdict keeps it out (``check`` without ``confirm``, ``reject``), is named
-    in ``problems`` and the others go on."""
-    nodes = [n for n in node_names(session) if captures(session, n)] if nodes is None else list(nodes)
-    out: dict[str, Any] = {"results": {}, "accepted": [], "icp": [], "problems": []}
+    """Solve and accept every node (default: all with captures; the CLI's ``--solve`` and the API's job); with
+    ``icp``, pairwise ICP between nodes whose clouds overlap is added as extra edges, only between nodes that a
+    constraint solve placed. Returns ``{"results": {node: result_id}, "accepted": [result ids], "icp": [result
+    ids], "problems": [...]}``: a node that cannot be solved, or whose verdict keeps it out (``check`` without
+    ``confirm``, ``reject``), is named in ``problems`` and the others go on."""
+    out = solve_nodes(session, nodes, lambda fraction, text: progress(fraction * (0.8 if icp else 1.0), text))
+    out |= {"accepted": [], "icp": []}
     placed = []
-    for i, node in enumerate(nodes):
-        progress(i / max(len(nodes), 1) * (0.8 if icp else 1.0), f"solving {node}")
+    for node, result_id in out["results"].items():
         try:
-            result_id = solve_session(session, node)["id"]
-            out["results"][node] = result_id
             accept_node(session, node, result_id, confirm)
             out["accepted"].append(result_id)
             placed.append(node)

@@ -236,6 +236,30 @@ def accept(session: Session, result_id: str, *, confirm: bool = False, revert: S
     return RigUpdate(after[0], _moves(before, after[0]), result_id, slot)
 
 
+def preview_many(session: Session, result_ids: Sequence[str]) -> RigUpdate:
+    """What accepting every one of ``result_ids`` together would do to the tree (each checked as
+    :func:`preview` checks one); nothing is written. Its ``slot`` lists their slots."""
+    records = [session.result(result_id) for result_id in result_ids]
+    for record in records:
+        _check_acceptable(record)
+    chosen = {slot_of(record): record["id"] for record in records}
+    with session.lock:
+        before = solve_rig(session)
+        accepted = {s: r for s, r in session.accepted_slots().items() if s not in chosen} | chosen
+        after = _fit(session, accepted, session.rig)
+    return RigUpdate(after, _moves(before, after), None, ", ".join(chosen))
+
+
+def accept_many(session: Session, result_ids: Sequence[str]) -> RigUpdate:
+    """Accept each of ``result_ids`` in turn (as :func:`accept`, none confirmed: a ``check`` among them stops the
+    run there, naming it, with those before it accepted); the update from before the first to after the last."""
+    with session.lock:
+        before = solve_rig(session)
+        updates = [accept(session, result_id) for result_id in result_ids]
+    after = updates[-1].tree if updates else before
+    return RigUpdate(after, _moves(before, after), None, ", ".join(update.slot for update in updates))
+
+
 def revert(session: Session, slot: str) -> RigUpdate:
     """Empty ``slot`` (its result stays in the history), re-fit the tree without its edges and write it.
 
