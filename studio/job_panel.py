@@ -16,9 +16,11 @@ from studio.marks import WARNING
 class JobPanel:
     """Runs work through the studio's job runner and mirrors it in the panel, off the GUI thread.
 
-    ``buttons`` are disabled while a job runs, so the same work cannot be started twice. A job runs on in the
-    session it was started in; if another session has been opened by the time it ends, its ``on_done`` is not run
-    (it would show one session's result in another's panel). A session change clears an idle panel.
+    ``buttons`` are disabled while a job runs, so the same work cannot be started twice. A failure shows in the
+    panel (placed under the button whose action it follows), named with the job's title, and as a toast; the job
+    runner logs it. A job runs on in the session it was started in; if another session has been opened by the time
+    it ends, its ``on_done`` is not run (it would show one session's result in another's panel). A session change
+    clears an idle panel.
     """
 
     def __init__(self, ctx: StudioContext, buttons: list, cancel_label: str = "Cancel"):
@@ -31,6 +33,10 @@ class JobPanel:
         self.job: Job | None = None
         self.cancel_button.on_click(lambda _: self.job.cancel() if self.job else None)
         ctx.on_session_changed(lambda _: None if self.busy else self._clear())
+
+    def also_disable(self, *buttons) -> None:
+        """Disable ``buttons`` too while a job of this panel runs (a button made after the panel)."""
+        self.buttons.extend(buttons)
 
     def _clear(self) -> None:
         self.progress.value = 0.0
@@ -68,5 +74,5 @@ class JobPanel:
         elif job.state == "cancelled":
             self.text.content = "Cancelled; nothing was changed."
         else:
-            self.text.content = f"{WARNING} {job.message}"
+            self.text.content = f"{WARNING} {job.title} failed: {job.message}"
             self.ctx.notify(f"{job.title} failed", job.message, error=True)

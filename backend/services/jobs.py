@@ -8,6 +8,7 @@ the next progress report, leaving the session as it was.
 from __future__ import annotations
 
 import itertools
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -17,6 +18,8 @@ from typing import Any, Literal
 
 from backend.core.errors import CancelledError, InputError, NotFoundError, shorten
 from backend.core.result import ProgressCallback
+
+log = logging.getLogger(__name__)
 
 JobState = Literal["running", "done", "failed", "cancelled"]
 
@@ -73,9 +76,11 @@ class JobRunner:
                 job.state, job.message = "cancelled", str(exc)
             except InputError as exc:
                 job.state, job.error, job.message = "failed", exc.to_dict(), exc.message
+                log.warning("job %s (%s) failed: %s", job.id, title, exc.message)
             except Exception as exc:  # noqa: BLE001 - a job must always end with a status the user can read
                 job.state, job.message = "failed", f"internal error: {shorten(exc)}"
                 job.error = {"message": job.message, "input": None}
+                log.exception("job %s (%s) failed with an internal error", job.id, title)
             finally:
                 job.finished = time.time()
                 job._done.set()

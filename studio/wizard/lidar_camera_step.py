@@ -99,6 +99,7 @@ class LidarCameraStep:
                                                  hint="one pair, all pairs tiled, or the latest captures")
             self.data_text = gui.add_markdown("")
             self.capture_button = gui.add_button("Capture pair", hint="an image and a cloud of the same still moment")
+            self.capture_jobs = JobPanel(ctx, [self.capture_button])
             self.need_board = gui.add_checkbox("Board in view", initial_value=True,
                                                hint="refuse a pair without the board, and wait for it to hold still")
             self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=MAX_SLIDER_TRANSLATION_M)
@@ -111,6 +112,7 @@ class LidarCameraStep:
                      "whose edges are all far away, which fix the rotation but hardly the translation")
             self.solve_button = gui.add_button("Solve from the sliders", color="blue")
             self.jobs = JobPanel(ctx, [self.solve_button, self.capture_button])
+            self.capture_jobs.also_disable(self.solve_button)
             self.keep_button = gui.add_button("Keep the sliders' transform",
                                               hint="keep the sliders' transform as a result set by hand (no "
                                                    "uncertainty), to accept it like a solve")
@@ -241,7 +243,7 @@ class LidarCameraStep:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed for a pair.", error=True)
             return
         self.ctx.show_step(STEP)
-        self.jobs.run(f"pair {pair[0]}+{pair[1]}", lambda progress: pairs_service.capture_pair_from_devices(
+        self.capture_jobs.run(f"pair {pair[0]}+{pair[1]}", lambda progress: pairs_service.capture_pair_from_devices(
             session, *pair, require_board=need_board, progress=progress).name,
             lambda name: self._list_scenes(select=name), done_message="Pair captured in {seconds:.1f} s.")
 

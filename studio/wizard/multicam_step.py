@@ -93,6 +93,7 @@ class MulticamStep:
                                                hint="refuse a set unless at least two cameras see the board")
             self.capture_button = gui.add_button("Capture set", color="green",
                                                  hint="one frame of every chosen camera, read at the same moment")
+            self.capture_jobs = JobPanel(ctx, [self.capture_button])
             with gui.add_folder("Import from a bag", expand_by_default=False):
                 self.bag_path = gui.add_text("Bag path", "", hint="a ROS 2 bag folder (or its .db3 / .mcap file)")
                 self.topic_folder = gui.add_folder("Image topic per camera")
@@ -110,6 +111,7 @@ class MulticamStep:
                                                 "intrinsics is always estimated)")
             self.solve_button = gui.add_button("Solve rig", color="blue")
             self.jobs = JobPanel(ctx, [self.capture_button, self.solve_button])
+            self.capture_jobs.also_disable(self.solve_button)
             self.history = ResultHistory(gui, lambda result_id: self._show_result(result_id, draw=True),
                                          label="Rig result",
                                          hint="every solve of these cameras; pick one to inspect, accept or revert to")
@@ -214,7 +216,7 @@ class MulticamStep:
             self.ctx.notify("Tick two cameras", "A set needs at least two cameras.", error=True)
             return
         tolerance_s, need_board = float(self.tolerance_ms.value) / 1e3, bool(self.need_board.value)
-        self.jobs.run(f"set of {', '.join(cameras)}", lambda progress: capture_service.capture_set_from_devices(
+        self.capture_jobs.run(f"set of {', '.join(cameras)}", lambda progress: capture_service.capture_set_from_devices(
             session, cameras, tolerance_s=tolerance_s, require_board=need_board, progress=progress),
             self._on_captured, done_message="Set captured in {seconds:.1f} s.")
 
@@ -223,7 +225,7 @@ class MulticamStep:
         for camera, capture in found.captures.items():
             self.ctx.scene.show_camera_image(camera, session.capture_image(camera, capture.id))
         seen = ", ".join(found.cameras_with_board) or "no camera"
-        self.jobs.text.content += f" **{found.name}**: the board was seen by {seen}."
+        self.capture_jobs.text.content += f" **{found.name}**: the board was seen by {seen}."
         self._list_sets()
 
     def _import(self) -> None:

@@ -51,10 +51,12 @@ class SweepStep:
             gui.add_markdown(HELP)
             self.sensor = gui.add_dropdown("Swept scanner", options=[NONE])
             self.capture_button = gui.add_button("Capture sweep", color="green")
+            self.capture_jobs = JobPanel(ctx, [self.capture_button])
             self.captures_text = gui.add_markdown("")
             self.estimate_tilt = gui.add_checkbox("Estimate the scanner's tilt", initial_value=True)
             self.calibrate_button = gui.add_button("Calibrate", color="blue")
             self.jobs = JobPanel(ctx, [self.capture_button, self.calibrate_button])
+            self.capture_jobs.also_disable(self.calibrate_button)
             self.history = ResultHistory(gui, lambda _: self._pick(),
                                          hint="every calibration of this scanner; the sweep is redrawn with it")
             self.card = ResultCard(ctx, empty_text="No sweep calibration yet.")
@@ -125,8 +127,9 @@ class SweepStep:
             self.ctx.notify("No swept scanner", "Add a sensor with the swept_scanner device first.", error=True)
             return
         self.ctx.show_step(STEP)
-        self.jobs.run(f"Sweep of {sensor}", lambda progress: sweep_service.capture_sweep(session, sensor, progress),
-                      lambda record: self._select(), done_message="{title}: captured in {seconds:.1f} s.")
+        self.capture_jobs.run(f"Sweep of {sensor}", lambda progress: sweep_service.capture_sweep(session, sensor,
+                                                                                                 progress),
+                              lambda record: self._select(), done_message="{title}: captured in {seconds:.1f} s.")
 
     def _calibrate(self) -> None:
         session, sensor = self.ctx.session, self.current
