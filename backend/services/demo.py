@@ -1,7 +1,9 @@
 """The built-in demo session: the simulated rig, ready to explore in seconds.
 
-The session's rig is the simulator's ground-truth mounting with the camera
-intrinsics removed (the simulator keeps the truth), and ``cam_front`` already
+The session's rig is the mounting a user first types in (:func:`~backend.sim.demo_rig.measured_demo_rig`:
+``lidar_top`` and ``sweep_3d`` from the drawing, the others tape-measured, 2-5 cm and 1-3 deg off the
+simulator's truth) with the camera intrinsics removed; the truth is ``truth.json`` beside it (:func:`frame_truth`),
+so each accept visibly moves its sensors towards it. ``cam_front`` already
 carries captures and an accepted intrinsics solve so every screen has something
 to show. ``cam_wide`` is left for the user to calibrate live.
 
@@ -24,10 +26,13 @@ server can serve its page at once and open the demo when it is ready.
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
 
 from backend.calib._session import session_board
 from backend.calib.board.detection import detect_board
@@ -39,7 +44,8 @@ from backend.calib.rig import service as rig_service
 from backend.core.result import ProgressCallback, no_progress
 from backend.devices.base import create_device
 from backend.services.jobs import Job, JobRunner
-from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.demo_rig import DEMO_BOARD, demo_rig, measured_demo_rig
+from backend.store.atomic import write_json_atomic
 from backend.store.session import Session, SessionStore
 
 DEMO_NAME = "demo"
@@ -52,9 +58,22 @@ PAIR_HOLD_S = 3.0
 DEMO_SET_CAMERAS = ["cam_front", "cam_right"]
 DEMO_SETS = 10
 DEMO_SET_TOLERANCE_S = 5.0
+TRUTH_FILE = "truth.json"
+"""A demo session's simulator truth, ``{"frames": {name: T_root_frame (4x4, m)}, ...}``: the rig step shows each
+frame's distance from it (only a demo has one)."""
 STAGING_DIR = ".demo-building"
 """Folder under the sessions root where the demo is built before it is moved into place (not a session)."""
 BUILD_TITLE = "preparing the demo session"
+
+
+def frame_truth(session: Session) -> dict[str, np.ndarray]:
+    """Each frame's true ``T_root_frame`` (4x4, m) from the session's :data:`TRUTH_FILE` (a demo's); empty for a
+    session without one, or whose truth cannot be read (a real rig has no truth to show)."""
+    try:
+        frames = json.loads((session.path / TRUTH_FILE).read_text()).get("frames", {})
+        return {str(name): np.array(T, dtype=float).reshape(4, 4) for name, T in frames.items()}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return {}
 
 
 def _retire(store: SessionStore, name: str) -> None:
@@ -100,13 +119,17 @@ def start_demo_build(store: SessionStore, jobs: JobRunner, *, fresh: bool = Fals
 
 
 def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Session:
-    """Create the demo session in ``store``: ``views`` views of :data:`DEMO_CAMERA` and their accepted solve,
-    then the pairs and the sets. The simulator's board poses are already spread over the image, so the first
+    """Create the demo session in ``store``, its rig as first measured (:func:`measured_demo_rig`) and the
+    simulator's truth beside it (:data:`TRUTH_FILE`): ``views`` views of :data:`DEMO_CAMERA` and their accepted
+    solve, then the pairs and the sets. The simulator's board poses are already spread over the image, so the first
     ``views`` frames are kept as they come; detection runs on both cores."""
-    rig = demo_rig()
+    rig = measured_demo_rig()
     for camera in rig.sensors("camera"):
         camera.intrinsics = None
     session = store.create(DEMO_NAME, rig=rig, board=DEMO_BOARD, title="Simulated rig (known ground truth)")
+    truth = demo_rig()
+    write_json_atomic(session.path / TRUTH_FILE,
+                      {"frames": {frame.name: truth.T_root_frame(frame.name).tolist() for frame in truth.sensors()}})
     board = session_board(session)
     samples, detections = [], []
     with create_device(session.rig.get(DEMO_CAMERA).device) as device:

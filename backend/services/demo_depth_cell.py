@@ -13,7 +13,7 @@
   ``depth_network.json``, and two captures per node (its tables behind each other, then beside each other) are
   stored so the network screen and the automatic solve have something at once;
 - the simulator's truth (node poses, table placements, cross positions) is ``truth.json`` in the session
-  folder, for tests and checks; nothing of the studio reads it.
+  folder, for tests and checks; the studio's rig step shows each node's distance from it, nothing else reads it.
 
 The session is built in :data:`STAGING_DIR` and moved into place whole, as the robot-rig demo is
 (:mod:`backend.services.demo`).
@@ -33,7 +33,6 @@ from backend.core.depth import pose_from_row
 from backend.core.depth_cell import PAPER_NODE_POSES, CellLayout, TablePlacement, default_cell_layout
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Frame, Rig
-from backend.core.transforms import apply_params
 from backend.devices.base import create_device
 from backend.devices.node_network import NodeNetwork
 from backend.services.demo import ensure_staged_session
@@ -41,6 +40,7 @@ from backend.services.jobs import Job, JobRunner
 from backend.services.network_keys import ensure_network_keys
 from backend.services.node_processes import NodeProcesses, free_tcp_port
 from backend.sim.depth_cell import table_placements, truth_dict
+from backend.sim.tape_measure import tape_guess
 from backend.store.atomic import write_json_atomic
 from backend.store.session import Session, SessionStore
 
@@ -70,22 +70,13 @@ NODE_KEYS_DIR = ".depth-cell-keys"
 BUILD_TITLE = "preparing the depth-cell session"
 
 
-def tape_guess(T_world_node: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``T_world_node`` as a tape measure and a protractor give it: moved by a random translation of norm in
-    :data:`TAPE_ERROR_M` (m) and turned about a random axis by an angle in :data:`TAPE_ERROR_DEG` (deg)."""
-    directions = rng.normal(size=(2, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    step = np.r_[directions[0] * rng.uniform(*TAPE_ERROR_M), directions[1] * np.radians(rng.uniform(*TAPE_ERROR_DEG))]
-    return apply_params(T_world_node, step)
-
-
 def depth_cell_rig(seed: int = DEMO_SEED) -> Rig:
     """The cell's rig: ``world`` and the six nodes at their tape-measured poses (seeded), captured over the
     network (device ``{"driver": "node", "node": NAME}``)."""
     rng = np.random.default_rng(seed)
     rig = Rig(root="world")
     for name, row in PAPER_NODE_POSES.items():
-        rig.add(Frame(name, "world", tape_guess(pose_from_row(row), rng), kind="depth",
+        rig.add(Frame(name, "world", tape_guess(pose_from_row(row), rng, TAPE_ERROR_M, TAPE_ERROR_DEG), kind="depth",
                       device={"driver": "node", "node": name}, mount_sigma=MOUNT_SIGMA))
     return rig
 

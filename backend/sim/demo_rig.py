@@ -17,6 +17,7 @@ import numpy as np
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
 from backend.core.transforms import R_BODY_OPTICAL, from_xyz_ypr, make_T
+from backend.sim.tape_measure import tape_guess
 
 DEMO_BOARD = "checkerboard:9x6:0.04"
 """The board spec the demo and the simulated cameras use by default."""
@@ -121,4 +122,31 @@ def demo_rig() -> Rig:
     rig.add(Frame("sweep_3d", "base_link", np.array(DEFAULT_SIM_MOUNT), kind="lidar3d",
                   device={"driver": "swept_scanner", "servo_port": "sim", "scanner": {"driver": "sim"},
                           "geometry": copy.deepcopy(SWEEP_NOMINAL_GEOMETRY)}))
+    return rig
+
+
+CAD_SENSORS = ("lidar_top", "sweep_3d")
+"""Sensors whose mounting the demo takes from the robot's drawing, exact: ``lidar_top`` defines the body frame
+(as the main LiDAR often does), ``sweep_3d`` is the servo's machined mount."""
+CAD_SIGMA = (0.001, 0.05)
+"""1-sigma of a drawing's mounting (m, deg per axis)."""
+TAPE_ERROR_M = (0.02, 0.05)
+"""How far (m, range of the norm) a tape-measured mounting is from the truth."""
+TAPE_ERROR_DEG = (1.0, 3.0)
+"""How far (deg, range of the angle) a protractor's mounting is turned from the truth."""
+TAPE_SEED = 7
+
+
+def measured_demo_rig(seed: int = TAPE_SEED) -> Rig:
+    """The demo rig as a user first types it in (mounting guess and transform alike): the :data:`CAD_SENSORS` at
+    the truth with :data:`CAD_SIGMA`, every other sensor tape-measured (:func:`~backend.sim.tape_measure.tape_guess`
+    with :data:`TAPE_ERROR_M` and :data:`TAPE_ERROR_DEG`, seeded) with the default mounting sigma."""
+    rng = np.random.default_rng(seed)
+    rig = demo_rig()
+    for frame in rig.sensors():
+        if frame.name in CAD_SENSORS:
+            frame.mount_sigma = CAD_SIGMA
+        else:
+            guess = tape_guess(frame.T_parent_child, rng, TAPE_ERROR_M, TAPE_ERROR_DEG)
+            frame.T_parent_child, frame.T_mount = guess, guess.copy()
     return rig

@@ -432,7 +432,8 @@ def truth_dict(layout: CellLayout, node_poses: dict[str, np.ndarray],
                placements: dict[str, list[TablePlacement]]) -> dict[str, Any]:
     """The simulated cell's ground truth as ``truth.json`` keeps it (JSON-friendly; m, deg).
 
-    ``{"nodes": {name: {"T_world_node": 4x4, "pose_row": [X, Y, Z, RotZ, RotY, RotX]}}, "layout": ...,
+    ``{"nodes": {name: {"T_world_node": 4x4, "pose_row": [X, Y, Z, RotZ, RotY, RotX]}}, "frames": {name:
+    T_world_node} (what the rig step compares each frame with), "layout": ...,
     "table_placements": {key: [TablePlacement dicts]}, "table_tops": {key: [{"table", "height_m", "corners_m"}]},
     "crosses": {name: [x, y, z]}}``; ``placements`` is keyed by capture (or by whatever the caller groups them
     by), ``node_poses`` holds ``T_world_node`` (4x4, m).
@@ -443,6 +444,7 @@ def truth_dict(layout: CellLayout, node_poses: dict[str, np.ndarray],
         nodes[name] = {"T_world_node": T_world_node.tolist(), "pose_row": list(pose_row(T_world_node))}
     return {
         "nodes": nodes,
+        "frames": {name: node["T_world_node"] for name, node in nodes.items()},
         "layout": layout.to_dict(),
         "table_placements": {key: [placement_to_dict(p) for p in group] for key, group in placements.items()},
         "table_tops": {key: [{"table": p.table, "height_m": layout.table(p.table).height_m,

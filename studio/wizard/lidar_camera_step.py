@@ -137,7 +137,7 @@ class LidarCameraStep:
         self.scene_choice.on_update(lambda _: self._load_scenes())
         for handle in (self.colour_by, self.window, self.occlusion, self.radius, self.paint_cloud):
             handle.on_update(lambda _: self._wake.set())
-        self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
+        self.reset_button.on_click(lambda _: self.editor.set(self._rig_T(), undoable=False))  # start afresh there
         self.capture_button.on_click(lambda _: self._capture())
         self.solve_button.on_click(lambda _: self._solve())
         self.keep_button.on_click(lambda _: self._keep())

@@ -16,6 +16,8 @@ import viser
 from backend.calib.rig import service as rig_service
 from backend.calib.rig.service import FLAG_SIGMA, EdgeResidual, RigTree
 from backend.core.errors import InputError
+from backend.core.transforms import transform_error
+from backend.services.demo import frame_truth
 from studio.context import StudioContext
 from studio.marks import WARNING, mark
 from studio.result_card import rotation_vector_deg, update_markdown
@@ -48,18 +50,31 @@ def auto_scale(tree: RigTree) -> float:
     return float(10.0 ** np.clip(np.floor(np.log10(AUTO_TARGET_M / np.median(sigmas_m))), 0, 3))
 
 
-def frames_markdown(tree: RigTree) -> str:
+def frames_markdown(tree: RigTree, truth: dict[str, np.ndarray] | None = None) -> str:
     """The fused frames as a table: parent, xyz (m), rotation vector (deg), 1-sigma in the parent (mm, deg about
-    x, y, z)."""
-    rows = ["| frame | parent | x, y, z (m) | rotation vector (°) | σ x, y, z (mm) | σ rot x, y, z (°) |",
-            "|---|---|---|---|---|---|"]
+    x, y, z); with a simulator's ``truth`` (``T_root_frame`` per frame, a demo's), each frame's distance from it
+    (mm, deg) beside its sigma."""
+    truth = truth or {}
+    rows = ["| frame | parent | x, y, z (m) | rotation vector (°) | σ x, y, z (mm) | σ rot x, y, z (°) |"
+            + (" off the truth (mm, °) |" if truth else ""), "|---|---|---|---|---|---|" + ("---|" if truth else "")]
     for name, frame in tree.frames.items():
         xyz_m = frame.T_parent_child[:3, 3]
         std = frame.std
-        rows.append(f"| {name} | {frame.parent} | {_numbers(xyz_m, '.3f')} "
-                    f"| {_numbers(rotation_vector_deg(frame.T_parent_child), '.2f')} "
-                    f"| {_numbers(std['trans_m'], '.1f', 1000.0)} | {_numbers(std['rot_deg'], '.2f')} |")
+        row = (f"| {name} | {frame.parent} | {_numbers(xyz_m, '.3f')} "
+               f"| {_numbers(rotation_vector_deg(frame.T_parent_child), '.2f')} "
+               f"| {_numbers(std['trans_m'], '.1f', 1000.0)} | {_numbers(std['rot_deg'], '.2f')} |")
+        if truth:
+            row += f" {_off_truth(frame.T_root_frame, truth.get(name))} |"
+        rows.append(row)
     return "\n".join(rows)
+
+
+def _off_truth(T_root_frame: np.ndarray, T_true: np.ndarray | None) -> str:
+    """``12.3 mm, 1.84°``: how far a frame is from the simulator's truth (position, rotation angle); – without."""
+    if T_true is None:
+        return "–"
+    dt_m, dr_deg = transform_error(T_root_frame, T_true)
+    return f"{1000.0 * np.linalg.norm(dt_m):.1f} mm, {np.linalg.norm(dr_deg):.2f}°"
 
 
 def edge_mark(residual: EdgeResidual) -> str:
@@ -163,7 +178,7 @@ class RigStep:
         if session is None:
             return
         self.tree = rig_service.solve_rig(session)
-        self.frames_text.content = frames_markdown(self.tree)
+        self.frames_text.content = frames_markdown(self.tree, frame_truth(session))
         self.edges_text.content = edges_markdown(self.tree)
         self.checks_text.content = checks_markdown(self.tree)
         slots = list(dict.fromkeys(r.edge.slot for r in self.tree.edges if r.edge.slot))

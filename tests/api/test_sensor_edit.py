@@ -210,19 +210,20 @@ def test_a_restore_never_takes_a_name_or_a_slot_that_is_taken(client):
     assert restored["not_restored"] == {"lidar_top/T_cam_front_lidar_top": "the rig no longer holds cam_front"}
 
 
-def test_removing_a_camera_previews_the_frames_its_edges_held(client):
-    """The hand-set edge cam_front -> lidar_top (sigma 5 mm, 0.3 deg) pulls lidar_top off its mounting guess (50 mm,
-    5 deg); removing cam_front drops the edge, and lidar_top goes back to its guess: the preview says so first."""
+def test_removing_a_sensor_previews_the_frames_its_edges_held(client):
+    """The hand-set edge cam_front -> lidar_top (sigma 5 mm, 0.3 deg) pulls cam_front off its tape-measured mounting
+    guess (sigma 50 mm, 5 deg) towards lidar_top, whose mounting is the drawing's; removing lidar_top drops the edge,
+    and cam_front goes back to its guess: the preview says so first."""
     accept_manual_lidar_edge(client)
     rig = client.app.state.studio.store.get("demo").rig
-    held = rig.get("lidar_top").T_parent_child.copy()
-    guess = rig.get("lidar_top").T_mount.copy()
+    held = rig.get("cam_front").T_parent_child.copy()
+    guess = rig.get("cam_front").T_mount.copy()
     expected_m = float(np.linalg.norm(held[:3, 3] - guess[:3, 3]))
-    assert expected_m > 0.01, "the hand-set edge moved lidar_top"
+    assert expected_m > 0.01, "the hand-set edge moved cam_front"
 
-    preview = client.delete(f"{S}/sensors/cam_front", params={"preview": True}).json()
-    assert sorted(preview["emptied"]) == ["cam_front/intrinsics", "lidar_top/T_cam_front_lidar_top"]
+    preview = client.delete(f"{S}/sensors/lidar_top", params={"preview": True}).json()
+    assert preview["emptied"] == ["lidar_top/T_cam_front_lidar_top"]
     moves = {m["frame"]: m for m in preview["moves"]}
-    assert moves["lidar_top"]["trans_m"] == pytest.approx(expected_m, rel=1e-6)
-    assert client.delete(f"{S}/sensors/cam_front").json()["moves"] == preview["moves"]
-    np.testing.assert_allclose(frames(client)["lidar_top"]["T_parent_child"], guess, atol=1e-9)
+    assert moves["cam_front"]["trans_m"] == pytest.approx(expected_m, rel=1e-6)
+    assert client.delete(f"{S}/sensors/lidar_top").json()["moves"] == preview["moves"]
+    np.testing.assert_allclose(frames(client)["cam_front"]["T_parent_child"], guess, atol=1e-9)

@@ -1,14 +1,15 @@
 """The LiDAR-to-camera solve of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium.
 
-The demo session stores 10 image + cloud pairs of cam_front and lidar_top with the board in view, and its rig
-is the simulator's truth. On step 6 the overlay opens on the mosaic of all pairs at the truth, with its depth
-legend; the full-size overlay page opens from the step's link on the same transform, every pair at 1280x720 with its
-legend, and is zoomed with the wheel and panned. The increment sliders are then typed away from the truth (3° about
-the camera's z, which is yaw, and 5 cm along its x), nudged from the keyboard (viser command-palette hotkeys: L is yaw
-minus, Shift+J a fine yaw plus, Z undo), solved from there with the board method, and the result is accepted with
-its verdict confirmed. The result, the read-only pose and the acceptance are checked against the truth through the
-HTTP API, and the overlays (off the truth, solved, full size and zoomed) and the solve's before/after images are left
-in ``tests/artifacts`` to look at.
+The demo session stores 10 image + cloud pairs of cam_front and lidar_top with the board in view. Its rig starts
+from tape-measured guesses (lidar_top's mounting is the drawing's, exact): the test first types cam_front's true
+mounting through the API, as a user edits a sensor, so the rig holds the simulator's truth. On step 6 the overlay
+opens on the mosaic of all pairs at the truth, with its depth legend; the full-size overlay page opens from the
+step's link on the same transform, every pair at 1280x720 with its legend, and is zoomed with the wheel and panned.
+The increment sliders are then typed away from the truth (3° about the camera's z, which is yaw, and 5 cm along its
+x), nudged from the keyboard (viser command-palette hotkeys: L is yaw minus, Shift+J a fine yaw plus, Z undo),
+solved from there with the board method, and the result is accepted with its verdict confirmed. The result, the
+read-only pose and the acceptance are checked against the truth through the HTTP API, and the overlays (off the
+truth, solved, full size and zoomed) and the solve's before/after images are left in ``tests/artifacts`` to look at.
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ import re
 import time
 
 import cv2
+import httpx
 import numpy as np
 import pytest
 from playwright.sync_api import Browser, Locator, Page, expect
 
-from backend.core.transforms import from_xyz_ypr, invert
+from backend.core.transforms import from_xyz_ypr, invert, to_xyz_ypr
 from backend.sim.demo_rig import demo_rig
 from tests.conftest import (
     ARTIFACTS,
@@ -172,6 +174,10 @@ def _press(page: Page, key: str, yaw_expected: float, overlay: Locator) -> None:
 
 def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
     truth = demo_rig().T_a_b(CAMERA, LIDAR)
+    xyz_m, ypr_rad = to_xyz_ypr(demo_rig().get(CAMERA).T_parent_child)
+    edit = httpx.patch(f"{studio.api}/api/sessions/demo/sensors/{CAMERA}", timeout=60,
+                       json={"pose": {"xyz_m": xyz_m.tolist(), "ypr_deg": np.degrees(ypr_rad).tolist()}})
+    assert edit.status_code == 200, edit.text
     ARTIFACTS.mkdir(exist_ok=True)
     with studio_page(browser, studio.url, VIEWPORT) as page:
         for folder in ("1 · Session", "3 · Camera intrinsics"):  # fold these away: room for step 6
@@ -180,13 +186,16 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         choose(page, "Onto camera", CAMERA)
         choose(page, "From LiDAR", LIDAR)
 
-        # 1. The mosaic of all pairs, drawn at the rig's (true) transform.
+        # 1. The mosaic of all pairs, drawn at the rig's transform (true since the edit: the API's edit reaches
+        #    the sliders with *Reset to rig*)
         expect(page.get_by_label("Scene", exact=True)).to_have_value("all pairs")
         expect(page.get_by_text("10 pair(s) stored · showing 6", exact=True)).to_be_visible()
+        button(page, "Reset to rig").click()
+        poll(lambda: np.allclose(_slider_T(page), truth, atol=2e-3),
+             lambda: f"the sliders do not show the rig's transform: {_slider_values(page)}")
         drawn = wait_body(page, DRAWN_RE)
         assert int(drawn.group(3)) == 6, drawn.group(0)
         assert int(drawn.group(1).replace(",", "")) > 1000, drawn.group(0)
-        assert np.allclose(_slider_T(page), truth, atol=2e-3), "the sliders do not start at the rig's transform"
         overlay = labelled_image(page, "Overlay")
         wait_settled(overlay)  # the last redraw of the selection has landed
         at_truth = decoded_image(overlay)

@@ -186,7 +186,8 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         # 5. Capture a set from both simulated cameras: refused at 0 ms (the status line says why), kept at 20 ms.
         _set_tolerance(page, 0)
         button(page, "Capture set").click()
-        refusal = wait_body(page, re.compile(r"warning: the frames were not taken together: later than (cam_\w+)'s "
+        refusal = wait_body(page, re.compile(r"warning: set of cam_\w+, cam_\w+ failed: the frames were not taken "
+                                             r"together: later than (cam_\w+)'s "
                                              r"frame were (cam_\w+) by ([\d.]+) ms \(tolerance 0\.0 ms\); no set "
                                              r"was stored"))
         assert _set_count(page) == sets_before, "a refused set was stored"

@@ -87,6 +87,19 @@ def _edge_rows(page: Page) -> list[list[str]]:
     return [[cell.strip() for cell in rows.nth(i).locator("td").all_inner_texts()] for i in range(rows.count())]
 
 
+def _off_truth(page: Page) -> dict[str, tuple[float, float]]:
+    """The frame table's *off the truth* column: (mm, deg) per frame."""
+    table = page.locator("table", has_text="off the truth (mm, °)").filter(visible=True)
+    expect(table).to_be_visible()
+    rows = table.locator("tbody tr")
+    off = {}
+    for i in range(rows.count()):
+        cells = rows.nth(i).locator("td").all_inner_texts()
+        mm, deg = re.fullmatch(r"([\d.]+) mm, ([\d.]+)°", cells[-1].strip()).groups()
+        off[cells[0].strip()] = (float(mm), float(deg))
+    return off
+
+
 def test_rig_step_in_the_browser(browser: Browser, studio: Studio, accepted: dict[str, str]) -> None:
     tree = httpx.get(f"{studio.api}{API}/rig/tree", timeout=30).json()
     measured = [e for e in tree["edges"] if e["kind"] != "prior"]
@@ -107,6 +120,9 @@ def test_rig_step_in_the_browser(browser: Browser, studio: Studio, accepted: dic
         for frame in tree["frames"]:
             expect(page.locator("table", has_text="rotation vector (°)").locator("td", has_text=re.compile(
                 f"^{frame}$"))).to_have_count(1)
+        off = _off_truth(page)  # the demo's tape guesses were 2-5 cm off; the accepts bring them to the truth
+        assert off["lidar_top"] == (0.0, 0.0) and off["cam_front"][0] < 10 and off["lidar_front"][0] < 10, off
+        assert off["cam_wide"][0] > 20, off  # no calibration reaches it: still its tape guess
         expect(page.get_by_text(re.compile(r"drawn ×\d+ to be visible"))).to_be_visible()
         expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
         page.screenshot(path=ARTIFACTS / "studio_rig.png")

@@ -78,8 +78,12 @@ class Coverage:
     heatmap: np.ndarray = field(default_factory=lambda: np.zeros(HEATMAP_CELLS[::-1], int))
 
     def adds_coverage(self, detection: Detection) -> bool:
-        """True when a view differs enough from every kept view to be worth capturing."""
+        """True when a view is worth capturing: it puts corners into a heat-map cell no kept view reached, or it
+        differs enough from every kept view (position, size, skew)."""
         if not self.params:
+            return True
+        cells = self._cells(detection)
+        if np.any(self.heatmap[cells[:, 1], cells[:, 0]] == 0):
             return True
         p = view_parameters(detection, self.board)
         return float(np.min(np.abs(np.array(self.params) - p).sum(axis=1))) > MIN_PARAM_DISTANCE
@@ -87,10 +91,14 @@ class Coverage:
     def add(self, detection: Detection) -> None:
         """Record a kept view."""
         self.params.append(view_parameters(detection, self.board))
+        cells = self._cells(detection)
+        np.add.at(self.heatmap, (cells[:, 1], cells[:, 0]), 1)
+
+    def _cells(self, detection: Detection) -> np.ndarray:
+        """(N, 2) heat-map cells (column, row) of the detection's corners."""
         width, height = self.image_size
         cells = np.floor(detection.corners_px / [width, height] * HEATMAP_CELLS).astype(int)
-        cells = np.clip(cells, 0, np.array(HEATMAP_CELLS) - 1)
-        np.add.at(self.heatmap, (cells[:, 1], cells[:, 0]), 1)
+        return np.clip(cells, 0, np.array(HEATMAP_CELLS) - 1)
 
     @property
     def progress(self) -> dict[str, float]:

@@ -38,6 +38,10 @@ def test_only_new_views_add_coverage_and_bars_fill():
     assert not coverage.adds_coverage(grid_detection((645, 362), 40))  # the same view, barely moved
     assert coverage.adds_coverage(grid_detection((250, 360), 40))
     assert coverage.progress["x"] == 0.0 and not coverage.full
+    # a view like a kept one, but reaching a heat-map cell none reached (the image's corner): worth keeping
+    nudged_into_the_corner = grid_detection((640, 360), 40)
+    nudged_into_the_corner.corners_px[0] = (10.0, 10.0)
+    assert coverage.adds_coverage(nudged_into_the_corner)
 
     for centre in [(200, 150), (1080, 150), (200, 570), (1080, 570)]:
         for spacing, shear in [(25, 0.0), (70, 0.0), (40, 0.45)]:
