@@ -69,8 +69,10 @@ LIVE_HZ = 12.0
 POINT_SIZE_M = 0.02
 TARGET_COLOUR = (150, 150, 150)
 RECOLOUR_DELAY_S = 0.5
-SCENES_HELP = ("Tick the capture pairs to solve from (source ↔ target). Pairs from different places are scenes: one "
-               "transform is solved for all of them, and each scene's own solve cross-checks the others.")
+SCENES_HELP = ("Tick the capture pairs to solve from (source ↔ target). Captures pair by their time stamps (taken "
+               "together), never by number; uploaded clouds, which have none, pair in upload order. Pairs from "
+               "different places are scenes: one transform is solved for all of them, and each scene's own solve "
+               "cross-checks the others.")
 LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
              "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
 
@@ -143,6 +145,7 @@ class LidarStep:
                 self.scenes_folder = gui.add_folder("Scenes (capture pairs)")
                 with self.scenes_folder:
                     gui.add_markdown(SCENES_HELP)
+                    self.unpaired_text = gui.add_markdown("")
                 self.global_button = gui.add_button("Global guess")
                 self.refine_button = gui.add_button("Refine (GICP)", color="blue")
                 self.jobs = JobPanel(ctx, [self.refine_button, self.global_button])
@@ -398,12 +401,17 @@ class LidarStep:
         self._show_history(self._accepted_id())
 
     def _list_pairs(self) -> None:
-        """One ticked checkbox per capture pair of the chosen LiDARs (kept ticked or not when already listed)."""
+        """One ticked checkbox per capture pair of the chosen LiDARs, paired by time stamp (kept ticked or not when
+        already listed), and the captures that found no partner, named."""
         pair, session = self.pair, self.ctx.session
         try:
-            ids = [] if pair is None else lidar_service.pair_ids(session, *pair)
+            found = None if pair is None else lidar_service.pairing(session, *pair)
         except InputError:  # no clouds of one of them yet
-            ids = []
+            found = None
+        ids = [] if found is None else found.pairs
+        self.unpaired_text.content = "" if found is None or not found.unpaired else (
+            f"Paired by time stamp (within {lidar_service.PAIR_WINDOW_S:g} s); not paired:\n\n"
+            + "\n".join(f"- {WARNING} {why}" for why in found.unpaired))
         old = self.pair_boxes
         self.pair_boxes = {}
         with self.scenes_folder:

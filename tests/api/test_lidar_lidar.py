@@ -48,6 +48,8 @@ def test_real_pair_through_the_api(client, stereo_chessboard):
     assert record["verdict"]["level"] == "check" and len(record["diagnostics"]["scenes"]) == 1
     assert client.get("/api/sessions/car/lidar-lidar/pairs", params={"source": "p64", "target": "qt"}).json() == [
         list(p) for p in [record["inputs"][0].split(":")]]
+    assert client.get("/api/sessions/car/lidar-lidar/pairing", params={"source": "p64", "target": "qt"}).json() == {
+        "pairs": [record["inputs"][0].split(":")], "unpaired": []}  # uploads: no stamps, paired in upload order
     refused = client.post("/api/sessions/car/sensors/p64/lidar-lidar/accept", json={"result_id": status["result_id"]})
     assert refused.status_code == 409 and refused.json()["error"]["input"] == "confirm"
     other = client.post("/api/sessions/car/sensors/qt/lidar-lidar/accept",

@@ -32,8 +32,17 @@ def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
 
 @router.get("/lidar-lidar/pairs")
 def pairs(source: str, target: str, session: deps.SessionDep) -> list[tuple[str, str]]:
-    """The default frame pairs of ``source`` and ``target`` (the i-th capture of each), to pick scenes from."""
+    """The default frame pairs of ``source`` and ``target``, to pick scenes from: captures paired by time stamp
+    (within 1 s, never by number; uploads in upload order); 422 when none pair, naming the captures."""
     return service.pair_ids(session, source, target)
+
+
+@router.get("/lidar-lidar/pairing")
+def pairing(source: str, target: str, session: deps.SessionDep) -> dict[str, Any]:
+    """``{"pairs": [[source id, target id], ...], "unpaired": [why, ...]}``: the pairs, and each capture that
+    found no partner, named."""
+    found = service.pairing(session, source, target)
+    return {"pairs": found.pairs, "unpaired": found.unpaired}
 
 
 @router.post("/lidar-lidar/solve", status_code=202, response_model=JobStatus)

@@ -11,6 +11,7 @@ here too, so the step only draws.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,16 +43,71 @@ def import_clouds(session: Session, sensor: str, files: list[tuple[str, bytes | 
     return [store_cloud(session, sensor, sample, device="upload", source=sample.meta["source"]) for sample in clouds]
 
 
-def pair_ids(session: Session, source: str, target: str) -> list[tuple[str, str]]:
-    """The default frame pairs, (source capture id, target capture id): the i-th cloud of each sensor."""
+PAIR_WINDOW_S = 1.0
+"""Two LiDARs' captures pair when their time stamps lie within this of each other (s): a static scene, read by
+both at about the same moment (a scan is 0.1 s)."""
+
+
+@dataclass(frozen=True)
+class Pairing:
+    """How two LiDARs' captures pair up: by time stamp within a window, never by capture number."""
+
+    pairs: list[tuple[str, str]]
+    """(source capture id, target capture id), in the source's time order."""
+    unpaired: list[str]
+    """Each capture with no partner, named with why (``lidar_front 00003 (12:04:51): no lidar_top capture within
+    1 s``)."""
+
+
+def pairing(session: Session, source: str, target: str, window_s: float = PAIR_WINDOW_S) -> Pairing:
+    """Pair ``source``'s and ``target``'s clouds by time stamp: the closest stamps first, each capture used once,
+    within ``window_s`` (s). No sensor has a known time offset yet, so stamps are compared as they are (the
+    studio's clock for live captures). Uploaded clouds carry no stamp (0): they pair with each other in upload
+    order, as a user uploads matching files, and never with a stamped capture."""
     check_lidar(session, source)
     check_lidar(session, target)
-    source_ids = [c.id for c in session.captures(source) if c.n_points]
-    target_ids = [c.id for c in session.captures(target) if c.n_points]
-    if not source_ids or not target_ids:
-        empty = source if not source_ids else target
+    sources = [c for c in session.captures(source) if c.n_points]
+    targets = [c for c in session.captures(target) if c.n_points]
+    if not sources or not targets:
+        empty = source if not sources else target
         raise InputError(f"no clouds captured for {empty} yet; capture or import clouds of both LiDARs", empty)
-    return list(zip(source_ids, target_ids, strict=False))
+    pairs = list(zip([c.id for c in sources if not c.timestamp_s], [c.id for c in targets if not c.timestamp_s],
+                     strict=False))
+    stamped_s = [c for c in sources if c.timestamp_s]
+    stamped_t = [c for c in targets if c.timestamp_s]
+    gaps = np.abs(np.subtract.outer([c.timestamp_s for c in stamped_s], [c.timestamp_s for c in stamped_t]))
+    taken_s, taken_t = set(), set()
+    for i, j in zip(*np.unravel_index(np.argsort(gaps, axis=None), gaps.shape), strict=True):
+        if gaps[i, j] > window_s:
+            break
+        if i not in taken_s and j not in taken_t:
+            taken_s.add(i)
+            taken_t.add(j)
+            pairs.append((stamped_s[i].id, stamped_t[j].id))
+    order = {c.id: (c.timestamp_s, k) for k, c in enumerate(sources)}
+    pairs.sort(key=lambda pair: order[pair[0]])
+    paired = [{pair[0] for pair in pairs}, {pair[1] for pair in pairs}]  # capture ids count per sensor
+    unpaired = [f"{sensor} {c.id} ({_clock(c.timestamp_s)}): no {other} capture within {window_s:g} s"
+                if c.timestamp_s else f"{sensor} {c.id} (uploaded, no time stamp): no uploaded {other} cloud left "
+                                      f"to pair it with"
+                for side, (sensor, other, captures) in enumerate(((source, target, sources), (target, source, targets)))
+                for c in captures if c.id not in paired[side]]
+    return Pairing(pairs, unpaired)
+
+
+def pair_ids(session: Session, source: str, target: str) -> list[tuple[str, str]]:
+    """The default frame pairs, (source capture id, target capture id): :func:`pairing`'s; :class:`InputError`
+    naming the captures when none pair."""
+    found = pairing(session, source, target)
+    if not found.pairs:
+        raise InputError(f"no capture of {source} pairs with one of {target} (time stamps within "
+                         f"{PAIR_WINDOW_S:g} s): capture both while both are live; " + "; ".join(found.unpaired[:4]),
+                         "pairs")
+    return found.pairs
+
+
+def _clock(timestamp_s: float) -> str:
+    return time.strftime("%H:%M:%S", time.localtime(timestamp_s))
 
 
 def capture_pairs(session: Session, source: str, target: str,

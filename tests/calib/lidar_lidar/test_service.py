@@ -10,7 +10,7 @@ from backend.calib.lidar_lidar import service
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, invert, params_between, rotation_angle_deg
-from backend.devices.base import create_device
+from backend.devices.base import Sample, create_device
 from backend.exports.rig_transforms import load_rig_transforms
 from backend.services import exports as export_service
 from backend.sim.demo_rig import demo_rig
@@ -27,10 +27,10 @@ def session(tmp_path):
     rig.get(SOURCE).T_parent_child = rig.get(SOURCE).T_parent_child @ from_xyz_ypr(
         np.array([0.06, -0.05, 0.06]), np.radians([3.0, -2.0, 1.5]))
     session = SessionStore(tmp_path).create("lidars", rig=rig)
-    for sensor in (SOURCE, TARGET):
-        with create_device(demo_rig().get(sensor).device) as device:
-            for _ in range(2):
-                store_cloud(session, sensor, device.read(), device=device.describe())
+    with create_device(demo_rig().get(SOURCE).device) as source, create_device(demo_rig().get(TARGET).device) as target:
+        for _ in range(2):  # both read together, as a capture with both live does: the pairs go by time stamp
+            for device in (source, target):
+                store_cloud(session, device.sensor, device.read(), device=device.describe())
     session.truth = truth
     return session
 
@@ -121,6 +121,22 @@ def test_global_guess_and_the_fit_at_a_nudged_pose(session):
     assert np.all(at_truth["inliers_m"] <= 0.2) and np.all(~np.isfinite(at_truth["distances_m"])
                                                           | (at_truth["distances_m"] <= 0.4))
     assert at_truth["fitness"] == pytest.approx(len(at_truth["inliers_m"]) / len(source_points))
+
+
+def test_captures_pair_by_time_stamp_and_the_unpaired_are_named(tmp_path):
+    """Never by capture number: lidar_top's second capture, taken alone, and lidar_front's third, taken long after,
+    find no partner; uploads (no stamp) pair with each other in upload order."""
+    session = SessionStore(tmp_path).create("stamps", rig=demo_rig())
+    cloud = np.random.default_rng(0).uniform(-5, 5, (100, 3))
+    stamps = {SOURCE: [1000.0, 1600.0, 2500.0, 0.0, 0.0], TARGET: [1000.3, 1300.0, 1600.2, 0.0, 0.0]}
+    ids = {sensor: [store_cloud(session, sensor, Sample(t, points=cloud), device="test").id for t in times]
+           for sensor, times in stamps.items()}
+    found = service.pairing(session, SOURCE, TARGET)
+    (s1, s2, s3, u1, u2), (t1, t2, t3, v1, v2) = ids[SOURCE], ids[TARGET]
+    assert found.pairs == [(u1, v1), (u2, v2), (s1, t1), (s2, t3)]
+    assert [why.split(" (")[0] for why in found.unpaired] == [f"{SOURCE} {s3}", f"{TARGET} {t2}"]
+    assert found.unpaired[0].endswith(f"): no {TARGET} capture within 1 s")
+    assert service.pairing(session, SOURCE, TARGET, window_s=0.25).pairs == [(u1, v1), (u2, v2), (s2, t3)]
 
 
 def test_wrong_sensors_and_missing_clouds_are_named(session):
