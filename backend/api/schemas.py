@@ -72,6 +72,8 @@ class SensorUpdate(FiniteModel):
 class IntrinsicsSolveRequest(FiniteModel):
     model: Literal["pinhole-radtan", "fisheye-equidistant", "auto"] = Field(
         "pinhole-radtan", description="'auto': compare the lens models on held-out views and solve with the best")
+    auto_for: Literal["any", "camera_info", "kalibr"] = Field(
+        "any", description="with 'auto': choose only among the models this export carries (kalibr: no k3)")
     estimate_k3: bool = False
     estimate_tangential: bool = True
     fix_aspect: bool = False

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.cli._common import check_outputs, prints_summary, progress_to_stderr, write_outputs
+from backend.core.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -16,6 +17,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     intr.add_argument("--board", required=True, help="e.g. checkerboard:9x6:0.025")
     intr.add_argument("--model", default="pinhole-radtan", choices=["pinhole-radtan", "fisheye-equidistant", "auto"],
                       help="auto: compare the lens models on held-out views and solve with the recommended one")
+    intr.add_argument("--for", dest="auto_for", default="any", choices=["any", "camera_info", "kalibr"],
+                      help="with --model auto: choose only among the models this export carries (kalibr: no k3)")
     intr.add_argument("--k3", action="store_true", help="estimate k3 (pinhole-radtan)")
     intr.add_argument("--no-tangential", action="store_true", help="fix p1 = p2 = 0 (pinhole-radtan)")
     intr.add_argument("--fix-aspect", action="store_true", help="keep fx = fy")
@@ -32,8 +35,12 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     from backend.exports.ros_camera_info import dump_camera_info
 
     check_outputs(args.out)
-    settings = IntrinsicsSettings(model=args.model, estimate_k3=args.k3, estimate_tangential=not args.no_tangential,
-                                  fix_aspect=args.fix_aspect, drop_outliers=args.drop_outliers)
+    if args.auto_for != "any" and args.model != "auto":
+        raise InputError(f"--for {args.auto_for} chooses among models: it applies to --model auto, not "
+                         f"--model {args.model}", "for")
+    settings = IntrinsicsSettings(model=args.model, auto_for=args.auto_for, estimate_k3=args.k3,
+                                  estimate_tangential=not args.no_tangential, fix_aspect=args.fix_aspect,
+                                  drop_outliers=args.drop_outliers)
     result, skipped = solve_files(args.images_dir, BoardSpec.parse(args.board), settings,
                                        progress_to_stderr(False))
     for item in skipped:

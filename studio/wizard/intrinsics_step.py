@@ -37,6 +37,8 @@ RMS_PLOT_WIDTH_IN = 5.0
 NO_MAPS = np.full((270, PANEL_WIDTH_PX, 3), 255, np.uint8)
 """The projection-maps image before a result (blank)."""
 STEP = "intrinsics"
+AUTO_FOR = {"any export": "any", "camera_info (ROS)": "camera_info", "Kalibr": "kalibr"}
+"""*Auto: for the export*: what the dropdown says, what ``IntrinsicsSettings.auto_for`` takes."""
 """The step's layer group in the 3D view (the boards it draws)."""
 GUIDANCE = (
     "Hold the board still, then move it: **left ↔ right**, **top ↔ bottom**, **near ↔ far**, and "
@@ -69,6 +71,9 @@ class IntrinsicsStep:
                 self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant", "auto"],
                                               hint="auto: compare the lens models on held-out views, solve with "
                                                    "the recommended one")
+                self.auto_for = gui.add_dropdown("Auto: for the export", options=list(AUTO_FOR), visible=False,
+                                                 hint="choose only among the lens models this export can carry "
+                                                      "(Kalibr: no k3)")
                 self.k3 = gui.add_checkbox("Estimate k3", initial_value=False)
                 self.tangential = gui.add_checkbox("Estimate p1, p2", initial_value=True)
                 self.fix_aspect = gui.add_checkbox("Fix aspect (fx = fy)", initial_value=False)
@@ -95,6 +100,7 @@ class IntrinsicsStep:
         self.capture_button.on_click(lambda _: self._capture_now())
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
+        self.model.on_update(lambda _: setattr(self.auto_for, "visible", self.model.value == "auto"))
         self.history.on_update(lambda _: self._show_result(self.history.value))
         self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
         self.export_opencv.on_click(lambda event: self.ctx.download(event, "opencv", self.sensor))
@@ -234,7 +240,8 @@ class IntrinsicsStep:
 
     # -- solve ------------------------------------------------------------------------------
     def _settings(self) -> IntrinsicsSettings:
-        return IntrinsicsSettings(model=self.model.value, estimate_k3=self.k3.value,
+        return IntrinsicsSettings(model=self.model.value, auto_for=AUTO_FOR[self.auto_for.value],
+                                  estimate_k3=self.k3.value,
                                   estimate_tangential=self.tangential.value, fix_aspect=self.fix_aspect.value,
                                   drop_outliers=self.drop_outliers.value)
 

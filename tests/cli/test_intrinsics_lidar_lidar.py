@@ -135,6 +135,13 @@ def test_intrinsics_progress_on_stderr_and_yaml_written(intrinsics_run):
     np.testing.assert_allclose(camera.dist, out["camera"]["dist"], rtol=1e-12)
 
 
+def test_for_an_export_applies_to_model_auto_only(left_images, tmp_path: Path):
+    folder = copy_images(left_images[:3], tmp_path / "three")
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--for", "kalibr", "--json"))
+    assert error == {"message": "--for kalibr chooses among models: it applies to --model auto, not --model "
+                                "pinhole-radtan", "input": "for"}
+
+
 def test_too_few_images(left_images, tmp_path: Path):
     folder = copy_images(left_images[:2], tmp_path / "two")
     error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--json"))

@@ -39,6 +39,13 @@ WITHIN_BEST = 0.05
 """A simpler model is preferred while its held-out RMS is at most this fraction above the best's."""
 SIMPLE = "pinhole-radtan k1-k2"
 """The model kept when the views are too few to compare."""
+EXPORT_MODELS: dict[str, frozenset[str]] = {
+    "any": frozenset({SIMPLE, "fisheye-equidistant", "pinhole-radtan k1-k3"}),
+    "camera_info": frozenset({SIMPLE, "fisheye-equidistant", "pinhole-radtan k1-k3"}),
+    "kalibr": frozenset({SIMPLE, "fisheye-equidistant"}),
+}
+"""The output models each export carries (``IntrinsicsSettings.auto_for``): ROS's camera_info holds plumb_bob
+(k1, k2, p1, p2, k3) and equidistant; Kalibr's camchain radtan (k1, k2, p1, p2) and equidistant, no k3."""
 
 
 @dataclass(frozen=True)
@@ -123,7 +130,8 @@ def compare_models(views: list[View], board: BoardSpec, size: tuple[int, int],
     _check_views(views, board)
     rows = [_held_out_rms(c, views, board, size, base) for c in candidates(base)]
     scored = [r for r in rows if r["held_out_rms_px"] is not None]
-    outputs = [r for r in scored if r["model"] != "pinhole-rational"]
+    carried = EXPORT_MODELS[base.auto_for]
+    outputs = [r for r in scored if r["model"] in carried]
     if not outputs:
         return {"status": "compared", "recommended": SIMPLE, "candidates": rows,
                 "reason": f"no output model could be fitted on every fold; {SIMPLE} is kept"}
@@ -132,6 +140,10 @@ def compare_models(views: list[View], board: BoardSpec, size: tuple[int, int],
     chosen = min((r for r in outputs if r["held_out_rms_px"] <= limit), key=lambda r: r["n_dist"])
     reason = (f"{chosen['model']}: held-out RMS {chosen['held_out_rms_px']:.3f} px, within {WITHIN_BEST:.0%} of the "
               f"best ({best['model']}, {best['held_out_rms_px']:.3f} px) with the fewest coefficients")
+    if base.auto_for != "any":
+        left_out = [r for r in scored if r["model"] not in carried and r["model"] != "pinhole-rational"]
+        reason += f"; among the models {base.auto_for} carries" + "".join(
+            f" ({r['model']}, {r['held_out_rms_px']:.3f} px, left out)" for r in left_out)
     worse = [r for r in outputs if r["n_dist"] < chosen["n_dist"]]
     if worse:
         reason += "; simpler: " + ", ".join(f"{r['model']} {r['held_out_rms_px']:.3f} px" for r in worse)

@@ -58,6 +58,9 @@ class IntrinsicsSettings:
     model: CameraModelName | Literal["auto"] = "pinhole-radtan"
     """``auto``: the services compare the candidate models on held-out views first
     (:mod:`backend.calib.intrinsics.models`) and solve with the recommended one."""
+    auto_for: Literal["any", "camera_info", "kalibr"] = "any"
+    """With ``model="auto"``: recommend only a model this export carries
+    (:data:`backend.calib.intrinsics.models.EXPORT_MODELS`); ``any``: every output model."""
     estimate_k3: bool = False
     """pinhole-radtan only: estimate k3 (else fixed at 0)."""
     estimate_tangential: bool = True

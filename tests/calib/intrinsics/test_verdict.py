@@ -119,6 +119,10 @@ def test_wrong_model_on_the_wide_lens_is_not_trusted_and_auto_picks_a_better_one
     assert truth_error_px(auto.camera, truth) < 0.2 * truth_error_px(k1k2.camera, truth)
     assert auto.summary()["model_comparison"] == comparison
     assert not any("model auto" in r for r in auto.verdict.reasons)  # it was compared: never advised again
+    # asked for a model Kalibr carries: never k3, and the reason says what was left out
+    for_kalibr = compare_models(views, BOARD, truth.image_size, replace(FAST, model="auto", auto_for="kalibr"))
+    assert for_kalibr["recommended"] in ("pinhole-radtan k1-k2", "fisheye-equidistant"), for_kalibr
+    assert "among the models kalibr carries (pinhole-radtan k1-k3, " in for_kalibr["reason"]
 
 
 @pytest.mark.slow
