@@ -16,6 +16,9 @@ What it measures, in one run:
   and ``scaling`` = frames/s against N times the in-run baseline N = 1; ``clock_rtt_ms`` and
   ``clock_offset_error_ms``, a clock estimate's round trip and error while they stream (one host, one clock: the
   offset should be 0, and its error is at most half the round trip).
+- With ``--secure``, every count again with the network's keys (mutual TLS and the studio's access control, as
+  the depth-cell demo runs): ``secure_runs``, and per count ``tls_cpu_ratio`` (the studio's CPU per frame secured
+  over plain, the in-run baseline) and ``tls_p50_ratio`` (latency).
 - ``estimate``: the nodes at 30 Hz one studio core receives (from its CPU per frame), one Gigabit link carries
   (from the frame size), and where it broke here.
 
@@ -26,7 +29,7 @@ The machine is shared: ``load_average`` says how busy it was.
 Prints exactly one JSON object on stdout; progress goes to stderr.
 
 Usage:
-    .venv/bin/python benchmarks/node_network.py [--counts 1,2,4,6,8,12] [--seconds 6]
+    .venv/bin/python benchmarks/node_network.py [--counts 1,2,4,6,8,12] [--seconds 6] [--secure]
 """
 
 import argparse
@@ -50,7 +53,9 @@ sys.path.insert(0, str(ROOT))
 
 from backend.devices.cloud_codec import decode_frame, encode_frame  # noqa: E402
 from backend.devices.node_agent import CLOCK_REPLY, FRAME_STAMP, node_key, open_session  # noqa: E402
+from backend.devices.node_keys import NetworkKeys, read_bundle  # noqa: E402
 from backend.devices.node_network import NodeNetwork  # noqa: E402
+from backend.services.network_keys import create_network_keys  # noqa: E402
 
 RATE_HZ = 30.0
 """The Kinect v2's frame rate."""
@@ -60,12 +65,12 @@ GIGABIT_BYTES_S = 125e6
 CELL_NODES = [f"sn{i}" for i in range(1, 7)]
 
 
-def publish(name: str, endpoint: str, frame_file: str) -> None:
+def publish(name: str, endpoint: str, frame_file: str, keys_file: str | None) -> None:
     """One node process: present itself as an agent does, then put its frame at RATE_HZ until SIGTERM."""
     payload = Path(frame_file).read_bytes()
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    session = open_session([], [endpoint], "connect")
+    session = open_session([], [endpoint], "connect", None if keys_file is None else read_bundle(Path(keys_file)))
     info = json.dumps({"name": name, "kind": "depth", "device": "benchmark", "rate_hz": RATE_HZ, "voxel_m": VOXEL_M})
     zid = str(session.zid())
     entities = [session.declare_queryable(node_key(name, zid, "info"), lambda q: q.reply(q.key_expr, info)),
@@ -119,10 +124,10 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
-    """N publisher processes into one NodeNetwork: what the studio received in a window of ``seconds`` once
-    every node streams (drops from the gaps in each node's sequence numbers)."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+def run_network(count: int, files: dict[str, str], seconds: float, keys: NetworkKeys | None = None) -> dict:
+    """N publisher processes into one NodeNetwork (secured with ``keys``): what the studio received in a window of
+    ``seconds`` once every node streams (drops from the gaps in each node's sequence numbers)."""
+    endpoint = f"{'tcp' if keys is None else 'tls'}/127.0.0.1:{free_port()}"
     received: list[tuple[int, float | None]] = []
     window = {"open": False}
 
@@ -130,12 +135,13 @@ def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
         if window["open"]:
             received.append((n_bytes, latency_s))  # list.append is atomic: no lock on the receive path
 
-    network = NodeNetwork(listen=[endpoint])
+    network = NodeNetwork(listen=[endpoint], keys=keys)
     network.open()
     network.on_frame(on_frame)
-    names = [f"n{k:02d}" for k in range(count)]
+    names = node_names(count)
     processes = [subprocess.Popen([sys.executable, __file__, "--publish", name, "--endpoint", endpoint,
-                                   "--frame", files[CELL_NODES[k % len(CELL_NODES)]]],
+                                   "--frame", files[CELL_NODES[k % len(CELL_NODES)]]]
+                                  + ([] if keys is None else ["--keys", str(keys.bundle_path(name))]),
                                   stdout=subprocess.PIPE, text=True, cwd=ROOT) for k, name in enumerate(names)]
     deadline = time.monotonic() + 60 + 5 * count
     while not all(s.frames >= 15 and s.latency_s is not None for s in network.nodes()) or len(network.nodes()) < count:
@@ -170,6 +176,10 @@ def run_network(count: int, files: dict[str, str], seconds: float) -> dict:
             "clock_rtt_ms": round(1000 * clock.rtt_s, 2), "clock_offset_error_ms": round(1000 * abs(clock.offset_s), 3)}
 
 
+def node_names(count: int) -> list[str]:
+    return [f"n{k:02d}" for k in range(count)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--counts", default="1,2,4,6,8,12")
@@ -177,22 +187,35 @@ def main() -> None:
     parser.add_argument("--publish", help=argparse.SUPPRESS)
     parser.add_argument("--endpoint", help=argparse.SUPPRESS)
     parser.add_argument("--frame", help=argparse.SUPPRESS)
+    parser.add_argument("--keys", help=argparse.SUPPRESS)
+    parser.add_argument("--secure", action="store_true", help="run every count again with the network's keys")
     args = parser.parse_args()
     if args.publish:
-        publish(args.publish, args.endpoint, args.frame)
+        publish(args.publish, args.endpoint, args.frame, args.keys)
         return
+    counts = [int(c) for c in args.counts.split(",")]
     log("rendering and encoding one frame per cell node")
     frames, figures = render_frames()
-    runs = []
+    runs, secure_runs = [], []
     with tempfile.TemporaryDirectory() as folder:
         files = {}
         for node, payload in frames.items():
             files[node] = os.path.join(folder, f"{node}.frame")
             Path(files[node]).write_bytes(payload)
-        for count in [int(c) for c in args.counts.split(",")]:
+        keys = create_network_keys(Path(folder) / "keys", node_names(max(counts))) if args.secure else None
+        for count in counts:
             log(f"{count} node(s) at {RATE_HZ:g} Hz for {args.seconds:g} s")
             runs.append(run_network(count, files, args.seconds))
             log(json.dumps(runs[-1]))
+            if keys is not None:
+                log(f"{count} node(s), secured (mutual TLS and access control)")
+                secure = run_network(count, files, args.seconds, keys)
+                secure["tls_cpu_ratio"] = round(secure["studio_cpu_ms_per_frame"]
+                                                / max(runs[-1]["studio_cpu_ms_per_frame"], 1e-9), 2)
+                secure["tls_p50_ratio"] = (round(secure["p50_ms"] / runs[-1]["p50_ms"], 2)
+                                           if secure["p50_ms"] and runs[-1]["p50_ms"] else None)
+                secure_runs.append(secure)
+                log(json.dumps(secure))
     base = runs[0]["frames_per_s"] / runs[0]["nodes"]
     for run in runs:
         run["scaling"] = round(run["frames_per_s"] / (base * run["nodes"]), 2) if base else None
@@ -207,7 +230,8 @@ def main() -> None:
         "first_count_not_scaling_here": None if broke is None else broke["nodes"],
     }
     print(json.dumps({"frame": figures, "rate_hz": RATE_HZ, "voxel_m": VOXEL_M, "seconds": args.seconds,
-                      "runs": runs, "estimate": estimate, "load_average": os.getloadavg(),
+                      "runs": runs, **({"secure_runs": secure_runs} if secure_runs else {}),
+                      "estimate": estimate, "load_average": os.getloadavg(),
                       "cores": os.cpu_count()}, indent=1))
 
 

@@ -41,6 +41,8 @@ from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.lidar_camera.capture import store_pair
 from backend.calib.multicam.capture import capture_set
 from backend.calib.rig import service as rig_service
+from backend.calib.rig.sensor_edits import SensorEdit
+from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.devices.base import create_device
 from backend.services.jobs import Job, JobRunner
@@ -188,3 +190,33 @@ def _add_camera_sets(session: Session, progress: ProgressCallback) -> None:
                         device=described, tolerance_s=DEMO_SET_TOLERANCE_S)
     for name in DEMO_SET_CAMERAS:
         session.set_device(name, settings[name] | {"board_hold_s": PAIR_HOLD_S})
+
+
+BOARD_MOTIONS = {"wave": "waved close in front of it, all over the image (for its lens)",
+                 "scene": "carried about the yard 2-3 m ahead, held still at each place (for the rig)"}
+"""What the simulated person does with the board for a simulated camera (its device's ``board_motion``)."""
+
+
+def simulated_board_motion(session: Session, camera: str) -> str | None:
+    """The ``board_motion`` of ``camera``'s device when it is a simulated camera, else None."""
+    device = session.rig.get(camera).device
+    return device.get("board_motion", "wave") if device.get("driver") == "simulated" else None
+
+
+def move_simulated_board(session: Session, camera: str, motion: str) -> rig_service.SensorChange:
+    """Have the simulated person handle the board as ``motion`` says for ``camera`` (a simulated camera's device
+    edit, probed and saved like any): ``wave`` for step 3's lens calibration, ``scene`` (the demo's pair and set
+    poses, on the hold clock every simulated device shares) for steps 6 and 7. :class:`InputError` naming the
+    camera when it is not simulated."""
+    if motion not in BOARD_MOTIONS:
+        raise InputError(f"board motion {motion!r}: expected one of {', '.join(BOARD_MOTIONS)}", "motion")
+    if simulated_board_motion(session, camera) is None:
+        raise InputError(f"{camera} is not a simulated camera: its board is moved by a person, not the studio",
+                         camera)
+    device = {key: value for key, value in session.rig.get(camera).device.items()
+              if key not in ("board_motion", "n_poses", "board_hold_s")}
+    if motion == "scene":
+        device |= {"board_motion": "scene", "n_poses": PAIR_BOARD_POSES, "board_hold_s": PAIR_HOLD_S}
+    else:
+        device |= {"board_motion": "wave"}
+    return rig_service.edit_sensor(session, camera, SensorEdit(device=device))

@@ -14,6 +14,7 @@ from backend.core.errors import InputError
 from backend.plots.board import live_view
 from backend.plots.intrinsics import projection_maps, view_rms_bars
 from backend.plots.render import PANEL_WIDTH_PX, to_rgb
+from backend.services.demo import BOARD_MOTIONS, move_simulated_board, simulated_board_motion
 from backend.services.live_capture import (
     PARAM_NAMES,
     Coverage,
@@ -57,6 +58,10 @@ class IntrinsicsStep:
             self.camera = gui.add_dropdown("Camera", options=[NO_CAMERA])
             gui.add_markdown(GUIDANCE)
             with gui.add_folder("Capture"):
+                self.wave_button = gui.add_button("Wave the board in front of it (simulation)", visible=False,
+                                                  hint="the simulated person carries the board about the yard for "
+                                                       "the rig (steps 6, 7): have them wave it close, all over the "
+                                                       "image, as a lens calibration needs")
                 self.start_button = gui.add_button("Start live capture", color="green")
                 self.stop_button = gui.add_button("Stop", color="red", visible=False)
                 self.toggle = LiveToggle(self.start_button, self.stop_button, on_ended=self._on_ended)
@@ -100,6 +105,7 @@ class IntrinsicsStep:
         self.capture_button.on_click(lambda _: self._capture_now())
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
+        self.wave_button.on_click(lambda _: self._wave_board())
         self.model.on_update(lambda _: setattr(self.auto_for, "visible", self.model.value == "auto"))
         self.history.on_update(lambda _: self._show_result(self.history.value))
         self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
@@ -133,10 +139,24 @@ class IntrinsicsStep:
             self.ctx.scene.show_camera_image(sensor, image)
         else:  # not the previous camera's (or session's) last frame
             self.preview.image = np.full((270, 480, 3), 40, np.uint8)
+        self.wave_button.visible = sensor is not None and simulated_board_motion(session, sensor) == "scene"
         results = [] if sensor is None else session.results(sensor, "intrinsics")
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
         self.history.value = self._accepted(results) or self.history.options[0]
         self._show_result(self.history.value)
+
+    def _wave_board(self) -> None:
+        """Simulation only: the person waves the board close in front of the camera (its device's motion)."""
+        self.stop_live()
+        try:
+            move_simulated_board(self.ctx.session, self.sensor, "wave")
+        except InputError as exc:
+            self.ctx.notify("Cannot move the simulated board", exc.message, error=True)
+            return
+        self.wave_button.visible = False
+        self.coverage_text.content = (f"The board is now {BOARD_MOTIONS['wave']}: *Start live capture*. Step 7 "
+                                      f"puts it back in the yard for the rig.\n\n" + self._coverage_summary())
+        self.ctx.rig_changed()
 
     # -- live capture ---------------------------------------------------------------------
     def _start_live(self) -> None:

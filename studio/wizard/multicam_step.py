@@ -31,8 +31,10 @@ from backend.calib.multicam import service as multicam_service
 from backend.calib.multicam.service import LINE_COLOUR_BGR, Rectification
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
+from backend.core.errors import InputError
 from backend.plots.multicam import covisibility_graph, frame_residual_bars
 from backend.plots.render import to_rgb
+from backend.services.demo import move_simulated_board, simulated_board_motion
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.marks import WARNING
@@ -86,6 +88,10 @@ class MulticamStep:
             self.reference = gui.add_dropdown("Reference camera", options=[NONE],
                                               hint="keeps its place in the rig; the others are solved relative to it")
             self.sets_text = gui.add_markdown("")
+            self.lens_text = gui.add_markdown("")
+            self.scene_button = gui.add_button("Carry the board about the yard (simulation)", visible=False,
+                                               hint="the simulated person waves the board for a lens calibration: "
+                                                    "have them carry it about the yard again, seen by every camera")
             self.tolerance_ms = gui.add_number("Time tolerance (ms)", initial_value=1e3 * capture_service.
                                                DEFAULT_TOLERANCE_S, min=0.0, max=5000.0, step=1.0,
                                                hint="largest spread of the frame times within one set")
@@ -138,6 +144,8 @@ class MulticamStep:
         self.capture_button.on_click(lambda _: self._capture())
         self.import_button.on_click(lambda _: self._import())
         self.solve_button.on_click(lambda _: self._solve())
+        self.scene_button.on_click(lambda _: self._carry_board())
+        ctx.on_rig_changed(lambda _: self._lens_guidance())
         self.show_3d.on_update(lambda _: self._draw_3d())
         self.stereo_pair.on_update(lambda _: None if self._filling else self._pair_sets())
         self.stereo_set.on_update(lambda _: None if self._filling else self._show_stereo())
@@ -201,7 +209,35 @@ class MulticamStep:
         accepted = self.ctx.session.accepted(multicam_service.slot(cameras)) if len(cameras) >= 2 else None
         self._show_result(self.history.fill(self._results(), accepted), draw)
 
+    def _lens_guidance(self) -> None:
+        """Which chosen cameras have no lens calibration (their intrinsics would only be estimated inside the rig,
+        unchecked): calibrate them in step 3 first, then come back; in a simulation, the board is put back in the
+        yard for the rig."""
+        session, cameras = self.ctx.session, self.cameras
+        if session is None:
+            return
+        missing = [name for name in cameras if session.rig.get(name).intrinsics is None]
+        self.lens_text.content = "" if not missing else (
+            f"{WARNING} {', '.join(missing)} {'has' if len(missing) == 1 else 'have'} no lens calibration yet: "
+            f"the rig solve would only estimate it, unchecked. Calibrate it first in **3 · Camera intrinsics** "
+            f"(pick {missing[0]}; in the simulation press *Wave the board in front of it* there), accept it, then "
+            f"come back here and solve the rig.")
+        self.scene_button.visible = any(simulated_board_motion(session, name) == "wave" for name in cameras)
+
+    def _carry_board(self) -> None:
+        """Simulation only: every chosen simulated camera sees the board carried about the yard again."""
+        session = self.ctx.session
+        try:
+            for name in self.cameras:
+                if simulated_board_motion(session, name) == "wave":
+                    move_simulated_board(session, name, "scene")
+        except InputError as exc:
+            self.ctx.notify("Cannot move the simulated board", exc.message, error=True)
+            return
+        self.ctx.rig_changed()
+
     def _list_sets(self) -> None:
+        self._lens_guidance()
         session, cameras = self.ctx.session, self.cameras
         if session is None or len(cameras) < 2:
             self.sets_text.content = "Tick at least two cameras."
