@@ -677,8 +677,8 @@ class DepthNetworkStep:
         lines += [f"- {node}: its result is *{level}*: read why on its card, accept it there"
                   for node, level in levels.items() if level != "trusted"]
         lines += [f"- {WARNING} {problem}" for problem in out["problems"]]
+        self.accept_all_button.visible = bool(self._to_accept)  # before the text that offers it
         self.solve_jobs.text.content = "\n".join(lines)
-        self.accept_all_button.visible = bool(self._to_accept)
         self._show_result()
 
     def _accept_all(self) -> None:

@@ -219,7 +219,7 @@ class MulticamStep:
         missing = [name for name in cameras if session.rig.get(name).intrinsics is None]
         self.lens_text.content = "" if not missing else (
             f"{WARNING} {', '.join(missing)} {'has' if len(missing) == 1 else 'have'} no lens calibration yet: "
-            f"the rig solve would only estimate it, unchecked. Calibrate it first in **3 · Camera intrinsics** "
+            f"the rig solve would only estimate it, unchecked. Calibrate it first in step 3, *Camera intrinsics* "
             f"(pick {missing[0]}; in the simulation press *Wave the board in front of it* there), accept it, then "
             f"come back here and solve the rig.")
         self.scene_button.visible = any(simulated_board_motion(session, name) == "wave" for name in cameras)

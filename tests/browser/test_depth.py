@@ -219,7 +219,7 @@ def test_network_panel_in_process(cell: Studio, tmp_path: Path, free_port: Calla
         accepted = session.accepted_slots()
         step._solve_all()
         text = poll(lambda: "Nothing is accepted yet" in step.solve_jobs.text.content and step.solve_jobs.text.content,
-                    "the network solve never reported", 300)
+                    "the network solve never reported", 300)  # the button is set before this text
         assert session.accepted_slots() == accepted and step.accept_all_button.visible, text
         trusted = step._to_accept
         assert trusted and f"**Accepting the {len(trusted)} trusted result(s) would:**" in text, text
