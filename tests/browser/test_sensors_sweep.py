@@ -100,6 +100,7 @@ def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
         button(page, "Add sensor").click()
         wait_body(page, re.compile(r"bag_lidar \(lidar3d\) under base_link · rosbag"))
 
+        expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden()  # the toast floats over the panel (8 s)
         page.get_by_text("4 · LiDARs", exact=True).click()
         page.get_by_text("Import", exact=True).click()
         choose(page, "Into LiDAR", "bag_lidar")
