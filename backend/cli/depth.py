@@ -91,6 +91,5 @@ def run_node_keys(args: argparse.Namespace) -> dict[str, Any]:
     if not args.json:
         print(f"network {keys.studio.fingerprint}: keys in {keys.folder}")
         for node in names:
-            print(f"  {node}: copy {keys.bundle_path(node)} to its computer; run calib-studio node --name {node} "
-                  f"--keys {node}.keys.pem --connect tls/STUDIO_HOST:7447 ...")
+            print(f"  {node}: copy {keys.bundle_path(node)} to its computer; run {keys.agent_command(node)}")
     return summary

@@ -100,6 +100,12 @@ class NetworkKeys:
         """The file to copy to ``node``'s computer (its ``--keys``)."""
         return self.folder / NODES_FOLDER / f"{node}{BUNDLE_SUFFIX}"
 
+    def agent_command(self, node: str) -> str:
+        """The command ``node``'s computer runs, its bundle copied beside it (the studio's host and the device
+        left for the user to fill in)."""
+        return (f"calib-studio node --name {node} --keys {self.bundle_path(node).name} --connect tls/STUDIO_HOST:7447 "
+                f"--device ...")
+
 
 def load_network_keys(folder: Path) -> NetworkKeys:
     """The key folder's studio bundle and its admitted nodes; :class:`InputError` naming the folder when it holds

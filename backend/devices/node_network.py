@@ -381,7 +381,7 @@ class NodeNetwork:
                 raise InputError(f"node {clip(str(node), 64)} was never on the network", str(node), status_code=404)
             if status.held is None:
                 raise InputError(f"node {node} has no device change to confirm", node, status_code=409)
-            self._identities[node] = (status.device, status.info.get("sensor"))
+            self._identities[node] = _identity(status.info)
             status.warnings = [w for w in status.warnings if w != status.held]
             status.held = None
         log.warning("node %s: its new device %s was confirmed by the user", node, status.device)
@@ -510,7 +510,7 @@ class NodeNetwork:
     def _check_identity(self, name: str, info: dict[str, Any]) -> None:
         """Keep the node's info; hold its captures when it comes back with another device or sensor than the one
         it first came with."""
-        identity = (info.get("device"), info.get("sensor"))
+        identity = _identity(info)
         with self._lock:
             status = self._nodes[name]
             status.info = info
@@ -626,6 +626,11 @@ def _oversized(node: str, n_bytes: int) -> str | None:
     if n_bytes <= MAX_NODE_FRAME_MB.value() * 1_000_000:
         return None
     return f"node {node} sent a {n_bytes:,}-byte frame: over {MAX_NODE_FRAME_MB.describe()}; nothing of it is kept"
+
+
+def _identity(info: dict[str, Any]) -> tuple[str | None, str | None]:
+    """What a node is, from its info reply: (device spec, the opened sensor's description with its serial)."""
+    return info.get("device"), info.get("sensor")
 
 
 def _identity_text(identity: tuple[str | None, str | None]) -> str:

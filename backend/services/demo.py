@@ -160,7 +160,7 @@ def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Sessi
 def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:
     """Point ``cam_front`` and ``lidar_top`` at the board carried about the yard, and store :data:`DEMO_PAIRS`
     pairs of theirs: frame ``i`` of each sees board pose ``i`` (read in step, so no waiting for the board)."""
-    camera_settings = {**session.rig.get(DEMO_CAMERA).device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES}
+    camera_settings = yard_board(session.rig.get(DEMO_CAMERA).device, hold_s=0.0)
     lidar_settings = {**session.rig.get(DEMO_LIDAR).device, "board_poses": PAIR_BOARD_POSES}
     board = session_board(session)
     with create_device(camera_settings) as camera, create_device(lidar_settings) as lidar:
@@ -177,8 +177,7 @@ def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:
 def _add_camera_sets(session: Session, progress: ProgressCallback) -> None:
     """Store :data:`DEMO_SETS` synchronised sets of :data:`DEMO_SET_CAMERAS` photographing the same board poses in
     the yard (both read at once, frame ``i`` seeing pose ``i``), and leave both on the shared hold clock."""
-    settings = {name: {**session.rig.get(name).device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES,
-                       "board_hold_s": 0.0} for name in DEMO_SET_CAMERAS}
+    settings = {name: yard_board(session.rig.get(name).device, hold_s=0.0) for name in DEMO_SET_CAMERAS}
     with contextlib.ExitStack() as stack:
         devices = {name: stack.enter_context(create_device(settings[name])) for name in DEMO_SET_CAMERAS}
         described = " + ".join(device.describe() for device in devices.values())
@@ -195,6 +194,13 @@ def _add_camera_sets(session: Session, progress: ProgressCallback) -> None:
 BOARD_MOTIONS = {"wave": "waved close in front of it, all over the image (for its lens)",
                  "scene": "carried about the yard 2-3 m ahead, held still at each place (for the rig)"}
 """What the simulated person does with the board for a simulated camera (its device's ``board_motion``)."""
+
+
+def yard_board(device: dict, hold_s: float = PAIR_HOLD_S) -> dict:
+    """A simulated camera's ``device`` with the board carried about the yard: the demo's :data:`PAIR_BOARD_POSES`
+    poses (the ones a ``simulated_lidar`` with as many ``board_poses`` sees), each held ``hold_s`` (s) on the clock
+    every simulated device shares (0: the pose advances every frame)."""
+    return {**device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES, "board_hold_s": hold_s}
 
 
 def simulated_board_motion(session: Session, camera: str) -> str | None:
@@ -215,8 +221,5 @@ def move_simulated_board(session: Session, camera: str, motion: str) -> rig_serv
                          camera)
     device = {key: value for key, value in session.rig.get(camera).device.items()
               if key not in ("board_motion", "n_poses", "board_hold_s")}
-    if motion == "scene":
-        device |= {"board_motion": "scene", "n_poses": PAIR_BOARD_POSES, "board_hold_s": PAIR_HOLD_S}
-    else:
-        device |= {"board_motion": "wave"}
+    device = yard_board(device) if motion == "scene" else device | {"board_motion": "wave"}
     return rig_service.edit_sensor(session, camera, SensorEdit(device=device))

@@ -143,8 +143,7 @@ def keys_markdown(keys, shown_folder: str) -> str:
     """Which key file each node's computer takes, and the command it runs."""
     rows = [f"Keys of network {keys.studio.fingerprint} in `{shown_folder}`. Copy each node's file to its computer "
             f"and start its agent there:", ""]
-    rows += [f"- **{node}**: `{keys.bundle_path(node).name}`: `calib-studio node --name {node} --keys "
-             f"{keys.bundle_path(node).name} --connect tls/STUDIO_HOST:7447 --device ...`" for node in keys.nodes]
+    rows += [f"- **{node}**: `{keys.bundle_path(node).name}`: `{keys.agent_command(node)}`" for node in keys.nodes]
     return "\n".join(rows + [f"- {WARNING} {problem}" for problem in keys.problems])
 
 
