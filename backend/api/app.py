@@ -19,12 +19,13 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
 from backend.api import auth, origin
+from backend.api.client_watch import ClientWatch
 from backend.api.routes import depth_network as depth_network_routes
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, rig, sessions, sweep
 from backend.api.routes import jobs as job_routes
 from backend.api.routes import report as report_routes
 from backend.api.routes.targets import router as targets_router
-from backend.core.errors import InputError
+from backend.core.errors import CancelledError, InputError
 from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
 
@@ -95,11 +96,17 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
             response.set_cookie(auth.COOKIE, token, httponly=True, samesite="strict")
         return response
 
+    app.add_middleware(ClientWatch)
     app.add_middleware(OriginGuard, policy=origins)  # added last: runs first
 
     @app.exception_handler(InputError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:
         return error_response(exc.status_code, exc.message, exc.input)
+
+    @app.exception_handler(CancelledError)
+    async def client_left(request: Request, exc: CancelledError) -> JSONResponse:
+        # 499 (nginx's "client closed request"): no one reads it; it keeps the access log honest.
+        return error_response(499, str(exc), request.url.path)
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:

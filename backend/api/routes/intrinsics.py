@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, File, Query, Response, UploadFile
 
+from backend.api.client_watch import ClientProgressDep
 from backend.api.routes import deps
 from backend.api.schemas import AcceptRequest, ImportResponse, IntrinsicsSolveRequest, JobStatus
 from backend.api.uploads import UploadRoute, read_image_upload, upload_limit
@@ -30,14 +31,15 @@ def upload_captures(
     sensor: str,
     files: Annotated[list[UploadFile], File()],
     session: deps.SessionDep,
+    progress: ClientProgressDep,
     skip_unusable: Annotated[bool, Query(description="store the images with a board and report the others, "
                                                      "instead of rejecting the batch")] = False,
 ) -> dict[str, Any]:
     """Add images of the board (all or nothing, unless ``skip_unusable``). Only the base name of an upload is
     kept; files are stored under new ids. Runs in the threadpool: decoding and detection never hold up the
-    server's other requests."""
+    server's other requests; a client that leaves stops it at the next image, and nothing is stored."""
     payload = [read_image_upload(f, "files") for f in files]
-    report = service.import_images(session, sensor, payload, skip_unusable=skip_unusable)
+    report = service.import_images(session, sensor, payload, skip_unusable=skip_unusable, progress=progress)
     return {"added": [c.model_dump(exclude={"detection"}) for c in report.added], "skipped": report.skipped}
 
 

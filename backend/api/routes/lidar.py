@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, File, UploadFile
 
+from backend.api.client_watch import ClientProgressDep
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus, LidarLidarAccept, LidarLidarSolveRequest
 from backend.api.uploads import UploadRoute, save_uploads, upload_folder, upload_limit
@@ -21,12 +22,12 @@ router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=Upload
 @router.post("/sensors/{sensor}/clouds", status_code=201)
 @upload_limit(MAX_CLOUD_UPLOAD_MB, "files")
 def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
-                  session: deps.SessionDep) -> dict[str, Any]:
+                  session: deps.SessionDep, progress: ClientProgressDep) -> dict[str, Any]:
     """Add cloud files (.pcd, .ply, .las, .laz, .npy); an unreadable file rejects the batch, naming it, and
     nothing of it is stored. The files are copied in chunks to the session's folder and read from there, in
-    the threadpool."""
+    the threadpool; a client that leaves stops it at the next file, and nothing is stored."""
     with upload_folder(session) as folder:
-        added = service.import_clouds(session, sensor, save_uploads(files, "files", folder))
+        added = service.import_clouds(session, sensor, save_uploads(files, "files", folder), progress)
     return {"added": [c.model_dump() for c in added]}
 
 

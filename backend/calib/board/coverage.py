@@ -4,7 +4,7 @@ The four per-view parameters and the progress rule follow ROS
 ``camera_calibration`` (``calibrator.py``): X and Y of the board's centre, its
 apparent size and its skew, each in [0, 1]. A new view adds coverage when its L1
 distance to every kept view exceeds 0.2; a parameter's bar is full when the kept
-views span its range (0.7, 0.7, 0.4, 0.5). ROS calls the data good enough at 40
+views span its range (0.7, 0.7, 0.4, 0.5), counted from 0 for size and skew. ROS calls the data good enough at 40
 views or full bars; we add a heat map of where corners have landed, since
 distortion is only constrained where corners were seen.
 
@@ -106,7 +106,9 @@ class Coverage:
         if not self.params:
             return dict.fromkeys(PARAM_NAMES, 0.0)
         p = np.array(self.params)
-        span = np.minimum((p.max(axis=0) - p.min(axis=0)) / PARAM_RANGES, 1.0)
+        # As ROS does, size and skew count from 0: small or square boards earn nothing, only large or skewed ones.
+        low = np.concatenate([p[:, :2].min(axis=0), [0.0, 0.0]])
+        span = np.minimum((p.max(axis=0) - low) / PARAM_RANGES, 1.0)
         return {name: float(s) for name, s in zip(PARAM_NAMES, span, strict=True)}
 
     @property
@@ -116,7 +118,9 @@ class Coverage:
 
     def missing(self) -> list[str]:
         """What keeps the coverage from being full (empty when it is): bars, heat-map cells, views."""
-        missing = [f"{name.upper()} bar at {value:.0%}" for name, value in self.progress.items() if value < 1.0]
+        # floored: a bar just short of full must not read 100 %
+        missing = [f"{name.upper()} bar at {np.floor(100 * value):.0f}%" for name, value in self.progress.items()
+                   if value < 1.0]
         if self.cells_seen < FULL_CELLS:
             missing.append(f"corners seen in {self.cells_seen:.0%} of the image ({FULL_CELLS:.0%} needed)")
         if len(self.params) < MIN_VIEWS_WITH_FULL_BARS:

@@ -61,6 +61,28 @@ def test_only_new_views_add_coverage_and_bars_fill():
     assert coverage.full and coverage.missing() == []
 
 
+def test_size_and_skew_count_from_zero_as_in_ros():
+    """ROS's ``compute_goodenough`` rewards large and skewed views only: its size and skew bars measure from 0."""
+    near_square = Coverage(BOARD, SIZE)
+    near_square.add(grid_detection((640, 360), 75))  # one near view, square to the camera
+    assert near_square.progress["size"] == 1.0 and near_square.progress["skew"] < 0.05
+    far_and_near = Coverage(BOARD, SIZE)
+    for spacing in (20, 45):  # a far and a middling view: neither is large
+        far_and_near.add(grid_detection((640, 360), spacing))
+    assert 0.5 < far_and_near.progress["size"] < 1.0
+    skewed = Coverage(BOARD, SIZE)
+    skewed.add(grid_detection((640, 360), 40, shear=0.2))
+    assert 0.5 < skewed.progress["skew"] < 1.0 and "SKEW bar at" in " ".join(skewed.missing())
+
+
+def test_a_bar_short_of_full_never_reads_100_percent():
+    coverage = Coverage(BOARD, SIZE)
+    for x in (300, 1059):  # X spans just short of its range
+        coverage.add(grid_detection((x, 360), 30))
+    assert 0.99 < coverage.progress["x"] < 1.0
+    assert "X bar at 99%" in coverage.missing()
+
+
 def uncertainty(max_px: float, where: tuple[int, int]) -> dict:
     """A projection_uncertainty with 0.1 px everywhere but ``max_px`` at the (row, col) cell ``where``."""
     sigma = np.full((9, 16), 0.1)
