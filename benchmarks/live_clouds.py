@@ -17,6 +17,11 @@ What it measures, in one run:
   ``capture_click_s`` the time from clicking *Capture clouds* to the page showing the new count, and
   ``page_fps_orbit_still`` the paint rate while the view is dragged round the captured pair (as many
   points, nothing streaming): what the renderer itself manages when every frame is a real redraw.
+  ``drawn_hz`` is the rate each stream is drawn at (paced to the page: a frame is sent once the page has
+  handled the one before, newer frames replacing older), and ``stop_click_s`` the time from clicking
+  *Stop live* to the page saying "Not live." (both timed in the page). ``--load N`` keeps N processes
+  spinning on the CPU while the page streams, as on a loaded machine. ``before_pacing`` holds today's
+  figures from before pacing, at the same load.
   Idle, the page repaints nothing, so ``page_fps_idle`` is only the browser's frame clock.
 
 Scan: the simulated yard (``LidarScene``) by a 64-beam spinning LiDAR (-25..15 deg, 0.2 deg columns),
@@ -26,9 +31,10 @@ Prints exactly one JSON object on stdout; progress goes to stderr. Needs the tes
 and /usr/bin/chromium, which ``scripts/install --test`` brings.
 
 Usage:
-    .venv/bin/python benchmarks/live_clouds.py
+    .venv/bin/python benchmarks/live_clouds.py [--load N]
 """
 
+import argparse
 import json
 import re
 import socket
@@ -55,7 +61,25 @@ PAINT_RATE_JS = """() => new Promise(resolve => {
                       else resolve(frames / ((performance.now() - start) / 1000)); }
     requestAnimationFrame(tick);
 })"""
-LIVE_RE = re.compile(r"lidar_top ([\d.]+) Hz, ([\d,]+) pts drawn · lidar_front ([\d.]+) Hz, ([\d,]+) pts drawn")
+CLICK_TO_CHANGE_JS = """([label, expected]) => new Promise(resolve => {
+    const button = [...document.querySelectorAll('button')].find(b => b.innerText.trim() === label);
+    const started = performance.now();
+    const observer = new MutationObserver(() => {
+        if (document.body.innerText.includes(expected)) { observer.disconnect(); resolve(performance.now() - started); }
+    });
+    observer.observe(document.body, {subtree: true, childList: true, characterData: true});
+    button.click();
+})"""
+"""Milliseconds from clicking the button labelled ``label`` to ``expected`` showing in the page, timed in the page
+(Playwright's own click waits for the button to hold still over two painted frames, which at 3 frames a second
+would add more than the studio takes)."""
+LIVE_RE = re.compile(r"lidar_top ([\d.]+) Hz, ([\d,]+) pts drawn(?: at ([\d.]+) Hz)? · "
+                     r"lidar_front ([\d.]+) Hz, ([\d,]+) pts drawn(?: at ([\d.]+) Hz)?")
+"""The live line (the draw rates only since pacing)."""
+BEFORE_PACING = {0: {"page_fps_streaming": 3.54, "capture_click_s": 0.97, "stop_click_s": 0.53},
+                 4: {"page_fps_streaming": 3.29, "capture_click_s": 1.63, "stop_click_s": 0.61}}
+"""Today's figures (2026-12-04, this machine: 2 cores, by ``--load``) from the studio before live clouds were paced
+to the page (the server sent every frame, 12 Hz per stream), measured by this script's in-page timing."""
 
 
 def prepare_frame(points, intensity, T_root_sensor):
@@ -110,10 +134,11 @@ def orbit_paint_rate(page, seconds=3.0):
     return page.evaluate("() => window.benchFrames") / seconds
 
 
-def browser_figures():
+def browser_figures(load: int):
     from playwright.sync_api import expect, sync_playwright
 
     api_port, viewer_port = free_port(), free_port()
+    burners: list[subprocess.Popen] = []
     with tempfile.TemporaryDirectory() as sessions:
         studio = subprocess.Popen(
             [sys.executable, "-m", "studio.cli", "demo", "--sessions", sessions, "--port", str(api_port),
@@ -134,42 +159,53 @@ def browser_figures():
                 for name, live in (("lidar_top", True), ("lidar_front", True), ("scanner_2d", False),
                                    ("sweep_3d", False)):
                     page.get_by_label(name, exact=True).set_checked(live)
+                burners.extend(subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load))
                 idle_fps = page.evaluate(PAINT_RATE_JS)
                 page.get_by_role("button", name="Start live", exact=True).click()
-                page.wait_for_function("() => document.body.innerText.includes('pts drawn · lidar_front')")
+                page.wait_for_function(r"() => /pts drawn( at [\d.]+ Hz)? · lidar_front/.test(document.body.innerText)")
                 time.sleep(4)
                 streaming_fps = page.evaluate(PAINT_RATE_JS)
                 rates = LIVE_RE.search(page.inner_text("body"))
-                clicks = []
-                for count in range(1, REPEATS + 1):
-                    started = time.monotonic()
-                    page.get_by_role("button", name="Capture clouds", exact=True).click()
-                    page.wait_for_function(f"() => document.body.innerText.includes('lidar_front: {count} ·')")
-                    clicks.append(time.monotonic() - started)
-                page.get_by_role("button", name="Stop live", exact=True).click()
+                clicks = [page.evaluate(CLICK_TO_CHANGE_JS, ["Capture clouds", f"lidar_front: {count} ·"]) / 1000
+                          for count in range(1, REPEATS + 1)]
+                stop_s = page.evaluate(CLICK_TO_CHANGE_JS, ["Stop live", "Not live."]) / 1000
+                expect(page.get_by_role("button", name="Start live", exact=True)).to_be_visible()
                 time.sleep(3)  # the captured pair (as many points as the live clouds) is now drawn, still
                 orbit_fps = orbit_paint_rate(page)
                 browser.close()
         finally:
+            for burner in burners:
+                burner.kill()
             studio.terminate()
             studio.wait(30)
+    capture_s = float(np.median(clicks))
+    before = BEFORE_PACING.get(load)
     return {
-        "server_hz": [float(rates.group(1)), float(rates.group(3))] if rates else None,
-        "points_drawn": [int(rates.group(2).replace(",", "")), int(rates.group(4).replace(",", ""))] if rates else None,
+        "server_hz": [float(rates.group(1)), float(rates.group(4))] if rates else None,
+        "points_drawn": [int(rates.group(2).replace(",", "")), int(rates.group(5).replace(",", ""))] if rates else None,
+        "drawn_hz": [float(rates.group(3)), float(rates.group(6))] if rates and rates.group(3) else None,
         "page_fps_streaming": streaming_fps,
         "page_fps_idle": idle_fps,
         "page_fps_ratio": streaming_fps / idle_fps,
         "page_fps_orbit_still": orbit_fps,
         "page_fps_vs_orbit": streaming_fps / orbit_fps,
-        "capture_click_s": float(np.median(clicks)),
+        "capture_click_s": capture_s,
+        "stop_click_s": stop_s,
+        "before_pacing": before,
+        "capture_click_vs_before": capture_s / before["capture_click_s"] if before else None,
+        "stop_click_vs_before": stop_s / before["stop_click_s"] if before else None,
+        "page_fps_streaming_vs_before": streaming_fps / before["page_fps_streaming"] if before else None,
     }
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--load", type=int, default=0, help="processes spinning on the CPU while the page streams")
+    args = parser.parse_args()
     log("preparing 100k-point frames")
     result = frame_figures()
-    log("streaming into a real page")
-    result["browser"] = browser_figures()
+    log(f"streaming into a real page (load: {args.load} spinning processes)")
+    result["browser"] = browser_figures(args.load) | {"load": args.load}
     print(json.dumps(result, indent=2))
 
 

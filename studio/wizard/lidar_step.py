@@ -43,6 +43,7 @@ from backend.plots.render import to_rgb
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from studio import cloud_colours as cc
 from studio.context import StudioContext
+from studio.frame_pacer import FramePacer
 from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
 from studio.marks import WARNING, mark
@@ -97,6 +98,10 @@ class LidarStep:
         self.show: dict[str, viser.GuiCheckboxHandle] = {}
         self._drawn: dict[str, int] = {}
         """Points drawn in each sensor's latest live frame."""
+        self._pacer: FramePacer[tuple[np.ndarray, np.ndarray]] = FramePacer(ctx.server, self._draw_paced,
+                                                                            "live clouds")
+        self._live_nodes_lock = threading.Lock()
+        """Held while a live cloud is drawn and while Stop removes them, so no frame redraws one after Stop."""
         self._errors: dict[str, str] = {}
         """The latest error each live sensor reported (a corrupt file, a lost device)."""
         self._source_node: viser.PointCloudHandle | None = None
@@ -224,6 +229,7 @@ class LidarStep:
         live = {name: LiveClouds(session, name, CloudCallbacks(frame=self._on_frame, status=self._on_status),
                                  accumulate=int(self.accumulate.value), max_hz=LIVE_HZ) for name in chosen}
         self.live = live
+        self._pacer.start()
         for thread in live.values():
             thread.start()
         self.toggle.started(list(live.values()))
@@ -238,13 +244,15 @@ class LidarStep:
     def stop_live(self) -> None:
         live, self.live = self.live, {}
         self.toggle.stopped()
-        for thread in live.values():
-            thread.stop()
-        for node in self._live_nodes.values():  # leave the view to the captured clouds
-            node.remove()
-        self._live_nodes = {}
+        self._pacer.stop()
+        with self._live_nodes_lock:
+            for node in self._live_nodes.values():  # leave the view to the captured clouds
+                node.remove()
+            self._live_nodes = {}
         if live:
             self.live_text.content = "Not live. " + self._rates(live)
+        for thread in live.values():  # last: the page has its answer while the devices close
+            thread.stop()
 
     def _set_accumulate(self) -> None:
         for thread in self.live.values():
@@ -262,7 +270,13 @@ class LidarStep:
         lidars = self._lidars()
         colours = cc.colour_points(self.colour_by.value, points, intensity, session.rig.T_root_frame(sensor),
                                    lidars.index(sensor) if sensor in lidars else 0)
-        self._draw_live(sensor, points, colours)
+        self._pacer.offer(sensor, (points, colours))
+
+    def _draw_paced(self, sensor: str, frame: tuple[np.ndarray, np.ndarray]) -> None:
+        """Draw a frame the pacer lets through, unless live view of ``sensor`` was stopped meanwhile."""
+        with self._live_nodes_lock:
+            if sensor in self.live:
+                self._draw_live(sensor, *frame)
 
     def _draw_live(self, sensor: str, points: np.ndarray, colours: np.ndarray) -> None:
         """Update the sensor's live cloud in place (one message of new buffers), or create it.
@@ -317,7 +331,7 @@ class LidarStep:
         parts = []
         for name, thread in live.items():
             drawn = self._drawn.get(name)
-            frames = "no frame yet" if drawn is None else f"{drawn:,} pts drawn"
+            frames = "no frame yet" if drawn is None else f"{drawn:,} pts drawn at {self._pacer.rate_hz(name):.1f} Hz"
             text = f"**{name}** {thread.rate_hz:.1f} Hz, {frames}"
             status = thread.device_status
             if status not in (None, "streaming", "closed"):
