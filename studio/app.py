@@ -20,12 +20,19 @@ from studio.wizard.session_step import SessionStep
 from studio.wizard.sweep_step import SweepStep
 
 
+PANEL_WIDTH_PX = 560
+"""The control panel's width (px); the page's user can drag its edge."""
+
+
 class StudioApp:
     """Builds the wizard on a viser server and opens an initial session."""
 
     def __init__(self, server: viser.ViserServer, store: SessionStore, jobs: JobRunner,
                  session: Session | None = None, api_url: str = ""):
         server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
+        # Docked beside the 3D view, not floating over it, and wide enough for a result's tables to read unwrapped.
+        server.gui.main_panel.dock_right()
+        server.gui.main_panel.set_width(PANEL_WIDTH_PX)
         server.gui.add_markdown("## Calibration Studio\nFrom raw sensors to trusted transforms, step by step.")
         self.ctx = StudioContext(server, store, jobs, RigScene(server), api_url=api_url)
         self.layers = Layers(self.ctx)
