@@ -19,7 +19,6 @@ from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
 from studio.wizard.sweep_step import SweepStep
 
-
 PANEL_WIDTH_PX = 560
 """The control panel's width (px); the page's user can drag its edge."""
 

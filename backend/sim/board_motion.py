@@ -7,6 +7,7 @@ whole image including its corners, with the whole plate always in view.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from functools import lru_cache
 
 import numpy as np
@@ -23,6 +24,14 @@ _CELL_EDGES = np.array([0.0, 0.08, 0.92, 1.0])
 drawn from one of three bands: at one border, in the middle, at the other border."""
 _MAX_ATTEMPTS = 60
 """How many times a board too large to fit is moved 5 % further away before giving up."""
+_COVER_CELLS = np.array([0.0, 0.04, 0.3, 0.7, 0.96, 1.0])
+""":func:`covering_poses`' 5x5 target cells along each axis (fractions of the image size): the border, between,
+the middle, between, the other border."""
+_COVER_FILL = {0: (0.40, 0.75), 1: (0.30, 0.55), 2: (0.12, 0.26)}
+"""Share of the image width the print fills (at the lens's local scale) by ring of the 5x5 cells: middle,
+between, border. A board at the border must be small for its outermost corners to reach the border's cells."""
+_COVER_CORNER_FILL = (0.08, 0.18)
+"""The fill in the four corner cells: only a small board, turned towards the corner, reaches into it."""
 
 
 def project_corners(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np.ndarray) -> np.ndarray:
@@ -92,16 +101,71 @@ def board_poses(
         tilt = np.where(side != 0, side * np.abs(tilt), tilt)
         roll = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
         R_facing_board = Rotation.from_euler("XYZ", [tilt[0], tilt[1], roll]).as_matrix()
-        for _ in range(_MAX_ATTEMPTS):
-            distance_m = camera.K[0, 0] * board.size_m[0] / (fill_fraction * camera.width)
-            T = _place(camera, board, distance_m, R_facing_board, target_px, margin_px)
-            if T is not None:
-                break
-            fill_fraction *= 0.95
-        else:
-            raise ValueError(f"cannot fit board {board} in the {camera.width}x{camera.height} image")
-        poses.append(T)
+        poses.append(_pose_toward(camera, board, fill_fraction, R_facing_board, target_px, margin_px)[0])
     return poses
+
+
+def covering_poses(camera: CameraIntrinsics, board: BoardSpec, seed: int, *, max_tilt_deg: float = 40.0,
+                   max_roll_deg: float = 20.0, margin_px: float = 4.0) -> Iterator[np.ndarray]:
+    """Endless poses ``T_camera_board`` (4x4, m) of a board taken to every part of the image; deterministic by
+    ``seed``. Each takes about 12 ms to plan, so a device plans them as it shows them.
+
+    Like :func:`board_poses`, but the target pixel is drawn in one of 5x5 cells (:data:`_COVER_CELLS`, each
+    once per 25 poses) and the board's size follows the cell (:data:`_COVER_FILL`): large in the middle, small
+    at the borders with the outer edge leaning 15-45 deg away, smallest in the corners and turned 10-30 deg
+    towards them. The fill is the print's width in pixels at the lens's scale where the board lands, so a
+    wide lens's stretched borders get boards as small as the middle's, moved back until they are. With
+    about 8 poses per cell (200 poses), corners land in at least 95 % of the coverage heat map's cells of
+    the demo's lenses, as the studio's guidance asks.
+    """
+    rng = np.random.default_rng(seed)
+    cells: list[int] = []
+    while True:
+        if not cells:
+            cells = rng.permutation(25).tolist()
+        cell = np.array(divmod(cells.pop(), 5))[::-1]  # (column, row) in 0..4
+        side = np.sign(cell - 2)
+        ring = int(np.abs(cell - 2).max())
+        target_px = rng.uniform(_COVER_CELLS[cell], _COVER_CELLS[cell + 1]) * [camera.width - 1, camera.height - 1]
+        fill_fraction = rng.uniform(*_COVER_FILL[ring])
+        tilt = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
+        if ring == 2:  # the outer edge leans away (see board_poses for the signs), about board x then y
+            outward = np.array([side[1], -side[0]])
+            tilt = np.where(outward != 0, outward * np.radians(rng.uniform(15, 45, size=2)), tilt)
+        roll = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
+        if np.all(np.abs(cell - 2) == 2):
+            roll = np.radians(side[0] * side[1] * rng.uniform(10, 30))
+            fill_fraction = rng.uniform(*_COVER_CORNER_FILL)
+        R_facing_board = Rotation.from_euler("XYZ", [tilt[0], tilt[1], roll]).as_matrix()
+        T, distance_m = _pose_toward(camera, board, fill_fraction, R_facing_board, target_px, margin_px)
+        wanted_square_px = fill_fraction * camera.width / (board.corner_grid[0] + 1)
+        for _ in range(3):  # back off while the lens's local scale shows the squares larger than wanted
+            ratio = _square_px(camera, board, T) / wanted_square_px
+            further = _place(camera, board, distance_m * ratio, R_facing_board, target_px, margin_px)
+            if ratio <= 1.05 or further is None:
+                break
+            T, distance_m = further, distance_m * ratio
+        yield T
+
+
+def _pose_toward(camera: CameraIntrinsics, board: BoardSpec, fill_fraction: float, R_facing_board: np.ndarray,
+                 target_px: np.ndarray, margin_px: float) -> tuple[np.ndarray, float]:
+    """:func:`_place`'s pose at the distance (m) where the print fills ``fill_fraction`` of the image width at
+    the centre's scale, moved back 5 % at a time until the plate fits; returns the pose and that distance."""
+    for _ in range(_MAX_ATTEMPTS):
+        distance_m = camera.K[0, 0] * board.size_m[0] / (fill_fraction * camera.width)
+        T = _place(camera, board, distance_m, R_facing_board, target_px, margin_px)
+        if T is not None:
+            return T, distance_m
+        fill_fraction *= 0.95
+    raise ValueError(f"cannot fit board {board} in the {camera.width}x{camera.height} image")
+
+
+def _square_px(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np.ndarray) -> float:
+    """Median side (px) of the board's squares along its rows, as the camera sees them at ``T_camera_board``."""
+    cols, rows = board.corner_grid
+    corners_px = project_corners(camera, board, T_camera_board).reshape(rows, cols, 2)
+    return float(np.median(np.linalg.norm(np.diff(corners_px, axis=1), axis=2)))
 
 
 @lru_cache(maxsize=8)

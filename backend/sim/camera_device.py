@@ -3,7 +3,7 @@
 Frames are rendered from ground truth (:mod:`backend.sim`): the camera's true
 intrinsics and mounting from :func:`backend.sim.demo_rig.demo_rig`, and the board
 either waved in front of the camera for an intrinsic calibration
-(:func:`backend.sim.board_motion.board_poses`) or carried about the simulated yard,
+(:func:`backend.sim.board_motion.covering_poses`) or carried about the simulated yard,
 where the simulated LiDARs see it too (:func:`backend.sim.lidar_scene.moving_board_poses`) and
 the camera photographs the whole yard (:func:`backend.sim.scene_camera.clean_yard_image`), so
 its edges line up with the LiDARs' points. Every sample carries the true ``T_camera_board``
@@ -16,6 +16,7 @@ The driver is ``"simulated"``, registered with :func:`~backend.devices.base.crea
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceError, Sample
-from backend.sim.board_motion import board_poses
+from backend.sim.board_motion import covering_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import moving_board_poses
@@ -54,7 +55,7 @@ class SimulatedCamera(CaptureDevice):
         camera: str = "cam_front",
         seed: int = 0,
         board: str = DEMO_BOARD,
-        n_poses: int = 60,
+        n_poses: int = 200,
         fps: float = 0,
         disconnect_after: int | None = None,
         board_motion: str = "wave",
@@ -66,12 +67,14 @@ class SimulatedCamera(CaptureDevice):
             camera: name of a camera in the demo rig.
             seed: seeds the board motion and the image noise.
             board: board spec string of the target.
-            n_poses: poses in the cycle the board moves through.
+            n_poses: poses in the cycle the board moves through (the ``wave`` needs about 200 to reach every
+                cell of the coverage heat map).
             fps: frame rate to emulate (Hz); 0 renders as fast as possible.
             disconnect_after: if set, reads after this many samples raise
                 :class:`DeviceDisconnected`, to exercise capture robustness.
             board_motion: ``"wave"``: the board is waved close in front of the camera, all
-                over the image, as for an intrinsic calibration; ``"scene"``: the board is
+                over the image and into its corners, as for an intrinsic calibration
+                (:func:`~backend.sim.board_motion.covering_poses`, planned as it is shown); ``"scene"``: the board is
                 carried about the simulated yard 2-3 m ahead of the robot, through the poses
                 a ``simulated_lidar`` with ``board_poses=n_poses`` and the same ``seed`` sees
                 (pose 0 is the yard's static board), for LiDAR-to-camera calibration.
@@ -88,6 +91,7 @@ class SimulatedCamera(CaptureDevice):
         self._intrinsics: CameraIntrinsics | None = None
         self._board_spec: BoardSpec | None = None
         self._poses: list[np.ndarray] = []
+        self._planned: Iterator[np.ndarray] = iter(())
         self._T_base_boards: list[np.ndarray] | None = None
         self._T_base_camera: np.ndarray | None = None
 
@@ -108,7 +112,8 @@ class SimulatedCamera(CaptureDevice):
                               self.describe())
         self._intrinsics, self._board_spec = frame.intrinsics, board
         if self.board_motion == "wave":
-            self._poses = board_poses(frame.intrinsics, board, self.n_poses, self.seed)
+            self._planned = covering_poses(frame.intrinsics, board, self.seed)
+            self._poses = []
             self._T_base_boards = None
         else:
             self._T_base_camera = demo_rig().T_root_frame(self.camera)
@@ -122,7 +127,9 @@ class SimulatedCamera(CaptureDevice):
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
         exposed_s = time.time()  # the frame's stamp is its exposure, not the end of the render
-        pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
+        pose_index = held_pose_index(index, self.n_poses, self.board_hold_s)
+        while len(self._poses) <= pose_index:
+            self._poses.append(next(self._planned))
         T_camera_board = self._poses[pose_index]
         rng = np.random.default_rng([self.seed, index])
         if self._T_base_boards is None:
@@ -147,6 +154,7 @@ class SimulatedCamera(CaptureDevice):
         self._intrinsics = None
         self._board_spec = None
         self._poses = []
+        self._planned = iter(())
         self._T_base_boards = None
 
     def describe(self) -> str:

@@ -43,7 +43,8 @@ PANEL_LEFT_PX = 1150
 """The wizard panel floats over the right of the page; the 3D view is checked left of this."""
 CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
 """``backend.sim.demo_rig.CAM_WIDE``: what the simulated wide camera really is."""
-MIN_VIEWS = 12
+FULL_COVERAGE_S = 900
+"""Bound on one cycle of the simulated board (200 frames rendered, detected and previewed) on a loaded machine."""
 VIEWS_RE = re.compile(r"(\d+) views ·")
 RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|accepted)\) · intrinsics[\s\S]*?"
                        r"(pinhole-radtan|fisheye-equidistant) 1280×720")
@@ -122,10 +123,12 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     expect(page.get_by_text("No result yet.", exact=True)).to_be_visible()
     assert "views ·" not in _body(page), "cam_wide starts with no captures"
 
-    # Live capture from the simulated camera; auto-capture keeps frames that add coverage.
+    # Live capture from the simulated camera; auto-capture keeps frames that add coverage. Following the board
+    # through one cycle of its motion fills the coverage, the wide lens's corners included: then only a solve
+    # is missing for enough data.
     button(page, "Start live capture").click()
     expect(button(page, "Stop")).to_be_visible()
-    _wait_views(page, MIN_VIEWS, timeout_s=120)
+    wait_body(page, re.compile(r"Not enough data yet: solve to see the projection sigma\."), timeout_s=FULL_COVERAGE_S)
 
     # Manual capture: with auto-capture off, one click keeps exactly one more frame.
     page.get_by_label("Auto-capture when it adds coverage").uncheck()
@@ -155,8 +158,9 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     for text in ("fx", "fy", "cx", "cy", "k1", "σ", "Verdict:", "Cross-validation (two halves):", "Model:",
                  "held-out RMS (px)", "pinhole-rational", "Corners:"):
         assert text in body, f"{text!r} missing from the result"
-    # the enough-data line now judges the solve's projection sigma, not coverage alone (it follows the result)
-    wait_body(page, re.compile(r"Enough data|px in the [a-z ]+: add views there"))
+    # the enough-data line now judges the solve's projection sigma too (it follows the result): with the coverage
+    # full, the studio's guidance has led to enough data
+    wait_body(page, re.compile(r"Enough data - full coverage"))
     summaries = studio.get("/api/sessions/demo/results?sensor=cam_wide&kind=intrinsics")
     assert [r["id"] for r in summaries] == [result_id], summaries
     _scroll_to_result(page)
@@ -167,15 +171,10 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     assert f"Verdict: {level}" in body, body  # the level as a word (in colour), never an emoji
     assert record["model_comparison"]["status"] == "compared", record["model_comparison"]
     print(f"cam_wide verdict {level}: {record['verdict']['reasons']}; model {record['model_comparison']['reason']}")
-    assert level != "reject", record["verdict"]  # the wide lens gets k3 (or fisheye) from auto
+    assert level == "trusted", record["verdict"]  # the wide lens gets k3 from auto, and enough views
     # the result card's Accept (step 3 comes first; later steps have their own) first shows what the rig would do
     button(page, "Accept").first.click()
     expect(page.get_by_text(f"Accepting {result_id} would:", exact=False)).to_be_visible()
-    if level == "check":  # a 'check' is refused until confirmed
-        button(page, "Confirm accept").first.click()
-        expect(page.locator(".mantine-Notification-root", has_text="Cannot accept")).to_be_visible(timeout=UI_WAIT_MS)
-        assert not studio.get("/api/sessions/demo")["accepted"].get("cam_wide/intrinsics")
-        page.get_by_label("Confirm the check").first.check()
     button(page, "Confirm accept").first.click()
     expect(page.get_by_text(f"{result_id} (accepted)", exact=False)).to_be_visible()
     session = studio.get("/api/sessions/demo")
@@ -189,10 +188,9 @@ def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
     assert record["rms_px"] < 1.0, record["rms_px"]
     assert abs(got["fx"] - CAM_WIDE_TRUTH["fx"]) < 5.0, got
     assert abs(got["fy"] - CAM_WIDE_TRUTH["fy"]) < 5.0, got
-    # Which frames get kept depends on timing; with ~15 views the principal point is known to a few px (its σ).
-    for name in ("cx", "cy"):
-        tolerance = max(10.0, 4.0 * record["std"][name])
-        assert abs(got[name] - CAM_WIDE_TRUTH[name]) < tolerance, (name, got, record["std"])
+    # Which frames get kept depends on timing; each parameter is within 4 σ of the truth (and σ is small).
+    for name in ("fx", "fy", "cx", "cy"):
+        assert abs(got[name] - CAM_WIDE_TRUTH[name]) < 4.0 * record["std"][name] + 0.05, (name, got, record["std"])
 
 
 def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_chessboard: Path) -> None:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
 import pytest
 
-from backend.services.live_capture import LiveCallbacks, LiveCapture
+from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.intrinsics.solver import IntrinsicsSettings
+from backend.services.live_capture import LiveCallbacks, LiveCapture, data_enough
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.store.session import SessionStore
 
@@ -91,3 +94,33 @@ def test_missing_device_settings_are_reported(tmp_path):
     live.stop()
     assert "no capture device configured" in recorder.statuses[0][0]
     assert session.captures("cam_wide") == []
+
+
+@pytest.mark.slow
+def test_following_the_moving_board_gives_enough_data(tmp_path):
+    """One cycle of the simulated board (200 poses into every part of the image), auto-captured as the studio
+    does, then solved with model auto: the coverage is full, the worst projection sigma is below the
+    tolerance (so "enough data"), and the lens is within 3 sigma of the truth. This is ``cam_front``; the
+    browser test of the intrinsics step walks ``cam_wide`` (the harder lens) the same way."""
+    camera = "cam_front"
+    rig = demo_rig()
+    rig.get(camera).device = {"driver": "simulated", "camera": camera, "seed": 0, "disconnect_after": 200}
+    session = SessionStore(tmp_path).create("live", rig=rig, board=DEMO_BOARD)
+    recorder = Recorder()
+    live = LiveCapture(session, camera, recorder.callbacks())
+    live.start()
+    assert recorder.failed.wait(600), "the cycle's end (a disconnect) was never reported"
+    live.stop()
+    assert live.coverage.full, live.coverage.missing()
+
+    _, result = intrinsics_service.solve_session(session, camera, IntrinsicsSettings(model="auto"))
+    enough, missing = data_enough(session, camera, live.coverage)
+    truth = rig.get(camera).intrinsics
+    print(f"{camera}: {len(recorder.captured)} views, {result.camera.model}, worst projection sigma "
+          f"{result.projection_uncertainty['max_px']:.3f} px, verdict {result.verdict.level}")
+    assert enough, missing
+    assert result.verdict.level == "trusted"
+    errors = np.array([result.camera.K[0, 0] - truth.K[0, 0], result.camera.K[1, 1] - truth.K[1, 1],
+                       result.camera.K[0, 2] - truth.K[0, 2], result.camera.K[1, 2] - truth.K[1, 2]])
+    sigmas = np.array([result.std[name] for name in ("fx", "fy", "cx", "cy")])
+    assert np.all(np.abs(errors) < 3 * sigmas), f"fx fy cx cy off by {errors} px, sigma {sigmas}"

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from itertools import islice
+
 import cv2
 import numpy as np
 import pytest
 
+from backend.calib.board.coverage import FULL_CELLS, HEATMAP_CELLS
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
-from backend.sim.board_motion import board_poses, plate_in_view, project_corners
+from backend.sim.board_motion import board_poses, covering_poses, plate_in_view, project_corners
 from backend.sim.board_renderer import render_board_image
 from backend.sim.camera_device import SimulatedCamera
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
@@ -96,6 +99,29 @@ def test_board_poses_are_varied_and_in_view() -> None:
         assert len(cells) >= least, f"corners in only {len(cells)} of {grid}x{grid} image cells"
     tilts_deg = [np.degrees(np.arccos(T[2, 2])) for T in poses]
     assert max(tilts_deg) > 25
+
+
+@pytest.mark.parametrize("name", ["cam_front", "cam_wide"])
+def test_covering_poses_reach_the_coverage_cells(name: str) -> None:
+    """The demo camera's board motion: 200 poses put corners into at least the share of the coverage heat map
+    that "enough data" asks (corners included, on the wide lens too), with the whole plate in view and no
+    square smaller than 9 px."""
+    camera = _intrinsics(name)
+    poses = list(islice(covering_poses(camera, BOARD, seed=0), 200))
+    again = islice(covering_poses(camera, BOARD, seed=0), 5)
+    assert all(np.array_equal(a, b) for a, b in zip(poses[:5], again, strict=True))
+    assert all(plate_in_view(camera, BOARD, T, margin_px=4.0) for T in poses)
+    heatmap = np.zeros(HEATMAP_CELLS[::-1], bool)
+    smallest_square_px = np.inf
+    for T in poses:
+        corners = project_corners(camera, BOARD, T)
+        cells = np.floor(corners / camera.image_size * HEATMAP_CELLS).astype(int)
+        heatmap[cells[:, 1], cells[:, 0]] = True
+        grid = corners.reshape(BOARD.corner_grid[1], BOARD.corner_grid[0], 2)
+        smallest_square_px = min(smallest_square_px, np.linalg.norm(np.diff(grid, axis=1), axis=2).min())
+    assert heatmap.mean() >= FULL_CELLS, f"corners in {heatmap.mean():.0%} of the heat map's cells"
+    assert heatmap[[0, 0, -1, -1], [0, -1, 0, -1]].sum() >= 3, "the image corners are not reached"
+    assert smallest_square_px > 9
 
 
 @pytest.mark.slow

@@ -49,6 +49,9 @@ MAX_RELATIVE_FOCAL_STD = 0.05
 """A focal length less certain than this fraction means the views cannot pin down the camera."""
 UNCERTAINTY_GRID = (16, 9)
 TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+SEED_RADIUS = 0.7
+"""Views whose corners all lie within this fraction of the half-diagonal from the image centre seed a second
+solve (:func:`_opencv_calibrate`): near the centre distortion is mild, so their solve starts near the lens."""
 
 
 @dataclass
@@ -187,7 +190,48 @@ def _check_views(views: list[View], board: BoardSpec) -> None:
 
 def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
                       guess: CameraIntrinsics | None = None):
-    """Run OpenCV's solver, from ``guess`` if given; returns (K, dist, rvecs, tvecs)."""
+    """OpenCV's solve of ``views``, from ``guess`` if given; returns (K, dist, rvecs, tvecs).
+
+    Without a guess, OpenCV starts from a distortion-free camera, and with a strong lens and boards in the
+    image corners it can settle in a wrong minimum (the demo's wide lens: 0.72 px RMS and fx 3 px off, where
+    the true lens fits to 0.04 px). So the views near the centre (:data:`SEED_RADIUS`) are solved first and
+    all views are solved again from there, as mrcal seeds its solves from the image centre's points; the
+    solve that fits all views better is kept. Raises the plain solve's :class:`InputError` when neither runs.
+    """
+    if guess is not None:
+        return _opencv_solve(views, board, size, settings, guess)
+    solves, failure = [], None
+    try:
+        solves.append(_opencv_solve(views, board, size, settings))
+    except InputError as exc:  # OpenCV's fisheye start can fail on a view the seeded solve gets past
+        failure = exc
+    centre = np.array(size, float) / 2
+    inner = [v for v in views
+             if np.linalg.norm(v.detection.corners_px - centre, axis=1).max() < SEED_RADIUS * np.linalg.norm(centre)]
+    if MIN_VIEWS <= len(inner) < len(views):
+        try:
+            K, dist, _, _ = _opencv_solve(inner, board, size, settings)
+            solves.append(_opencv_solve(views, board, size, settings, CameraIntrinsics(settings.model, *size, K, dist)))
+        except (InputError, cv2.error):  # the inner views alone do not pin the lens down
+            pass
+    if not solves:
+        raise failure
+    return min(solves, key=lambda solve: _solve_rms(views, board, size, settings.model, solve))
+
+
+def _solve_rms(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
+               solve: tuple) -> float:
+    """Reprojection RMS (px) of ``views`` under an OpenCV ``solve`` (K, dist, rvecs, tvecs) of ``model``."""
+    K, dist, rvecs, tvecs = solve
+    camera = CameraIntrinsics(model, size[0], size[1], K, dist)
+    residuals = [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
+                 for v, r, t in zip(views, rvecs, tvecs, strict=True)]
+    return float(np.sqrt(np.mean(np.sum(np.concatenate(residuals) ** 2, axis=1))))
+
+
+def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                  guess: CameraIntrinsics | None = None):
+    """One run of OpenCV's solver, from ``guess`` if given; returns (K, dist, rvecs, tvecs)."""
     object_points = [v.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3) for v in views]
     image_points = [v.detection.corners_px.reshape(-1, 1, 2) for v in views]
     if settings.model == "fisheye-equidistant":
@@ -350,11 +394,7 @@ def _with_corners(views: list[View], corner_set: str) -> list[View]:
 
 def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
     """Reprojection RMS (px) of a plain solve (no uncertainty) on ``views``."""
-    K, dist, rvecs, tvecs = _opencv_calibrate(views, board, size, settings)
-    camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
-    residuals = [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
-                 for v, r, t in zip(views, rvecs, tvecs, strict=True)]
-    return float(np.sqrt(np.mean(np.sum(np.concatenate(residuals) ** 2, axis=1))))
+    return _solve_rms(views, board, size, settings.model, _opencv_calibrate(views, board, size, settings))
 
 
 def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
