@@ -40,6 +40,9 @@ class StudioContext:
     _step_listeners: list[Callable[[str], None]] = field(default_factory=list)
     _switching: threading.RLock = field(default_factory=threading.RLock)
     """Held through a session change: two clicks on *Open session* change it one after the other."""
+    _shown_revision: int = 0
+    """The open session's :attr:`~backend.store.session.Session.revision` the steps last followed."""
+    _stop_following: Callable[[], None] = lambda: None
 
     def on_session_closing(self, hook: Callable[[], None]) -> None:
         """``hook()`` runs before the open session is left (another opens, or the studio stops): stop what streams
@@ -55,13 +58,27 @@ class StudioContext:
         self._rig_listeners.append(listener)
 
     def rig_changed(self) -> None:
-        """An accept or a revert changed the open session's rig (the result card calls this): redraw the rig's
-        frames and tell every :meth:`on_rig_changed` listener."""
-        if self.session is None:
+        """An accept, a revert or an edit changed the open session's rig: redraw the rig's frames and tell every
+        :meth:`on_rig_changed` listener, once per saved change (nothing when the steps already follow the session's
+        latest revision: the session's own change listener usually got there first)."""
+        if self.session is None or self.session.revision == self._shown_revision:
             return
+        self._shown_revision = self.session.revision
         self.scene.update_rig(self.session.rig)
         for listener in self._rig_listeners:
             self._call(listener, self.session, during="the rig change")
+
+    def _changed_elsewhere(self) -> None:
+        """The open session saved a change (an accept, a revert or an edit through the API, the CLI's server or a
+        step): unless the steps already follow it, do :meth:`rig_changed`, so an open page never shows a rig the
+        session no longer has. While a session switch is under way it does nothing (the switch draws the rig
+        afresh), and never waits for it: the changing thread may be one the switch is stopping."""
+        if not self._switching.acquire(blocking=False):
+            return
+        try:
+            self.rig_changed()
+        finally:
+            self._switching.release()
 
     def on_step_shown(self, listener: Callable[[str], None]) -> None:
         """``listener(step)`` runs when :meth:`show_step` is called (the layers panel follows it)."""
@@ -89,6 +106,8 @@ class StudioContext:
         with self._switching:
             self.close_session()
             self.session = session
+            self._shown_revision = session.revision
+            self._stop_following = session.on_change(self._changed_elsewhere)
             self.scene.show_rig(session.rig)
             for listener in self._listeners:
                 self._call(listener, session)
@@ -96,6 +115,7 @@ class StudioContext:
     def close_session(self) -> None:
         """Run every step's closing hook (the session stays current until another is opened)."""
         with self._switching:
+            self._stop_following()
             for hook in self._closing:
                 self._call(hook)
 

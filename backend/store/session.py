@@ -127,6 +127,10 @@ class Session:
         self._data = data
         self.rig: Rig = rig_from_model(data.rig)
         self.lock = threading.RLock()
+        self.revision = 0
+        """Counts the changes saved since the session was opened (:meth:`on_change`)."""
+        self._change_depth = 0
+        self._change_listeners: list[Callable[[], None]] = []
 
     # -- the session file -------------------------------------------------------------
     @classmethod
@@ -175,17 +179,32 @@ class Session:
                                  self.shown(self.path / SESSION_FILE)) from None
             write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
 
+    def on_change(self, listener: Callable[[], None]) -> Callable[[], None]:
+        """``listener()`` runs after each change to the rig or the accepted results is saved, whoever made it (the
+        studio, the API): on the changing thread, once the outermost change is done and its lock released.
+        Returns what stops it."""
+        self._change_listeners.append(listener)
+        return lambda: self._change_listeners.remove(listener) if listener in self._change_listeners else None
+
     @contextlib.contextmanager
     def _change(self) -> Iterator[None]:
         """Apply a change and save it; if anything fails, memory goes back to what is on disk."""
         with self.lock:
             data, rig = self._data.model_copy(deep=True), copy.deepcopy(self.rig)
+            self._change_depth += 1
             try:
                 yield
                 self.save()
+                self.revision += 1
             except BaseException:
                 self._data, self.rig = data, rig
                 raise
+            finally:
+                self._change_depth -= 1
+                outermost = self._change_depth == 0
+        if outermost:
+            for listener in list(self._change_listeners):
+                listener()
 
     @property
     def name(self) -> str:
@@ -294,9 +313,12 @@ class Session:
         """The sensor's device answered (a stream opened it): one added as not connected is connected now."""
         with self.lock:
             frame = self.rig.frames.get(sensor)  # None if it was removed while its stream opened
-            if frame is not None and frame.not_connected:
-                with self._change():
-                    frame.not_connected = False
+            if frame is None or not frame.not_connected:
+                return
+        with self._change():  # outside the lock, so the change's listeners run with it released
+            frame = self.rig.frames.get(sensor)
+            if frame is not None:
+                frame.not_connected = False
 
     def edit_rig(self, apply: Callable[[Rig], None]) -> None:
         """Change the rig with ``apply(rig)`` in one saved change; if it raises, nothing changes."""

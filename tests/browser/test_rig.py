@@ -181,8 +181,7 @@ def test_rig_tree_drawing_in_process(studio: Studio, accepted: dict[str, str], t
         assert {step for step, group in groups.items() if group.visible} == {"multicam", "rig"}
 
         lidar_lidar_slot = next(s for s in accepted if s.startswith(SECOND_LIDAR))
-        rig_service.revert(session, lidar_lidar_slot)
-        app.ctx.rig_changed()
+        rig_service.revert(session, lidar_lidar_slot)  # as the API would: the studio follows the session's change
         nodes = server.scene._handle_from_node_name
         assert len({n for n in nodes if n.startswith("/rig_tree/edges/")}) == len(tree.edges) - 1
         assert "lidar_lidar" not in app.rig_step.edges_text.content

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -335,3 +336,31 @@ def test_two_accepts_of_one_result_at_once_record_one(session: Session):
     rig_service.accept(session, other)
     rig_service.accept(session, result_id)  # going back to it is a new accept
     assert [e.result_id for e in session.acceptance_log] == [result_id, other, result_id]
+
+
+def test_change_listeners_hear_every_saved_change_once_with_the_lock_released(tmp_path):
+    """What lets an open studio page follow an edit made through the API: each saved change (an edit, an accept,
+    a nested one counted once) calls the session's listeners after its lock is released; a failed one does not."""
+    session = SessionStore(tmp_path).create("s")
+    heard: list[tuple[int, bool]] = []
+
+    def elsewhere() -> None:  # another thread (a page's handler, a request) can take the session meanwhile
+        took = session.lock.acquire(timeout=5)
+        heard.append((session.revision, took))
+        if took:
+            session.lock.release()
+
+    def listener() -> None:
+        thread = threading.Thread(target=elsewhere)
+        thread.start()
+        thread.join()
+
+    stop = session.on_change(listener)
+    session.add_sensor(Frame("cam", "base_link", kind="camera"))
+    session.edit_rig(lambda rig: session.set_device("cam", {"driver": "folder", "path": "x"}))  # nested: once
+    with pytest.raises(InputError):
+        session.add_sensor(Frame("cam", "base_link", kind="camera"))  # a repeated name: nothing saved
+    assert heard == [(1, True), (3, True)]
+    stop()
+    session.add_sensor(Frame("cam2", "base_link", kind="camera"))
+    assert len(heard) == 2 and session.revision == 4

@@ -53,8 +53,7 @@ def test_step_7_guides_through_cam_rights_lens_and_back(demo_template: Path, tmp
                     intrinsics_service.store_capture(session, "cam_right", sample.image, detection,
                                                      device=device.describe(), timestamp_s=sample.timestamp_s)
         lens_id, _ = intrinsics_service.solve_session(session, "cam_right", IntrinsicsSettings())
-        rig_service.accept(session, lens_id, confirm=True)
-        app.ctx.rig_changed()
+        rig_service.accept(session, lens_id, confirm=True)  # as the API would: the studio follows the change
         assert multicam.lens_text.content == ""  # calibrated: no more guidance
 
         multicam._carry_board()

@@ -37,7 +37,8 @@ def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: Camera
 
     ``sigma_a_px`` and ``sigma_b_px`` are each half's (rows, cols) worst-direction projection 1-sigma (px) at
     the grid's cells. Returns the per-cell difference (px), its ratio to the expected 1-sigma, the worst
-    ratio and where it is, and ``consistent`` (every ratio below :data:`CONSISTENT_FACTOR`).
+    ratio and where it is, the largest difference and where it is, and ``consistent`` (every ratio below
+    :data:`CONSISTENT_FACTOR`).
     """
     pixels = grid_pixels(a.width, a.height, grid)
     expected = np.hypot(np.asarray(sigma_a_px, float), np.asarray(sigma_b_px, float)).ravel()
@@ -46,13 +47,15 @@ def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: Camera
     seen_by_b = b.project(rotation.apply(rays_a))
     diff = np.linalg.norm(seen_by_b - pixels, axis=1)
     ratio = diff / np.maximum(expected, 1e-9)
-    worst = int(np.argmax(ratio))
+    worst, largest = int(np.argmax(ratio)), int(np.argmax(diff))
     cols, rows = grid
     return {
         "grid": [cols, rows],
         "difference_px": np.round(diff.reshape(rows, cols), 5).tolist(),
         "expected_px": np.round(expected.reshape(rows, cols), 5).tolist(),
-        "max_difference_px": float(diff.max()),
+        "max_difference_px": float(diff[largest]),
+        "max_difference_pixel": np.round(pixels[largest], 1).tolist(),
+        "max_difference_ratio": float(ratio[largest]),
         "worst_ratio": float(ratio[worst]),
         "worst_pixel": np.round(pixels[worst], 1).tolist(),
         "worst_difference_px": float(diff[worst]),

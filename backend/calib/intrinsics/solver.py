@@ -437,12 +437,22 @@ def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], 
         halves.append((camera, np.array(_projection_uncertainty(camera, cov)["sigma_px"]) * inflation))
     (a, sigma_a), (b, sigma_b) = halves
     diff = projection_difference(a, sigma_a, b, sigma_b, UNCERTAINTY_GRID)
-    u, v = diff["worst_pixel"]
-    detail = (f"the halves ({len(views[0::2])} and {len(views[1::2])} views) differ by at most "
-              f"{diff['max_difference_px']:.3g} px; worst at ({u:.0f}, {v:.0f}) px: "
-              f"{diff['worst_difference_px']:.3g} px where {diff['worst_expected_px']:.3g} px is expected "
-              f"({diff['worst_ratio']:.1f} sigma)")
+    detail = f"the halves ({len(views[0::2])} and {len(views[1::2])} views) " + _difference_phrase(diff)
     return {"status": "consistent" if diff["consistent"] else "inconsistent", "detail": detail, **diff}
+
+
+def _difference_phrase(diff: dict[str, Any]) -> str:
+    """How far the halves' projections differ (:func:`projection_difference`), each number said once: where
+    they differ most against their sigma and, if elsewhere, where they differ most in pixels."""
+    u, v = diff["worst_pixel"]
+    phrase = (f"differ by {diff['worst_difference_px']:.3g} px at ({u:.0f}, {v:.0f}) px, where "
+              f"{diff['worst_expected_px']:.3g} px is expected ({diff['worst_ratio']:.1f} sigma, the most against "
+              "their sigma")
+    if diff["max_difference_pixel"] == diff["worst_pixel"]:
+        return phrase + ", and the most in pixels)"
+    u, v = diff["max_difference_pixel"]
+    return (phrase + f"); the most in pixels is {diff['max_difference_px']:.3g} px at ({u:.0f}, {v:.0f}) px "
+                     f"({diff['max_difference_ratio']:.1f} sigma)")
 
 
 def calibrate_intrinsics(

@@ -10,7 +10,7 @@ import pytest
 from backend.calib.board.detection import Detection, _agrees_with_neighbours
 from backend.calib.intrinsics.crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
 from backend.calib.intrinsics.models import SIMPLE, compare_models, solve_auto
-from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
+from backend.calib.intrinsics.solver import IntrinsicsSettings, View, _difference_phrase, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
@@ -90,6 +90,26 @@ def test_projection_difference_takes_out_a_rotation_but_not_a_lens_change():
     assert not diff["consistent"] and diff["worst_ratio"] > CONSISTENT_FACTOR
     corners = [diff["difference_px"][r][c] for r, c in ((0, 0), (0, 15), (8, 0), (8, 15))]
     assert min(corners) > 3 * diff["difference_px"][4][8]  # a radial change shows in the corners, not the centre
+
+
+def test_the_halves_difference_says_each_number_once():
+    """Where the halves differ most against their sigma and where they differ most in pixels are different
+    figures at different pixels; the sentence names each once, with its place (it once read "differ by at
+    most 1.61 px; worst at ...: 0.412 px")."""
+    camera = demo_rig().get("cam_front").intrinsics
+    sigma = np.full((9, 16), 0.05)
+    sigma[:, 12:] = 2.0  # the right of the image is poorly known: its large differences are expected there
+    bent = CameraIntrinsics(camera.model, camera.width, camera.height, camera.K, camera.dist + [0.002, 0, 0, 0, 0])
+    diff = projection_difference(camera, sigma, bent, sigma, (16, 9))
+    assert diff["max_difference_pixel"] != diff["worst_pixel"]
+    phrase = _difference_phrase(diff)
+    worst, largest = f"{diff['worst_difference_px']:.3g} px", f"{diff['max_difference_px']:.3g} px"
+    assert phrase.startswith(f"differ by {worst} at ") and f"the most in pixels is {largest} at (" in phrase, phrase
+    assert phrase.count(worst) == 1 and phrase.count(largest) == 1, phrase
+    uniform = np.full((9, 16), 0.05)  # both at the same corner: one figure, said once
+    same = projection_difference(camera, uniform, bent, uniform, (16, 9))
+    assert same["max_difference_pixel"] == same["worst_pixel"]
+    assert _difference_phrase(same).endswith("the most against their sigma, and the most in pixels)")
 
 
 @pytest.mark.slow
