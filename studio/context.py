@@ -42,6 +42,8 @@ class StudioContext:
     """Held through a session change: two clicks on *Open session* change it one after the other."""
     _shown_revision: int = 0
     """The open session's :attr:`~backend.store.session.Session.revision` the steps last followed."""
+    _shown_frames: frozenset[str] = frozenset()
+    """The frames of the rig the steps last followed (:meth:`follow`)."""
     _stop_following: Callable[[], None] = lambda: None
 
     def on_session_closing(self, hook: Callable[[], None]) -> None:
@@ -63,22 +65,32 @@ class StudioContext:
         latest revision: the session's own change listener usually got there first)."""
         if self.session is None or self.session.revision == self._shown_revision:
             return
-        self._shown_revision = self.session.revision
+        self._shown_revision, self._shown_frames = self.session.revision, frozenset(self.session.rig.frames)
         self.scene.update_rig(self.session.rig)
         for listener in self._rig_listeners:
             self._call(listener, self.session, during="the rig change")
 
     def _changed_elsewhere(self) -> None:
-        """The open session saved a change (an accept, a revert or an edit through the API, the CLI's server or a
-        step): unless the steps already follow it, do :meth:`rig_changed`, so an open page never shows a rig the
-        session no longer has. While a session switch is under way it does nothing (the switch draws the rig
-        afresh), and never waits for it: the changing thread may be one the switch is stopping."""
+        """The open session saved a change (an accept, a revert or an edit, through the API or a step): :meth:`follow`
+        it, so an open page never shows a rig the session no longer has. While a session switch is under way it
+        does nothing (the switch draws the rig afresh), and never waits for it: the changing thread may be one the
+        switch is stopping."""
         if not self._switching.acquire(blocking=False):
             return
         try:
-            self.rig_changed()
+            self.follow()
         finally:
             self._switching.release()
+
+    def follow(self) -> None:
+        """Every step follows the open session's latest saved change: with a sensor added or removed the session
+        is opened again (as after *Open session*), else :meth:`rig_changed`; nothing when they already follow it."""
+        if self.session is None or self.session.revision == self._shown_revision:
+            return
+        if frozenset(self.session.rig.frames) != self._shown_frames:
+            self.open_session(self.session)
+        else:
+            self.rig_changed()
 
     def on_step_shown(self, listener: Callable[[str], None]) -> None:
         """``listener(step)`` runs when :meth:`show_step` is called (the layers panel follows it)."""
@@ -106,7 +118,7 @@ class StudioContext:
         with self._switching:
             self.close_session()
             self.session = session
-            self._shown_revision = session.revision
+            self._shown_revision, self._shown_frames = session.revision, frozenset(session.rig.frames)
             self._stop_following = session.on_change(self._changed_elsewhere)
             self.scene.show_rig(session.rig)
             for listener in self._listeners:

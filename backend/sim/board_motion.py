@@ -27,7 +27,7 @@ _MAX_ATTEMPTS = 60
 _COVER_CELLS = np.array([0.0, 0.04, 0.3, 0.7, 0.96, 1.0])
 """:func:`covering_poses`' 5x5 target cells along each axis (fractions of the image size): the border, between,
 the middle, between, the other border."""
-_COVER_FILL = {0: (0.40, 0.75), 1: (0.30, 0.55), 2: (0.12, 0.26)}
+_COVER_FILL = {0: (0.50, 0.85), 1: (0.30, 0.55), 2: (0.12, 0.26)}
 """Share of the image width the print fills (at the lens's local scale) by ring of the 5x5 cells: middle,
 between, border. A board at the border must be small for its outermost corners to reach the border's cells."""
 _COVER_CORNER_FILL = (0.08, 0.18)
@@ -115,7 +115,7 @@ def covering_poses(camera: CameraIntrinsics, board: BoardSpec, seed: int, *, max
     at the borders with the outer edge leaning 15-45 deg away, smallest in the corners and turned 10-30 deg
     towards them. The fill is the print's width in pixels at the lens's scale where the board lands, so a
     wide lens's stretched borders get boards as small as the middle's, moved back until they are. With
-    about 8 poses per cell (200 poses), corners land in at least 95 % of the coverage heat map's cells of
+    about 6 poses per cell (150 poses), corners land in at least 95 % of the coverage heat map's cells of
     the demo's lenses, as the studio's guidance asks.
     """
     rng = np.random.default_rng(seed)

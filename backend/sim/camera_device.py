@@ -55,7 +55,7 @@ class SimulatedCamera(CaptureDevice):
         camera: str = "cam_front",
         seed: int = 0,
         board: str = DEMO_BOARD,
-        n_poses: int = 200,
+        n_poses: int = 150,
         fps: float = 0,
         disconnect_after: int | None = None,
         board_motion: str = "wave",
@@ -67,7 +67,7 @@ class SimulatedCamera(CaptureDevice):
             camera: name of a camera in the demo rig.
             seed: seeds the board motion and the image noise.
             board: board spec string of the target.
-            n_poses: poses in the cycle the board moves through (the ``wave`` needs about 200 to reach every
+            n_poses: poses in the cycle the board moves through (the ``wave`` needs about 150 to reach every
                 cell of the coverage heat map).
             fps: frame rate to emulate (Hz); 0 renders as fast as possible.
             disconnect_after: if set, reads after this many samples raise

@@ -33,6 +33,7 @@ import contextlib
 import copy
 import io
 import json
+import logging
 import os
 import re
 import threading
@@ -116,6 +117,39 @@ def read_bounded_npy(handle: Any, what: str, max_elements: int) -> np.ndarray:
     return np.lib.format.read_array(handle, allow_pickle=False)
 
 
+log = logging.getLogger(__name__)
+
+
+class _ReleasingLock:
+    """The session's re-entrant lock, which calls ``released()`` each time the thread holding it lets it go for
+    good (its outermost ``with``), with the lock free: the session tells its change listeners then."""
+
+    def __init__(self, released: Callable[[], None]):
+        self.bare = threading.RLock()
+        """The lock itself, without the call."""
+        self._released = released
+        self._depth = 0
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        took = self.bare.acquire(blocking, timeout)
+        self._depth += took
+        return took
+
+    def release(self) -> None:
+        self._depth -= 1
+        outermost = self._depth == 0
+        self.bare.release()
+        if outermost:
+            self._released()
+
+    def __enter__(self) -> _ReleasingLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.release()
+
+
 class Session:
     """An open session. Methods are thread-safe; the studio and the API share instances."""
 
@@ -126,10 +160,10 @@ class Session:
         (whose messages never show where its sessions are kept)."""
         self._data = data
         self.rig: Rig = rig_from_model(data.rig)
-        self.lock = threading.RLock()
+        self.lock = _ReleasingLock(self._tell_listeners)
         self.revision = 0
         """Counts the changes saved since the session was opened (:meth:`on_change`)."""
-        self._change_depth = 0
+        self._told_revision = 0
         self._change_listeners: list[Callable[[], None]] = []
 
     # -- the session file -------------------------------------------------------------
@@ -180,18 +214,29 @@ class Session:
             write_json_atomic(self.path / SESSION_FILE, self._data.model_dump(mode="json"))
 
     def on_change(self, listener: Callable[[], None]) -> Callable[[], None]:
-        """``listener()`` runs after each change to the rig or the accepted results is saved, whoever made it (the
-        studio, the API): on the changing thread, once the outermost change is done and its lock released.
-        Returns what stops it."""
+        """``listener()`` runs after changes to the rig or the accepted results are saved, whoever made them (the
+        studio, the API): once the session's lock is let go by the thread that held it through them, on that
+        thread, once for all the changes made while it held the lock. Returns what stops it."""
         self._change_listeners.append(listener)
         return lambda: self._change_listeners.remove(listener) if listener in self._change_listeners else None
+
+    def _tell_listeners(self) -> None:
+        """Run the :meth:`on_change` listeners if a change was saved since they last ran (the lock is free)."""
+        with self.lock.bare:
+            if self._told_revision == self.revision:
+                return
+            self._told_revision = self.revision
+        for listener in list(self._change_listeners):
+            try:
+                listener()
+            except Exception:  # noqa: BLE001 - a follower's failure must not undo or hide the saved change
+                log.exception("a listener of session %s failed on its change", self.label)
 
     @contextlib.contextmanager
     def _change(self) -> Iterator[None]:
         """Apply a change and save it; if anything fails, memory goes back to what is on disk."""
         with self.lock:
             data, rig = self._data.model_copy(deep=True), copy.deepcopy(self.rig)
-            self._change_depth += 1
             try:
                 yield
                 self.save()
@@ -199,12 +244,6 @@ class Session:
             except BaseException:
                 self._data, self.rig = data, rig
                 raise
-            finally:
-                self._change_depth -= 1
-                outermost = self._change_depth == 0
-        if outermost:
-            for listener in list(self._change_listeners):
-                listener()
 
     @property
     def name(self) -> str:
@@ -313,12 +352,9 @@ class Session:
         """The sensor's device answered (a stream opened it): one added as not connected is connected now."""
         with self.lock:
             frame = self.rig.frames.get(sensor)  # None if it was removed while its stream opened
-            if frame is None or not frame.not_connected:
-                return
-        with self._change():  # outside the lock, so the change's listeners run with it released
-            frame = self.rig.frames.get(sensor)
-            if frame is not None:
-                frame.not_connected = False
+            if frame is not None and frame.not_connected:
+                with self._change():
+                    frame.not_connected = False
 
     def edit_rig(self, apply: Callable[[Rig], None]) -> None:
         """Change the rig with ``apply(rig)`` in one saved change; if it raises, nothing changes."""

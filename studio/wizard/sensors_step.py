@@ -336,7 +336,7 @@ class SensorsStep:
             return
         self.ctx.notify("Sensor added", f"{self.name.value.strip()} ({self.kind.value}"
                         f"{', ' + device['driver'] if device else ''})")
-        self.ctx.open_session(session)
+        self.ctx.follow()  # every step lists the new sensor
 
     # -- editing and removing ----------------------------------------------------------
     def _on_sensor(self) -> None:
@@ -453,7 +453,7 @@ class SensorsStep:
     def _reopen(self, pick: str, said: str) -> None:
         """Show the changed rig everywhere (every step follows the session again), with ``pick`` in *Sensor* and
         what the change did under it."""
-        self.ctx.open_session(self.ctx.session)
+        self.ctx.follow()
         self._pick(pick)
         self._say(said)
 

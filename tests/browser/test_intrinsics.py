@@ -44,7 +44,7 @@ PANEL_LEFT_PX = 1150
 CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
 """``backend.sim.demo_rig.CAM_WIDE``: what the simulated wide camera really is."""
 FULL_COVERAGE_S = 900
-"""Bound on one cycle of the simulated board (200 frames rendered, detected and previewed) on a loaded machine."""
+"""Bound on one cycle of the simulated board (150 frames rendered, detected and previewed) on a loaded machine."""
 VIEWS_RE = re.compile(r"(\d+) views ·")
 RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|accepted)\) · intrinsics[\s\S]*?"
                        r"(pinhole-radtan|fisheye-equidistant) 1280×720")

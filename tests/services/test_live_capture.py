@@ -98,13 +98,13 @@ def test_missing_device_settings_are_reported(tmp_path):
 
 @pytest.mark.slow
 def test_following_the_moving_board_gives_enough_data(tmp_path):
-    """One cycle of the simulated board (200 poses into every part of the image), auto-captured as the studio
+    """One cycle of the simulated board (150 poses into every part of the image), auto-captured as the studio
     does, then solved with model auto: the coverage is full, the worst projection sigma is below the
     tolerance (so "enough data"), and the lens is within 3 sigma of the truth. This is ``cam_front``; the
     browser test of the intrinsics step walks ``cam_wide`` (the harder lens) the same way."""
     camera = "cam_front"
     rig = demo_rig()
-    rig.get(camera).device = {"driver": "simulated", "camera": camera, "seed": 0, "disconnect_after": 200}
+    rig.get(camera).device = {"driver": "simulated", "camera": camera, "seed": 0, "disconnect_after": 150}
     session = SessionStore(tmp_path).create("live", rig=rig, board=DEMO_BOARD)
     recorder = Recorder()
     live = LiveCapture(session, camera, recorder.callbacks())
