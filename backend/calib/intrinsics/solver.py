@@ -52,6 +52,9 @@ TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 SEED_RADIUS = 0.7
 """Views whose corners all lie within this fraction of the half-diagonal from the image centre seed a second
 solve (:func:`_opencv_calibrate`): near the centre distortion is mild, so their solve starts near the lens."""
+SETTLED_RMS_PX = 0.1
+"""A plain solve that fits its views this well (px RMS) is at the corner detector's noise floor and is kept without
+the seeded second solve: the wrong minima seen fitted at 0.15-0.72 px, where the true lens fitted at 0.04 px."""
 
 
 @dataclass
@@ -196,7 +199,8 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
     image corners it can settle in a wrong minimum (the demo's wide lens: 0.72 px RMS and fx 3 px off, where
     the true lens fits to 0.04 px). So the views near the centre (:data:`SEED_RADIUS`) are solved first and
     all views are solved again from there, as mrcal seeds its solves from the image centre's points; the
-    solve that fits all views better is kept. Raises the plain solve's :class:`InputError` when neither runs.
+    solve that fits all views better is kept. A plain solve within :data:`SETTLED_RMS_PX` is kept at once.
+    Raises the plain solve's :class:`InputError` when neither runs.
     """
     if guess is not None:
         return _opencv_solve(views, board, size, settings, guess)
@@ -205,6 +209,8 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
         solves.append(_opencv_solve(views, board, size, settings))
     except InputError as exc:  # OpenCV's fisheye start can fail on a view the seeded solve gets past
         failure = exc
+    if solves and _solve_rms(views, board, size, settings.model, solves[0]) <= SETTLED_RMS_PX:
+        return solves[0]
     centre = np.array(size, float) / 2
     inner = [v for v in views
              if np.linalg.norm(v.detection.corners_px - centre, axis=1).max() < SEED_RADIUS * np.linalg.norm(centre)]

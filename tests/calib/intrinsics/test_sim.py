@@ -87,8 +87,12 @@ def test_analytic_sigmas_alone_would_be_too_small():
     reported = np.r_[[with_jackknife.std[k] for k in ("fx", "fy", "cx", "cy")], with_jackknife.std["dist"]]
     analytic = np.r_[[analytic_only.std[k] for k in ("fx", "fy", "cx", "cy")], analytic_only.std["dist"]]
     assert np.all(reported >= analytic * (1 - 1e-9))
-    # per-view errors widen the focal length's sigma (by 2x with SB's own corners, less with the refined ones)
-    assert with_jackknife.std["fx"] > 1.1 * analytic_only.std["fx"]
+    # per-view errors widen some parameters' sigmas (which ones depends on the views: on the demo's first 15, cy
+    # and p1 by about 1.4x) and with them the projection sigma
+    widened = reported[analytic > 0] / analytic[analytic > 0]
+    assert widened.max() > 1.25, widened
+    assert (with_jackknife.projection_uncertainty["max_px"]
+            > 1.02 * analytic_only.projection_uncertainty["max_px"])
 
 
 def test_degenerate_views_are_rejected():
