@@ -188,7 +188,6 @@ class ResultCard:
             self.ctx.notify("Cannot accept", exc.message, error=True)
             return
         self.ctx.notify("Accepted", f"{record['id']} is accepted; the rig was re-fitted.")
-        self.ctx.scene.update_rig(session.rig)
         self.ctx.rig_changed()
         self.show(record, record["id"])
         self.preview_text.content = "**Accepted.**\n\n" + update_markdown(update)

@@ -108,7 +108,7 @@ def board_poses(
 def covering_poses(camera: CameraIntrinsics, board: BoardSpec, seed: int, *, max_tilt_deg: float = 40.0,
                    max_roll_deg: float = 20.0, margin_px: float = 4.0) -> Iterator[np.ndarray]:
     """Endless poses ``T_camera_board`` (4x4, m) of a board taken to every part of the image; deterministic by
-    ``seed``. Each takes about 12 ms to plan, so a device plans them as it shows them.
+    ``seed``. Each takes about 20 ms to plan, so a device plans them as it shows them.
 
     Like :func:`board_poses`, but the target pixel is drawn in one of 5x5 cells (:data:`_COVER_CELLS`, each
     once per 25 poses) and the board's size follows the cell (:data:`_COVER_FILL`): large in the middle, small
@@ -141,8 +141,10 @@ def covering_poses(camera: CameraIntrinsics, board: BoardSpec, seed: int, *, max
         wanted_square_px = fill_fraction * camera.width / (board.corner_grid[0] + 1)
         for _ in range(3):  # back off while the lens's local scale shows the squares larger than wanted
             ratio = _square_px(camera, board, T) / wanted_square_px
+            if ratio <= 1.05:
+                break
             further = _place(camera, board, distance_m * ratio, R_facing_board, target_px, margin_px)
-            if ratio <= 1.05 or further is None:
+            if further is None:
                 break
             T, distance_m = further, distance_m * ratio
         yield T

@@ -204,25 +204,27 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
     """
     if guess is not None:
         return _opencv_solve(views, board, size, settings, guess)
-    solves, failure = [], None
+    scored, failure = [], None  # (RMS over all views in px, solve) of each solve that ran
     try:
-        solves.append(_opencv_solve(views, board, size, settings))
+        plain = _opencv_solve(views, board, size, settings)
+        scored.append((_solve_rms(views, board, size, settings.model, plain), plain))
     except InputError as exc:  # OpenCV's fisheye start can fail on a view the seeded solve gets past
         failure = exc
-    if solves and _solve_rms(views, board, size, settings.model, solves[0]) <= SETTLED_RMS_PX:
-        return solves[0]
+    if scored and scored[0][0] <= SETTLED_RMS_PX:
+        return plain
     centre = np.array(size, float) / 2
     inner = [v for v in views
              if np.linalg.norm(v.detection.corners_px - centre, axis=1).max() < SEED_RADIUS * np.linalg.norm(centre)]
     if MIN_VIEWS <= len(inner) < len(views):
         try:
             K, dist, _, _ = _opencv_solve(inner, board, size, settings)
-            solves.append(_opencv_solve(views, board, size, settings, CameraIntrinsics(settings.model, *size, K, dist)))
+            seeded = _opencv_solve(views, board, size, settings, CameraIntrinsics(settings.model, *size, K, dist))
+            scored.append((_solve_rms(views, board, size, settings.model, seeded), seeded))
         except (InputError, cv2.error):  # the inner views alone do not pin the lens down
             pass
-    if not solves:
+    if not scored:
         raise failure
-    return min(solves, key=lambda solve: _solve_rms(views, board, size, settings.model, solve))
+    return min(scored, key=lambda rms_solve: rms_solve[0])[1]
 
 
 def _solve_rms(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
