@@ -151,6 +151,7 @@ class ResultCard:
         self.apply_button.visible = False
         self.preview_text.content = ""
         self.revert_choice.visible = False
+        self.confirm.show_for(None if record is None else StoredResult(record).verdict.level)
         self.text.content = self.empty_text if record is None else card_markdown(record, accepted_id)
 
     def preview(self) -> None:

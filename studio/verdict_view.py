@@ -28,12 +28,18 @@ def verdict_markdown(verdict: Verdict) -> str:
 
 
 class ConfirmCheck:
-    """A checkbox confirming a ``check`` verdict for the next *Accept*; it clears itself once used."""
+    """A checkbox confirming a ``check`` verdict for the next *Accept*; it clears itself once used, and shows only
+    beside a result whose verdict is ``check`` (a ``trusted`` one needs no confirmation, a ``reject`` takes none)."""
 
     def __init__(self, gui: viser.GuiApi):
         self.checkbox = gui.add_checkbox(
-            "Confirm the check", initial_value=False,
+            "Confirm the check", initial_value=False, visible=False,
             hint="accept a result whose verdict is 'check' as it is; the confirmation is recorded with the acceptance")
+
+    def show_for(self, level: str | None) -> None:
+        """Show the box, cleared, for a result whose verdict is ``level`` (None: no result)."""
+        self.checkbox.value = False
+        self.checkbox.visible = level == "check"
 
     def take(self) -> bool:
         """The box's value for this acceptance; the box is cleared, so each confirmation is given once."""

@@ -17,7 +17,7 @@ same board poses: the session holds :data:`DEMO_SETS` synchronised sets of them,
 on the shared hold clock so more sets can be captured live. ``cam_right`` has no intrinsics:
 the joint solve estimates them with the rig.
 
-Building it takes the better part of a minute (rendering and detecting about sixty frames, a solve), so the
+Building it takes the better part of a minute (rendering and detecting about seventy frames, a solve), so the
 session is built in a staging folder (:data:`STAGING_DIR`) and moved into place whole: a build that is
 interrupted never leaves a half-built ``demo`` behind. :func:`start_demo_build` runs the build as a job, so a
 server can serve its page at once and open the demo when it is ready.
@@ -44,9 +44,11 @@ from backend.calib.rig import service as rig_service
 from backend.calib.rig.sensor_edits import SensorEdit
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
+from backend.core.rig import Rig
 from backend.devices.base import create_device
 from backend.services.jobs import Job, JobRunner
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig, measured_demo_rig
+from backend.sim.lidar_scene import ROBOT_PLACES
 from backend.store.atomic import write_json_atomic
 from backend.store.session import Session, SessionStore
 
@@ -54,8 +56,8 @@ DEMO_NAME = "demo"
 DEMO_CAMERA = "cam_front"
 DEMO_VIEWS = 15
 DEMO_LIDAR = "lidar_top"
-DEMO_PAIRS = 10
-PAIR_BOARD_POSES = 12
+DEMO_PAIRS = 20
+PAIR_BOARD_POSES = 20
 PAIR_HOLD_S = 3.0
 DEMO_SET_CAMERAS = ["cam_front", "cam_right"]
 DEMO_SETS = 10
@@ -223,3 +225,51 @@ def move_simulated_board(session: Session, camera: str, motion: str) -> rig_serv
               if key not in ("board_motion", "n_poses", "board_hold_s")}
     device = yard_board(device) if motion == "scene" else device | {"board_motion": "wave"}
     return rig_service.edit_sensor(session, camera, SensorEdit(device=device))
+
+
+ROBOT_PLACE_NAMES = [f"x {x:+.1f} m, y {y:+.1f} m, heading {heading:+.0f}°" + (" (the yard's origin)" if not i else "")
+                     for i, (x, y, heading) in enumerate(ROBOT_PLACES)]
+"""How the studio names each of the :data:`ROBOT_PLACES` (``base_link`` in the yard's frame)."""
+
+
+def _yard_settings(device: dict) -> dict | None:
+    """The settings that place a simulator of the yard (``place`` lives there): the device's own for a simulated
+    camera or LiDAR, its scanner's for a swept scanner with a simulated head; None for any other device (a real
+    one, a recording, the depth cell)."""
+    if device.get("driver") in ("simulated", "simulated_lidar"):
+        return device
+    scanner = device.get("scanner")
+    if device.get("driver") == "swept_scanner" and isinstance(scanner, dict) and scanner.get("driver") == "sim":
+        return scanner
+    return None
+
+
+def simulated_place(session: Session) -> int | None:
+    """Where the session's simulated robot stands in the yard (an index of :data:`ROBOT_PLACES`), or None when
+    none of its sensors is a simulator of the yard."""
+    placed = (_yard_settings(frame.device) for frame in session.rig.sensors() if isinstance(frame.device, dict))
+    return next((settings.get("place", 0) for settings in placed if settings is not None), None)
+
+
+def move_simulated_robot(session: Session, place: int) -> list[str]:
+    """Drive the simulated robot to ``place`` of the yard (:data:`ROBOT_PLACES`): every simulated camera and
+    LiDAR of the session (the swept scanner's head included) sees the yard from there, with the board carried
+    about in front of it, so captures taken there are a scene of their own. Devices already open keep their place
+    until they are opened again. One saved change; returns the sensors moved. :class:`InputError` naming ``place``
+    for a place that is not one of them, or for a session without simulated sensors."""
+    if not isinstance(place, int) or not 0 <= place < len(ROBOT_PLACES):
+        raise InputError(f"place {place!r}: expected one of 0-{len(ROBOT_PLACES) - 1} (where the simulated robot "
+                         "can stand in the yard)", "place")
+    moved = []
+
+    def drive(rig: Rig) -> None:
+        for frame in rig.sensors():
+            settings = _yard_settings(frame.device) if isinstance(frame.device, dict) else None
+            if settings is not None:
+                settings["place"] = place
+                moved.append(frame.name)
+        if not moved:
+            raise InputError("the session has no simulated sensors: a real robot is moved by its crew", "place")
+
+    session.edit_rig(drive)
+    return moved

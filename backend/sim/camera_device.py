@@ -27,7 +27,7 @@ from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.board_motion import covering_poses
 from backend.sim.board_renderer import render_board_image
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
-from backend.sim.lidar_scene import moving_board_poses
+from backend.sim.lidar_scene import moving_board_poses, robot_place
 from backend.sim.scene_camera import clean_yard_image
 from backend.sim.timing import SimulatedTiming, held_pose_index
 
@@ -60,6 +60,7 @@ class SimulatedCamera(CaptureDevice):
         disconnect_after: int | None = None,
         board_motion: str = "wave",
         board_hold_s: float = 0,
+        place: int = 0,
     ):
         """Settings as stored in the rig.
 
@@ -80,6 +81,8 @@ class SimulatedCamera(CaptureDevice):
                 (pose 0 is the yard's static board), for LiDAR-to-camera calibration.
             board_hold_s: if above 0, each pose is held for this many seconds of wall-clock
                 time, the clock all simulated devices share; else the pose advances every frame.
+            place: where the robot stands in the yard in the ``scene`` motion (an index of
+                :data:`~backend.sim.lidar_scene.ROBOT_PLACES`), as for a ``simulated_lidar``.
         """
         self.camera = camera
         self.seed = seed
@@ -87,6 +90,8 @@ class SimulatedCamera(CaptureDevice):
         self.n_poses = n_poses
         self.board_motion = board_motion
         self.board_hold_s = board_hold_s
+        self.place = place
+        self._T_yard_base = np.eye(4)
         self._timing = SimulatedTiming(fps, disconnect_after, "frames")
         self._intrinsics: CameraIntrinsics | None = None
         self._board_spec: BoardSpec | None = None
@@ -110,6 +115,7 @@ class SimulatedCamera(CaptureDevice):
         if self.board_motion not in BOARD_MOTIONS:
             raise DeviceError(f"board_motion must be one of {', '.join(BOARD_MOTIONS)}, not {self.board_motion!r}",
                               self.describe())
+        self._T_yard_base = robot_place(self.place, self.describe())
         self._intrinsics, self._board_spec = frame.intrinsics, board
         if self.board_motion == "wave":
             self._planned = covering_poses(frame.intrinsics, board, self.seed)
@@ -140,12 +146,13 @@ class SimulatedCamera(CaptureDevice):
                 "simulated": True}
         if self._T_base_boards is not None:
             meta["T_base_board"] = self._T_base_boards[pose_index].tolist()
+            meta["place"] = self.place
         return Sample(exposed_s, image=image, meta=meta)
 
     def _yard_image(self, pose_index: int, rng: np.random.Generator) -> np.ndarray:
         """The yard with the board at pose ``pose_index``, with fresh sensor noise from ``rng``."""
-        clean = clean_yard_image(self._T_base_boards[pose_index], self.board, self._intrinsics, self._T_base_camera,
-                                 self.seed)
+        clean = clean_yard_image(self._T_yard_base @ self._T_base_boards[pose_index], self.board, self._intrinsics,
+                                 self._T_yard_base @ self._T_base_camera, self.seed)
         noisy = clean + SCENE_NOISE_SIGMA * rng.standard_normal(clean.shape, dtype=np.float32)
         return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 

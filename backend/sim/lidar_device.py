@@ -1,10 +1,10 @@
 """A LiDAR of the simulated demo rig scanning the simulated yard.
 
 Scans are ray-cast from ground truth (:mod:`backend.sim.lidar_scene`): the sensor's
-true pose ``T_base_sensor`` in :func:`backend.sim.demo_rig.demo_rig` and the scene
-with the calibration board, either standing still or carried through a cycle of
-poses. A ``lidar3d`` sensor gives a VLP-16-like 16-beam spinning scan, a ``lidar2d``
-sensor a 360 deg planar scan (points with z = 0).
+true pose ``T_base_sensor`` in :func:`backend.sim.demo_rig.demo_rig`, the place where the robot
+stands in the yard, and the scene with the calibration board, either standing still or carried
+through a cycle of poses in front of the robot. A ``lidar3d`` sensor gives a VLP-16-like 16-beam
+spinning scan, a ``lidar2d`` sensor a 360 deg planar scan (points with z = 0).
 
 The driver is ``"simulated_lidar"``, registered with :func:`~backend.devices.base.create_device` by
 :mod:`backend.sim.devices`.
@@ -18,7 +18,7 @@ import numpy as np
 
 from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.demo_rig import demo_rig
-from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses
+from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses, robot_place
 from backend.sim.timing import SimulatedTiming, held_pose_index
 
 
@@ -42,6 +42,7 @@ class SimulatedLidar(CaptureDevice):
         board_poses: int = 0,
         board_hold_s: float = 0,
         disconnect_after: int | None = None,
+        place: int = 0,
     ):
         """Settings as stored in the rig.
 
@@ -57,11 +58,15 @@ class SimulatedLidar(CaptureDevice):
                 else the pose advances with every scan.
             disconnect_after: if set, reads after this many samples raise
                 :class:`DeviceDisconnected`, to exercise capture robustness.
+            place: where the robot stands in the yard (an index of
+                :data:`~backend.sim.lidar_scene.ROBOT_PLACES`); the board is carried about in front of it.
         """
         self.sensor = sensor
         self.seed = seed
         self.board_poses = board_poses
         self.board_hold_s = board_hold_s
+        self.place = place
+        self._T_yard_base = np.eye(4)
         self._timing = SimulatedTiming(rate_hz, disconnect_after, "scans")
         self._kind: str | None = None
         self._T_base_sensor: np.ndarray | None = None
@@ -80,6 +85,7 @@ class SimulatedLidar(CaptureDevice):
                               self.describe())
         if self._timing.rate_hz < 0:
             raise DeviceError(f"rate_hz must be 0 or more, not {self._timing.rate_hz}", self.describe())
+        self._T_yard_base = robot_place(self.place, self.describe())
         self._kind = frame.kind
         self._T_base_sensor = rig.T_root_frame(self.sensor)
         self._poses = moving_board_poses(self.board_poses, self.seed) if self.board_poses > 0 else [
@@ -95,11 +101,12 @@ class SimulatedLidar(CaptureDevice):
         pose_index = index % len(self._poses) if pose_index is None else pose_index
         scene = self._scenes.get(pose_index)
         if scene is None:
-            scene = self._scenes[pose_index] = LidarScene(self._poses[pose_index])
+            scene = self._scenes[pose_index] = LidarScene(self._T_yard_base @ self._poses[pose_index])
         rng = np.random.default_rng([self.seed, index])
+        T_yard_sensor = self._T_yard_base @ self._T_base_sensor
         if self._kind == "lidar3d":
-            return scene.scan_3d(self._T_base_sensor, rng=rng)
-        return scene.scan_2d(self._T_base_sensor, rng=rng)
+            return scene.scan_3d(T_yard_sensor, rng=rng)
+        return scene.scan_2d(T_yard_sensor, rng=rng)
 
     def read(self) -> Sample:
         """Scan once more; raise :class:`DeviceDisconnected` once ``disconnect_after`` scans were read."""
@@ -116,6 +123,7 @@ class SimulatedLidar(CaptureDevice):
             "simulated": True,
             "T_base_sensor": self._T_base_sensor.tolist(),
             "T_base_board": self._poses[pose_index].tolist(),
+            "place": self.place,
         }
         return Sample(time.time(), points=scan.points, intensity=scan.intensity, meta=meta)
 

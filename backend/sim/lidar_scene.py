@@ -1,8 +1,9 @@
 """A simulated yard for the demo rig's LiDARs, and the ray-caster that scans it.
 
-The scene is a triangle mesh in the ``base_link`` frame (x forward, y left, z up,
-metres) with the robot standing at the origin. It is a walled yard of 12 x 10 m
-with a chamfered corner, boxes with sharp edges (some turned), poles, a ramp and a
+The scene is a triangle mesh in the yard's frame (x forward, y left, z up, metres), which is
+``base_link`` when the robot stands at the origin (place 0 of :data:`ROBOT_PLACES`; it can be
+driven to the others, so that LiDAR-to-LiDAR scenes from several places check each other).
+It is a walled yard of 12 x 10 m with a chamfered corner, boxes with sharp edges (some turned), poles, a ramp and a
 step (planes that are not axis-aligned), and the calibration board of
 :data:`~backend.sim.demo_rig.DEMO_BOARD` (the printed pattern plus its white margin,
 as :func:`~backend.sim.board_renderer.plate_corners_m`) on a post about 2.6 m ahead,
@@ -29,6 +30,7 @@ import numpy as np
 
 from backend.core.boards import BoardSpec
 from backend.core.transforms import R_BODY_OPTICAL, from_xyz_ypr, make_T, transform_points
+from backend.devices.base import DeviceError
 from backend.sim.board_renderer import plate_corners_m
 from backend.sim.demo_rig import DEMO_BOARD
 
@@ -143,25 +145,51 @@ def board_pose(distance_m: float, lateral_m: float, height_m: float, yaw_deg: fl
     return make_T(R, np.array([distance_m, lateral_m, height_m]) - R @ centre_board)
 
 
+ROBOT_PLACES: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0), (0.6, -0.9, -20.0), (-0.6, 1.0, 25.0))
+"""Where the simulated robot can stand in the yard: x, y (m) of ``base_link`` in the yard's frame and its heading
+(deg). Place 0 is the yard's origin; from each place both LiDARs see walls, boxes and poles all round."""
+
+
+def robot_place(place: int, device: str = "simulated robot") -> np.ndarray:
+    """``T_yard_base`` (4x4, m) of the robot standing at ``ROBOT_PLACES[place]``; :class:`DeviceError` naming
+    ``device`` for a place that is not one of them."""
+    if not isinstance(place, int) or not 0 <= place < len(ROBOT_PLACES):
+        raise DeviceError(f"place must be one of 0-{len(ROBOT_PLACES) - 1} (where the robot can stand in the yard), "
+                          f"not {place!r}", device)
+    x_m, y_m, heading_deg = ROBOT_PLACES[place]
+    return _pose(x_m, y_m, yaw_deg=heading_deg)
+
+
 def default_board_pose() -> np.ndarray:
     """``T_base_board`` of the static board (:data:`DEFAULT_BOARD`)."""
     return board_pose(**DEFAULT_BOARD)
 
 
+MIN_BOARD_TILT_DEG = 15.0
+"""Least angle (deg) between a carried board's normal and the robot's forward axis: a board facing the camera
+squarely from 2-3 m leaves its PnP rotation poorly determined (up to 0.6 deg off in the demo), which a
+LiDAR-to-camera solve takes over as the board plane's tilt."""
+
+
 def moving_board_poses(n: int, seed: int = 0, board: str = DEMO_BOARD) -> list[np.ndarray]:
     """``n`` deterministic ``T_base_board`` poses of a board carried about in front of the robot.
 
-    The plate centre stays 2.2-3.2 m ahead, within 0.45 m of the centre line and
-    0.22-0.34 m high (so the plate mostly crosses the 2D scanner's plane and spans
-    several rings of the 3D LiDAR), turned by up to 30 deg of yaw, leaning back up to
-    20 deg and rolled up to 20 deg, so both cameras see it whole. Pose 0 is the
-    static :func:`default_board_pose`.
+    The plate centre stays 1.8-3.2 m ahead and within 0.45 m of the centre line, turned by up to
+    40 deg of yaw, leaning back by up to 30 deg (or forward by 10) and rolled by up to 35 deg, and
+    always tilted at least :data:`MIN_BOARD_TILT_DEG` from facing the robot, so both cameras see it whole
+    and its pose is well determined. The person holds it low (centre 0.22-0.34 m high, where the plate
+    crosses the 2D scanner's plane) at even poses and at chest height (0.45-0.75 m, where more rings of
+    the 3D LiDAR cross it) at odd ones: a LiDAR-to-camera solve needs the plate's edges on many scan
+    lines and its normal turned every way. Pose 0 is the static :func:`default_board_pose`.
     """
     rng = np.random.default_rng([seed, 7321])
     poses = [board_pose(**DEFAULT_BOARD, board=board)]
-    for _ in range(1, n):
-        poses.append(board_pose(rng.uniform(2.2, 3.2), rng.uniform(-0.45, 0.45), rng.uniform(0.22, 0.34),
-                                rng.uniform(-30, 30), rng.uniform(-5, 20), rng.uniform(-20, 20), board=board))
+    while len(poses) < n:
+        height_m = (0.22, 0.34) if len(poses) % 2 == 0 else (0.45, 0.75)
+        T = board_pose(rng.uniform(1.8, 3.2), rng.uniform(-0.45, 0.45), rng.uniform(*height_m),
+                       rng.uniform(-40, 40), rng.uniform(-10, 30), rng.uniform(-35, 35), board=board)
+        if T[0, 2] < np.cos(np.radians(MIN_BOARD_TILT_DEG)):  # board z (away from the robot) against base x
+            poses.append(T)
     return poses[:n]
 
 

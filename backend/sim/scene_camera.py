@@ -61,8 +61,9 @@ _yard_lock = threading.Lock()
 
 def clean_yard_image(T_base_board: np.ndarray, board: str, camera: CameraIntrinsics, T_base_camera: np.ndarray,
                      seed: int) -> np.ndarray:
-    """The noise-free uint8 (H, W) photograph of the yard with the board at ``T_base_board`` (4x4, m, base_link)
-    by ``camera`` at ``T_base_camera``, its texture seeded by ``seed``: :func:`render_scene_image` with one ray
+    """The noise-free uint8 (H, W) photograph of the yard with the board at ``T_base_board`` (4x4, m, in the yard's
+    frame: base_link of the robot at place 0 of :data:`~backend.sim.lidar_scene.ROBOT_PLACES`) by ``camera`` at
+    ``T_base_camera`` (in the same frame), its texture seeded by ``seed``: :func:`render_scene_image` with one ray
     per pixel and no sensor noise.
 
     Rendered fast and shared: the yard without the board is cast and shaded once per camera

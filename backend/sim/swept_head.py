@@ -20,7 +20,7 @@ from backend.core.sweep_geometry import SweepGeometry
 from backend.devices.base import CaptureDevice, DeviceDisconnected, Sample
 from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, DEFAULT_SIM_MOUNT
 from backend.sim.dynamixel_sim import DynamixelSimulator
-from backend.sim.lidar_scene import LidarScene
+from backend.sim.lidar_scene import LidarScene, default_board_pose, robot_place
 
 
 class SimSweptScannerHead(CaptureDevice):
@@ -36,7 +36,7 @@ class SimSweptScannerHead(CaptureDevice):
 
     def __init__(self, servo_sim: DynamixelSimulator, geometry: dict | None = None, T_base_mount: list | None = None,
                  angle_step_deg: float = 0.25, fov_deg: float = 270.0, range_noise_m: float = 0.01,
-                 max_range_m: float = 30.0, seed: int = 0):
+                 max_range_m: float = 30.0, seed: int = 0, place: int = 0):
         """Args:
         servo_sim: the :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` whose horn carries it.
         geometry: the TRUE :class:`SweepGeometry` as a dict (default :data:`DEFAULT_SIM_GEOMETRY`).
@@ -44,6 +44,7 @@ class SimSweptScannerHead(CaptureDevice):
         angle_step_deg: beam spacing (deg). fov_deg: field of view centred on scanner x (deg).
         range_noise_m: 1-sigma range noise (m). max_range_m: farthest return (m).
         seed: seeds the noise (scan ``i`` uses ``(seed, i)``).
+        place: where the robot stands in the yard (an index of :data:`~backend.sim.lidar_scene.ROBOT_PLACES`).
         """
         self.servo_sim = servo_sim
         self.geometry = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY if geometry is None else geometry)
@@ -53,6 +54,8 @@ class SimSweptScannerHead(CaptureDevice):
         self.range_noise_m = float(range_noise_m)
         self.max_range_m = float(max_range_m)
         self.seed = int(seed)
+        self.place = place
+        self._T_yard_base = np.eye(4)
         self._scene: LidarScene | None = None
         self._count = 0
 
@@ -61,7 +64,8 @@ class SimSweptScannerHead(CaptureDevice):
         return {"true_geometry": self.geometry.to_dict(), "T_base_mount": self.T_base_mount.tolist()}
 
     def open(self) -> None:
-        self._scene = LidarScene()
+        self._T_yard_base = robot_place(self.place, self.describe())
+        self._scene = LidarScene(self._T_yard_base @ default_board_pose())
         self._count = 0
 
     def read(self) -> Sample:
@@ -70,8 +74,8 @@ class SimSweptScannerHead(CaptureDevice):
         angle = self.servo_sim.true_angle_rad()
         T_base_scanner = self.T_base_mount @ self.geometry.T_mount_scanner(angle)
         rng = np.random.default_rng([self.seed, self._count])
-        scan = self._scene.scan_2d(T_base_scanner, angle_step_deg=self.angle_step_deg, max_range_m=self.max_range_m,
-                                   range_noise_m=self.range_noise_m, rng=rng)
+        scan = self._scene.scan_2d(self._T_yard_base @ T_base_scanner, angle_step_deg=self.angle_step_deg,
+                                   max_range_m=self.max_range_m, range_noise_m=self.range_noise_m, rng=rng)
         self._count += 1
         azimuth = (scan.azimuth_rad + np.pi) % (2 * np.pi) - np.pi
         keep = np.abs(azimuth) <= math.radians(self.fov_deg) / 2 + 1e-9

@@ -66,9 +66,10 @@ COLOURISED_POINT_SIZE_M = 0.02
 PLACEHOLDER = np.full((90, 160, 3), 235, np.uint8)
 METHODS = {"target (board)": "target", "targetless (edges)": "edges", "targetless (intensity)": "intensity"}
 HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
-        "scene with plenty of straight edges). Move the sliders (increments along and about the camera's or the "
-        "LiDAR's axes; keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for fine, Z/Y undo/redo) until edges, poles "
-        "and the board line up, then solve from there and nudge what is left.")
+        "scene with plenty of straight edges). For the board, take 20 or more, near and far, low and high, the board "
+        "tilted 15-45 deg from facing the camera every way (turned, leaning, rolled). Move the sliders (increments "
+        "along and about the camera's or the LiDAR's axes; keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for fine, "
+        "Z/Y undo/redo) until edges, poles and the board line up, then solve from there and nudge what is left.")
 FULL_SIZE_LINK = ('<a href="{url}" target="calib_studio_overlay" rel="opener" style="display:block;padding:6px 10px;'
                   'border-radius:4px;background:#228be6;color:#fff;text-align:center;text-decoration:none;'
                   'font-size:0.85em">Open the full-size overlay ↗</a>')

@@ -40,6 +40,7 @@ from backend.core.colour_maps import distance_colours
 from backend.core.errors import InputError
 from backend.plots.lidar_lidar import c2c_histogram
 from backend.plots.render import to_rgb
+from backend.services.demo import ROBOT_PLACE_NAMES, move_simulated_robot, simulated_place
 from backend.services.live_clouds import CloudCallbacks, LiveClouds
 from studio import cloud_colours as cc
 from studio.context import StudioContext
@@ -137,6 +138,9 @@ class LidarStep:
                                              initial_value=MAX_DISPLAY_POINTS,
                                              hint="fewer keep a slow page fluid; a capture keeps the whole scan")
             self.live_text = gui.add_markdown("Not live.")
+            self.place = gui.add_dropdown("Robot stands at", options=ROBOT_PLACE_NAMES, visible=False,
+                                          hint="the simulator only: drive the robot to another place of the yard, "
+                                               "so the clouds captured there are a scene of their own")
             self.capture_button = gui.add_button("Capture clouds")
             self.captures_text = gui.add_markdown("")
             self.imports = CloudImportPanel(ctx, on_imported=self._on_captures)
@@ -165,6 +169,7 @@ class LidarStep:
         self.stop_button.on_click(lambda _: self.stop_live())
         self.accumulate.on_update(lambda _: self._set_accumulate())
         self.capture_button.on_click(lambda _: self._capture())
+        self.place.on_update(lambda _: self._drive())
         self.source.on_update(lambda _: self._select_pair())
         self.target.on_update(lambda _: self._select_pair())
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T()))
@@ -172,7 +177,7 @@ class LidarStep:
         self.refine_button.on_click(lambda _: self._refine())
         ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
-        ctx.on_rig_changed(lambda _: self._place_sensors())  # an accept or revert, in any step, moved frames
+        ctx.on_rig_changed(lambda _: self._rig_changed())
 
     # -- session ------------------------------------------------------------------------------
     def _lidars(self) -> list[str]:
@@ -180,6 +185,11 @@ class LidarStep:
         if session is None:
             return []
         return lidar_names(session.rig)
+
+    def _rig_changed(self) -> None:
+        """An accept or revert (in any step) moved frames, or a change elsewhere drove the simulated robot."""
+        self._place_sensors()
+        self._show_place()
 
     def _close(self) -> None:
         """Leave the open session: stop its live clouds and let go of its LiDAR-to-LiDAR clouds and sensor nodes."""
@@ -213,8 +223,34 @@ class LidarStep:
             self.target.value = options[0]
         if self.source.value not in options or self.source.value == self.target.value:
             self.source.value = next((o for o in options if o != self.target.value), options[0])
+        self._show_place()
         self._show_captures()
         self._select_pair()
+
+    def _show_place(self) -> None:
+        """*Robot stands at* shows where the simulated robot stands (hidden without a simulated sensor)."""
+        place = None if self.ctx.session is None else simulated_place(self.ctx.session)
+        self.place.visible = place is not None
+        if place is not None:
+            self.place.value = ROBOT_PLACE_NAMES[place]  # the same place: _drive does nothing
+
+    def _drive(self) -> None:
+        """*Robot stands at*: drive the simulated robot there; live LiDARs are reopened to see the yard from there."""
+        session = self.ctx.session
+        place = ROBOT_PLACE_NAMES.index(self.place.value)
+        if session is None or simulated_place(session) in (None, place):
+            return
+        was_live = bool(self.live)
+        self.stop_live()
+        try:
+            move_simulated_robot(session, place)
+        except InputError as exc:
+            self.ctx.notify("The robot did not move", exc.message, error=True)
+            return
+        self.ctx.notify("The robot moved", f"It stands at {self.place.value} in the yard. Capture clouds here: the "
+                        "pairs taken at each place are a scene of their own, and scenes check each other.")
+        if was_live:
+            self.start_live()
 
     # -- live -----------------------------------------------------------------------------------
     def start_live(self) -> None:

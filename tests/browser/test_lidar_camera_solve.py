@@ -1,13 +1,13 @@
 """The LiDAR-to-camera solve of the real studio (``calib-studio demo`` in a subprocess) through Debian chromium.
 
-The demo session stores 10 image + cloud pairs of cam_front and lidar_top with the board in view. Its rig starts
+The demo session stores 20 image + cloud pairs of cam_front and lidar_top with the board in view. Its rig starts
 from tape-measured guesses (lidar_top's mounting is the drawing's, exact): the test first types cam_front's true
 mounting through the API, as a user edits a sensor, so the rig holds the simulator's truth. On step 6 the overlay
 opens on the mosaic of all pairs at the truth, with its depth legend; the full-size overlay page opens from the
 step's link on the same transform, every pair at 1280x720 with its legend, and is zoomed with the wheel and panned.
 The increment sliders are then typed away from the truth (3° about the camera's z, which is yaw, and 5 cm along its
 x), nudged from the keyboard (viser command-palette hotkeys: L is yaw minus, Shift+J a fine yaw plus, Z undo),
-solved from there with the board method, and the result is accepted with its verdict confirmed. The result, the
+solved from there with the board method, and the result, trusted, is accepted. The result, the
 read-only pose and the acceptance are checked against the truth through the HTTP API, and the overlays (off the
 truth, solved, full size and zoomed) and the solve's before/after images are left in ``tests/artifacts`` to look at.
 """
@@ -24,6 +24,7 @@ import pytest
 from playwright.sync_api import Browser, Locator, Page, expect
 
 from backend.core.transforms import from_xyz_ypr, invert, to_xyz_ypr
+from backend.services.demo import DEMO_PAIRS
 from backend.sim.demo_rig import demo_rig
 from tests.conftest import (
     ARTIFACTS,
@@ -108,7 +109,7 @@ def _full_size_page(page: Page) -> None:
     expect(view.locator("body[data-ready=true]")).to_have_count(1)
     expect(view.locator("#error")).to_be_hidden()
     images = view.locator("#content img")
-    expect(images).to_have_count(10)  # every stored pair, not only the six the panel tiles
+    expect(images).to_have_count(DEMO_PAIRS)  # every stored pair, not only the six the panel tiles
     first = decoded_image(images.first)
     assert first.shape == (720 + 40, 1280, 3), f"not the full-size overlay with its legend: {first.shape}"
     blue_span, red_span = _legend_range(first[720:])
@@ -140,7 +141,7 @@ def _full_size_page(page: Page) -> None:
     view.mouse.up()
     assert view.locator("#content").evaluate("e => e.style.transform") != before, "dragging did not pan"
     view.screenshot(path=ARTIFACTS / "studio_lidar_camera_full_size_zoomed.png")
-    print(f"full-size page: 10 overlays of {first.shape[1]}x{first.shape[0]} px, zoom {fitted:.0f} % -> "
+    print(f"full-size page: {DEMO_PAIRS} overlays of {first.shape[1]}x{first.shape[0]} px, zoom {fitted:.0f} % -> "
           f"{zoomed:.0f} %; {captions[0]}")
     view.close()
 
@@ -189,7 +190,7 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         # 1. The mosaic of all pairs, drawn at the rig's transform (true since the edit: the API's edit reaches
         #    the sliders with *Reset to rig*)
         expect(page.get_by_label("Scene", exact=True)).to_have_value("all pairs")
-        expect(page.get_by_text("10 pair(s) stored · showing 6", exact=True)).to_be_visible()
+        expect(page.get_by_text(f"{DEMO_PAIRS} pair(s) stored · showing 6", exact=True)).to_be_visible()
         button(page, "Reset to rig").click()
         poll(lambda: np.allclose(_slider_T(page), truth, atol=2e-3),
              lambda: f"the sliders do not show the rig's transform: {_slider_values(page)}")
@@ -273,14 +274,15 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         page.get_by_text("Before / after", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve.png")
 
-        # 5. Accept on the result card: the solve itself is accepted, not a manual copy. Its verdict is on the card;
-        # one that says 'check' needs the box ticked. The first click shows what moves in the rig, the second applies.
+        # 5. Accept on the result card: the solve itself is accepted, not a manual copy. The demo's pairs follow the
+        # step's guidance, so its verdict is 'trusted' and no confirmation is asked (the box shows for a 'check'
+        # only). The first click shows what moves in the rig, the second applies.
         verdict = wait_body(page, re.compile(r"Verdict: (trusted|check|reject)")).group(1)
-        assert verdict != "reject", page.inner_text("body")[-2000:]
+        assert verdict == "trusted", page.inner_text("body")[-2000:]
+        expect(page.get_by_label("Confirm the check", exact=True).filter(visible=True)).to_have_count(0)
         button(page, "Accept").filter(visible=True).last.click()
         preview = wait_body(page, re.compile(f"Accepting {result_id} would:\\s+([\\s\\S]*?)Click Confirm accept"))
         assert re.search(rf"{LIDAR} moves [\d.]+ mm", preview.group(1)), preview.group(1)  # the solve is mm off
-        _visible(page, "Confirm the check").check()
         button(page, "Confirm accept").filter(visible=True).last.click()
         wait_body(page, re.compile(f"{result_id} \\(accepted\\) · lidar_camera · target"))
         wait_body(page, re.compile(r"Accepted\.\s+"))

@@ -12,6 +12,7 @@ from backend.calib.lidar_lidar import service
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings
 from backend.core.transforms import from_xyz_ypr
 from backend.devices.base import create_device
+from backend.services.demo import ROBOT_PLACE_NAMES, move_simulated_robot, simulated_place
 from backend.services.jobs import JobRunner
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
@@ -82,3 +83,17 @@ def test_clouds_in_the_step_group_follow_the_rig_and_the_card_shows_the_result(s
     after = session.rig.T_root_frame(TARGET)[:3, 3]
     assert np.linalg.norm(after - before) > 0.005
     np.testing.assert_allclose(_position(step, TARGET), after, atol=1e-9)
+
+
+def test_robot_stands_at_drives_the_simulated_robot_and_only_once(step):
+    session = step.ctx.session
+    assert step.place.visible and step.place.value == ROBOT_PLACE_NAMES[0]
+    revision = session.revision
+    step.place.value = ROBOT_PLACE_NAMES[2]  # as the page's dropdown sets it
+    assert simulated_place(session) == 2 and session.revision == revision + 1
+    assert session.rig.get(TARGET).device["place"] == session.rig.get("cam_front").device["place"] == 2
+    step.ctx.follow()  # the studio follows its session's change: the control keeps the place, nothing moves again
+    assert step.place.value == ROBOT_PLACE_NAMES[2] and session.revision == revision + 1
+    move_simulated_robot(session, 1)  # driven elsewhere (another page, the API's device edit)
+    step.ctx.follow()
+    assert step.place.value == ROBOT_PLACE_NAMES[1] and session.revision == revision + 2

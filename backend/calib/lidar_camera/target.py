@@ -9,7 +9,8 @@ LiDAR's cloud. Pipeline, as in the issue:
    board, a RANSAC plane on them (a RANSAC line for a 2D scanner) whose normal agrees with
    the camera's board normal, and the plate's edge points: the first and last board point of
    each scan line (ring of a spinning LiDAR, or the one line of a 2D scanner; lines are told
-   apart by elevation), moved out by half the point spacing.
+   apart by elevation), moved along its ray onto the fitted plane (removing the range noise, which
+   on a turned board moves a point along the plate too) and out by half the point spacing.
 2. Joint robust least squares over all poses of the 6 parameters of ``T_camera_lidar``
    (:func:`solve_target`): point-to-plane residuals of the board points against the
    camera's board plane, and edge residuals of the edge points against the nearest side
@@ -133,9 +134,10 @@ class BoardPoints:
     plane: np.ndarray
     """(N, 3) plane inliers within the region: the board's face."""
     edges: np.ndarray
-    """(M, 3) scan-line end points, each moved out by half the line's point spacing so that on
-    average it lies on the plate's outline (the first return on the board is between 0 and one
-    spacing inside the edge)."""
+    """(M, 3) scan-line end points, moved along their rays onto the fitted plane (the range noise, which on a
+    turned board also moves a point along the plate, removed) and each moved out by half the line's point
+    spacing so that on average it lies on the plate's outline (the first return on the board is between 0
+    and one spacing inside the edge)."""
 
 
 @dataclass
@@ -207,10 +209,22 @@ def _edge_residuals(points_board: np.ndarray, centre: np.ndarray, half: np.ndarr
 # ---------------------------------------------------------------- LiDAR side
 
 
+@dataclass
+class PlaneFit:
+    """A RANSAC plane (or a 2D scanner's line) refined by least squares on its inliers (sensor frame, m)."""
+
+    inliers: np.ndarray
+    """(N,) bool mask of the searched points within ``plane_threshold_m`` of the refined fit."""
+    centroid: np.ndarray
+    """(3,) mean of the inliers, a point of the fit."""
+    normal: np.ndarray
+    """(3,) unit normal of the plane (of a line: its normal within the scan plane, z = 0)."""
+
+
 def _fit_plane(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
-               rng: np.random.Generator) -> np.ndarray | None:
-    """Inlier mask of the RANSAC plane with the most inliers whose normal is within
-    ``max_normal_angle_deg`` of ``expected_normal``, refined by a least-squares fit; None if none.
+               rng: np.random.Generator) -> PlaneFit | None:
+    """The RANSAC plane with the most inliers whose normal is within ``max_normal_angle_deg`` of
+    ``expected_normal``, refined by a least-squares fit; None if none.
 
     Hand-written (vectorised numpy) rather than Open3D's ``segment_plane``: hypotheses are
     restricted to planes facing the way the camera says the board faces (so the floor or a wall
@@ -225,9 +239,9 @@ def _fit_plane(points: np.ndarray, expected_normal: np.ndarray, settings: LidarC
 
 
 def _fit_line(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
-              rng: np.random.Generator) -> np.ndarray | None:
-    """Inlier mask of the RANSAC line, in a 2D scanner's x-y plane, along which the board's plane
-    (``expected_normal``) cuts that plane, within ``max_normal_angle_deg``; None if none.
+              rng: np.random.Generator) -> PlaneFit | None:
+    """The RANSAC line, in a 2D scanner's x-y plane, along which the board's plane (``expected_normal``)
+    cuts that plane, within ``max_normal_angle_deg``; None if none.
 
     Hand-written as :func:`_fit_plane`; a hypothesis is the line through two points, its "normal"
     the line's normal within the scan plane, compared with the board normal's in-plane part.
@@ -249,9 +263,9 @@ def _facing(normals: np.ndarray, expected_normal: np.ndarray, max_angle_deg: flo
 
 
 def _best_hypothesis(points: np.ndarray, normals: np.ndarray, anchors: np.ndarray,
-                     settings: LidarCameraTargetSettings, rng: np.random.Generator, line: bool) -> np.ndarray | None:
-    """Inliers of the hypothesis (a plane, or with ``line`` a line in the scan plane z = 0) with the most
-    inliers among at most :data:`RANSAC_SCORED_POINTS` points, refined by a least-squares fit to its inliers."""
+                     settings: LidarCameraTargetSettings, rng: np.random.Generator, line: bool) -> PlaneFit | None:
+    """The hypothesis (a plane, or with ``line`` a line in the scan plane z = 0) with the most inliers among
+    at most :data:`RANSAC_SCORED_POINTS` points, refined by a least-squares fit to its inliers."""
     if not len(normals):
         return None
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
@@ -262,7 +276,18 @@ def _best_hypothesis(points: np.ndarray, normals: np.ndarray, anchors: np.ndarra
     centroid = points[inliers].mean(axis=0)
     _, _, axes = np.linalg.svd(points[inliers] - centroid, full_matrices=False)
     normal = np.r_[-axes[0, 1], axes[0, 0], 0.0] if line else axes[2]
-    return np.abs((points - centroid) @ normal) < settings.plane_threshold_m
+    return PlaneFit(np.abs((points - centroid) @ normal) < settings.plane_threshold_m, centroid, normal)
+
+
+def onto_fit_along_rays(points: np.ndarray, fit: PlaneFit) -> np.ndarray:
+    """``points`` (N, 3, sensor frame, m) moved along their rays from the sensor's origin onto the fitted plane
+    (line): a LiDAR's range noise is along the ray, so this removes it while keeping each beam's direction.
+    A ray within about 6 deg of the plane (a grazing hit, where a range error is no longer small) is kept as it is.
+    """
+    along = points @ fit.normal
+    grazing = np.abs(along) < 0.1 * np.linalg.norm(points, axis=1)
+    scale = np.where(grazing, 1.0, (fit.centroid @ fit.normal) / np.where(grazing, 1.0, along))
+    return points * scale[:, None]
 
 
 def scan_line_edges(points: np.ndarray, line_gap_deg: float, min_points: int) -> np.ndarray:
@@ -310,16 +335,17 @@ def find_board_points(points_lidar: np.ndarray, T_camera_board: np.ndarray, T_ca
     expected_normal = T_board_lidar[2, :3]  # board z in LiDAR axes
     planar_scan = len(points_lidar) > 0 and not np.any(points_lidar[:, 2])
     fit, needed = (_fit_line, settings.min_line_points) if planar_scan else (_fit_plane, settings.min_plane_points)
-    inliers = fit(region, expected_normal, settings, rng)
-    found = 0 if inliers is None else int(inliers.sum())
+    plate = fit(region, expected_normal, settings, rng)
+    found = 0 if plate is None else int(plate.inliers.sum())
     if found < needed:
         raise InputError(
             f"the board was not found in the LiDAR cloud: {found} plane points facing the camera's board normal "
             f"(within {settings.max_normal_angle_deg} deg) among the {len(region)} points within {margin_m} m of "
             f"where the current T_camera_lidar puts the plate; at least {needed} are needed - "
             "check that the LiDAR sees the board in this pose and the initial guess", name)
-    face = region[inliers]
-    return BoardPoints(face, scan_line_edges(face, settings.line_gap_deg, settings.min_points_per_line))
+    face = region[plate.inliers]
+    edges = scan_line_edges(onto_fit_along_rays(face, plate), settings.line_gap_deg, settings.min_points_per_line)
+    return BoardPoints(face, edges)
 
 
 # ---------------------------------------------------------------- the joint solve

@@ -266,8 +266,9 @@ def test_the_demo_sets_solve_the_stereo_partner_near_the_truth(tmp_path, demo_te
     # cam_right's lens came from the 10 sets alone: never trusted, and step 3 is named as the remedy.
     verdict = transform.verdict
     print("demo cam_right verdict:", verdict, result.intrinsics_projection_sigma_px)
-    # Its projection sigma in the image corners is tens of pixels (the lens is that far off there): reject.
-    assert result.intrinsics_projection_sigma_px["cam_right"] > 10.0
+    # Its projection sigma in the image corners is several pixels (8 with the yard's poses; the lens is that far off
+    # there), far beyond the 0.3 px tolerance: reject.
+    assert result.intrinsics_projection_sigma_px["cam_right"] > 3.0
     assert verdict.level == "reject" and any("step 3" in reason for reason in verdict.reasons), verdict
     assert result.summary()["verdict"]["cam_right"] == verdict.to_dict()
     with pytest.raises(InputError, match="judged 'reject' and cannot be accepted"):
