@@ -46,9 +46,13 @@ __all__ = ["PARAM_NAMES", "Coverage", "LiveCallbacks", "LiveCapture", "LiveFrame
 
 def data_enough(session: Session, sensor: str, coverage: Coverage) -> tuple[bool, list[str]]:
     """Whether ``coverage`` and the latest intrinsics solve of ``sensor`` together make enough data, and what
-    is missing if not (:func:`backend.calib.board.coverage.enough_data`)."""
+    is missing if not (:func:`backend.calib.board.coverage.enough_data`). A solve counts only while it was made
+    from the views now kept (every capture with a board): after views are added (or removed) its projection
+    sigma no longer says how far these views can be trusted, and a solve is asked for again."""
     latest = session.results(sensor, "intrinsics")[-1:]
-    return enough_data(coverage, latest[0]["projection_uncertainty"] if latest else None)
+    views = {capture.id for capture in session.captures(sensor) if capture.detection}
+    current = bool(latest) and set(latest[0].get("inputs") or ()) == views
+    return enough_data(coverage, latest[0]["projection_uncertainty"] if current else None)
 
 
 def last_capture(session: Session, sensor: str) -> tuple[np.ndarray, Detection | None] | None:

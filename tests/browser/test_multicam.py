@@ -128,8 +128,9 @@ def test_multicam_step(browser: Browser, studio: Studio) -> None:
         rows = {m.group(1): m.groups()[1:] for m in ROW_RE.finditer(body)}
         assert set(rows) == {REFERENCE, OTHER}, f"not a row per camera:\n{body[-3000:]}"
         assert rows[REFERENCE][2] == "no", rows
-        # cam_right's lens from the 10 sets alone is tens of pixels uncertain in the corners: rejected
-        assert rows[OTHER][0] == "reject" and rows[OTHER][2] == "yes" and float(rows[OTHER][3]) > 10, rows
+        # cam_right's lens from the 10 sets alone is pixels uncertain in the corners (8 px), far beyond the 0.3 px
+        # tolerance: rejected
+        assert rows[OTHER][0] == "reject" and rows[OTHER][2] == "yes" and float(rows[OTHER][3]) > 3, rows
         assert f"calibrate {OTHER} in step 3 (Camera intrinsics) first" in body, body[-3000:]
         rms = {name: float(row[1]) for name, row in rows.items()}
         assert all(0 < r < 1.0 for r in rms.values()), rms

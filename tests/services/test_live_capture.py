@@ -7,6 +7,7 @@ import threading
 import numpy as np
 import pytest
 
+from backend.calib.board.detection import Detection
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.services.live_capture import LiveCallbacks, LiveCapture, data_enough
@@ -124,3 +125,10 @@ def test_following_the_moving_board_gives_enough_data(tmp_path):
                        result.camera.K[0, 2] - truth.K[0, 2], result.camera.K[1, 2] - truth.K[1, 2]])
     sigmas = np.array([result.std[name] for name in ("fx", "fy", "cx", "cy")])
     assert np.all(np.abs(errors) < 3 * sigmas), f"fx fy cx cy off by {errors} px, sigma {sigmas}"
+
+    # One view more: the solve no longer speaks for the views kept, so a solve is asked for again
+    last = session.captures(camera)[-1]
+    intrinsics_service.store_capture(session, camera, session.capture_image(camera, last.id),
+                                     Detection.from_dict(last.detection), device="test", timestamp_s=last.timestamp_s)
+    enough, missing = data_enough(session, camera, live.coverage)
+    assert not enough and missing == ["solve to see the projection sigma"], missing

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from backend.calib._session import check_camera, check_lidar, result_of, session_board
+from backend.calib.board.detection import Detection
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
 from backend.calib.lidar_camera.checks import MANUAL_VERDICT, CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
@@ -144,6 +145,9 @@ class PairData:
     """(N, 3) cloud in the LiDAR frame (m)."""
     intensity: np.ndarray | None
     """(N,) return intensities, or None."""
+    detection: Detection | None = None
+    """The board's corners found in the image when the pair was stored (the accurate detector's), or None: the
+    target solve then finds them again."""
 
 
 def check_method(method: str, input_name: str, cross_check: bool = False) -> None:
@@ -209,7 +213,7 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     observations = []
     for i, p in enumerate(pairs):
         progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
-        T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source)
+        T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=p.detection)
         observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
     result = solve_target(board, observations, T_init, settings,
                           lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
@@ -275,7 +279,8 @@ def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] |
         raise InputError(f"no image+cloud pairs of {camera} and {lidar} yet: capture or upload pairs of the same "
                          "moments first", "pairs")
     return [PairData(p.name, p.name, session.capture_image(camera, p.image.id),
-                     *session.capture_cloud(lidar, p.cloud.id)) for p in found]
+                     *session.capture_cloud(lidar, p.cloud.id),
+                     Detection.from_dict(p.image.detection) if p.image.detection else None) for p in found]
 
 
 def overlay_scene(session: Session, camera: str, lidar: str, image_id: str, cloud_id: str | None = None) -> PairData:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from backend.calib.board.detection import detect_board
+from backend.calib.board.detection import Detection, detect_board
 from backend.calib.board.pose import board_pose
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
@@ -157,15 +157,16 @@ class PoseResiduals:
 # ---------------------------------------------------------------- camera side
 
 
-def camera_board_pose(image: np.ndarray, camera: CameraIntrinsics, board: BoardSpec, name: str = "image"
-                      ) -> np.ndarray:
+def camera_board_pose(image: np.ndarray, camera: CameraIntrinsics, board: BoardSpec, name: str = "image",
+                      detection: Detection | None = None) -> np.ndarray:
     """``T_camera_board`` (4x4, m, optical frame) of the board detected in ``image`` (gray or BGR uint8).
 
-    Detection by :func:`~backend.calib.board.detection.detect_board`, pose by PnP on the
-    undistorted corners (:func:`~backend.calib.board.pose.board_pose`). Raises
-    :class:`InputError` naming ``name`` when the board is not found or PnP fails.
+    Detection by :func:`~backend.calib.board.detection.detect_board` (or ``detection``, the corners already
+    found in ``image``), pose by PnP on the undistorted corners (:func:`~backend.calib.board.pose.board_pose`).
+    Raises :class:`InputError` naming ``name`` when the board is not found or PnP fails.
     """
-    detection = detect_board(image, board)
+    if detection is None:
+        detection = detect_board(image, board)
     if detection is None:
         raise InputError(f"the board {board} was not found in the image", name)
     T = board_pose(camera, board, detection)
