@@ -48,7 +48,7 @@ from backend.core.rig import Rig
 from backend.devices.base import create_device
 from backend.services.jobs import Job, JobRunner
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig, measured_demo_rig
-from backend.sim.lidar_scene import ROBOT_PLACES
+from backend.sim.lidar_scene import ROBOT_PLACES, is_robot_place
 from backend.store.atomic import write_json_atomic
 from backend.store.session import Session, SessionStore
 
@@ -232,10 +232,12 @@ ROBOT_PLACE_NAMES = [f"x {x:+.1f} m, y {y:+.1f} m, heading {heading:+.0f}°" + (
 """How the studio names each of the :data:`ROBOT_PLACES` (``base_link`` in the yard's frame)."""
 
 
-def _yard_settings(device: dict) -> dict | None:
+def _yard_settings(device: object) -> dict | None:
     """The settings that place a simulator of the yard (``place`` lives there): the device's own for a simulated
     camera or LiDAR, its scanner's for a swept scanner with a simulated head; None for any other device (a real
-    one, a recording, the depth cell)."""
+    one, a recording, the depth cell, none)."""
+    if not isinstance(device, dict):
+        return None
     if device.get("driver") in ("simulated", "simulated_lidar"):
         return device
     scanner = device.get("scanner")
@@ -247,7 +249,7 @@ def _yard_settings(device: dict) -> dict | None:
 def simulated_place(session: Session) -> int | None:
     """Where the session's simulated robot stands in the yard (an index of :data:`ROBOT_PLACES`), or None when
     none of its sensors is a simulator of the yard."""
-    placed = (_yard_settings(frame.device) for frame in session.rig.sensors() if isinstance(frame.device, dict))
+    placed = (_yard_settings(frame.device) for frame in session.rig.sensors())
     return next((settings.get("place", 0) for settings in placed if settings is not None), None)
 
 
@@ -257,14 +259,14 @@ def move_simulated_robot(session: Session, place: int) -> list[str]:
     about in front of it, so captures taken there are a scene of their own. Devices already open keep their place
     until they are opened again. One saved change; returns the sensors moved. :class:`InputError` naming ``place``
     for a place that is not one of them, or for a session without simulated sensors."""
-    if not isinstance(place, int) or not 0 <= place < len(ROBOT_PLACES):
+    if not is_robot_place(place):
         raise InputError(f"place {place!r}: expected one of 0-{len(ROBOT_PLACES) - 1} (where the simulated robot "
                          "can stand in the yard)", "place")
     moved = []
 
     def drive(rig: Rig) -> None:
         for frame in rig.sensors():
-            settings = _yard_settings(frame.device) if isinstance(frame.device, dict) else None
+            settings = _yard_settings(frame.device)
             if settings is not None:
                 settings["place"] = place
                 moved.append(frame.name)

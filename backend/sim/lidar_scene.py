@@ -150,10 +150,15 @@ ROBOT_PLACES: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0), (0.6, -
 (deg). Place 0 is the yard's origin; from each place both LiDARs see walls, boxes and poles all round."""
 
 
+def is_robot_place(place: object) -> bool:
+    """Whether ``place`` is an index of :data:`ROBOT_PLACES`."""
+    return isinstance(place, int) and 0 <= place < len(ROBOT_PLACES)
+
+
 def robot_place(place: int, device: str = "simulated robot") -> np.ndarray:
     """``T_yard_base`` (4x4, m) of the robot standing at ``ROBOT_PLACES[place]``; :class:`DeviceError` naming
     ``device`` for a place that is not one of them."""
-    if not isinstance(place, int) or not 0 <= place < len(ROBOT_PLACES):
+    if not is_robot_place(place):
         raise DeviceError(f"place must be one of 0-{len(ROBOT_PLACES) - 1} (where the robot can stand in the yard), "
                           f"not {place!r}", device)
     x_m, y_m, heading_deg = ROBOT_PLACES[place]
