@@ -58,7 +58,10 @@ def start_demo(sessions: Path, wait_for_demo: bool) -> dict:
                 time.sleep(0.05)
         figures["page_s"] = time.perf_counter() - started
         while wait_for_demo:
-            names = [entry["name"] for entry in httpx.get(f"http://127.0.0.1:{api_port}/api/sessions").json()]
+            try:  # the page (viser) may answer before the API has bound its port
+                names = [entry["name"] for entry in httpx.get(f"http://127.0.0.1:{api_port}/api/sessions").json()]
+            except httpx.TransportError:
+                names = []
             if DEMO_NAME in names:
                 figures["demo_ready_s"] = time.perf_counter() - started
                 break

@@ -254,12 +254,35 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Calla
 
 @pytest.fixture(scope="session")
 def demo_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A sessions folder holding the demo session, built once per run (about 40 s, :func:`built_once`) and copied
+    """A sessions folder holding the demo session, built once per run (about 35 s, :func:`built_once`) and copied
     by every test that wants a demo of its own (:func:`fresh_demo`)."""
     from backend.services.demo import ensure_demo_session
     from backend.store.session import SessionStore
 
     return built_once(tmp_path_factory, "demo_template", lambda root: ensure_demo_session(SessionStore(root)))
+
+
+LENS_VIEWS = 15
+"""Views of the waved board a test captures when it needs a camera's lens solved, not its coverage (the first 15
+frames of the simulated wave are spread over the image)."""
+
+
+def capture_lens_views(session, camera: str, device_settings: dict) -> None:
+    """Store the board views of the first :data:`LENS_VIEWS` frames of ``device_settings`` (a simulated camera
+    waving the board) as ``camera``'s lens views, detected as a capture is."""
+    from backend.calib._session import session_board
+    from backend.calib.board.detection import detect_board
+    from backend.calib.intrinsics import service as intrinsics_service
+    from backend.devices.base import create_device
+
+    board = session_board(session)
+    with create_device(device_settings) as device:
+        for _ in range(LENS_VIEWS):
+            sample = device.read()
+            detection = detect_board(sample.image, board)
+            if detection is not None:
+                intrinsics_service.store_capture(session, camera, sample.image, detection, device=device.describe(),
+                                                 timestamp_s=sample.timestamp_s)
 
 
 def fresh_demo(template: Path, sessions: Path) -> Path:

@@ -3,9 +3,10 @@
 The session's rig is the mounting a user first types in (:func:`~backend.sim.demo_rig.measured_demo_rig`:
 ``lidar_top`` and ``sweep_3d`` from the drawing, the others tape-measured, 2-5 cm and 1-3 deg off the
 simulator's truth) with the camera intrinsics removed; the truth is ``truth.json`` beside it (:func:`frame_truth`),
-so each accept visibly moves its sensors towards it. ``cam_front`` already
-carries captures and an accepted intrinsics solve so every screen has something
-to show. ``cam_wide`` is left for the user to calibrate live.
+so each accept visibly moves its sensors towards it. ``cam_front`` already carries the views step 3's
+auto-capture keeps while the board is waved in front of it, up to full coverage, and their accepted solve
+(``trusted``, so step 3 opens on "enough data"), so every screen has something to show. ``cam_wide`` is left
+for the user to calibrate live.
 
 For LiDAR-to-camera calibration, ``cam_front`` and ``lidar_top`` then watch the board
 carried about the yard (:data:`PAIR_BOARD_POSES` poses, each held still for
@@ -17,9 +18,9 @@ same board poses: the session holds :data:`DEMO_SETS` synchronised sets of them,
 on the shared hold clock so more sets can be captured live. ``cam_right`` has no intrinsics:
 the joint solve estimates them with the rig.
 
-Building it takes the better part of a minute (rendering and detecting about seventy frames, a solve), so the
-session is built in a staging folder (:data:`STAGING_DIR`) and moved into place whole: a build that is
-interrupted never leaves a half-built ``demo`` behind. :func:`start_demo_build` runs the build as a job, so a
+Building it takes about half a minute on two cores (rendering about 110 frames, detecting the board in about 80,
+a solve), so the session is built in a staging folder (:data:`STAGING_DIR`) and moved into place whole: a build
+that is interrupted never leaves a half-built ``demo`` behind. :func:`start_demo_build` runs the build as a job, so a
 server can serve its page at once and open the demo when it is ready.
 """
 
@@ -35,18 +36,22 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from backend.calib._session import session_board
+from backend.calib.board.coverage import Coverage
 from backend.calib.board.detection import detect_board
+from backend.calib.board.live_detection import LiveDetector
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.lidar_camera.capture import store_pair
 from backend.calib.multicam.capture import capture_set
 from backend.calib.rig import service as rig_service
 from backend.calib.rig.sensor_edits import SensorEdit
+from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Rig
-from backend.devices.base import create_device
+from backend.devices.base import CaptureDevice, Sample, create_device
 from backend.services.jobs import Job, JobRunner
+from backend.services.live_capture import worth_keeping
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig, measured_demo_rig
 from backend.sim.lidar_scene import ROBOT_PLACES, is_robot_place
 from backend.store.atomic import write_json_atomic
@@ -54,7 +59,9 @@ from backend.store.session import Session, SessionStore
 
 DEMO_NAME = "demo"
 DEMO_CAMERA = "cam_front"
-DEMO_VIEWS = 15
+WAVE_FRAMES = 150
+"""Frames of the simulated wave the demo follows at most for :data:`DEMO_CAMERA`'s views: one cycle of its board,
+which reaches every part of the image."""
 DEMO_LIDAR = "lidar_top"
 DEMO_PAIRS = 20
 PAIR_BOARD_POSES = 20
@@ -107,13 +114,13 @@ def ensure_staged_session(store: SessionStore, name: str, staging_dir: str, buil
     return store.get(name)
 
 
-def ensure_demo_session(store: SessionStore, *, fresh: bool = False, views: int = DEMO_VIEWS,
+def ensure_demo_session(store: SessionStore, *, fresh: bool = False,
                         progress: ProgressCallback = no_progress) -> Session:
     """Open the demo session, building it from the simulator in :data:`STAGING_DIR` if missing (or ``fresh``).
 
     ``progress`` hears the whole build's fraction (0..1) and what it is doing.
     """
-    return ensure_staged_session(store, DEMO_NAME, STAGING_DIR, lambda staging: _build(staging, views, progress),
+    return ensure_staged_session(store, DEMO_NAME, STAGING_DIR, lambda staging: _build(staging, progress),
                                  fresh=fresh)
 
 
@@ -122,11 +129,10 @@ def start_demo_build(store: SessionStore, jobs: JobRunner, *, fresh: bool = Fals
     return jobs.submit(BUILD_TITLE, lambda progress: ensure_demo_session(store, fresh=fresh, progress=progress))
 
 
-def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Session:
+def _build(store: SessionStore, progress: ProgressCallback) -> Session:
     """Create the demo session in ``store``, its rig as first measured (:func:`measured_demo_rig`) and the
-    simulator's truth beside it (:data:`TRUTH_FILE`): ``views`` views of :data:`DEMO_CAMERA` and their accepted
-    solve, then the pairs and the sets. The simulator's board poses are already spread over the image, so the first
-    ``views`` frames are kept as they come; detection runs on both cores."""
+    simulator's truth beside it (:data:`TRUTH_FILE`): the views of :data:`DEMO_CAMERA` that step 3's auto-capture
+    keeps (:func:`_auto_captured_views`) and their accepted solve, then the pairs and the sets."""
     rig = measured_demo_rig()
     for camera in rig.sensors("camera"):
         camera.intrinsics = None
@@ -135,20 +141,18 @@ def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Sessi
     write_json_atomic(session.path / TRUTH_FILE,
                       {"frames": {frame.name: truth.T_root_frame(frame.name).tolist() for frame in truth.sensors()}})
     board = session_board(session)
-    samples, detections = [], []
     with create_device(session.rig.get(DEMO_CAMERA).device) as device:
-        for i in range(views):
-            progress(0.1 * i / views, f"rendering simulated views of {DEMO_CAMERA}")
-            samples.append(device.read())
+        samples = _auto_captured_views(device, board, lambda f, m: progress(0.1 * f, m))
         name = device.describe()
     with ThreadPoolExecutor(max_workers=2) as pool:  # OpenCV releases the GIL while detecting
+        detections = []
         for i, detection in enumerate(pool.map(lambda sample: detect_board(sample.image, board), samples)):
-            progress(0.1 + 0.1 * i / views, f"detecting the board in the views of {DEMO_CAMERA}")
+            progress(0.1 + 0.1 * i / len(samples), f"detecting the board in the views of {DEMO_CAMERA}")
             detections.append(detection)
-    for i, (sample, detection) in enumerate(zip(samples, detections, strict=True)):
+    for sample, detection in zip(samples, detections, strict=True):
         if detection is not None:
             intrinsics_service.store_capture(session, DEMO_CAMERA, sample.image, detection, device=name,
-                                             timestamp_s=sample.timestamp_s, meta={"frame_index": i})
+                                             timestamp_s=sample.timestamp_s, meta=sample.storable_meta())
     result_id, _ = intrinsics_service.solve_session(session, DEMO_CAMERA, IntrinsicsSettings(),
                                                     progress=lambda f, m: progress(0.2 + 0.1 * f, m))
     # The demo stands in for a user who read the verdict: a 'check' (e.g. too few views in the image corners) is
@@ -157,6 +161,28 @@ def _build(store: SessionStore, views: int, progress: ProgressCallback) -> Sessi
     _add_board_pairs(session, lambda f, m: progress(0.3 + 0.3 * f, m))
     _add_camera_sets(session, lambda f, m: progress(0.6 + 0.4 * f, m))
     return session
+
+
+def _auto_captured_views(device: CaptureDevice, board: BoardSpec, progress: ProgressCallback) -> list[Sample]:
+    """The frames step 3's auto-capture keeps while the board is waved in front of ``device``, until the
+    coverage is full (or :data:`WAVE_FRAMES` frames have passed): the live detector finds the board, and a frame
+    is kept by auto-capture's own rule (:func:`~backend.services.live_capture.worth_keeping`). Their full-accuracy
+    detection is left to the caller, which runs it on both cores."""
+    detector = LiveDetector(board)
+    coverage: Coverage | None = None
+    kept: list[Sample] = []
+    for i in range(WAVE_FRAMES):
+        progress(i / WAVE_FRAMES, f"following the board waved in front of {DEMO_CAMERA} ({len(kept)} views kept)")
+        sample = device.read()
+        detection = detector.detect(sample.image)
+        if not worth_keeping(coverage, detection):
+            continue
+        coverage = coverage or Coverage(board, detection.image_size)
+        coverage.add(detection)
+        kept.append(sample)
+        if coverage.full:
+            break
+    return kept
 
 
 def _add_board_pairs(session: Session, progress: ProgressCallback) -> None:

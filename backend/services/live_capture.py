@@ -30,10 +30,11 @@ from backend.store.session import Session
 
 
 def coverage_from_captures(session: Session, sensor: str, board: BoardSpec) -> Coverage | None:
-    """Coverage of the views already captured for ``sensor`` (None if there are none)."""
+    """Coverage of the lens views already captured for ``sensor`` (None if there are none;
+    :func:`~backend.calib.intrinsics.service.is_lens_view`)."""
     coverage = None
     for capture in session.captures(sensor):
-        if capture.detection:
+        if intrinsics_service.is_lens_view(capture):
             detection = Detection.from_dict(capture.detection)
             coverage = coverage or Coverage(board, detection.image_size)
             coverage.add(detection)
@@ -41,18 +42,24 @@ def coverage_from_captures(session: Session, sensor: str, board: BoardSpec) -> C
 
 
 __all__ = ["PARAM_NAMES", "Coverage", "LiveCallbacks", "LiveCapture", "LiveFrame", "coverage_from_captures",
-           "data_enough", "last_capture"]
+           "data_enough", "last_capture", "worth_keeping"]
 
 
 def data_enough(session: Session, sensor: str, coverage: Coverage) -> tuple[bool, list[str]]:
     """Whether ``coverage`` and the latest intrinsics solve of ``sensor`` together make enough data, and what
     is missing if not (:func:`backend.calib.board.coverage.enough_data`). A solve counts only while it was made
-    from the views now kept (every capture with a board): after views are added (or removed) its projection
+    from the views now kept (every lens view): after views are added (or removed) its projection
     sigma no longer says how far these views can be trusted, and a solve is asked for again."""
     latest = session.results(sensor, "intrinsics")[-1:]
-    views = {capture.id for capture in session.captures(sensor) if capture.detection}
+    views = {capture.id for capture in session.captures(sensor) if intrinsics_service.is_lens_view(capture)}
     current = bool(latest) and set(latest[0].get("inputs") or ()) == views
     return enough_data(coverage, latest[0]["projection_uncertainty"] if current else None)
+
+
+def worth_keeping(coverage: Coverage | None, detection: Detection | None) -> bool:
+    """Whether auto-capture keeps a frame whose live detection is ``detection``, given the ``coverage`` of the views
+    kept so far (None before the first): the board is seen and adds coverage (:meth:`Coverage.adds_coverage`)."""
+    return detection is not None and (coverage is None or coverage.adds_coverage(detection))
 
 
 def last_capture(session: Session, sensor: str) -> tuple[np.ndarray, Detection | None] | None:
@@ -111,9 +118,7 @@ class LiveCapture(SensorStream):
     def handle(self, sample: Sample) -> None:
         image = sample.image
         detection = self._detector.detect(image)  # fast, for the preview
-        wanted = self._capture_next.is_set() or (
-            self.auto_capture and detection is not None
-            and (self.coverage is None or self.coverage.adds_coverage(detection)))
+        wanted = self._capture_next.is_set() or (self.auto_capture and worth_keeping(self.coverage, detection))
         if detection is not None and wanted:
             detection = detect_board(image, self.board)  # full accuracy for what is kept
         if detection is not None and wanted:

@@ -1,18 +1,22 @@
-"""Live capture through the simulated camera: auto-capture, manual capture, and an unplugged camera."""
+"""Live capture through the simulated camera: auto-capture, manual capture, an unplugged camera, and the demo's
+front camera kept by auto-capture's rule."""
 
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from backend.calib._session import session_board
 from backend.calib.board.detection import Detection
 from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.intrinsics.solver import IntrinsicsSettings
-from backend.services.live_capture import LiveCallbacks, LiveCapture, data_enough
+from backend.services.demo import DEMO_CAMERA, DEMO_NAME
+from backend.services.live_capture import LiveCallbacks, LiveCapture, coverage_from_captures, data_enough
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.store.session import SessionStore
+from tests.conftest import fresh_demo
 
 
 class Recorder:
@@ -98,38 +102,42 @@ def test_missing_device_settings_are_reported(tmp_path):
 
 
 @pytest.mark.slow
-def test_following_the_moving_board_gives_enough_data(tmp_path):
-    """One cycle of the simulated board (150 poses into every part of the image), auto-captured as the studio
-    does, then solved with the step's default model (pinhole-radtan k1, k2: the front lens's own; model auto's
-    comparison would double the test's time): the coverage is full, the worst projection sigma is below the
-    tolerance (so "enough data"), and the lens is within 3 sigma of the truth. This is ``cam_front``; the
-    browser test of the intrinsics step walks ``cam_wide`` (the harder lens, with auto) the same way."""
-    camera = "cam_front"
-    rig = demo_rig()
-    rig.get(camera).device = {"driver": "simulated", "camera": camera, "seed": 0, "disconnect_after": 150}
-    session = SessionStore(tmp_path).create("live", rig=rig, board=DEMO_BOARD)
-    recorder = Recorder()
-    live = LiveCapture(session, camera, recorder.callbacks())
-    live.start()
-    assert recorder.failed.wait(600), "the cycle's end (a disconnect) was never reported"
-    live.stop()
-    assert live.coverage.full, live.coverage.missing()
-
-    _, result = intrinsics_service.solve_session(session, camera, IntrinsicsSettings())
-    enough, missing = data_enough(session, camera, live.coverage)
-    truth = rig.get(camera).intrinsics
-    print(f"{camera}: {len(recorder.captured)} views, {result.camera.model}, worst projection sigma "
-          f"{result.projection_uncertainty['max_px']:.3f} px, verdict {result.verdict.level}")
+def test_the_demos_front_camera_opens_on_enough_data(demo_template: Path, tmp_path: Path) -> None:
+    """The demo's ``cam_front`` holds the views auto-capture keeps while the board is waved, up to full coverage
+    (:mod:`backend.services.demo`, by :func:`~backend.services.live_capture.worth_keeping`): its coverage is
+    full, its accepted solve (the step's default model, the front lens's own) is trusted with the worst
+    projection sigma within the tolerance, so "enough data", and the lens is within 3 sigma of the truth. The
+    images the demo keeps as LiDAR-camera pairs and camera sets are not lens views: one more changes nothing,
+    while one more lens view asks for a solve again. The browser test of the intrinsics step walks ``cam_wide``
+    live the same way, from no views."""
+    session = SessionStore(fresh_demo(demo_template, tmp_path / "sessions")).get(DEMO_NAME)
+    camera = DEMO_CAMERA
+    captures = session.captures(camera)
+    lens = [capture for capture in captures if intrinsics_service.is_lens_view(capture)]
+    assert 0 < len(lens) < len([capture for capture in captures if capture.detection])  # pairs' and sets' too
+    coverage = coverage_from_captures(session, camera, session_board(session))
+    assert coverage.full, coverage.missing()
+    enough, missing = data_enough(session, camera, coverage)
     assert enough, missing
-    assert result.verdict.level == "trusted"
-    errors = np.array([result.camera.K[0, 0] - truth.K[0, 0], result.camera.K[1, 1] - truth.K[1, 1],
-                       result.camera.K[0, 2] - truth.K[0, 2], result.camera.K[1, 2] - truth.K[1, 2]])
-    sigmas = np.array([result.std[name] for name in ("fx", "fy", "cx", "cy")])
+
+    record = session.results(camera, "intrinsics")[-1]
+    assert session.accepted(f"{camera}/intrinsics") == record["id"]
+    assert sorted(record["inputs"]) == sorted(capture.id for capture in lens)
+    assert record["verdict"]["level"] == "trusted", record["verdict"]
+    truth, K = demo_rig().get(camera).intrinsics.K, np.array(record["camera"]["K"])
+    errors = np.array([K[0, 0] - truth[0, 0], K[1, 1] - truth[1, 1], K[0, 2] - truth[0, 2], K[1, 2] - truth[1, 2]])
+    sigmas = np.array([record["std"][name] for name in ("fx", "fy", "cx", "cy")])
+    print(f"{camera}: {len(lens)} lens views of {len(captures)} images, worst projection sigma "
+          f"{record['projection_uncertainty']['max_px']:.3f} px, fx fy cx cy off by {errors} px, sigma {sigmas}")
     assert np.all(np.abs(errors) < 3 * sigmas), f"fx fy cx cy off by {errors} px, sigma {sigmas}"
 
-    # One view more: the solve no longer speaks for the views kept, so a solve is asked for again
-    last = session.captures(camera)[-1]
-    intrinsics_service.store_capture(session, camera, session.capture_image(camera, last.id),
-                                     Detection.from_dict(last.detection), device="test", timestamp_s=last.timestamp_s)
-    enough, missing = data_enough(session, camera, live.coverage)
+    def store_again(capture, meta: dict) -> None:
+        intrinsics_service.store_capture(session, camera, session.capture_image(camera, capture.id),
+                                         Detection.from_dict(capture.detection), device="test",
+                                         timestamp_s=capture.timestamp_s, meta=meta)
+
+    store_again(captures[-1], {"paired_cloud": "lidar_top:00001"})  # a pair's image: the lens step is unmoved
+    assert data_enough(session, camera, coverage) == (True, [])
+    store_again(lens[-1], {})  # one view more: the solve no longer speaks for the views kept
+    enough, missing = data_enough(session, camera, coverage)
     assert not enough and missing == ["solve to see the projection sigma"], missing

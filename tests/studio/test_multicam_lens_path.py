@@ -10,18 +10,15 @@ from pathlib import Path
 import pytest
 import viser
 
-from backend.calib._session import session_board
-from backend.calib.board.detection import detect_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.multicam import service as multicam_service
 from backend.calib.rig import service as rig_service
-from backend.devices.base import create_device
-from backend.services.demo import DEMO_NAME, DEMO_VIEWS, simulated_board_motion
+from backend.services.demo import DEMO_NAME, simulated_board_motion
 from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
 from studio.app import StudioApp
-from tests.conftest import fresh_demo
+from tests.conftest import capture_lens_views, fresh_demo
 
 pytestmark = pytest.mark.slow
 
@@ -44,14 +41,7 @@ def test_step_7_guides_through_cam_rights_lens_and_back(demo_template: Path, tmp
         assert simulated_board_motion(session, "cam_right") == "wave" and not intrinsics.wave_button.visible
         assert multicam.scene_button.visible  # step 7 offers the yard back
 
-        board = session_board(session)
-        with create_device(session.rig.get("cam_right").device) as device:  # what step 3's live capture reads
-            for _ in range(DEMO_VIEWS):
-                sample = device.read()
-                detection = detect_board(sample.image, board)
-                if detection is not None:
-                    intrinsics_service.store_capture(session, "cam_right", sample.image, detection,
-                                                     device=device.describe(), timestamp_s=sample.timestamp_s)
+        capture_lens_views(session, "cam_right", session.rig.get("cam_right").device)  # what step 3's live reads
         lens_id, _ = intrinsics_service.solve_session(session, "cam_right", IntrinsicsSettings())
         rig_service.accept(session, lens_id, confirm=True)  # as the API would: the studio follows the change
         assert multicam.lens_text.content == ""  # calibrated: no more guidance

@@ -30,6 +30,11 @@ from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 
 KIND = IntrinsicsResult.kind
+OTHER_STEPS_META = ("paired_cloud", "multicam_set")
+"""``meta`` keys that mark a camera capture kept for another calibration: a LiDAR-camera pair's image
+(:func:`backend.calib.lidar_camera.capture.store_pair`) and a camera set's
+(:func:`backend.calib.multicam.capture.capture_set`). Such an image is not a view of the lens
+(:func:`is_lens_view`)."""
 
 
 @dataclass
@@ -129,19 +134,37 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     return report
 
 
+def is_lens_view(capture: CaptureRecord) -> bool:
+    """Whether ``capture`` is a view of the board taken for the lens (live in step 3, imported or uploaded): it has
+    a detection and is not kept for another calibration (:data:`OTHER_STEPS_META`). A pair's or a set's board
+    stands metres away, small in the image: it adds little to the lens, and its corners' larger noise (0.08-0.25
+    px against 0.03 px for the demo's close views) would raise every projection sigma of the lens solve, whose
+    noise is estimated from all residuals at once. As Kalibr and ROS keep one recording for the lens, the lens
+    step counts its own views; a solve given ``capture_ids`` may still name any capture."""
+    return capture.detection is not None and not any(key in capture.meta for key in OTHER_STEPS_META)
+
+
 def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
-    """Views (captures with a detection) of one camera (those of ``capture_ids`` if given), and its image size."""
+    """The lens views (:func:`is_lens_view`) of one camera, or those of ``capture_ids`` (any capture with a
+    detection) if given, and its image size."""
     check_camera(session, sensor)
     captures = session.captures(sensor)
     unknown = sorted(set(capture_ids or ()) - {c.id for c in captures})
     if unknown:
         raise InputError(f"{sensor} has no capture {', '.join(map(repr, unknown[:5]))}"
                          f"{' (and more)' if len(unknown) > 5 else ''}", "capture_ids", status_code=404)
-    captures = [c for c in captures if capture_ids is None or c.id in capture_ids]
-    views = [View(c.id, Detection.from_dict(c.detection)) for c in captures if c.detection]
     if not captures:
         raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)
-    return views, tuple(captures[0].image_size)
+    size = tuple(captures[0].image_size)
+    if capture_ids is None:
+        chosen = [c for c in captures if is_lens_view(c)]
+        if not chosen:
+            raise InputError(f"no views of the board taken for {sensor}'s lens yet ({len(captures)} image(s) kept "
+                             "as LiDAR-camera pairs or camera sets are not used for it); capture or import images "
+                             "of the board close to the camera first", sensor)
+    else:
+        chosen = [c for c in captures if c.id in capture_ids and c.detection]
+    return [View(c.id, Detection.from_dict(c.detection)) for c in chosen], size
 
 
 def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, capture_ids: list[str] | None = None,

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend.calib._session import session_board, store_cloud
-from backend.calib.board.detection import detect_board
+from backend.calib._session import store_cloud
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.solver import IntrinsicsSettings
 from backend.calib.lidar_camera import service as lidar_camera_service
@@ -24,24 +23,9 @@ from backend.calib.rig import service as rig_service
 from backend.calib.rig.graph import FLAG_SIGMA
 from backend.core.transforms import params_between
 from backend.devices.base import create_device
-from backend.services.demo import DEMO_VIEWS
 from backend.sim.demo_rig import demo_rig
 from backend.store.session import SessionStore
-from tests.conftest import fresh_demo
-
-
-def _calibrate_camera(session, camera: str) -> str:
-    """Capture :data:`DEMO_VIEWS` simulated board views of ``camera`` and solve its intrinsics; the result id."""
-    board = session_board(session)
-    with create_device(demo_rig().get(camera).device) as device:
-        for _ in range(DEMO_VIEWS):
-            sample = device.read()
-            detection = detect_board(sample.image, board)
-            if detection is not None:
-                intrinsics_service.store_capture(session, camera, sample.image, detection, device=device.describe(),
-                                                 timestamp_s=sample.timestamp_s, meta={})
-    return intrinsics_service.solve_session(session, camera, IntrinsicsSettings())[0]
-
+from tests.conftest import capture_lens_views, fresh_demo
 
 CALIBRATED = {"cam_front", "cam_right", "lidar_top", "lidar_front"}
 """The frames the accepted results reach: their mounting priors are checked by those results."""
@@ -54,7 +38,8 @@ def test_every_accepted_edge_of_the_demo_holds_within_3_sigma(demo_template: Pat
         with create_device(demo_rig().get(sensor).device) as device:
             for _ in range(2):
                 store_cloud(session, sensor, device.read(), device=device.describe())
-    intrinsics_id = _calibrate_camera(session, "cam_right")  # step 3 for the stereo partner, as its verdict asks
+    capture_lens_views(session, "cam_right", demo_rig().get("cam_right").device)  # step 3, as its verdict asks
+    intrinsics_id, _ = intrinsics_service.solve_session(session, "cam_right", IntrinsicsSettings())
     rig_service.accept(session, intrinsics_id, confirm=True)
     lidar_lidar_id, _ = lidar_service.solve_session(session, "lidar_front", "lidar_top")
     lidar_camera_id, _ = lidar_camera_service.solve_session(session, "cam_front", "lidar_top", method="target")
