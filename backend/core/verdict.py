@@ -7,8 +7,8 @@ method, the multi-camera pair checks. A result is ``trusted`` only when every si
 tolerance **and** a cross-check was made and passed; a cross-check that could not be made is named as
 missing and leaves the result at ``check``, never ``trusted`` by default.
 
-- ``reject``: the result is wrong or undetermined (a failed cross-check far beyond its sigma, a
-  parameter the data does not pin, a solve that did not converge). It cannot be accepted.
+- ``reject``: the result is wrong or undetermined (a cross-check failed beyond :data:`REJECT_SIGMAS` of its
+  sigma, a parameter the data does not pin, a solve that did not converge). It cannot be accepted.
 - ``check``: the numbers may be right, but something is missing or loose (a sigma above its tolerance,
   no cross-check possible). It can be accepted only with an explicit confirmation, which the session
   records with the acceptance.
@@ -18,9 +18,13 @@ Build one with :class:`VerdictBuilder`, in the solver or service that knows the 
 
     judge = VerdictBuilder()
     judge.sigma("translation", max_std_m * 1e3, tolerance=10.0, unit="mm")
-    judge.cross_check("two halves of the views", passed=diff_px < 3 * expected_px,
-                      detail=f"halves differ by {diff_px:.2f} px, {expected_px:.2f} px expected")
+    judge.cross_check_sigmas("two halves of the views", diff_px / expected_px,
+                             f"halves differ by {diff_px:.2f} px, {expected_px:.2f} px expected")
     verdict = judge.verdict()
+
+The cross-check rule, the same for every problem: a measured cross-check passes while its difference is within
+:data:`CROSS_CHECK_SIGMAS` of its own 1-sigma (a check against a stated allowance instead counts the allowance
+as that many sigmas); failed by up to :data:`REJECT_SIGMAS` it is ``check``, beyond it ``reject``.
 """
 
 from __future__ import annotations
@@ -40,6 +44,12 @@ ROTATION_TOLERANCE_DEG = 0.2
 """Default largest acceptable 1-sigma of a transform's rotation, per axis (deg)."""
 PROJECTION_TOLERANCE_PX = 0.3
 """Default largest acceptable worst-case projection 1-sigma across the image (px)."""
+
+CROSS_CHECK_SIGMAS = 3.0
+"""A measured cross-check passes while its difference is within this many of its own 1-sigmas."""
+REJECT_SIGMAS = 5.0
+"""A measured cross-check that fails by more than this many of its 1-sigmas is ``reject`` (the result is wrong);
+failed by less, ``check``."""
 
 NO_VERDICT_REASON = "no verdict was recorded with this result (made before verdicts, or by hand)"
 
@@ -132,6 +142,18 @@ class VerdictBuilder:
             self.note(f"cross-check {name}: {detail}")
         else:
             self._raise(fail_level, f"cross-check {name} failed: {detail}")
+
+    def cross_check_sigmas(self, name: str, sigmas: float, detail: str) -> None:
+        """A measured cross-check ``name`` whose difference is ``sigmas`` of its own 1-sigma (for a check against an
+        allowance, :data:`CROSS_CHECK_SIGMAS` times the difference over the allowance): passed within
+        :data:`CROSS_CHECK_SIGMAS`; failed as ``check`` up to :data:`REJECT_SIGMAS`, as ``reject`` beyond (or when
+        not finite). ``detail`` says what was compared; the number of sigmas and the rule are added."""
+        if sigmas <= CROSS_CHECK_SIGMAS:
+            self.cross_check(name, True, f"{detail} ({sigmas:.1f} sigma, within {CROSS_CHECK_SIGMAS:g})")
+        else:
+            level: Level = "check" if sigmas <= REJECT_SIGMAS else "reject"
+            self.cross_check(name, False, f"{detail} ({sigmas:.1f} sigma: beyond {CROSS_CHECK_SIGMAS:g} is check, "
+                             f"beyond {REJECT_SIGMAS:g} reject)", fail_level=level)
 
     def missing_check(self, name: str, why: str) -> None:
         """A cross-check that could not be made; the result cannot be ``trusted`` on its sigmas alone."""

@@ -52,6 +52,20 @@ def test_loose_and_undetermined_sigmas_and_failed_checks():
     assert judge.verdict().level == "reject"
 
 
+@pytest.mark.parametrize(("sigmas", "level"), [(0.4, "trusted"), (3.0, "trusted"), (3.01, "check"), (5.0, "check"),
+                                               (5.9, "reject"), (float("inf"), "reject"), (float("nan"), "reject")])
+def test_the_cross_check_rule(sigmas, level):
+    """Within 3 of its sigmas a cross-check passes; failed by up to 5 it is 'check', beyond (or undetermined)
+    'reject': the rule every problem's verdict uses (the README's)."""
+    judge = VerdictBuilder()
+    judge.cross_check_sigmas("leave one of the poses out", sigmas, "the re-solves spread")
+    verdict = judge.verdict()
+    assert verdict.level == level
+    assert verdict.reasons[0].startswith("cross-check leave one of the poses out" + (":" if level == "trusted"
+                                                                                     else " failed:"))
+    assert f"({sigmas:.1f} sigma" in verdict.reasons[0]
+
+
 def test_records_without_a_verdict_and_per_camera_verdicts():
     assert Verdict.from_record({}) == Verdict("check", [NO_VERDICT_REASON])
     assert Verdict.from_record({"verdict": {"level": "maybe"}}).level == "check"
@@ -111,8 +125,10 @@ def _sweep(**changes) -> SimpleNamespace:
 
 def test_sweep_verdict_weighs_sigmas_and_the_halves():
     assert sweep_verdict(_sweep()).level == "trusted"
-    disagree = sweep_verdict(_sweep(halves_difference=np.array([0.004, 0.0])))
-    assert disagree.level == "check" and "differ by at most 5.7 sigma (offset u)" in disagree.reasons[-1]
+    disagree = sweep_verdict(_sweep(halves_difference=np.array([0.0028, 0.0])))  # 4 sigma: beyond 3
+    assert disagree.level == "check" and "differ most in offset u (4.0 sigma" in disagree.reasons[-1]
+    far = sweep_verdict(_sweep(halves_difference=np.array([0.004, 0.0])))  # 5.7 sigma: beyond 5
+    assert far.level == "reject" and "differ most in offset u (5.7 sigma" in far.reasons[-1]
     assert sweep_verdict(_sweep(halves_difference=None)).reasons[-1].startswith("no cross-check of the sweep's halves")
     assert sweep_verdict(_sweep(parameter_std={"offset_u_m": 0.003, "tilt_u_rad": 0.0})).level == "check"
     assert sweep_verdict(_sweep(converged=False)).level == "reject"

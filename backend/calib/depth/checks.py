@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from backend.core.result import TransformResult
-from backend.core.verdict import Verdict, VerdictBuilder, judge_transform_sigmas
+from backend.core.verdict import CROSS_CHECK_SIGMAS, Verdict, VerdictBuilder, judge_transform_sigmas
 
 if TYPE_CHECKING:
     from backend.calib.depth.guided import StepAdvice
@@ -34,17 +34,17 @@ def node_verdict(std: dict, converged: bool, held: list[dict], crosses: list[dic
     limit = HELD_OUT_FACTOR * settings.translation_tolerance_m
     worst = [h["max_error_m"] for h in held if h["max_error_m"] is not None]
     if worst:
-        judge.cross_check("held-out captures", max(worst) <= limit,
-                          f"each capture's tables and lines at the pose solved without it are within "
-                          f"{1e3 * max(worst):.1f} mm of their known values (limit {1e3 * limit:.0f} mm)")
+        judge.cross_check_sigmas("held-out captures", CROSS_CHECK_SIGMAS * max(worst) / limit,
+                                 f"each capture's tables and lines at the pose solved without it are within "
+                                 f"{1e3 * max(worst):.1f} mm of their known values (limit {1e3 * limit:.0f} mm)")
     else:
         judge.missing_check("held-out captures", f"{n_captures} capture: capture the tables once more, moved")
     if crosses:
         far = max(c["error_m"] for c in crosses)
-        judge.cross_check("crosses", far <= settings.cross_tolerance_m,
-                          f"{len(crosses)} crosses seen (not surveyed, so not used by the solve), the furthest "
-                          f"{1e3 * far:.1f} mm from its known position (limit {1e3 * settings.cross_tolerance_m:.0f} "
-                          "mm)")
+        judge.cross_check_sigmas("crosses", CROSS_CHECK_SIGMAS * far / settings.cross_tolerance_m,
+                                 f"{len(crosses)} crosses seen (not surveyed, so not used by the solve), the "
+                                 f"furthest {1e3 * far:.1f} mm from its known position (limit "
+                                 f"{1e3 * settings.cross_tolerance_m:.0f} mm)")
     return judge.verdict()
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
+from backend.core.verdict import CROSS_CHECK_SIGMAS, PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder
 
 
 def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, Any],
@@ -19,9 +19,9 @@ def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, A
     if cross_validation["status"] == "not made":
         judge.missing_check(name, cross_validation["detail"])
     else:
-        passed = cross_validation["status"] == "consistent"
+        sigmas = cross_validation["worst_ratio"]
         model_advice = "estimate k3" if models_compared else "compare the lens models (model auto), or estimate k3"
-        judge.cross_check(name, passed, cross_validation["detail"] + (
-            "" if passed else f": the lens model does not fit ({model_advice}) or some views are bad (drop the "
-                              "outliers)"))
+        judge.cross_check_sigmas(name, sigmas, cross_validation["detail"] + (
+            "" if sigmas <= CROSS_CHECK_SIGMAS else f": the lens model does not fit ({model_advice}) or some views "
+                                                   "are bad (drop the outliers)"))
     return judge.verdict()

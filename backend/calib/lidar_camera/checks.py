@@ -20,9 +20,9 @@ import numpy as np
 
 from backend.core.result import TRANSFORM_PARAMETERS, TransformResult, finite_or_none
 from backend.core.transforms import params_between
-from backend.core.verdict import Level, Verdict, VerdictBuilder, judge_transform_sigmas
+from backend.core.verdict import CROSS_CHECK_SIGMAS, Verdict, VerdictBuilder, judge_transform_sigmas
 
-AGREEMENT_SIGMAS = 3.0
+AGREEMENT_SIGMAS = CROSS_CHECK_SIGMAS
 """Two methods agree when no parameter differs by more than this many combined sigmas."""
 
 
@@ -45,6 +45,11 @@ class MethodAgreement:
     @property
     def passed(self) -> bool:
         return bool(np.all(self.normalised <= AGREEMENT_SIGMAS))
+
+    @property
+    def sigmas(self) -> float:
+        """The largest difference, in combined sigmas (the cross-check's measure)."""
+        return float(np.max(self.normalised))
 
     def detail(self) -> str:
         """One line for the verdict's reasons."""
@@ -76,10 +81,11 @@ trusted only when :data:`COVERAGE` sigmas fit inside them."""
 COVERAGE = 3.0
 """The sigmas are judged against the :data:`TOLERANCES` divided by this: an error of up to three sigmas is to be
 expected (on the simulated board, 12 poses: 0.23 deg off with a 0.13 deg sigma)."""
-MAX_SPREAD_RATIO = 3.0
+MAX_SPREAD_RATIO = CROSS_CHECK_SIGMAS
 """The target's leave-one-pose-out cross-check (:func:`_spread_check`) passes when the spread of the re-solves
 without one pose is at most this many times the Jacobian's sigma on every parameter: the poses agree within their
-noise."""
+noise. Beyond :data:`~backend.core.verdict.REJECT_SIGMAS` times, the poses do not agree and the result is
+``reject`` (the cross-check rule of :mod:`backend.core.verdict`)."""
 MANUAL_VERDICT = Verdict("check", ["set by hand: no uncertainty, no cross-check"])
 """The verdict of a hand-set (``manual``) result."""
 
@@ -91,7 +97,9 @@ class CrossCheck:
     name: str
     passed: bool
     detail: str
-    fail_level: Level = "check"
+    sigmas: float | None = None
+    """The difference in its own sigmas, judged by the cross-check rule (:meth:`VerdictBuilder.cross_check_sigmas`);
+    None for a check not made."""
     made: bool = True
     """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
 
@@ -121,8 +129,10 @@ def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
         builder.check("other alignments fit about as well; the sigmas are widened to cover them")
     _spread_check(builder, result, method)
     for check in extra:
-        if check.made:
-            builder.cross_check(check.name, check.passed, check.detail, check.fail_level)
+        if check.made and check.sigmas is not None:
+            builder.cross_check_sigmas(check.name, check.sigmas, check.detail)
+        elif check.made:
+            builder.cross_check(check.name, check.passed, check.detail)
         else:
             builder.missing_check(check.name, check.detail)
     result.verdict = builder.verdict()
@@ -161,11 +171,13 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
 
 def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str) -> None:
     """A cross-check ``name`` that passes when every parameter's (6,) ``ratio`` (of :data:`TRANSFORM_PARAMETERS`) is
-    at most ``limit``; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
+    at most ``limit``, which counts as :data:`~backend.core.verdict.CROSS_CHECK_SIGMAS` sigmas for the cross-check
+    rule; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
     ratio = np.where(np.isfinite(ratio), ratio, np.inf)
     worst = int(np.argmax(ratio))
-    builder.cross_check(name, bool(np.all(ratio <= limit)), detail.format(ratio=f"{ratio[worst]:.1f}")
-                        + f" ({TRANSFORM_PARAMETERS[worst]}), limit {limit:g}")
+    builder.cross_check_sigmas(name, float(ratio[worst]) * CROSS_CHECK_SIGMAS / limit,
+                               detail.format(ratio=f"{ratio[worst]:.1f}") + f" ({TRANSFORM_PARAMETERS[worst]}), "
+                               f"limit {limit:g}")
 
 
 def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:

@@ -251,7 +251,7 @@ def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs
     agreement = compare_methods(result.T_parent_child, result.covariance, other.T_parent_child, other.covariance,
                                 other_method)
     result.diagnostics["cross_check"] = agreement.to_record()
-    return CrossCheck(name, agreement.passed, agreement.detail())
+    return CrossCheck(name, agreement.passed, agreement.detail(), agreement.sigmas)
 
 
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],

@@ -11,16 +11,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from backend.core.verdict import VerdictBuilder, judge_transform_sigmas
+from backend.core.verdict import CROSS_CHECK_SIGMAS, VerdictBuilder, judge_transform_sigmas
 
 if TYPE_CHECKING:
     from backend.calib.lidar_lidar.gicp import LidarLidarSettings, SceneResult
 
-CROSS_CHECK_SIGMAS = 3.0
-"""A scene agrees when it lies within this many combined 1-sigmas of the other scenes' joint solve (or within
-the tolerance), per axis."""
-REJECT_FACTOR = 3.0
-"""A scene further than this many times its allowance from the others makes the verdict ``reject``."""
 LOW_FITNESS = 0.1
 """Below this fitness (but above ``min_fitness``) little of the source overlaps the target: the verdict asks
 for a look at the alignment (the real OpenCalib pair, a 64-beam and a short-range LiDAR, reaches 0.15)."""
@@ -70,10 +65,12 @@ def scenes_cross_check(judge: VerdictBuilder, scenes: list[SceneResult]) -> None
     offset = (f"{1e3 * np.linalg.norm(d[:3]):.1f} mm / {np.degrees(np.linalg.norm(d[3:])):.3f} deg from the joint "
               f"solve of the other scenes (allowed per axis up to {1e3 * a[:3].max():.1f} mm / "
               f"{np.degrees(a[3:].max()):.3f} deg: the tolerance or {CROSS_CHECK_SIGMAS:g} sigma)")
-    if ratios[worst] <= 1.0:
-        judge.cross_check("across scenes", True, f"all {len(scenes)} scenes agree; the furthest, {where}, lies "
-                          f"{offset}")
+    # the allowance counts as CROSS_CHECK_SIGMAS sigmas for the cross-check rule (a 'reject' beyond 5/3 of it)
+    sigmas = CROSS_CHECK_SIGMAS * ratios[worst]
+    if sigmas <= CROSS_CHECK_SIGMAS:
+        judge.cross_check_sigmas("across scenes", sigmas, f"all {len(scenes)} scenes agree; the furthest, {where}, "
+                                 f"lies {offset}")
     else:
-        judge.cross_check("across scenes", False, f"{where} lies {offset}, {ratios[worst]:.1f} times its allowance: "
-                          "a cloud that moved, a LiDAR knocked between scenes or a poor scene; drop it or capture it "
-                          "again", fail_level="reject" if ratios[worst] > REJECT_FACTOR else "check")
+        judge.cross_check_sigmas("across scenes", sigmas, f"{where} lies {offset}, {ratios[worst]:.1f} times its "
+                                 "allowance: a cloud that moved, a LiDAR knocked between scenes or a poor scene; "
+                                 "drop it or capture it again")

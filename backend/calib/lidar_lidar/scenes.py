@@ -29,7 +29,7 @@ import numpy as np
 import viser.transforms as vtf
 from scipy.spatial import cKDTree
 
-from backend.calib.lidar_lidar.checks import CROSS_CHECK_SIGMAS, judge_fit, judge_one_scene, scenes_cross_check
+from backend.calib.lidar_lidar.checks import judge_fit, judge_one_scene, scenes_cross_check
 from backend.calib.lidar_lidar.gicp import (
     CYCLE_TOLERANCE,
     ROTATION_EPSILON_RAD,
@@ -58,7 +58,7 @@ from backend.core.result import (
     widen_covariance,
 )
 from backend.core.transforms import params_between
-from backend.core.verdict import ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M
+from backend.core.verdict import CROSS_CHECK_SIGMAS, ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M
 
 SAME_PLACE_FITNESS = 0.8
 """Two pairs were taken in one place when at least this share of one's target points lies within the fine voxel

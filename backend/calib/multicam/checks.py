@@ -23,7 +23,13 @@ from backend.calib.intrinsics.solver import worst_projection_sigma_px
 from backend.calib.multicam.graph import Observation
 from backend.calib.multicam.stereo import epipolar_errors
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
-from backend.core.verdict import PROJECTION_TOLERANCE_PX, Verdict, VerdictBuilder, judge_transform_sigmas
+from backend.core.verdict import (
+    CROSS_CHECK_SIGMAS,
+    PROJECTION_TOLERANCE_PX,
+    Verdict,
+    VerdictBuilder,
+    judge_transform_sigmas,
+)
 
 if TYPE_CHECKING:
     from backend.calib.multicam.bundle import MulticamResult
@@ -95,8 +101,8 @@ def camera_verdicts(result: MulticamResult) -> dict[str, Verdict]:
                 continue
             other = pair["b"] if pair["a"] == name else pair["a"]
             limit = max(EPIPOLAR_FLOOR_PX, EPIPOLAR_FACTOR * max(rms[pair["a"]], rms[pair["b"]]))
-            judge.cross_check(f"epipolar with {other}", pair["epipolar_rms_px"] <= limit,
-                              f"{pair['epipolar_rms_px']:.3f} px over {pair['frames']} shared sets "
-                              f"(limit {limit:.3f} px)")
+            judge.cross_check_sigmas(f"epipolar with {other}", CROSS_CHECK_SIGMAS * pair["epipolar_rms_px"] / limit,
+                                     f"{pair['epipolar_rms_px']:.3f} px over {pair['frames']} shared sets "
+                                     f"(limit {limit:.3f} px)")
         verdicts[name] = judge.verdict()
     return verdicts

@@ -22,8 +22,6 @@ OFFSET_TOLERANCE_M = 0.002
 """Largest acceptable 1-sigma of the optical centre's offset from the servo axis (m)."""
 ANGLE_TOLERANCE_DEG = 0.1
 """Largest acceptable 1-sigma of the servo's zero and the scanner's tilts (deg)."""
-HALVES_SIGMAS = 3.0
-"""The halves agree when every parameter's difference is within this many of its sigmas."""
 
 LABELS = {"offset_u_m": "offset u", "offset_v_m": "offset v", "zero_offset_rad": "servo zero",
           "tilt_u_rad": "tilt about u", "tilt_v_rad": "tilt about v"}
@@ -50,6 +48,6 @@ def sweep_verdict(result: SweepCalibrationResult) -> Verdict:
         return judge.verdict()
     z = np.abs(result.halves_difference) / np.maximum(result.halves_std, 1e-15)
     worst = int(np.argmax(z))
-    judge.cross_check("of the even and odd servo steps", bool(z[worst] <= HALVES_SIGMAS),
-                      f"they differ by at most {z[worst]:.1f} sigma ({LABELS[result.estimated[worst]]})")
+    judge.cross_check_sigmas("of the even and odd servo steps", float(z[worst]),
+                             f"they differ most in {LABELS[result.estimated[worst]]}")
     return judge.verdict()
