@@ -130,10 +130,14 @@ def test_verdicts_on_the_simulated_rig_are_trusted_only_within_tolerance(sim_res
     assert np.all(np.abs(error[:3]) <= translation_m) and np.all(np.abs(error[3:]) <= rotation_deg)
     assert any(r.startswith("cross-check between two halves of the pairs: ") for r in verdict.reasons)
     assert sim_result.to_record()["verdict"] == verdict.to_dict()
-    # Halves that disagree (a pair from another rig, say) fail the cross-check.
-    disagreeing = replace(sim_result, diagnostics={**sim_result.diagnostics, "halves_offset": [0.01, 0, 0, 0, 0, 0]})
-    assert judge(disagreeing).level == "check" and any(
-        r.startswith("cross-check between two halves of the pairs failed") for r in disagreeing.verdict.reasons)
+    # Halves that disagree fail the cross-check by the rule: 4 sigmas of their difference 'check', 10 mm (a pair
+    # from another rig, say; about 12 sigmas) 'reject'.
+    expected_x_m = 2 * sim_result.std_vector[0]  # the sigma of the halves' difference in x
+    for offset_m, level in ((4 * expected_x_m, "check"), (0.01, "reject")):
+        disagreeing = replace(sim_result,
+                              diagnostics={**sim_result.diagnostics, "halves_offset": [offset_m, 0, 0, 0, 0, 0]})
+        assert judge(disagreeing).level == level and any(
+            r.startswith("cross-check between two halves of the pairs failed") for r in disagreeing.verdict.reasons)
     one_pair = judge(solve_edges(CAM_FRONT, sim_pairs[:1], initial_guess(1)))
     assert one_pair.level != "trusted" and any(r.startswith("no cross-check between pairs: one pair")
                                                for r in one_pair.reasons), one_pair.reasons
