@@ -18,8 +18,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
+from backend.core.verdict import CROSS_CHECK_SIGMAS
 
-CONSISTENT_FACTOR = 3.0
+CONSISTENT_FACTOR = CROSS_CHECK_SIGMAS
 """Largest difference between the halves, in expected 1-sigmas at the same pixel, that is still consistent."""
 
 

@@ -137,10 +137,10 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
 def is_lens_view(capture: CaptureRecord) -> bool:
     """Whether ``capture`` is a view of the board taken for the lens (live in step 3, imported or uploaded): it has
     a detection and is not kept for another calibration (:data:`OTHER_STEPS_META`). A pair's or a set's board
-    stands metres away, small in the image: it adds little to the lens, and its corners' larger noise (0.08-0.25
-    px against 0.03 px for the demo's close views) would raise every projection sigma of the lens solve, whose
-    noise is estimated from all residuals at once. As Kalibr and ROS keep one recording for the lens, the lens
-    step counts its own views; a solve given ``capture_ids`` may still name any capture."""
+    stands metres away, small in the image: it adds little to the lens, and its corners' larger noise (per-view
+    residuals 0.06-0.25 px RMS against 0.02-0.05 px for the demo's close views) would raise every projection sigma
+    of the lens solve, whose noise is estimated from all residuals at once. As Kalibr and ROS keep one recording
+    for the lens, the lens step counts its own views; a solve given ``capture_ids`` may still name any capture."""
     return capture.detection is not None and not any(key in capture.meta for key in OTHER_STEPS_META)
 
 

@@ -95,13 +95,15 @@ class CrossCheck:
     """An independent check of a result made elsewhere (another method on the same pairs, say)."""
 
     name: str
-    passed: bool
     detail: str
     sigmas: float | None = None
     """The difference in its own sigmas, judged by the cross-check rule (:meth:`VerdictBuilder.cross_check_sigmas`);
-    None for a check not made."""
-    made: bool = True
-    """False: the check could not be made (``detail`` says why); the verdict names it as missing."""
+    None: the check could not be made (``detail`` says why), and the verdict names it as missing."""
+
+    @property
+    def made(self) -> bool:
+        """Whether the check was made (it has a measure)."""
+        return self.sigmas is not None
 
 
 def _diagnostic(result: TransformResult, key: str, undetermined: float = np.nan) -> np.ndarray | None:
@@ -129,10 +131,8 @@ def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
         builder.check("other alignments fit about as well; the sigmas are widened to cover them")
     _spread_check(builder, result, method)
     for check in extra:
-        if check.made and check.sigmas is not None:
+        if check.made:
             builder.cross_check_sigmas(check.name, check.sigmas, check.detail)
-        elif check.made:
-            builder.cross_check(check.name, check.passed, check.detail)
         else:
             builder.missing_check(check.name, check.detail)
     result.verdict = builder.verdict()

@@ -243,15 +243,13 @@ def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs
     try:
         other = solve_targetless(other_method, camera, pairs, T_init, translation_prior_m, progress)
     except InputError as refused:
-        return CrossCheck(name, False, f"the {other_method} method could not solve these pairs: {refused.message}",
-                          made=False)
+        return CrossCheck(name, f"the {other_method} method could not solve these pairs: {refused.message}")
     if not other.converged:
-        return CrossCheck(name, False, f"the {other_method} method gave no usable answer: " + "; ".join(other.warnings),
-                          made=False)
+        return CrossCheck(name, f"the {other_method} method gave no usable answer: " + "; ".join(other.warnings))
     agreement = compare_methods(result.T_parent_child, result.covariance, other.T_parent_child, other.covariance,
                                 other_method)
     result.diagnostics["cross_check"] = agreement.to_record()
-    return CrossCheck(name, agreement.passed, agreement.detail(), agreement.sigmas)
+    return CrossCheck(name, agreement.detail(), agreement.sigmas)
 
 
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],

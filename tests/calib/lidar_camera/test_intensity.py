@@ -209,10 +209,10 @@ def test_methods_agree_within_their_combined_sigmas_and_the_verdict_carries_it(s
     far = apply_params(result.T_parent_child, np.r_[0, 0, 0, 5 * np.sqrt(2) * sigma[3], 0, 0])
     disagreement = compare_methods(result.T_parent_child, result.covariance, far, result.covariance, "edges")
     assert not disagreement.passed and "at most 5.0 combined sigmas" in disagreement.detail()
-    verdict = judge(result, [CrossCheck("against the edges method", disagreement.passed, disagreement.detail())])
+    verdict = judge(result, [CrossCheck("against the edges method", disagreement.detail(), disagreement.sigmas)])
     assert verdict.level in ("check", "reject")
     assert any(r.startswith("cross-check against the edges method failed") for r in verdict.reasons)
-    agreed = judge(result, [CrossCheck("against the edges method", agreement.passed, agreement.detail())])
+    agreed = judge(result, [CrossCheck("against the edges method", agreement.detail(), agreement.sigmas)])
     assert any(r.startswith("cross-check against the edges method: the edges method's transform is")
                for r in agreed.reasons)
 
