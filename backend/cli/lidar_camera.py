@@ -30,7 +30,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
     lc.add_argument("--translation-prior", type=float, metavar="M",
                     help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
-                         "whose edges are all far away (they fix the rotation, hardly the translation)")
+                         "whose edges are all far away (they fix the rotation, hardly the translation); without it, "
+                         "edges holds the translation at the guess +- 5 cm when the scene cannot determine it")
     init = lc.add_mutually_exclusive_group()
     init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
     init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",

@@ -109,8 +109,9 @@ class LidarCameraStep:
             self.method = gui.add_dropdown("Method", options=list(METHODS))
             self.translation_prior = gui.add_number(
                 "Translation prior σ (m)", initial_value=0.0, min=0.0, max=1.0, step=0.005,
-                hint="targetless: hold the sliders' translation as measured to this 1-sigma (0: not held); for scenes "
-                     "whose edges are all far away, which fix the rotation but hardly the translation")
+                hint="targetless: hold the sliders' translation as measured to this 1-sigma; 0: held at the sliders "
+                     "+- 5 cm only when the scene cannot determine it (edges all far away fix the rotation but hardly "
+                     "the translation)")
             self.solve_button = gui.add_button("Solve from the sliders", color="blue")
             self.jobs = JobPanel(ctx, [self.solve_button, self.capture_button])
             self.capture_jobs.also_disable(self.solve_button)

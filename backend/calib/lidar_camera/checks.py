@@ -117,9 +117,10 @@ def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
     """The verdict of a solved ``T_camera_lidar`` (also stored on ``result.verdict``).
 
     Unconverged or ambiguous: ``reject``. Else the sigmas against the method's :data:`TOLERANCES`, competing
-    alignments of the edges method (``check``), the cross-check between independent captures (:func:`_spread_check`:
-    the target's poses, the edges' two halves of the pairs), and the ``extra`` cross-checks: another method's
-    answer on the same pairs, say. Without any cross-check it stays at ``check``, saying which is missing.
+    alignments of the edges method and a translation held at the guess (``check``), the cross-check between
+    independent captures (:func:`_spread_check`: the target's poses, the edges' two halves of the pairs), and the
+    ``extra`` cross-checks: another method's answer on the same pairs, say. Without any cross-check it stays at
+    ``check``, saying which is missing.
     """
     builder = VerdictBuilder()
     method = result.method
@@ -129,6 +130,10 @@ def judge(result: TransformResult, extra: Sequence[CrossCheck] = ()) -> Verdict:
     judge_transform_sigmas(builder, result.std, translation_m / COVERAGE, rotation_deg / COVERAGE)
     if method == "edges" and result.diagnostics.get("std_multistart") is not None:
         builder.check("other alignments fit about as well; the sigmas are widened to cover them")
+    held = result.diagnostics.get("translation_held")
+    if held is not None:
+        builder.check(f"translation held at the guess \u00b1 {100 * held['sigma_m']:g} cm: this scene cannot "
+                      "determine it")
     _spread_check(builder, result, method)
     for check in extra:
         if check.made:

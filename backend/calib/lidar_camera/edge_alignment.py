@@ -14,6 +14,7 @@ and a right-perturbation rotation vector (rad, about the LiDAR's axes).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,7 +155,8 @@ def solve_matches(T_ref: np.ndarray, matches: EdgeMatches, camera: CameraIntrins
 
     With :attr:`~FineAlignmentSettings.translation_prior_m` set, ``t_prior`` (m, camera axes; the translation
     of ``T_init``) is a measurement: three more residuals ``(t - t_prior) / sigma`` in units of
-    ``settings.loss_scale_px``, so that one sigma of the prior weighs like one pixel of an edge's residual.
+    ``settings.loss_scale_px``, so that one sigma of the prior weighs like one pixel of an edge's residual. The robust
+    loss is for the edges only (:func:`robust_then_quadratic`).
     """
     sigma = settings.translation_prior_m
     weight = 0.0 if sigma is None else settings.loss_scale_px / sigma  # px per m
@@ -162,5 +164,39 @@ def solve_matches(T_ref: np.ndarray, matches: EdgeMatches, camera: CameraIntrins
     prior_jacobian = np.hstack([weight * np.eye(3), np.zeros((3, 3))])
     return least_squares(
         lambda p: np.r_[matches.residuals(apply_params(T_ref, p), camera), weight * (offset + p[:3])], np.zeros(6),
-        jac=lambda p: np.vstack([matches.jacobian(T_ref, p, camera), prior_jacobian]), loss=settings.loss,
-        f_scale=loss_scale_px, max_nfev=settings.max_nfev)
+        jac=lambda p: np.vstack([matches.jacobian(T_ref, p, camera), prior_jacobian]),
+        loss=robust_then_quadratic(settings.loss, len(matches)), f_scale=loss_scale_px, max_nfev=settings.max_nfev)
+
+
+def _soft_l1(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t = 1.0 + z
+    return 2.0 * (np.sqrt(t) - 1.0), t**-0.5, -0.5 * t**-1.5
+
+
+def _cauchy(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return np.log1p(z), 1.0 / (1.0 + z), -1.0 / (1.0 + z) ** 2
+
+
+def _linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return z, np.ones_like(z), np.zeros_like(z)
+
+
+ROBUST_LOSSES = {"linear": _linear, "soft_l1": _soft_l1, "cauchy": _cauchy}
+"""The losses :attr:`FineAlignmentSettings.loss` may name: SciPy's of those names, ``rho(z)`` of the squared scaled
+residual ``z`` with its first two derivatives."""
+
+
+def robust_then_quadratic(loss: str, n_robust: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A :func:`scipy.optimize.least_squares` loss that is ``loss`` (:data:`ROBUST_LOSSES`) on the first ``n_robust``
+    residuals (the edges) and quadratic on the rest (a prior): a measurement with a Gaussian sigma. Under a robust
+    loss its pull is bounded, so that enough edges drag a held translation anywhere (10 cm from the guess under a
+    1 mm prior, on the simulated board scene). SciPy applies one named loss to every residual, hence this."""
+    robust = ROBUST_LOSSES[loss]
+
+    def rho(z: np.ndarray) -> np.ndarray:
+        out = np.empty((3, len(z)))
+        out[:, :n_robust] = robust(z[:n_robust])
+        out[:, n_robust:] = _linear(z[n_robust:])
+        return out
+
+    return rho

@@ -90,6 +90,14 @@ INFORMATION_UNITS = (0.01, np.radians(0.1))
 """Steps (m, rad) in which the observability test measures translation and rotation: 1 cm and 0.1 deg."""
 MIN_SPREAD_PAIRS = 3
 """With this many pairs or more the jackknife also leaves out pairs."""
+HELD_PRIOR_M = 1e-4
+"""The translation prior (m, 1-sigma) that holds the translation at the guess when the scene cannot determine it:
+tight enough that the edges do not move it (a fraction of a millimetre)."""
+
+
+AMBIGUOUS = "ambiguous"
+"""How the warning of a result whose competing alignments lie too far apart begins (:func:`_multistart`)."""
+AMBIGUOUS_ADVICE = " (a repeating pattern in view, or edges all far away that leave the translation free); not accepted"
 
 
 @dataclass
@@ -162,6 +170,12 @@ class LidarCameraEdgesSettings:
     """The fine alignment also starts from the best coarse start's solution turned by this (deg) either way about
     each LiDAR axis, to find alignments nearer than the coarse search's starts are apart (the finer peaks of a
     repeating pattern, a flat optimum of few edges); None for none."""
+    guess_translation_sigma_m: float | None = 0.05
+    """1-sigma (m, per axis) of the initial guess's translation: a tape measure's. When no translation prior is given
+    and the scene cannot determine the translation (alignments far apart fit about equally well: edges all far away, a
+    repeating pattern; or the edges pin it less well than this), the rotation is solved with the translation held at
+    the guess, which is reported with this sigma (:func:`_held_covariance`); None leaves such a result ambiguous
+    (not converged). Edges that all run one way are refused either way: they leave the rotation loose as well."""
     max_ambiguity: tuple[float, float] = (0.05, 0.5)
     """Competing alignments further from the best than this on some parameter (m, deg) make the result ambiguous:
     ``converged=False``. Nearer, the sigmas are widened to cover them (the multi-start spread). These are the
@@ -523,9 +537,8 @@ def _multistart(best: _Fine, fits: list[_Fine], std: np.ndarray, settings: Lidar
                  f"{np.degrees(spread[3:].max()):.2f} deg apart")
     limit_m, limit_deg = settings.max_ambiguity
     if spread[:3].max() > limit_m or np.degrees(spread[3:].max()) > limit_deg:
-        return candidates, spread, (f"ambiguous: {described}, beyond {1000 * limit_m:.0f} mm or {limit_deg:g} deg "
-                                    "(a repeating pattern in view, or edges all far away that leave the translation "
-                                    "free: hold it as measured with a translation prior); not accepted")
+        return candidates, spread, (f"{AMBIGUOUS}: {described}, beyond {1000 * limit_m:.0f} mm or {limit_deg:g} deg"
+                                    f"{AMBIGUOUS_ADVICE}")
     return candidates, spread, f"multi-start spread: {described}; the sigmas are widened to cover them"
 
 
@@ -604,10 +617,29 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     for i, (observation, name) in enumerate(zip(pairs, names, strict=True)):
         progress(0.1 * i / len(pairs), f"finding edges in {name}")
         prepared.append(_prepare(observation, name, camera, T_init, settings))
+    may_hold = settings.fine.translation_prior_m is None and settings.guess_translation_sigma_m is not None
+    free_share = 0.6 if may_hold else 1.0
+    result, _ = _solve_prepared(prepared, camera, T_init, settings, names,
+                                lambda fraction, message: progress(0.1 + (free_share - 0.1) * fraction, message))
+    why = _translation_undetermined(result, settings.guess_translation_sigma_m) if may_hold else None
+    if why is not None:
+        result = _solve_held(prepared, camera, T_init, settings, names, why,
+                             lambda fraction, message: progress(0.6 + 0.4 * fraction,
+                                                                f"translation held at the guess: {message}"))
+    progress(1.0, "done")
+    result.seconds = time.perf_counter() - started
+    return result
 
+
+def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.ndarray,
+                    settings: LidarCameraEdgesSettings, names: list[str], progress: ProgressCallback
+                    ) -> tuple[TransformResult, _Fine]:
+    """The coarse search, the fine alignments from its starts, the uncertainty and the cross-check of the pairs'
+    edges (progress from 0 to 1: the coarse search to 0.5, :func:`_fine_from_starts` and :func:`_spread` on); the
+    result and the best fine alignment."""
     starts, warnings = coarse_search(T_init, [p.lidar.points for p in prepared],
                                      [p.image.distance_px for p in prepared], camera, settings.coarse,
-                                     lambda fraction, message: progress(0.1 + 0.4 * fraction, message))
+                                     lambda fraction, message: progress(0.5 * fraction, message))
     t_prior = T_init[:3, 3]
     fits = _fine_from_starts(prepared, starts, camera, settings, t_prior, names, progress)
     best = max(fits, key=lambda f: (f.converged, len(f.matches), -(f.rms_px or np.inf)))
@@ -622,10 +654,9 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     candidates, std_multistart, warning = _multistart(best, fits, sigmas(covariance), settings)
     if warning is not None:
         warnings.append(warning)
-        converged = converged and not warning.startswith("ambiguous")
+        converged = converged and not warning.startswith(AMBIGUOUS)
     halves_offset = _halves(best.T, best.matches, camera, len(prepared), t_prior, settings) if converged else None
-    progress(1.0, "done")
-    return TransformResult(
+    result = TransformResult(
         kind="lidar_camera", method="edges", parent="camera", child="lidar",
         T_parent_child=best.T,
         covariance=widen_covariance(covariance, std_multistart),
@@ -639,5 +670,65 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,
-        seconds=time.perf_counter() - started,
     )
+    return result, best
+
+
+def _translation_undetermined(result: TransformResult, guess_sigma_m: float) -> str | None:
+    """Why the free solve's ``result`` leaves the translation to the guess, or None: alignments far apart fit about
+    equally well, or the edges pin some axis of the translation less well than the guess's ``guess_sigma_m`` (m)."""
+    ambiguous = next((w for w in result.warnings if w.startswith(AMBIGUOUS)), None)
+    if ambiguous is not None:
+        return ambiguous.removesuffix(AMBIGUOUS_ADVICE).removeprefix(AMBIGUOUS + ": ")
+    loose = [(axis, s) for axis, s in zip("xyz", result.std["trans_m"], strict=True) if s is None or s > guess_sigma_m]
+    if not loose:
+        return None
+    return "the edges pin the translation less well than the guess: " + ", ".join(
+        f"{axis} {'undetermined' if s is None else f'sigma {100 * s:.1f} cm'}" for axis, s in loose)
+
+
+def _solve_held(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.ndarray,
+                settings: LidarCameraEdgesSettings, names: list[str], why: str, progress: ProgressCallback
+                ) -> TransformResult:
+    """The rotation solved with the translation held at ``T_init``'s (:data:`HELD_PRIOR_M`), its covariance that of
+    the guess's translation sigma (:func:`_held_covariance`), and ``why`` the scene could not determine it in the
+    warning and ``diagnostics["translation_held"]``."""
+    sigma_m = settings.guess_translation_sigma_m
+    assert sigma_m is not None  # only held when the guess has a sigma
+    held = replace(settings, fine=replace(settings.fine, translation_prior_m=HELD_PRIOR_M),
+                   coarse=replace(settings.coarse, max_translation_m=HELD_PRIOR_M))
+    result, best = _solve_prepared(prepared, camera, T_init, held, names, progress)
+    covariance, edges_alone = _held_covariance(best.result, sigma_m)
+    result.covariance = widen_covariance(covariance, result.std_vector)
+    alone = ", ".join(f"{axis} {'undetermined' if not np.isfinite(s) else f'{100 * s:.1f} cm'}"
+                      for axis, s in zip("xyz", edges_alone, strict=True))
+    result.warnings.append(f"translation held at the guess \u00b1 {100 * sigma_m:g} cm: this scene cannot determine it "
+                           f"({why}); the edges alone pin it to {alone} (1 sigma, camera axes). Add pairs of other "
+                           "scenes, nearer edges in several directions, to determine it, or pass the measured "
+                           "mounting as a translation prior")
+    result.diagnostics["translation_held"] = {"sigma_m": sigma_m, "why": why,
+                                              "edges_alone_m": finite_or_none(edges_alone)}
+    return result
+
+
+def _held_covariance(solved: OptimizeResult, guess_sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The (6, 6) covariance of a held solve whose translation is the guess's, known to ``guess_sigma_m`` (m) per
+    axis, and the (3,) translation sigmas (m) the edges alone give (inf where they give none).
+
+    From the edges' information ``I`` (the robust-loss Jacobian without the prior's three last rows, scaled by the
+    residual variance as :func:`~backend.core.result.jacobian_covariance`): the rotation given the translation has
+    covariance ``I_rr^-1``, and a translation error ``dt`` moves the solved rotation by ``A dt`` with
+    ``A = -I_rr^-1 I_rt``, so ``C_tt = s^2 1``, ``C_rt = A C_tt`` and ``C_rr = I_rr^-1 + A C_tt A^T``. The edges'
+    own hold on the translation is not used: the scene was just found unable to determine it.
+    """
+    J = solved.jac[:-3]
+    information = J.T @ J / (2 * solved.cost / max(len(J) - 6, 1))
+    rotation_given_translation = np.linalg.inv(information[3:, 3:])
+    A = -rotation_given_translation @ information[3:, :3]
+    C_tt = guess_sigma_m**2 * np.eye(3)
+    covariance = np.block([[C_tt, (A @ C_tt).T], [A @ C_tt, rotation_given_translation + A @ C_tt @ A.T]])
+    try:
+        edges_alone = np.sqrt(np.clip(np.diag(np.linalg.inv(information))[:3], 0, None))
+    except np.linalg.LinAlgError:
+        edges_alone = np.full(3, np.inf)
+    return 0.5 * (covariance + covariance.T), edges_alone

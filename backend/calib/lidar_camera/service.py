@@ -193,7 +193,8 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     (:func:`~backend.calib.lidar_camera.intensity.solve_intensity`): it matches the clouds' intensities (which
     it needs) with the images' grey values; ``cross_check`` (targetless methods) also solves the same pairs with
     the other targetless method and puts the two methods' agreement into the result's verdict
-    (:func:`cross_check_methods`). An image whose size is not the intrinsics' is refused.
+    (:func:`cross_check_methods`). An image whose size is not the intrinsics' is refused. A pose whose board is not
+    found in the image (or in the cloud) is skipped and named in the result's warnings.
     """
     check_method(method, "method", cross_check)
     for pair in pairs:
@@ -210,13 +211,17 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     if board is None:
         raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
     settings = target_settings(board, plate_margin_m)
-    observations = []
+    observations, skipped = [], []
     for i, p in enumerate(pairs):
         progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
-        T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=p.detection)
+        try:
+            T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=p.detection)
+        except InputError as error:
+            skipped.append(f"{error.input}: {error.message}")
+            continue
         observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
     result = solve_target(board, observations, T_init, settings,
-                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message))
+                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message), skipped)
     judge(result)
     return result
 

@@ -352,6 +352,31 @@ def find_board_points(points_lidar: np.ndarray, T_camera_board: np.ndarray, T_ca
 # ---------------------------------------------------------------- the joint solve
 
 
+def _find_boards(clouds: list[np.ndarray], T_camera_boards: list[np.ndarray], T_camera_lidar: np.ndarray,
+                 board: BoardSpec, margin_m: float, settings: LidarCameraTargetSettings, rng: np.random.Generator,
+                 names: list[str]) -> tuple[list[BoardPoints | None], list[str]]:
+    """:func:`find_board_points` in every pose's cloud: the board's points (None where not found) and, for each pose
+    where it was not, the message naming it."""
+    found: list[BoardPoints | None] = []
+    lost = []
+    for cloud, T_camera_board, name in zip(clouds, T_camera_boards, names, strict=True):
+        try:
+            found.append(find_board_points(cloud, T_camera_board, T_camera_lidar, board, margin_m, settings, rng, name))
+        except InputError as error:
+            found.append(None)
+            lost.append(f"{error.input}: {error.message}")
+    return found, lost
+
+
+def _check_pose_count(usable: int, total: int, skipped: list[str]) -> None:
+    """Refuse fewer than :data:`MIN_POSES` usable poses of ``total``, saying why each of the others was ``skipped``."""
+    if usable >= MIN_POSES:
+        return
+    why = f" ({'; '.join(skipped)})" if skipped else ""
+    raise InputError(f"{usable} of {total} board poses are usable{why}; at least {MIN_POSES} are needed, with the "
+                     "board tilted and turned differently in each", "poses")
+
+
 def _check_normals(T_camera_boards: list[np.ndarray], threshold: float) -> None:
     """Raise :class:`InputError` when the board normals leave part of the translation unobservable."""
     normals = np.array([T[:3, 2] for T in T_camera_boards])
@@ -478,14 +503,18 @@ def _fit_statistics(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: 
 
 def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_init: np.ndarray,
                  settings: LidarCameraTargetSettings | None = None,
-                 progress: ProgressCallback = no_progress) -> TransformResult:
+                 progress: ProgressCallback = no_progress, skipped: Sequence[str] = ()) -> TransformResult:
     """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from board poses.
 
     ``observations`` pair each pose's camera board pose with its LiDAR cloud; ``T_init`` is the
     initial ``T_camera_lidar`` (it places the first round's search region: its error at the
-    board must stay within ``settings.region_margins_m[0]``). Raises :class:`InputError` for fewer
-    than :data:`MIN_POSES` poses, a bad cloud or transform, a pose whose board is not found in the
-    LiDAR cloud (named), and a degenerate set of board normals. A solve that diverges, loses the
+    board must stay within ``settings.region_margins_m[0]``). A pose whose board is not found in its
+    cloud is skipped, named in the warnings and ``diagnostics["skipped"]``, with those the caller already
+    skipped (``skipped``: one message per pose, naming it; the board not found in its image, say); so is one
+    whose board is lost in a later round, about the refined estimate (the first round's wide region took
+    something else for it: the person holding it, on the real VLP-16 set with the board's points removed). Raises
+    :class:`InputError` for fewer than :data:`MIN_POSES` usable poses (with the count and why each other
+    pose was skipped), a bad cloud or transform, and a degenerate set of board normals. A solve that diverges, loses the
     board in a later round or ends with a point-to-plane RMS above ``settings.max_plane_rms_m`` is
     returned with ``converged=False`` and a warning: the caller must not accept it.
 
@@ -496,21 +525,20 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     plate outline, in the board plane) and ``per_pose_rms_m`` (point-to-plane RMS of each pose), all in m.
     ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1`` and ``std_spread`` (6,) of the
     leave-one-pose-out jackknife or None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
-    ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run) and
-    ``poses`` (each pose's :class:`PoseResiduals`, in input order).
+    ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run),
+    ``poses`` (each solved pose's :class:`PoseResiduals`, in input order) and ``skipped`` (why each other pose was
+    skipped, naming it).
     """
     settings = settings or LidarCameraTargetSettings()
     started = time.perf_counter()
-    if len(observations) < MIN_POSES:
-        raise InputError(f"{len(observations)} board poses given; at least {MIN_POSES} are needed, with the board "
-                         "tilted and turned differently in each", "poses")
+    skipped = list(skipped)
+    total = len(observations) + len(skipped)
+    _check_pose_count(len(observations), total, skipped)
     names = _pose_names(observations)
     T_camera_boards = [check_transform(o.T_camera_board, f"{name}: T_camera_board")[0]
                        for o, name in zip(observations, names, strict=True)]
     clouds = [check_cloud(o.points_lidar, f"{name}: cloud")[0] for o, name in zip(observations, names, strict=True)]
     T_init, _ = check_transform(T_init, "T_init")
-    _check_normals(T_camera_boards, settings.min_normal_eigenvalue)
-    T_board_cameras = [invert(T) for T in T_camera_boards]
     centre, half = plate_centre_and_half_size(board, settings.plate_margin_m)
     rng = np.random.default_rng(settings.seed)
 
@@ -519,17 +547,18 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     for round_index, margin in enumerate(settings.region_margins_m):
         progress(0.8 * round_index / len(settings.region_margins_m),
                  f"round {round_index + 1}: finding the board in {len(clouds)} clouds ({margin} m region)")
-        try:
-            found = [find_board_points(cloud, T_cb, T, board, margin, settings, rng, name)
-                     for cloud, T_cb, name in zip(clouds, T_camera_boards, names, strict=True)]
-        except InputError as error:
-            if round_index == 0:
-                raise
-            warnings.append(f"round {round_index + 1}: {error.input}: {error.message}; the estimate moved away "
-                            "from the board: not accepted")
-            converged = False
-            break
-        stacked = _Stacked.build(T_board_cameras, found)
+        found, lost = _find_boards(clouds, T_camera_boards, T, board, margin, settings, rng, names)
+        kept = [i for i, points in enumerate(found) if points is not None]
+        if round_index > 0:  # the first round took something else for the board there (a person behind it, a wall)
+            lost = [f"{message} (in round {round_index + 1}, about the refined estimate: in round 1 something else "
+                    "near it was taken for the board)" for message in lost]
+        skipped += lost
+        _check_pose_count(len(kept), total, skipped)
+        names, T_camera_boards, clouds, found = ([items[i] for i in kept]
+                                                 for items in (names, T_camera_boards, clouds, found))
+        if round_index == 0:
+            _check_normals(T_camera_boards, settings.min_normal_eigenvalue)
+        stacked = _Stacked.build([invert(T_cb) for T_cb in T_camera_boards], found)
         if settings.edge_weight is not None:
             edge_weight = settings.edge_weight
         elif round_index > 0:
@@ -544,6 +573,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
             break
 
     assert stacked is not None and result is not None  # region_margins_m is not empty
+    warnings[:0] = [f"{message}; skipped" for message in skipped]
     # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
     cov_j = jacobian_covariance(result)
     std_spread = None
@@ -562,7 +592,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
         residuals=residuals,
         diagnostics={"std_jacobian": finite_or_none(sigmas(cov_j)),
                      "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
-                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses]},
+                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses], "skipped": skipped},
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,

@@ -25,10 +25,11 @@ from backend.core.colour_maps import (
 from backend.core.overlay import OverlayStyle, render_overlays, with_legend
 from backend.core.projection import colourise_cloud, draw_points, project_cloud
 from backend.core.transforms import from_xyz_ypr, invert, make_T, to_rvec_tvec, transform_points
+from backend.exports.ros_camera_info import load_camera_info
 from backend.sim.board_renderer import plate_corners_m, render_board_image
 from backend.sim.demo_rig import CAM_WIDE, DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import LABELS, LidarScene
-from tests.conftest import opencalib_frame
+from tests.conftest import SHARED_DATA, opencalib_frame
 
 FISHEYE = CameraIntrinsics("fisheye-equidistant", 1280, 720,
                            np.array([[600.0, 0, 641.2], [0, 599.1, 358.7], [0, 0, 1]]),
@@ -442,3 +443,22 @@ def test_colourise_gives_each_seen_point_its_nearest_pixels_colour() -> None:
     cols, rows = np.rint(projection.uv).astype(int).T
     np.testing.assert_array_equal(colours[projection.index], image[rows, cols, ::-1])  # BGR image, RGB colours
     assert not colours[~seen].any()
+
+
+def test_a_lens_model_that_folds_before_the_image_corners_sees_up_to_its_fold() -> None:
+    # The real VLP-16 set's fisheye (kc sigma up to 37): its polynomial theta_d(theta) peaks at about 43 deg, short of
+    # the image corners, which then have no inverse. Drawing a cloud on its images raised ValueError (an API 500).
+    camera, _ = load_camera_info(SHARED_DATA / "vlp16_camera_checkerboard" / "camera.yaml")
+    k1, k2, k3, k4 = camera.dist[:4]
+    slope = np.polynomial.Polynomial([1, 0, 3 * k1, 0, 5 * k2, 0, 7 * k3, 0, 9 * k4])  # d theta_d / d theta
+    fold_theta = min(r.real for r in slope.roots() if abs(r.imag) < 1e-12 and r.real > 0)
+    assert np.degrees(fold_theta) < 50
+    assert visible_radius(camera) == pytest.approx(np.tan(fold_theta), rel=1e-3)
+
+    angles = np.radians(np.linspace(0, 80, 400))
+    points = np.column_stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)]) * 5.0
+    projection = project_cloud(points, np.eye(4), camera)
+    assert np.all(angles[projection.index] <= fold_theta) and len(projection) > 0.9 * np.sum(angles <= fold_theta)
+    drawn, _, _ = render_overlays([(np.zeros((camera.height, camera.width, 3), np.uint8), points, None)], np.eye(4),
+                                  camera, OverlayStyle())
+    assert drawn[0].any()

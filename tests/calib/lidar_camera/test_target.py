@@ -164,17 +164,28 @@ def test_degenerate_pose_set_raises():
     assert info.value.input == "poses"
 
 
-def test_pose_without_the_board_in_the_lidar_view_is_named(vlp16_poses):
+def test_a_pose_without_the_board_in_the_lidar_view_is_named_and_skipped(vlp16_poses):
     scan = LidarScene(include_board=False).scan_3d(T_BASE_LIDAR, rng=0)  # the floor is still in the region
-    observations = list(vlp16_poses[:4])
+    observations = list(vlp16_poses[:5])
     observations[2] = replace(observations[2], points_lidar=scan.points)
-    with pytest.raises(InputError, match="board was not found in the LiDAR cloud") as info:
-        solve_target(BOARD, observations, TRUTH, SETTINGS)
-    assert info.value.input == "pose 3"
+    result = solve_target(BOARD, observations, TRUTH, SETTINGS)
+    assert result.converged, result.warnings
+    assert [p["name"] for p in result.diagnostics["poses"]] == ["pose 1", "pose 2", "pose 4", "pose 5"]
+    [skipped] = result.diagnostics["skipped"]
+    assert skipped.startswith("pose 3: the board was not found in the LiDAR cloud: ")
+    assert f"{skipped}; skipped" in result.warnings
+    err_t, err_r = transform_error(result.T_parent_child, TRUTH)
+    assert np.all(np.abs(err_t) < 0.01) and np.all(np.abs(err_r) < 0.3)  # the other four still solve it
+
+    # Two usable of four (one more skipped by the caller): refused with the count and why each was skipped
+    with pytest.raises(InputError, match=r"^2 of 4 board poses are usable \(image_9.png: no board; pose 3: the "
+                       r"board was not found in the LiDAR cloud: .*\); at least 3 are needed") as info:
+        solve_target(BOARD, [observations[i] for i in (0, 1, 2)], TRUTH, SETTINGS, skipped=["image_9.png: no board"])
+    assert info.value.input == "poses"
 
 
 def test_too_few_poses_raise(vlp16_poses):
-    with pytest.raises(InputError, match="at least 3") as info:
+    with pytest.raises(InputError, match="^2 of 2 board poses are usable; at least 3") as info:
         solve_target(BOARD, vlp16_poses[:2], TRUTH, SETTINGS)
     assert info.value.input == "poses"
 
