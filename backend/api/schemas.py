@@ -170,7 +170,7 @@ class LidarCameraSolveRequest(FiniteModel):
     init_ypr_deg: Vector3 | None = deprecated("init.ypr_deg")
     fold_init = deprecated_pair("init", "init_xyz_m", "init_ypr_deg")
     plate_margin_m: float | None = Field(None, ge=0, description="the board plate's margin beyond the pattern (m); "
-                                                                  "default one square")
+                                                                  "default: estimated with the transform")
     translation_prior_m: float | None = Field(None, gt=0, description="edges, intensity: hold the initial "
                                                                        "translation as measured to this 1-sigma (m)")
     cross_check: bool = Field(False, description="edges, intensity: also solve with the other targetless method; "

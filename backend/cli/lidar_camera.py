@@ -27,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "agreement into the verdict")
     lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
     lc.add_argument("--plate-margin", type=float, metavar="M",
-                    help="how far the board's plate reaches beyond the pattern's outer corners (m, default one square)")
+                    help="how far the board's plate reaches beyond the pattern's outer corners (m); default: "
+                         "estimated with the transform from the scan lines that cross the plate")
     lc.add_argument("--translation-prior", type=float, metavar="M",
                     help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
                          "whose edges are all far away (they fix the rotation, hardly the translation); without it, "

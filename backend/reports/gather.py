@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 
 from backend.calib.board.detection import Detection
+from backend.calib.lidar_camera.service import session_pose_evidence
+from backend.calib.lidar_camera.target_evidence import PoseEvidence
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment
 from backend.calib.rig.graph import EdgeResidual, RigTree
 from backend.calib.rig.service import solve_rig
@@ -101,6 +103,11 @@ class EdgeReport:
     """LiDAR-LiDAR: cloud-to-cloud distances (m) of the inlier source points after the transform."""
     c2c_note: str = ""
     """How the distances were taken, or why they could not be."""
+    poses: list[PoseEvidence] = field(default_factory=list)
+    """LiDAR-camera target: each pose's board points against the plate outline at the result
+    (:func:`~backend.calib.lidar_camera.service.session_pose_evidence`)."""
+    poses_note: str = ""
+    """Why a target result's poses could not be shown, or empty."""
 
     @property
     def n_inputs(self) -> int:
@@ -217,6 +224,11 @@ def edge_report(session: Session, residual: EdgeResidual) -> EdgeReport:
     report = EdgeReport(residual, result, record)
     if result.kind == "lidar_lidar":
         report.c2c_m, report.c2c_note = c2c_distances(session, result, record.get("inputs", []))
+    if result.kind == "lidar_camera" and result.method == "target":
+        try:
+            report.poses = session_pose_evidence(session, record["sensor"], record["id"])
+        except InputError as error:
+            report.poses_note = f"{error.input}: {error.message}"
     return report
 
 

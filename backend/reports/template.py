@@ -201,6 +201,12 @@ TEMPLATE = """<!DOCTYPE html>
 {% if res.diagnostics %}<h4>Diagnostics</h4>{{ detail_tables(details(res.diagnostics)) }}{% endif %}
 {% if figures.units %}<figure><img src="{{ figures.units }}" alt="residuals per unit"><figcaption>The residual RMS
   of each unit the transform was solved from.</figcaption></figure>{% endif %}
+{% if figures.poses %}<figure><img src="{{ figures.poses }}" alt="per-pose evidence"><figcaption>Each board pose as
+  the LiDAR saw it, in the board's plane at the result: the face points coloured by their distance from the plane
+  the camera saw, the scan lines' ends (crosses), the fitted plate outline (solid) and the printed pattern (dashed);
+  above each, its fit and how far the solve without it moves the result (red: beyond 3 of the Jacobian's sigmas,
+  a pose to look at, drop and re-solve).</figcaption></figure>
+{% elif e.poses_note %}<p class="warn">No per-pose evidence: {{ e.poses_note }}.</p>{% endif %}
 {% if figures.c2c %}<figure><img src="{{ figures.c2c }}" alt="cloud-to-cloud histogram"><figcaption>Cloud-to-cloud
   distances recomputed from the capture pairs: {{ e.c2c_note }}.</figcaption></figure>
 {% elif e.c2c_note %}<p class="warn">No cloud-to-cloud histogram: {{ e.c2c_note }}.</p>{% endif %}

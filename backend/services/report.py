@@ -18,6 +18,7 @@ from backend.core.camera import DIST_NAMES
 from backend.core.verdict import Verdict
 from backend.plots import intrinsics as intrinsics_plots
 from backend.plots import rig as rig_plots
+from backend.plots.lidar_camera import pose_evidence_figure
 from backend.plots.lidar_lidar import c2c_histogram
 from backend.plots.render import to_data_uri
 from backend.reports.gather import CameraReport, EdgeReport, ReportData, gather
@@ -49,11 +50,14 @@ def intrinsics_parameters(camera: CameraReport) -> list[dict[str, Any]]:
 
 
 def transform_plots(edge: EdgeReport) -> dict[str, str | None]:
-    """An accepted transform's plots: ``units`` (residual RMS per pose, scene or set) and ``c2c`` (LiDAR-LiDAR)."""
+    """An accepted transform's plots: ``units`` (residual RMS per pose, scene or set), ``c2c`` (LiDAR-LiDAR) and
+    ``poses`` (LiDAR-camera target: each pose's board against the plate's outline)."""
     result = edge.result
     units = rig_plots.unit_residual_bars(result.diagnostics, result.parent, result.child)
     has_c2c = edge.c2c_m is not None and len(edge.c2c_m)
-    return {"units": to_data_uri(units) if units else None,
+    poses = pose_evidence_figure(edge.poses, f"{result.child} -> {result.parent}: each pose's board, in its plane, "
+                                 "at the result") if edge.poses else None
+    return {"units": to_data_uri(units) if units else None, "poses": to_data_uri(poses) if poses else None,
             "c2c": to_data_uri(c2c_histogram(edge.c2c_m, float(np.max(edge.c2c_m)),
                                              f"{result.child} -> {result.parent}: cloud-to-cloud distance"))
             if has_c2c else None}

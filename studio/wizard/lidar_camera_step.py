@@ -19,7 +19,8 @@ solve is kept in the result history with its before/after overlays (shown beside
 and its verdict; *Keep the sliders' transform* keeps the sliders' own as a result set by
 hand. The result card (:class:`~studio.result_card.ResultCard`) shows the picked result and
 accepts it into the rig graph after showing what moves (a ``check`` verdict only with
-*Confirm the check* ticked).
+*Confirm the check* ticked). A board result's poses are drawn under *Board poses*, each one's board against the
+plate with its fit and how far the solve without it moves the result; one can be dropped and the rest solved again.
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ from backend.core.result import StoredResult
 from backend.core.rig import edge_slot
 from backend.core.transforms import to_xyz_ypr, transform_points
 from backend.devices.image_io import read_image
+from backend.plots.lidar_camera import FLAG_SIGMAS as DROP_HINT_SIGMAS
+from backend.plots.lidar_camera import pose_evidence_figure
+from backend.plots.render import to_rgb
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.marks import WARNING
@@ -76,6 +80,26 @@ FULL_SIZE_LINK = ('<a href="{url}" target="calib_studio_overlay" rel="opener" st
 """A link styled as a button: one named tab, which opening the link again redraws with the sliders' newest pose."""
 
 
+NO_POSES = "A board (target) result shows its poses here: each one's board against the plate, its fit, and how " \
+    "far the solve without it moves the result."
+POSES_WIDTH_PX = 960
+"""Width of the poses' drawing in the panel (px)."""
+
+
+def poses_table(poses: list[dict], skipped: list[str]) -> str:
+    """A markdown table of a target result's poses (its ``diagnostics["poses"]``): points, fits and how far the solve
+    without each moves the result; then the poses skipped and why."""
+    rows = ["| pose | points | plane mm | ends mm | without it |", "|---|---|---|---|---|"]
+    for pose in poses:
+        moved = ("—" if pose.get("without_m") is None else
+                 f"{1000 * pose['without_m']:.1f} mm, {pose['without_deg']:.2f}° ({pose['without_sigmas']:.1f} σ)")
+        flag = f" {WARNING}" if (pose.get("without_sigmas") or 0.0) > DROP_HINT_SIGMAS else ""
+        rows.append(f"| {pose['name']}{flag} | {pose['plane_points']} + {pose['edge_points']} | "
+                    f"{1000 * pose['plane_rms_m']:.1f} | {1000 * pose['edge_rms_m']:.1f} | {moved} |")
+    rows += [f"\nSkipped: {reason}" for reason in skipped]
+    return "\n".join(rows)
+
+
 class LidarCameraStep:
     def __init__(self, ctx: StudioContext):
         self.ctx = ctx
@@ -88,6 +112,8 @@ class LidarCameraStep:
         self._draw_lock = threading.Lock()
         """Held by each redraw, so that leaving a session waits for the one in flight."""
         self._colourised = None
+        self._poses_shown = 0
+        """Counts the results whose poses were asked for, so that a slow drawing of an older one is not shown."""
         self.result_id: str | None = None
         self.redraws = 0
         """Overlays drawn so far (tests and the status line read it)."""
@@ -125,6 +151,15 @@ class LidarCameraStep:
             with gui.add_folder("Before / after", expand_by_default=False):
                 self.before_image = gui.add_image(PLACEHOLDER, label="Before", format="jpeg")
                 self.after_image = gui.add_image(PLACEHOLDER, label="After", format="jpeg")
+            with gui.add_folder("Board poses", expand_by_default=False):
+                self.poses_text = gui.add_markdown(NO_POSES)
+                self.poses_image = gui.add_image(PLACEHOLDER, label="Poses", format="png")
+                self.drop_pose = gui.add_dropdown("Pose to drop", options=[NONE],
+                                                  hint="a pose whose board points are not the board's (a hand, an "
+                                                       "arm, the person behind it), or that moves the result alone")
+                self.drop_button = gui.add_button("Drop it and re-solve",
+                                                  hint="solve again from this result's pairs without that pose")
+            self.jobs.also_disable(self.drop_button)
             self.colour_by = gui.add_dropdown("Colour by", options=list(COLOUR_MODES))
             self.window = gui.add_multi_slider("Range window (m)", min=0.0, max=100.0, step=0.5,
                                                initial_value=(0.5, 40.0))
@@ -143,6 +178,7 @@ class LidarCameraStep:
         self.capture_button.on_click(lambda _: self._capture())
         self.solve_button.on_click(lambda _: self._solve())
         self.keep_button.on_click(lambda _: self._keep())
+        self.drop_button.on_click(lambda _: self._drop_and_solve())
         self.paint_cloud.on_update(lambda _: self.ctx.show_step(STEP) if self.paint_cloud.value else None)
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_closing(self._close)
@@ -278,6 +314,7 @@ class LidarCameraStep:
         if session is None or pair is None or result_id is None:
             self.card.show(None, None)
             self.before_image.image = self.after_image.image = PLACEHOLDER
+            self._show_poses(None)
             return
         record = session.result(result_id)
         if move_sliders:
@@ -286,6 +323,48 @@ class LidarCameraStep:
         for name, handle in (("overlay_before.jpg", self.before_image), ("overlay_after.jpg", self.after_image)):
             stored = name in record.get("files", [])  # a transform set by hand has none
             handle.image = read_image(session.result_file(result_id, name))[..., ::-1] if stored else PLACEHOLDER
+        self._show_poses(record)
+
+    def _show_poses(self, record: dict | None) -> None:
+        """The board poses of a target result: each one's board drawn against the plate (on a worker thread: the
+        pairs are read back), the table of their fits and leave-one-out moves, and the poses to drop."""
+        self._poses_shown += 1
+        poses = [] if record is None else record.get("diagnostics", {}).get("poses", [])
+        if record is None or record.get("method") != "target" or not poses:
+            self.poses_text.content, self.poses_image.image, self.drop_pose.options = NO_POSES, PLACEHOLDER, [NONE]
+            return
+        self.poses_text.content = poses_table(poses, record.get("diagnostics", {}).get("skipped", []))
+        self.drop_pose.options = [pose["name"] for pose in poses]
+        self.drop_pose.value = max(poses, key=lambda pose: pose.get("without_sigmas") or 0.0)["name"]
+        shown, session, lidar, result_id = self._poses_shown, self.ctx.session, record["sensor"], record["id"]
+
+        def draw() -> None:
+            try:
+                evidence = lidar_camera_service.session_pose_evidence(session, lidar, result_id)
+                image = to_rgb(pose_evidence_figure(evidence, f"{result_id}: each pose's board at the result"),
+                               POSES_WIDTH_PX)
+            except InputError as exc:
+                image = PLACEHOLDER
+                self.poses_text.content += f"\n\n{WARNING} the poses cannot be drawn: {exc.input}: {exc.message}"
+            if shown == self._poses_shown:
+                self.poses_image.image = image
+
+        threading.Thread(target=draw, name="poses", daemon=True).start()
+
+    def _drop_and_solve(self) -> None:
+        """Solve again, by the board method from the shown result's transform, from its pairs less the chosen pose."""
+        session, pair, result_id, dropped = self.ctx.session, self.pair, self.result_id, self.drop_pose.value
+        if pair is None or result_id is None or dropped == NONE:
+            self.ctx.notify("Nothing to drop", "Show a board (target) result with its poses first.", error=True)
+            return
+        record = session.result(result_id)
+        kept = [p.image.id for p in self._stored_pairs() if p.name in record.get("inputs", []) and p.name != dropped]
+        T_init = StoredResult(record).edges[0].T_parent_child
+        self.ctx.show_step(STEP)
+        self.jobs.run(f"{pair[1]} to {pair[0]} (target) without {dropped}",
+                      lambda progress: lidar_camera_service.solve_session(
+                          session, *pair, method="target", T_init=T_init, image_ids=kept, progress=progress)[0],
+                      self._on_solved)
 
     def _keep(self) -> None:
         """Keep the sliders' transform as a result set by hand, judged on the captures on screen, and show it."""

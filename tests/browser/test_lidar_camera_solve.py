@@ -288,7 +288,44 @@ def test_solve_from_the_sliders(browser: Browser, studio: Studio) -> None:
         wait_body(page, re.compile(r"Accepted\.\s+"))
         page.get_by_text("Overlay", exact=True).scroll_into_view_if_needed()
         page.screenshot(path=ARTIFACTS / "studio_lidar_camera_solve_accepted.png")
-    session = studio.get("/api/sessions/demo")
-    assert session["accepted"][SLOT] == result_id, session["accepted"]
-    kinds = [r for r in studio.get("/api/sessions/demo/results") if r["kind"] == "lidar_camera"]
-    assert [r["id"] for r in kinds] == [result_id], f"a manual result was stored beside the solve: {kinds}"
+        session = studio.get("/api/sessions/demo")
+        assert session["accepted"][SLOT] == result_id, session["accepted"]
+        kinds = [r for r in studio.get("/api/sessions/demo/results") if r["kind"] == "lidar_camera"]
+        assert [r["id"] for r in kinds] == [result_id], f"a manual result was stored beside the solve: {kinds}"
+
+        # 6. The board poses: each one's board against the plate, its fit and leave-one-out move; the pose that
+        # moves the result most is offered to drop, and the rest solve again from the result.
+        _poses_dropped_and_solved_again(page, studio, record)
+
+
+def _poses_dropped_and_solved_again(page: Page, studio: Studio, record: dict) -> None:
+    poses = record["diagnostics"]["poses"]
+    assert [p["name"] for p in poses] == record["inputs"] and len(poses) == DEMO_PAIRS
+    assert all(p["without_sigmas"] is not None and p["plane_points"] > 30 for p in poses), poses
+    unfold(page, "Board poses", labelled_image(page, "Poses"))
+    worst = max(poses, key=lambda p: p["without_sigmas"])
+    expect(_visible(page, "Pose to drop")).to_have_value(worst["name"])
+    table = page.locator("table", has_text="without it").filter(visible=True)
+    expect(table.locator("tr")).to_have_count(DEMO_PAIRS + 1)
+    row = table.locator("tr", has_text=worst["name"]).inner_text()
+    assert f"{1000 * worst['without_m']:.1f} mm" in row and f"({worst['without_sigmas']:.1f} σ)" in row, row
+    drawing = labelled_image(page, "Poses")
+    poll(lambda: decoded_image(drawing).shape[1] == 960, lambda: "the poses were never drawn")
+    cv2.imwrite(str(ARTIFACTS / "studio_lidar_camera_poses.png"), decoded_image(drawing))
+    drawing.scroll_into_view_if_needed()
+    page.screenshot(path=ARTIFACTS / "studio_lidar_camera_poses_panel.png")
+
+    button(page, "Drop it and re-solve").click()
+    newest = poll(lambda: next((r for r in studio.get("/api/sessions/demo/results")
+                                if r["kind"] == "lidar_camera" and r["id"] != record["id"]), None),
+                  lambda: "the re-solve stored no result", timeout_s=120)
+    wait_body(page, re.compile(f"{newest['id']} \\(not accepted\\) · lidar_camera · target"))
+    resolved = studio.get(f"/api/sessions/demo/results/{newest['id']}")
+    assert resolved["inputs"] == [name for name in record["inputs"] if name != worst["name"]], resolved["inputs"]
+    assert [p["name"] for p in resolved["diagnostics"]["poses"]] == resolved["inputs"] and resolved["converged"]
+    moved_m, _ = _errors(np.array(resolved["T_parent_child"]), np.array(record["T_parent_child"]))
+    assert moved_m == pytest.approx(worst["without_m"], abs=3e-3), (moved_m, worst)  # what the table said
+    init_m, init_deg = _errors(np.array(resolved["diagnostics"]["T_init"]), np.array(record["T_parent_child"]))
+    assert init_m < 1e-6 and init_deg < 1e-6, "the re-solve did not start from the shown result"
+    print(f"dropped {worst['name']} ({worst['without_sigmas']:.1f} sigma): {newest['id']} moved "
+          f"{1000 * moved_m:.1f} mm")

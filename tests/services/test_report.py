@@ -134,13 +134,29 @@ def test_rig_section_lists_every_graph_edge_and_frame(session: Session, html: st
 
 def test_plots_are_inline_svg_and_nothing_is_fetched(html: str) -> None:
     images = re.findall(r'<img src="([^"]+)"', html)
-    assert len(images) == 4 + 2 + 2  # the camera's; LiDAR-LiDAR's C2C, LiDAR-camera's per-pose bars; graph, rig
+    assert len(images) == 4 + 3 + 2  # the camera's; LiDAR-LiDAR C2C, LiDAR-camera per-pose bars and poses; graph, rig
     for src in images:
         assert src.startswith("data:image/svg+xml;base64,")
         assert b"<svg" in base64.b64decode(src.split(",", 1)[1])[:2000]
     outside = re.sub(r'src="data:[^"]+"', "", html)
     assert not re.search(r'(src|href)="(?!#)|url\(|@import', outside)
     assert "default-src 'none'" in html
+
+
+def test_a_target_edge_shows_each_pose_at_the_result(session: Session, html: str) -> None:
+    (edge,) = [e for e in gather(session).edges if e.result.kind == "lidar_camera"]
+    fits = edge.result.diagnostics["poses"]
+    assert [p.name for p in edge.poses] == [fit["name"] for fit in fits] == edge.record["inputs"]
+    for pose, fit in zip(edge.poses, fits, strict=True):
+        assert pose.fit == fit and pose.missing is None
+        # found again at the result as the solve found them: the demo's points on its plate, within its outline
+        assert abs(len(pose.face_board) - fit["plane_points"]) <= 0.05 * fit["plane_points"]
+        assert np.sqrt(np.mean(pose.face_board[:, 2] ** 2)) == pytest.approx(fit["plane_rms_m"], rel=0.1)
+        inside = np.all(np.abs(pose.face_board[:, :2] - pose.plate_centre) <= pose.plate_half + 0.01, axis=1)
+        assert inside.mean() > 0.97  # 0.986 at worst: a few points of a tilted ring at a corner
+        assert len(pose.edges_board) == fit["edge_points"]
+    assert edge.result.diagnostics["plate_margin_m"] == pytest.approx(0.04, abs=0.01)  # one square, estimated
+    assert 'alt="per-pose evidence"' in section(html, "edges")
 
 
 def test_residuals_missing_from_a_record_are_recomputed(session: Session) -> None:

@@ -161,7 +161,7 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
             return
         ratio = std_spread / np.maximum(_diagnostic(result, "std_jacobian"), 1e-12)
         ratio_check(builder, "leave one of the poses out", ratio, MAX_SPREAD_RATIO,
-                    "the re-solves spread at most {ratio} times the Jacobian's sigma")
+                    "the re-solves spread at most {ratio} times the Jacobian's sigma", _worst_pose(result))
         return
     halves_offset = _diagnostic(result, "halves_offset")
     if halves_offset is None:
@@ -174,15 +174,27 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
                 "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
 
 
-def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str) -> None:
+def _worst_pose(result: TransformResult) -> str:
+    """``"; without <pose> it moves ..."``: the pose whose leave-one-out re-solve moves the target result most (its
+    ``diagnostics["poses"]`` entry), to look at first; empty without one."""
+    moved = [pose for pose in result.diagnostics.get("poses", []) if pose.get("without_sigmas") is not None]
+    if not moved:
+        return ""
+    worst = max(moved, key=lambda pose: pose["without_sigmas"])
+    return (f"; without {worst['name']} the result moves most: {1000 * worst['without_m']:.1f} mm, "
+            f"{worst['without_deg']:.2f} deg ({worst['without_sigmas']:.1f} of the Jacobian's sigmas)")
+
+
+def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: float, detail: str,
+                after: str = "") -> None:
     """A cross-check ``name`` that passes when every parameter's (6,) ``ratio`` (of :data:`TRANSFORM_PARAMETERS`) is
     at most ``limit``, which counts as :data:`~backend.core.verdict.CROSS_CHECK_SIGMAS` sigmas for the cross-check
-    rule; ``detail`` names the worst as ``{ratio}``, followed by the parameter and the limit."""
+    rule; ``detail`` names the worst as ``{ratio}``, followed by the parameter, the limit and ``after``."""
     ratio = np.where(np.isfinite(ratio), ratio, np.inf)
     worst = int(np.argmax(ratio))
     builder.cross_check_sigmas(name, float(ratio[worst]) * CROSS_CHECK_SIGMAS / limit,
                                detail.format(ratio=f"{ratio[worst]:.1f}") + f" ({TRANSFORM_PARAMETERS[worst]}), "
-                               f"limit {limit:g}")
+                               f"limit {limit:g}{after}")
 
 
 def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:

@@ -16,7 +16,7 @@ measured it) naming the image and cloud it was judged on. Either is accepted int
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ from backend.calib.lidar_camera.target import (
     camera_board_pose,
     solve_target,
 )
+from backend.calib.lidar_camera.target_evidence import PoseEvidence, pose_evidence
 from backend.calib.lidar_lidar.accumulation import accumulate_scans
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
@@ -54,8 +55,9 @@ METHODS = ("target", "edges", "intensity")
 TARGETLESS = ("edges", "intensity")
 """The targetless methods: each cross-checks the other on the same pairs."""
 DEFAULT_PLATE_MARGIN_SQUARES = 1.0
-"""The board's plate reaches this many squares beyond the pattern's outer corners unless told otherwise
-(a white border of one square, as printed boards usually have; the LiDAR sees the plate's edges)."""
+"""Unless told the plate margin, the target solve estimates it starting from this many squares beyond the
+pattern's outer corners (a white border of one square, as printed boards often have; the LiDAR sees the plate's
+edges)."""
 
 
 KIND = "lidar_camera"
@@ -90,12 +92,14 @@ def cli_summary(result: TransformResult) -> dict[str, Any]:
 
 
 def target_settings(board: BoardSpec, plate_margin_m: float | None = None) -> LidarCameraTargetSettings:
-    """The target solve's settings for ``board``, whose plate reaches ``plate_margin_m`` (m; default
-    :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares) beyond the pattern's outer corners."""
-    margin = DEFAULT_PLATE_MARGIN_SQUARES * board.square_m if plate_margin_m is None else plate_margin_m
-    if not margin >= 0:
-        raise InputError(f"expected a plate margin of 0 m or more, got {margin}", "--plate-margin")
-    return replace(LidarCameraTargetSettings(), plate_margin_m=float(margin))
+    """The target solve's settings for ``board``, whose plate reaches ``plate_margin_m`` (m) beyond the pattern's
+    outer corners; None estimates it with the transform, from :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares."""
+    if plate_margin_m is None:
+        return replace(LidarCameraTargetSettings(), plate_margin_m=DEFAULT_PLATE_MARGIN_SQUARES * board.square_m,
+                       solve_plate_margin=True)
+    if not plate_margin_m >= 0:
+        raise InputError(f"expected a plate margin of 0 m or more, got {plate_margin_m}", "--plate-margin")
+    return replace(LidarCameraTargetSettings(), plate_margin_m=float(plate_margin_m))
 
 
 PRIOR_SEARCH_SIGMAS = 2.5
@@ -284,6 +288,28 @@ def load_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] |
     return [PairData(p.name, p.name, session.capture_image(camera, p.image.id),
                      *session.capture_cloud(lidar, p.cloud.id),
                      Detection.from_dict(p.image.detection) if p.image.detection else None) for p in found]
+
+
+def session_pose_evidence(session: Session, lidar: str, result_id: str) -> list[PoseEvidence]:
+    """Each pose's evidence (:func:`~backend.calib.lidar_camera.target_evidence.pose_evidence`) of the stored target
+    result ``result_id`` of ``lidar``: its pairs read back, the board posed in each image with the camera's
+    intrinsics, the board's points found again at the result's transform with the solve's own settings.
+    :class:`InputError` naming ``result`` for another method's result."""
+    record = lidar_camera_record(session, lidar, result_id)
+    result = StoredResult(record).edges[0]
+    if result.method != "target":
+        raise InputError(f"result {result_id} is of the {result.method} method; only the board (target) method has "
+                         "poses", "result")
+    camera, board = camera_intrinsics(session, result.parent), session_board(session)
+    names = {pose["name"] for pose in result.diagnostics.get("poses", [])}
+    image_ids = [p.image.id for p in stored_pairs(session, result.parent, lidar) if p.name in names]
+    observations = []
+    for pair in load_pairs(session, result.parent, lidar, image_ids) if image_ids else []:
+        T_camera_board = camera_board_pose(pair.image, camera, board, name=pair.image_source, detection=pair.detection)
+        observations.append(TargetObservation(T_camera_board, pair.points, name=pair.name))
+    known = {f.name for f in fields(LidarCameraTargetSettings)}
+    settings = LidarCameraTargetSettings(**{k: v for k, v in result.settings.items() if k in known})
+    return pose_evidence(board, observations, result.diagnostics, result.T_parent_child, settings)
 
 
 def overlay_scene(session: Session, camera: str, lidar: str, image_id: str, cloud_id: str | None = None) -> PairData:

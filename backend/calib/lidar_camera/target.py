@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -69,7 +69,13 @@ class LidarCameraTargetSettings:
 
     plate_margin_m: float = 0.0
     """White border of the board's plate beyond the printed pattern, on every side (m). The plate's
-    outer edges are what the LiDAR sees; the demo board's plate has one square (0.04 m) of margin."""
+    outer edges are what the LiDAR sees; the demo board's plate has one square (0.04 m) of margin.
+    With ``solve_plate_margin`` it is where the estimate starts."""
+    solve_plate_margin: bool = False
+    """Estimate the plate margin with the transform (a seventh parameter, common to every pose): the scan lines
+    that cross the plate give its width. It is the border as the LiDAR sees it, its beam's footprint included
+    (on the real VLP-16 set 1.2 cm for a thin printed border; a wrong margin of one square, 5 cm, left the edge
+    points 37 mm RMS off the outline and the poses 2.5 times as spread)."""
     region_margins_m: tuple[float, ...] = (0.4, 0.1, 0.015)
     """Margin around the plate of the region searched for board points, in its plane and (added to
     ``plane_threshold_m``) along its normal, one segmentation round each (m). The first must cover
@@ -149,6 +155,14 @@ class PoseResiduals:
     edge_points: int
     plane_rms_m: float
     edge_rms_m: float
+    without_m: float | None = None
+    """How far the solve without this pose moves the result's translation (m, norm); None without a
+    leave-one-out re-solve."""
+    without_deg: float | None = None
+    """And its rotation (deg, angle of the rotation between the two)."""
+    without_sigmas: float | None = None
+    """The largest parameter move of that re-solve in the Jacobian's sigmas: a pose far beyond the rest's
+    :data:`~backend.calib.lidar_camera.checks.MAX_SPREAD_RATIO` pulls the result on its own."""
 
     def to_record(self) -> dict[str, Any]:
         return asdict(self)
@@ -191,19 +205,27 @@ def plate_centre_and_half_size(board: BoardSpec, plate_margin_m: float) -> tuple
 
 def _nearest_side(points_board: np.ndarray, centre: np.ndarray, half: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For board-frame points (at least x, y; m): the signed in-plane distance (m) to the nearest side
-    of the plate outline (positive outside), which board axis (0: x, 1: y) is across that side, and
-    the side's sign along it. Symmetric about the centre, so a half-turn flip of the board's axes
-    changes nothing."""
+    """For board-frame points (at least x, y; m): the signed in-plane distance (m) to the plate outline
+    (positive outside), which board axis (0: x, 1: y) is across the side it is measured to, and the
+    side's sign along it. Symmetric about the centre, so a half-turn flip of the board's axes changes
+    nothing.
+
+    The side is the one the point is furthest beyond (``max`` of the per-axis distances): inside the
+    plate, the nearest side; outside, the side it lies beyond. A scan line's end above the plate's
+    top corner is then as far off as it lies above the top, not on the side it ends at (the nearest
+    side by absolute distance left a whole scan line above the plate unpenalised, and the real VLP-16
+    set's upright boards, whose scan lines run parallel to the top and bottom, without any hold on
+    their height but the board normals' few degrees of spread)."""
     offset = points_board[:, :2] - centre
     d = np.abs(offset) - half
-    axis = (np.abs(d[:, 1]) < np.abs(d[:, 0])).astype(int)
+    axis = (d[:, 1] > d[:, 0]).astype(int)
     rows = np.arange(len(d))
     return d[rows, axis], axis, np.where(offset[rows, axis] < 0, -1.0, 1.0)
 
 
-def _edge_residuals(points_board: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """Signed in-plane distance (m) of board-frame points to the nearest side of the plate outline."""
+def outline_distance(points_board: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Signed in-plane distance (m) of (N, 2+) board-frame points to the outline of the plate of ``centre`` (2,)
+    and half size ``half`` (2,) (m; :func:`plate_centre_and_half_size`): positive outside, negative inside."""
     return _nearest_side(points_board, centre, half)[0]
 
 
@@ -431,7 +453,7 @@ class _Stacked:
         edge_camera = transform_points(T_camera_lidar, self.edge_points)
         plane = np.einsum("ni,ni->n", self.plane_normal, plane_camera) + self.plane_offset
         edge_xy = np.einsum("nij,nj->ni", self.edge_axes, edge_camera) + self.edge_offset
-        return plane, _edge_residuals(edge_xy, centre, half)
+        return plane, outline_distance(edge_xy, centre, half)
 
 
 def _edge_weight(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray) -> float:
@@ -443,40 +465,56 @@ def _edge_weight(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.
 
 def _solve(T_ref: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
            settings: LidarCameraTargetSettings):
-    """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.core.transforms.params_between`).
+    """``least_squares`` about ``T_ref`` (parameters as :func:`~backend.core.transforms.params_between`, and with
+    ``settings.solve_plate_margin`` a seventh: the plate margin's change (m), which widens ``half`` on every side).
 
     The Jacobian is analytic (a residual ``a . (R p + t) + c`` with ``R = R_ref Exp(w)`` has
-    ``d/dt = a`` and ``d/dw = -((R^T a) x p)^T J_r(w)``): finite differences would cost six more
-    residual evaluations per iteration, which the jackknife's re-solves multiply.
+    ``d/dt = a`` and ``d/dw = -((R^T a) x p)^T J_r(w)``; an edge residual moves by -1 per metre of margin):
+    finite differences would cost six more residual evaluations per iteration, which the jackknife's
+    re-solves multiply.
     """
+    margin = settings.solve_plate_margin
+
     def residuals(p: np.ndarray) -> np.ndarray:
-        plane, edges = stacked.residuals(apply_params(T_ref, p), centre, half)
+        plane, edges = stacked.residuals(apply_params(T_ref, p[:6]), centre, half + (p[6] if margin else 0.0))
         return np.concatenate([plane, edge_weight * edges])
 
     def jacobian(p: np.ndarray) -> np.ndarray:
-        T = apply_params(T_ref, p)
-        R, J_r = T[:3, :3], right_jacobian(p[3:])
+        T = apply_params(T_ref, p[:6])
+        R, J_r = T[:3, :3], right_jacobian(p[3:6])
         _, axis, sign = _nearest_side(np.einsum("nij,nj->ni", stacked.edge_axes,
                                                 transform_points(T, stacked.edge_points)) + stacked.edge_offset,
-                                      centre, half)
+                                      centre, half + (p[6] if margin else 0.0))
         across = edge_weight * sign[:, None] * stacked.edge_axes[np.arange(len(axis)), axis]
         rows = np.vstack([stacked.plane_normal, across])
         points = np.vstack([stacked.plane_points, stacked.edge_points])
-        return np.hstack([rows, -np.cross(rows @ R, points) @ J_r])
+        J = np.hstack([rows, -np.cross(rows @ R, points) @ J_r])
+        if not margin:
+            return J
+        return np.hstack([J, np.r_[np.zeros(len(stacked.plane_points)), np.full(len(axis), -edge_weight)][:, None]])
 
-    return least_squares(residuals, np.zeros(6), jac=jacobian, loss=settings.loss, f_scale=settings.loss_scale_m,
-                         max_nfev=settings.max_nfev, tr_solver="lsmr")
+    return least_squares(residuals, np.zeros(7 if margin else 6), jac=jacobian, loss=settings.loss,
+                         f_scale=settings.loss_scale_m, max_nfev=settings.max_nfev, tr_solver="lsmr")
 
 
-def _jackknife(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
-               settings: LidarCameraTargetSettings, progress: ProgressCallback) -> np.ndarray:
-    """Leave-one-pose-out jackknife std (6,) of the re-solves (:func:`~backend.core.result.jackknife_std`)."""
+def _leave_one_out(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: np.ndarray, edge_weight: float,
+                   settings: LidarCameraTargetSettings, progress: ProgressCallback) -> np.ndarray:
+    """(n, 6) the re-solves without each pose, as parameters about ``T`` (m along the camera's axes, rad about the
+    LiDAR's)."""
     n = int(stacked.plane_pose.max()) + 1
     estimates = []
     for k in range(n):
         progress(0.8 + 0.15 * k / n, f"spread: solving without pose {k + 1} of {n}")
-        estimates.append(_solve(T, stacked.without_pose(k), centre, half, edge_weight, settings).x)
-    return jackknife_std(np.array(estimates))
+        estimates.append(_solve(T, stacked.without_pose(k), centre, half, edge_weight, settings).x[:6])
+    return np.array(estimates)
+
+
+def _with_moves(poses: list[PoseResiduals], without: np.ndarray, std_jacobian: np.ndarray) -> list[PoseResiduals]:
+    """``poses`` with how far each one's leave-one-out re-solve (``without``, (n, 6) about the result) moves it."""
+    ratio = np.abs(without) / np.maximum(std_jacobian, 1e-12)
+    return [replace(pose, without_m=float(np.linalg.norm(move[:3])), without_deg=float(np.degrees(np.linalg.norm(
+                move[3:]))), without_sigmas=float(np.max(np.where(np.isfinite(r), r, np.inf))))
+            for pose, move, r in zip(poses, without, ratio, strict=True)]
 
 
 def _pose_names(observations: Sequence[TargetObservation]) -> list[str]:
@@ -526,8 +564,8 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1`` and ``std_spread`` (6,) of the
     leave-one-pose-out jackknife or None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
     ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run),
-    ``poses`` (each solved pose's :class:`PoseResiduals`, in input order) and ``skipped`` (why each other pose was
-    skipped, naming it).
+    ``poses`` (each solved pose's :class:`PoseResiduals`, in input order, with how far the solve without it moves
+    the result) and ``skipped`` (why each other pose was skipped, naming it).
     """
     settings = settings or LidarCameraTargetSettings()
     started = time.perf_counter()
@@ -539,7 +577,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
                        for o, name in zip(observations, names, strict=True)]
     clouds = [check_cloud(o.points_lidar, f"{name}: cloud")[0] for o, name in zip(observations, names, strict=True)]
     T_init, _ = check_transform(T_init, "T_init")
-    centre, half = plate_centre_and_half_size(board, settings.plate_margin_m)
+    margin_m = settings.plate_margin_m
     rng = np.random.default_rng(settings.seed)
 
     T, stacked, result, warnings, iterations, converged = T_init, None, None, [], 0, True
@@ -547,7 +585,9 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     for round_index, margin in enumerate(settings.region_margins_m):
         progress(0.8 * round_index / len(settings.region_margins_m),
                  f"round {round_index + 1}: finding the board in {len(clouds)} clouds ({margin} m region)")
-        found, lost = _find_boards(clouds, T_camera_boards, T, board, margin, settings, rng, names)
+        centre, half = plate_centre_and_half_size(board, margin_m)
+        at_margin = replace(settings, plate_margin_m=margin_m)
+        found, lost = _find_boards(clouds, T_camera_boards, T, board, margin, at_margin, rng, names)
         kept = [i for i, points in enumerate(found) if points is not None]
         if round_index > 0:  # the first round took something else for the board there (a person behind it, a wall)
             lost = [f"{message} (in round {round_index + 1}, about the refined estimate: in round 1 something else "
@@ -565,7 +605,10 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
             edge_weight = _edge_weight(T, stacked, centre, half)
         result = _solve(T, stacked, centre, half, edge_weight, settings)
         iterations += int(result.nfev)
-        T = apply_params(T, result.x)
+        T = apply_params(T, result.x[:6])
+        if settings.solve_plate_margin:
+            margin_m += float(result.x[6])
+            half = plate_centre_and_half_size(board, margin_m)[1]
         if result.status <= 0:
             warnings.append(f"round {round_index + 1}: least squares stopped without converging "
                             f"({result.message}); not accepted")
@@ -575,7 +618,8 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     assert stacked is not None and result is not None  # region_margins_m is not empty
     warnings[:0] = [f"{message}; skipped" for message in skipped]
     # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
-    cov_j = jacobian_covariance(result)
+    cov_all = jacobian_covariance(result, len(result.x))
+    cov_j = cov_all[:6, :6]
     std_spread = None
     residuals, poses = _fit_statistics(T, stacked, centre, half, names)
     if residuals["plane_rms_m"] > settings.max_plane_rms_m:
@@ -583,7 +627,9 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
                         f"{settings.max_plane_rms_m * 1000:.1f} mm; not accepted")
         converged = False
     if settings.spread and converged:
-        std_spread = _jackknife(T, stacked, centre, half, edge_weight, settings, progress)
+        without = _leave_one_out(T, stacked, centre, half, edge_weight, settings, progress)
+        std_spread = jackknife_std(without)
+        poses = _with_moves(poses, without, sigmas(cov_j))
     progress(1.0, "done")
     return TransformResult(
         kind="lidar_camera", method="target", parent="camera", child="lidar",
@@ -592,7 +638,10 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
         residuals=residuals,
         diagnostics={"std_jacobian": finite_or_none(sigmas(cov_j)),
                      "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
-                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses], "skipped": skipped},
+                     "rounds": round_index + 1, "poses": [p.to_record() for p in poses], "skipped": skipped,
+                     "plate_margin_m": margin_m,
+                     "plate_margin_std_m": finite_or_none(sigmas(cov_all)[6:])[0] if settings.solve_plate_margin
+                     else None},
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,

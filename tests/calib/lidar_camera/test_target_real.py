@@ -16,7 +16,8 @@ import pytest
 
 from backend.calib.board.detection import detect_board
 from backend.calib.lidar_camera import service
-from backend.calib.lidar_camera.target import camera_board_pose
+from backend.calib.lidar_camera.target import camera_board_pose, find_board_points
+from backend.calib.lidar_camera.target_evidence import share_in_image_outline
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, invert, make_T, transform_error, transform_points
@@ -80,6 +81,33 @@ def test_the_verdict_follows_the_cross_check_rule_on_the_real_set(real_pairs) ->
         assert result.verdict.level == "reject", result.verdict.reasons
     elif sigmas > CROSS_CHECK_SIGMAS:
         assert result.verdict.level != "trusted", result.verdict.reasons
+    if sigmas > CROSS_CHECK_SIGMAS:  # the failed check names the pose to look at first
+        worst = max(result.diagnostics["poses"], key=lambda pose: pose["without_sigmas"])
+        assert f"; without {worst['name']} the result moves most: " in reason, reason
+
+
+def test_the_result_puts_the_board_points_on_the_board_the_camera_saw(real_pairs) -> None:
+    # A check in the image, apart from the solve's own residuals: the share of each pose's board points that a
+    # transform projects inside the board's outline as the camera saw it. With the set's own intrinsics the three
+    # reference runs put the scan lines 20-110 px above the board (their vertical translation rests on the board
+    # normals' few degrees of vertical spread): shares 0.72-0.79 against the result's 0.91 (hand and arm points
+    # fall outside at any transform).
+    result = solve(real_pairs)
+    margin_m = result.diagnostics["plate_margin_m"]
+    assert 0.005 < margin_m < 0.025  # a thin printed border, and the beam's footprint: 14 mm
+    board = BoardSpec.parse(BOARD)
+    settings = replace(service.target_settings(board), plate_margin_m=margin_m)
+    transforms = [result.T_parent_child, *reference_runs()]
+    shares = []
+    for pair in real_pairs:
+        T_camera_board = camera_board_pose(pair.image, CAMERA, board, detection=pair.detection)
+        found = np.unique(np.vstack([find_board_points(pair.points, T_camera_board, T, board, 0.15, settings,
+                                                       np.random.default_rng(0), pair.name).plane
+                                     for T in transforms]), axis=0)
+        shares.append([share_in_image_outline(found, T, T_camera_board, CAMERA, board, margin_m) for T in transforms])
+    mean = np.mean(shares, axis=0)
+    print(f"board points inside the board in the image: result {mean[0]:.2f}, runs {np.round(mean[1:], 2)}")
+    assert mean[0] > 0.85 and np.all(mean[0] > mean[1:] + 0.05), mean
 
 
 # ---------------------------------------------------------------- bad input, on the real set
