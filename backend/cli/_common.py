@@ -133,6 +133,14 @@ def read_init(args: argparse.Namespace):
     return None
 
 
+def parse_floats(text: str) -> list[float]:
+    """The comma-separated numbers of ``text``; an empty list when one is not a number."""
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        return []
+
+
 def parse_xyzypr(text: str, option: str):
     """The 4x4 transform (m) of ``x,y,z,yaw,pitch,roll`` (m, then ROS yaw, pitch, roll in degrees); an
     :class:`InputError` naming ``option`` for anything else."""
@@ -140,10 +148,7 @@ def parse_xyzypr(text: str, option: str):
 
     from backend.core.transforms import from_xyz_ypr
 
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
+    values = parse_floats(text)
     if len(values) != 6 or not np.isfinite(values).all():
         raise InputError(f"expected six comma-separated numbers x,y,z (m),yaw,pitch,roll (deg), got {shorten(text)}",
                          option)

@@ -8,7 +8,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from backend.cli._common import init_name, parse_pairs, prints_summary, progress_to_stderr, read_init
+from backend.cli._common import (
+    init_name,
+    parse_floats,
+    parse_pairs,
+    prints_summary,
+    progress_to_stderr,
+    read_init,
+)
 from backend.core.errors import InputError
 
 
@@ -29,6 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lc.add_argument("--plate-margin", type=float, metavar="M",
                     help="how far the board's plate reaches beyond the pattern's outer corners (m); default: "
                          "estimated with the transform from the scan lines that cross the plate")
+    lc.add_argument("--intrinsics-std", metavar="FX,FY,CX,CY,D1,...",
+                    help="target: the 1-sigma of the camera's intrinsics (px: fx, fy, cx, cy; then each distortion "
+                         "coefficient), carried into the board poses and the result's sigma")
     lc.add_argument("--translation-prior", type=float, metavar="M",
                     help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
                          "whose edges are all far away (they fix the rotation, hardly the translation); without it, "
@@ -42,6 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
     from backend.calib.lidar_camera.service import cli_summary, solve_files
     from backend.core.boards import BoardSpec
     from backend.core.transforms import check_transform
@@ -57,8 +68,10 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
                          "--init or --init-xyzypr", "--init")
     check_transform(T_init, init_name(args))
     board = BoardSpec.parse(args.board) if args.board else None
+    lens = None if args.intrinsics_std is None else LensUncertainty.from_sigmas(
+        camera, parse_floats(args.intrinsics_std), "--intrinsics-std")
     result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,
-                         translation_prior_m=args.translation_prior, cross_check=args.cross_check,
+                         translation_prior_m=args.translation_prior, cross_check=args.cross_check, lens=lens,
                          progress=progress_to_stderr(False))
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)

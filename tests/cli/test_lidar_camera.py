@@ -112,6 +112,8 @@ def test_bad_input_exits_non_zero_naming_it(recording, tmp_path):
         ([f"{blank}:{cloud}", "--board", DEMO_BOARD, "--init", init], "poses",
          f"0 of 1 board poses are usable ({blank}: the board {DEMO_BOARD} was not found in the image)"),
         ([pairs[0], "--init", init], "--board", "needs the board"),
+        ([pairs[0], "--board", DEMO_BOARD, "--init", init, "--intrinsics-std", "1,2"], "--intrinsics-std",
+         "expected 9 sigmas of 0 or more, for fx, fy, cx, cy, k1, k2, p1, p2, k3"),
         ([pairs[0], "--board", DEMO_BOARD], "--init", "initial T_camera_lidar"),
         (["no-colon-here", "--board", DEMO_BOARD, "--init", init], "--pair", "IMAGE:CLOUD"),
         ([f"{blank}:{cloud}", "--init", init, "--method", "edges"], f"blank.png:{Path(cloud).name}: image",

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from backend.calib._session import check_camera, check_lidar, result_of, session_board
-from backend.calib.board.detection import Detection
+from backend.calib.board.detection import Detection, detect_board
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
 from backend.calib.lidar_camera.checks import MANUAL_VERDICT, CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
@@ -32,6 +32,7 @@ from backend.calib.lidar_camera.intensity import (
     LidarCameraIntensitySettings,
     solve_intensity,
 )
+from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
 from backend.calib.lidar_camera.target import (
     LidarCameraTargetSettings,
     TargetObservation,
@@ -186,11 +187,13 @@ def read_pair_files(pairs: Sequence[tuple[Path, Path | Sequence[Path]]],
 def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
                 *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
-                progress: ProgressCallback = no_progress) -> TransformResult:
+                lens: LensUncertainty | None = None, progress: ProgressCallback = no_progress) -> TransformResult:
     """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
 
     ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
-    beyond the pattern's outer corners (m), default :data:`DEFAULT_PLATE_MARGIN_SQUARES` squares.
+    beyond the pattern's outer corners (m; default: estimated, :func:`target_settings`); ``lens``: the camera's
+    intrinsics' sigmas, carried into the board poses and so into the result's sigma (else the result says they
+    are not known).
     ``method="edges"`` is targetless (:func:`~backend.calib.lidar_camera.edges.solve_edges`): it aligns the
     edges of ordinary scenes and takes the clouds' intensities, where there are any, for reflectivity edges;
     ``translation_prior_m``: see :func:`edges_settings`. ``method="intensity"`` is targetless too
@@ -218,14 +221,21 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     observations, skipped = [], []
     for i, p in enumerate(pairs):
         progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
+        detection = p.detection if p.detection is not None else detect_board(p.image, board)
         try:
-            T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=p.detection)
+            T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=detection)
         except InputError as error:
             skipped.append(f"{error.input}: {error.message}")
             continue
-        observations.append(TargetObservation(T_camera_board, p.points, name=p.name))
+        observations.append(TargetObservation(T_camera_board, p.points, name=p.name, T_camera_board_lens=None if (
+            lens is None) else lens.board_poses(camera, board, detection)))
     result = solve_target(board, observations, T_init, settings,
-                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message), skipped)
+                          lambda fraction, message: progress(0.3 + 0.7 * fraction, message), skipped,
+                          None if lens is None else lens.correlation)
+    result.diagnostics["lens_uncertainty"] = (
+        f"carried into the board poses, from {lens.source} ({', '.join(lens.names)})" if lens is not None else
+        "not known: the result's sigma leaves out the camera's intrinsics' own (give their sigmas, or accept the "
+        "camera's intrinsics from a solve)")
     judge(result)
     return result
 
@@ -264,13 +274,13 @@ def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs
 def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
                 T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
-                progress: ProgressCallback = no_progress) -> TransformResult:
+                lens: LensUncertainty | None = None, progress: ProgressCallback = no_progress) -> TransformResult:
     """:func:`solve_pairs` on (image, cloud) files of the same moments (a pair's cloud may be several scans: see
     :func:`read_pair_files`)."""
     check_method(method, "--method", cross_check)
     return solve_pairs(camera, board, read_pair_files(pairs, progress), T_init, method=method,
                        plate_margin_m=plate_margin_m, translation_prior_m=translation_prior_m,
-                       cross_check=cross_check, progress=progress)
+                       cross_check=cross_check, lens=lens, progress=progress)
 
 
 OVERLAY_PAIRS = 4
@@ -378,8 +388,10 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
     T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
     loaded = load_pairs(session, camera, lidar, image_ids)
     board = session_board(session) if method == "target" else None
+    lens_result = session.accepted(f"{camera}/intrinsics")
+    lens = None if lens_result is None else LensUncertainty.from_record(session.result(lens_result))
     result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,
-                         translation_prior_m=translation_prior_m, cross_check=cross_check,
+                         translation_prior_m=translation_prior_m, cross_check=cross_check, lens=lens,
                          progress=lambda fraction, message: progress(0.9 * fraction, message))
     progress(0.95, "drawing the before/after overlays")
     files = overlay_files(loaded, intrinsics, np.asarray(T_init, float), result.T_parent_child)

@@ -21,7 +21,10 @@ LiDAR's cloud. Pipeline, as in the issue:
 3. Uncertainty: ``sigma^2 (J^T J)^-1`` at the solution and the leave-one-pose-out
    jackknife; the larger sigma per parameter is reported (poses are the independent
    units: the board's flatness, its pose error from PnP and the LiDAR's range bias move
-   all points of a pose together, which a per-point noise model cannot see).
+   all points of a pose together, which a per-point noise model cannot see). With the camera's intrinsics'
+   sigmas (each pose's ``T_camera_board_lens``), the lens's share is added: the solve re-run with every board
+   pose from PnP with each intrinsic parameter moved by its 1-sigma (:func:`_lens_covariance`), so that a loosely
+   known lens widens the result's sigma instead of hiding in it.
 
 Parameters, covariance and sigmas follow :func:`backend.core.transforms.params_between`:
 ``[t_x, t_y, t_z]`` (m, along the camera's optical axes) and ``[r_x, r_y, r_z]`` (rad; reported
@@ -131,6 +134,10 @@ class TargetObservation:
     """(N, 3) LiDAR cloud in the LiDAR frame (m); extra columns (intensity) are ignored."""
     name: str = ""
     """How errors name this pose (e.g. ``"image_03.png:cloud_03.pcd"``); ``"pose i"`` when empty."""
+    T_camera_board_lens: np.ndarray | None = None
+    """(P, 4, 4) the board pose with each of P intrinsic parameters moved by its 1-sigma
+    (:meth:`~backend.calib.lidar_camera.lens_uncertainty.LensUncertainty.board_poses`), or None: the lens's own
+    uncertainty is then not carried into the result."""
 
 
 @dataclass
@@ -517,6 +524,20 @@ def _with_moves(poses: list[PoseResiduals], without: np.ndarray, std_jacobian: n
             for pose, move, r in zip(poses, without, ratio, strict=True)]
 
 
+def _lens_covariance(T: np.ndarray, lens_poses: list[np.ndarray], found: list[BoardPoints],
+                     correlation: np.ndarray | None, centre: np.ndarray, half: np.ndarray, edge_weight: float,
+                     settings: LidarCameraTargetSettings) -> np.ndarray:
+    """(6, 6) the lens's share of the covariance: for each intrinsic parameter, the solve re-run (at the board points
+    ``found`` of each pose, from ``T``) with every pose's board from PnP with that parameter moved by its 1-sigma
+    (``lens_poses``: (P, 4, 4) per pose), the moves combined with the parameters' (P, P) ``correlation`` (identity
+    when None): ``M C M^T`` with ``M`` the (6, P) moves."""
+    n_parameters = len(lens_poses[0])
+    moves = np.array([_solve(T, _Stacked.build([invert(poses[i]) for poses in lens_poses], found), centre, half,
+                             edge_weight, settings).x[:6] for i in range(n_parameters)]).T
+    correlation = np.eye(n_parameters) if correlation is None else np.asarray(correlation, float)
+    return moves @ correlation @ moves.T
+
+
 def _pose_names(observations: Sequence[TargetObservation]) -> list[str]:
     return [o.name or f"pose {i + 1}" for i, o in enumerate(observations)]
 
@@ -541,7 +562,8 @@ def _fit_statistics(T: np.ndarray, stacked: _Stacked, centre: np.ndarray, half: 
 
 def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_init: np.ndarray,
                  settings: LidarCameraTargetSettings | None = None,
-                 progress: ProgressCallback = no_progress, skipped: Sequence[str] = ()) -> TransformResult:
+                 progress: ProgressCallback = no_progress, skipped: Sequence[str] = (),
+                 lens_correlation: np.ndarray | None = None) -> TransformResult:
     """Estimate ``T_camera_lidar`` (maps LiDAR points into the camera's optical frame, m) from board poses.
 
     ``observations`` pair each pose's camera board pose with its LiDAR cloud; ``T_init`` is the
@@ -561,8 +583,10 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     (larger-per-parameter) sigmas with the Jacobian's correlations. ``residuals``: ``plane_rms_m``,
     ``plane_median_m``, ``plane_p95_m`` (absolute point-to-plane distances), ``edge_rms_m`` (edge points to the
     plate outline, in the board plane) and ``per_pose_rms_m`` (point-to-plane RMS of each pose), all in m.
-    ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1`` and ``std_spread`` (6,) of the
-    leave-one-pose-out jackknife or None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
+    ``diagnostics``: ``std_jacobian`` (6,) from ``sigma^2 (J^T J)^-1``, ``std_spread`` (6,) of the
+    leave-one-pose-out jackknife or None and ``std_lens`` (6,), the lens's share (:func:`_lens_covariance`, added to
+    the covariance) when every pose carries ``T_camera_board_lens`` (``lens_correlation``: the intrinsic
+    parameters' correlation), else None (m, m, m, rad, rad, rad; None where undetermined), ``T_init``,
     ``iterations`` (residual evaluations over all rounds), ``rounds`` (segmentation + solve rounds run),
     ``poses`` (each solved pose's :class:`PoseResiduals`, in input order, with how far the solve without it moves
     the result) and ``skipped`` (why each other pose was skipped, naming it).
@@ -576,6 +600,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     T_camera_boards = [check_transform(o.T_camera_board, f"{name}: T_camera_board")[0]
                        for o, name in zip(observations, names, strict=True)]
     clouds = [check_cloud(o.points_lidar, f"{name}: cloud")[0] for o, name in zip(observations, names, strict=True)]
+    lens_poses = [o.T_camera_board_lens for o in observations]
     T_init, _ = check_transform(T_init, "T_init")
     margin_m = settings.plate_margin_m
     rng = np.random.default_rng(settings.seed)
@@ -594,8 +619,8 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
                     "near it was taken for the board)" for message in lost]
         skipped += lost
         _check_pose_count(len(kept), total, skipped)
-        names, T_camera_boards, clouds, found = ([items[i] for i in kept]
-                                                 for items in (names, T_camera_boards, clouds, found))
+        names, T_camera_boards, clouds, found, lens_poses = (
+            [items[i] for i in kept] for items in (names, T_camera_boards, clouds, found, lens_poses))
         if round_index == 0:
             _check_normals(T_camera_boards, settings.min_normal_eigenvalue)
         stacked = _Stacked.build([invert(T_cb) for T_cb in T_camera_boards], found)
@@ -630,14 +655,21 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
         without = _leave_one_out(T, stacked, centre, half, edge_weight, settings, progress)
         std_spread = jackknife_std(without)
         poses = _with_moves(poses, without, sigmas(cov_j))
+    cov_lens = None
+    if converged and all(poses_p is not None for poses_p in lens_poses):
+        progress(0.97, "carrying the lens's uncertainty into the board poses")
+        cov_lens = _lens_covariance(T, lens_poses, found, lens_correlation, centre, half, edge_weight, settings)
     progress(1.0, "done")
+    covariance = widen_covariance(cov_j, std_spread)
     return TransformResult(
         kind="lidar_camera", method="target", parent="camera", child="lidar",
         T_parent_child=T,
-        covariance=widen_covariance(cov_j, std_spread),
+        covariance=covariance if cov_lens is None else covariance + cov_lens,
         residuals=residuals,
         diagnostics={"std_jacobian": finite_or_none(sigmas(cov_j)),
-                     "std_spread": finite_or_none(std_spread), "T_init": T_init.tolist(), "iterations": iterations,
+                     "std_spread": finite_or_none(std_spread),
+                     "std_lens": None if cov_lens is None else finite_or_none(sigmas(cov_lens)),
+                     "T_init": T_init.tolist(), "iterations": iterations,
                      "rounds": round_index + 1, "poses": [p.to_record() for p in poses], "skipped": skipped,
                      "plate_margin_m": margin_m,
                      "plate_margin_std_m": finite_or_none(sigmas(cov_all)[6:])[0] if settings.solve_plate_margin

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.board.detection import detect_board
 from backend.calib.lidar_camera.checks import TOLERANCES, judge
+from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
 from backend.calib.lidar_camera.service import cli_summary
 from backend.calib.lidar_camera.target import (
     LidarCameraTargetSettings,
@@ -253,3 +255,54 @@ def test_the_outline_distance_of_a_point_beyond_a_side_is_how_far_beyond_it():
         [-0.10, -0.10],  # beyond a corner: 0.05 beyond -x (and 0.05 beyond -y)
     ])
     np.testing.assert_allclose(outline_distance(points, centre, half), [-0.175, -0.05, 0.08, 0.02, 0.05], atol=1e-12)
+
+
+@pytest.mark.slow
+def test_a_loosely_known_lens_widens_the_sigma_instead_of_hiding_in_it():
+    # The boards are photographed by the true cam_front, but posed by PnP with a principal point 10 px off (a lens
+    # known to +-5 px): every pose moves together, which the poses' spread cannot see. Measured on 16 poses: 15.5 mm
+    # and 0.31 deg off, 3.2 and 3.5 of the sigmas without the lens, 1.6 and 1.4 with it.
+    T_base_boards = moving_board_poses(16, seed=6)
+    rng = np.random.default_rng(7)
+    off = replace(CAM_FRONT, K=CAM_FRONT.K + np.array([[0, 0, 10.0], [0, 0, -10.0], [0, 0, 0]]))
+    lens = LensUncertainty.from_sigmas(off, [2.0, 2.0, 5.0, 5.0, 0, 0, 0, 0, 0], "test")
+    observations = []
+    for i, T_base_board in enumerate(T_base_boards):
+        image = render_board_image(CAM_FRONT, BOARD, invert(T_BASE_CAMERA) @ T_base_board, rng)
+        scan = LidarScene(board_pose=T_base_board).scan_3d(T_BASE_LIDAR, beams=64, rng=rng)
+        detection = detect_board(image, BOARD)
+        observations.append(TargetObservation(camera_board_pose(image, off, BOARD, detection=detection), scan.points,
+                                              f"pose {i + 1}", lens.board_poses(off, BOARD, detection)))
+    blind = solve_target(BOARD, [replace(o, T_camera_board_lens=None) for o in observations], initial_guess(8),
+                         SETTINGS)
+    seeing = solve_target(BOARD, observations, initial_guess(8), SETTINGS, lens_correlation=lens.correlation)
+    blind_error, blind_sigma = errors_and_sigmas(blind, TRUTH)
+    error, sigma = errors_and_sigmas(seeing, TRUTH)
+    print(f"lens 10 px off: error {np.round(1000 * error[:3], 1)} mm {np.round(error[3:], 3)} deg; sigma without the "
+          f"lens {np.round(1000 * blind_sigma[:3], 1)} mm {np.round(blind_sigma[3:], 3)} deg, with it "
+          f"{np.round(1000 * sigma[:3], 1)} mm {np.round(sigma[3:], 3)} deg")
+    np.testing.assert_allclose(seeing.T_parent_child, blind.T_parent_child)  # the same estimate, another sigma
+    assert blind.diagnostics["std_lens"] is None and seeing.diagnostics["std_lens"] is not None
+    np.testing.assert_allclose(sigma**2, blind_sigma**2 + np.array(seeing.diagnostics["std_lens"]) ** 2
+                               * np.r_[1, 1, 1, [np.degrees(1) ** 2] * 3], rtol=1e-6)
+    assert np.any(np.abs(blind_error) > 3 * blind_sigma)  # the lens's error hid in a confident result
+    assert np.all(np.abs(error) <= 3 * sigma)  # carried, it is covered
+
+
+def test_the_lens_sigmas_come_from_an_intrinsics_record_with_their_correlation():
+    record = {"id": "r0007", "camera": {"model": "pinhole-radtan"},
+              "std": {"fx": 0.5, "fy": 0.6, "cx": 0.3, "cy": None, "dist": [0.01, 0.02, 0.0, 0.0, None]},
+              "correlation": {"names": ["fx", "fy", "cx", "k1", "k2"],
+                              "matrix": [[1, 0.9, 0.1, 0.2, 0.0], [0.9, 1, 0.0, 0.0, 0.0], [0.1, 0.0, 1, 0.0, 0.0],
+                                         [0.2, 0.0, 0.0, 1, -0.8], [0.0, 0.0, 0.0, -0.8, 1]]}}
+    lens = LensUncertainty.from_record(record)
+    assert lens.names == ["fx", "fy", "cx", "k1", "k2"] and lens.source == "r0007"  # unestimated ones left out
+    np.testing.assert_allclose(lens.sigma, [0.5, 0.6, 0.3, 0.01, 0.02])
+    assert lens.correlation[0, 1] == 0.9 and lens.correlation[3, 4] == -0.8
+    moved = lens.moved(CAM_FRONT)
+    assert moved[1].K[1, 1] == CAM_FRONT.K[1, 1] + 0.6 and moved[4].dist[1] == CAM_FRONT.dist[1] + 0.02
+    assert LensUncertainty.from_record({"camera": {"model": "pinhole-radtan"}, "std": {}}) is None
+    with pytest.raises(InputError, match=r"expected 9 sigmas of 0 or more, for fx, fy, cx, cy, k1, k2, p1, p2, k3 "
+                       r"\(pinhole-radtan\); got \[1.0, 2.0\]") as info:
+        LensUncertainty.from_sigmas(CAM_FRONT, [1.0, 2.0], "--intrinsics-std")
+    assert info.value.input == "--intrinsics-std"
