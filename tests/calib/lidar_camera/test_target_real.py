@@ -16,6 +16,7 @@ import pytest
 
 from backend.calib.board.detection import detect_board
 from backend.calib.lidar_camera import service
+from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
 from backend.calib.lidar_camera.target import camera_board_pose, find_board_points
 from backend.calib.lidar_camera.target_evidence import share_in_image_outline
 from backend.core.boards import BoardSpec
@@ -84,6 +85,20 @@ def test_the_verdict_follows_the_cross_check_rule_on_the_real_set(real_pairs) ->
     if sigmas > CROSS_CHECK_SIGMAS:  # the failed check names the pose to look at first
         worst = max(result.diagnostics["poses"], key=lambda pose: pose["without_sigmas"])
         assert f"; without {worst['name']} the result moves most: " in reason, reason
+
+
+def test_with_the_lens_sigma_the_set_states_the_sigma_covers_the_reference_runs(real_pairs) -> None:
+    # The set's README: the intrinsics are "weakly determined (kc sigma up to 37, fc sigma 25 px)". Carried into the
+    # board poses (fx and fy alone, uncorrelated), they widen the sigma to cover the runs: 0.6-0.85 sigmas away
+    # (5 or more without them).
+    fc_sigma_px = float(re.search(r"fc σ (\d+) px", (VLP16 / "README.md").read_text()).group(1))
+    lens = LensUncertainty.from_sigmas(CAMERA, [fc_sigma_px, fc_sigma_px, 0, 0, 0, 0, 0, 0], "the set's README")
+    result = service.solve_pairs(CAMERA, BoardSpec.parse(BOARD), real_pairs, start(), lens=lens)
+    assert result.diagnostics["lens_uncertainty"].startswith("carried into the board poses, from the set's README")
+    for T_run in reference_runs():
+        trans_m, rot_deg = transform_error(result.T_parent_child, T_run)
+        assert np.all(np.abs(np.r_[trans_m, np.radians(rot_deg)]) <= 3 * result.std_vector), (trans_m, rot_deg)
+    assert result.verdict.level != "trusted"
 
 
 def test_the_result_puts_the_board_points_on_the_board_the_camera_saw(real_pairs) -> None:
