@@ -40,7 +40,7 @@ def test_report_opens_offline_with_every_section_and_prints(browser: Browser, re
             expect(heading).to_have_text(title)
             expect(heading).to_be_visible()
         images = page.locator("img")
-        assert images.count() == 8  # as test_report counts them
+        assert images.count() == 9  # as test_report counts them
         for k in range(images.count()):  # every plot decoded and laid out
             assert images.nth(k).evaluate("img => img.complete && img.naturalWidth > 0")
         assert requests == [report_file.as_uri()]
