@@ -28,9 +28,11 @@ Solvers and what varies per seed ``s`` (seed 0 is the data of the tests named):
 - ``lidar_lidar``: ``register_pair`` with the default settings (Hessian sigma widened by the azimuth-sector
   jackknife) on one VLP-16-like pair of the yard (``scan_pair(scene, s)``: noise and spin phase), from 20 cm and
   10 deg off (``perturbed(T_TRUE, s, 0.20, 10.0)``), as ``tests/calib/lidar_lidar/test_gicp.py``;
-- ``multicam``: ``calibrate_multicam`` on the six-camera ring (``simulated_ring(6, 245, seed=s)``: mounts and board
-  walk) with 0.3 px corner noise (seed s + 1), as ``tests/calib/multicam/conftest.py``; parameters are the six
-  of each camera but the reference cam0.
+- ``multicam``: ``calibrate_multicam`` on the tests' six-camera ring (``simulated_ring(6, 245, seed=0)``, 40 deg
+  apart, a chain cam0-cam1-...-cam5) with new 0.3 px corner noise per seed (seed s + 1; the ring stays: reseeded,
+  13 of 30 rings leave a camera unconnected and are refused); parameters: the six of each camera but cam0;
+- ``multicam_cluster``: the same on ``benchmarks/multicam.py``'s forward-looking cluster
+  (``simulated_ring(6, 245, seed=s, spacing_deg=3, walk_deg=16)``: mounts and board walk) with noise seed s + 1.
 
 Transform parameters (LiDAR-camera, LiDAR-LiDAR, multicam) are those of ``params_between(T_truth, T_estimate)``:
 t_x, t_y, t_z (m, parent axes) and r_x, r_y, r_z (rotation vector, rad, about the child's axes), against the
@@ -178,13 +180,14 @@ MULTICAM_CAMERAS = [f"cam{i}" for i in range(1, 6)]
 """The ring's cameras but the reference (cam0)."""
 
 
-def multicam() -> NormalisedErrors:
+def multicam(cluster: bool) -> NormalisedErrors:
+    """The ring of the tests (seed 0 for every seed) or, with ``cluster``, benchmarks/multicam.py's (seed s)."""
     from backend.calib.multicam.bundle import calibrate_multicam
     from backend.sim.multicam_rig import simulated_ring
     from tests.calib.multicam.conftest import RING_NOISE_PX
 
     def z(seed: int) -> np.ndarray:
-        ring = simulated_ring(6, 245, seed=seed)
+        ring = simulated_ring(6, 245, seed=seed, spacing_deg=3.0, walk_deg=16.0) if cluster else simulated_ring(6, 245)
         result = calibrate_multicam(ring.cameras, ring.board, ring.observations(RING_NOISE_PX, seed=seed + 1))
         truth = ring.T_ref_cam(result.reference)
         if not result.converged:
@@ -209,7 +212,9 @@ SOLVERS = [
            "scan noise and spin phase of the three placements (scan_pair seeds 3s..3s + 2), initial guess seed s",
            lidar_lidar_scenes),
     Solver("multicam", [f"{camera} {name}" for camera in MULTICAM_CAMERAS for name in TRANSFORM_NAMES],
-           "ring mounts and board walk seed s, corner noise seed s + 1", multicam),
+           "corner noise seed s + 1 (the tests' ring, seed 0, for every seed)", lambda: multicam(cluster=False)),
+    Solver("multicam_cluster", [f"{camera} {name}" for camera in MULTICAM_CAMERAS for name in TRANSFORM_NAMES],
+           "cluster mounts and board walk seed s, corner noise seed s + 1", lambda: multicam(cluster=True)),
 ]
 
 

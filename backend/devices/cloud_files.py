@@ -16,8 +16,8 @@ Clouds with more points than :data:`~backend.core.limits.MAX_CLOUD_POINTS` are r
 on the count the header declares (PCD ``POINTS``, the PLY vertex count, the LAS/LAZ header, the NPY
 shape) before the points are read, and on the count read as a backstop.
 
-Units are not guessed silently either: :func:`guess_unit_problem` returns a
-warning for clouds that look like millimetres; :func:`read_cloud` never rescales.
+Units are not guessed silently either: :func:`read_cloud` never rescales, and the solvers refuse a cloud that
+looks like millimetres, naming it (:func:`backend.core.clouds.check_cloud`).
 
 PLY is parsed here with numpy rather than Open3D for the usual layouts (the
 vertex element's properties are scalars and, in binary files, every element
@@ -46,10 +46,6 @@ CLOUD_EXTENSIONS = (".pcd", ".ply", ".las", ".laz", ".npy")
 INTENSITY_FIELDS = ("intensity", "i", "scalar_intensity")
 """Field names (case-insensitive) taken as the intensity channel, first match wins."""
 
-MM_MEDIAN_RANGE_M = 500.0
-"""A median range above this (m) makes :func:`guess_unit_problem` suspect millimetres."""
-MM_P95_ABS_M = 1000.0
-"""A 95th percentile of |x|, |y|, |z| above this (m) makes :func:`guess_unit_problem` suspect millimetres."""
 
 
 @dataclass
@@ -96,28 +92,6 @@ def read_cloud(path: Path | str) -> CloudFile:
 
     xyz, intensity, fields = readers[suffix](path)
     return _finish(path, xyz, intensity, fields)
-
-
-def guess_unit_problem(points: np.ndarray) -> str | None:
-    """A warning when ``points`` ((N, 3), meant to be metres) look like millimetres, else None.
-
-    Suspicious when the median range from the origin exceeds :data:`MM_MEDIAN_RANGE_M`
-    or the 95th percentile of |x|, |y|, |z| exceeds :data:`MM_P95_ABS_M`; the message
-    suggests scaling by 0.001. Non-finite points are ignored; an empty cloud gives None.
-    """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) == 0:
-        return None
-    median_range = float(np.median(np.linalg.norm(pts, axis=1)))
-    p95 = float(np.percentile(np.abs(pts), 95))
-    if median_range <= MM_MEDIAN_RANGE_M and p95 <= MM_P95_ABS_M:
-        return None
-    return (
-        f"the cloud looks like millimetres, not metres: median range {median_range:.1f} m, "
-        f"95% of |x|, |y|, |z| below {p95:.1f} m; scale it by 0.001 "
-        f"(or, if it is in map coordinates far from the origin, move it into the sensor frame)"
-    )
 
 
 # --- helpers -------------------------------------------------------------------------------------

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from pypcd4 import Encoding, PointCloud
 
+from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
-from backend.devices.cloud_files import CLOUD_EXTENSIONS, CloudFile, CloudFolder, guess_unit_problem, read_cloud
+from backend.devices.cloud_files import CLOUD_EXTENSIONS, CloudFile, CloudFolder, read_cloud
 from tests.conftest import SHARED_DATA
 
 SHARED_DATA = SHARED_DATA
@@ -61,13 +62,14 @@ def test_real_pcd(path: Path, count: int, fields: list[str], range_m: tuple[floa
     ranges = np.linalg.norm(cloud.points, axis=1)
     assert range_m[0] - 0.1 <= ranges.min() < range_m[0] + 0.1
     assert range_m[1] - 1.0 < ranges.max() <= range_m[1] + 0.1
-    assert guess_unit_problem(cloud.points) is None
+    check_cloud(cloud.points, path.name)  # metres: taken as they are
 
 
-def test_real_cloud_in_millimetres_is_flagged() -> None:
+def test_real_cloud_in_millimetres_is_refused_by_name() -> None:
     cloud = read_cloud(require(QT))
-    message = guess_unit_problem(cloud.points * 1000.0)
-    assert message is not None and "millimetres" in message and "0.001" in message
+    with pytest.raises(InputError, match="looks like millimetres, not metres .* scale by 0.001") as info:
+        check_cloud(cloud.points * 1000.0, "qt.pcd")
+    assert info.value.input == "qt.pcd"
 
 
 # --- round trips ---------------------------------------------------------------------------------
@@ -327,15 +329,6 @@ def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="nothere.pcd: does not exist") as info:
         read_cloud(tmp_path / "nothere.pcd")
     assert info.value.input == str(tmp_path / "nothere.pcd")
-
-
-def test_guess_unit_problem() -> None:
-    points, _ = random_cloud()
-    assert guess_unit_problem(points) is None
-    message = guess_unit_problem(points * 1000.0)
-    assert message is not None and "millimetres" in message and "0.001" in message
-    assert guess_unit_problem(np.zeros((0, 3))) is None
-    assert guess_unit_problem(np.full((5, 3), np.nan)) is None
 
 
 # --- the capture driver --------------------------------------------------------------------------
