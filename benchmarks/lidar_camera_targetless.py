@@ -6,8 +6,8 @@ photo, an 85k-point 64-beam scan with intensities, the authors' reference ``T_ca
 initial guesses: the reference turned by a random rotation of up to ``PERTURBATION_DEG`` about
 each LiDAR axis (fixed seeds), with the reference translation, as OpenCalib perturbs its sample.
 Each method in ``METHODS`` is one entry: a name and a function solving the pair from a guess (the edges
-also without the translation prior, to show what the frame alone pins: not the translation, and the
-solve says so: ambiguous, verdict ``reject``).
+also without the translation prior, as the default command runs: the frame alone does not pin the
+translation, so the solve holds it at the guess, +-5 cm, solves the rotation and says so, verdict ``check``).
 
 Per method and start: the error after the solve against the reference (translation norm in mm,
 rotation angle in deg), the reported 1-sigma (largest axis), whether the error lies within
