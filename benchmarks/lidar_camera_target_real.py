@@ -40,16 +40,16 @@ from calib.lidar_camera.test_target_real import BOARD, CAMERA, VLP16, reference_
 from backend.calib.board.detection import detect_board  # noqa: E402
 from backend.calib.lidar_camera import service  # noqa: E402
 from backend.calib.lidar_camera.target import TargetObservation, camera_board_pose, find_board_points  # noqa: E402
-from backend.calib.lidar_camera.target_evidence import pose_evidence, share_in_image_outline  # noqa: E402
+from backend.calib.lidar_camera.target_evidence import (  # noqa: E402
+    IN_IMAGE_SEARCH_M,
+    pose_evidence,
+    shares_in_image_outline,
+)
 from backend.core.boards import BoardSpec  # noqa: E402
-from backend.core.errors import InputError  # noqa: E402
 from backend.core.projection import project_cloud  # noqa: E402
 from backend.core.transforms import transform_error  # noqa: E402
 from backend.plots.lidar_camera import pose_evidence_figure  # noqa: E402
 from backend.plots.render import to_rgb  # noqa: E402
-
-SEARCH_MARGIN_M = 0.15
-"""The board's points for the image check are searched within this of the plate (m), about each transform."""
 
 
 def distance(T, T_reference):
@@ -58,28 +58,13 @@ def distance(T, T_reference):
     return float(1000 * np.linalg.norm(trans_m)), float(np.linalg.norm(rot_deg))
 
 
-def image_check(observation, transforms, board, margin_m, settings):
-    """Per transform, the share of the pose's board points (found about any of ``transforms``) it projects inside
-    the board's outline in the image (:func:`~backend.calib.lidar_camera.target_evidence.share_in_image_outline`)."""
-    found = []
-    for T in transforms.values():
-        try:
-            found.append(find_board_points(observation.points_lidar, observation.T_camera_board, T, board,
-                                           SEARCH_MARGIN_M, settings, np.random.default_rng(0), observation.name).plane)
-        except InputError:
-            continue
-    points = np.unique(np.vstack(found), axis=0)
-    return {name: share_in_image_outline(points, T, observation.T_camera_board, CAMERA, board, margin_m)
-            for name, T in transforms.items()}
-
-
-def crops(pairs, observations, T_run, T_result, board, margin_m, settings, path):
+def crops(pairs, observations, T_run, T_result, board, settings, path):
     """Three poses cropped about the board, its points drawn by ``T_run`` (red) and ``T_result`` (green)."""
     rows = []
     for k in (0, 3, 5):
         observation, image = observations[k], pairs[k].image
         points = np.vstack([find_board_points(observation.points_lidar, observation.T_camera_board, T, board,
-                                              SEARCH_MARGIN_M, replace(settings, plate_margin_m=margin_m),
+                                              IN_IMAGE_SEARCH_M, settings,
                                               np.random.default_rng(0), observation.name).plane
                             for T in (T_run, T_result)])
         centre = CAMERA.project_normalised((observation.T_camera_board[:2, 3] / observation.T_camera_board[2, 3])[None])
@@ -128,7 +113,8 @@ def main():
                       "edge_rms_mm": 1000 * fit["edge_rms_m"] if fit else None,
                       "without_mm": 1000 * fit["without_m"] if fit.get("without_m") is not None else None,
                       "without_deg": fit.get("without_deg"), "without_sigmas": fit.get("without_sigmas"),
-                      "image_check": image_check(observation, transforms, board, margin_m, settings)})
+                      "image_check": dict(zip(transforms, shares_in_image_outline(
+                          observation, list(transforms.values()), CAMERA, board, settings), strict=True))})
     before_mm, before_deg = distance(T_init, runs[0])
     after = {name: distance(T, T_run) for name, T_run in transforms.items() if name != "result"}
     if args.figures:
@@ -136,7 +122,7 @@ def main():
         evidence = pose_evidence(board, observations, result.diagnostics, T, service.target_settings(board))
         figure = pose_evidence_figure(evidence, "VLP-16 set: each pose's board at the result")
         cv2.imwrite(str(args.figures / "poses.png"), to_rgb(figure, 1400)[..., ::-1])
-        crops(pairs, observations, runs[0], T, board, margin_m, settings, args.figures / "crops.png")
+        crops(pairs, observations, runs[0], T, board, settings, args.figures / "crops.png")
     print(json.dumps({
         "data": VLP16.name, "seconds": {"read": read_s, "find_boards": detect_s, "solve": solve_s,
                                         "total": read_s + detect_s + solve_s},

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from backend.calib._session import check_camera, check_lidar, result_of, session_board
-from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.detection import Detection
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
 from backend.calib.lidar_camera.checks import MANUAL_VERDICT, CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.edges import EdgeObservation, LidarCameraEdgesSettings, solve_edges
@@ -37,6 +37,7 @@ from backend.calib.lidar_camera.target import (
     LidarCameraTargetSettings,
     TargetObservation,
     camera_board_pose,
+    found_board,
     solve_target,
 )
 from backend.calib.lidar_camera.target_evidence import PoseEvidence, pose_evidence
@@ -221,8 +222,8 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
     observations, skipped = [], []
     for i, p in enumerate(pairs):
         progress(0.1 + 0.2 * i / max(len(pairs), 1), f"finding the board in {p.name}")
-        detection = p.detection if p.detection is not None else detect_board(p.image, board)
         try:
+            detection = found_board(p.image, board, p.image_source, p.detection)
             T_camera_board = camera_board_pose(p.image, camera, board, name=p.image_source, detection=detection)
         except InputError as error:
             skipped.append(f"{error.input}: {error.message}")

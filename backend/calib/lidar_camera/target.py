@@ -178,18 +178,26 @@ class PoseResiduals:
 # ---------------------------------------------------------------- camera side
 
 
-def camera_board_pose(image: np.ndarray, camera: CameraIntrinsics, board: BoardSpec, name: str = "image",
-                      detection: Detection | None = None) -> np.ndarray:
-    """``T_camera_board`` (4x4, m, optical frame) of the board detected in ``image`` (gray or BGR uint8).
-
-    Detection by :func:`~backend.calib.board.detection.detect_board` (or ``detection``, the corners already
-    found in ``image``), pose by PnP on the undistorted corners (:func:`~backend.calib.board.pose.board_pose`).
-    Raises :class:`InputError` naming ``name`` when the board is not found or PnP fails.
-    """
+def found_board(image: np.ndarray, board: BoardSpec, name: str = "image", detection: Detection | None = None
+                ) -> Detection:
+    """The board's corners in ``image``: ``detection`` (the corners already found in it) when given, else
+    :func:`~backend.calib.board.detection.detect_board`'s; :class:`InputError` naming ``name`` when not found."""
     if detection is None:
         detection = detect_board(image, board)
     if detection is None:
         raise InputError(f"the board {board} was not found in the image", name)
+    return detection
+
+
+def camera_board_pose(image: np.ndarray, camera: CameraIntrinsics, board: BoardSpec, name: str = "image",
+                      detection: Detection | None = None) -> np.ndarray:
+    """``T_camera_board`` (4x4, m, optical frame) of the board detected in ``image`` (gray or BGR uint8).
+
+    Detection by :func:`found_board`, pose by PnP on the undistorted corners
+    (:func:`~backend.calib.board.pose.board_pose`). Raises :class:`InputError` naming ``name`` when the board is
+    not found or PnP fails.
+    """
+    detection = found_board(image, board, name, detection)
     T = board_pose(camera, board, detection)
     if T is None:
         raise InputError(f"PnP failed on the {len(detection.ids)} detected corners", name)
@@ -574,9 +582,9 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     whose board is lost in a later round, about the refined estimate (the first round's wide region took
     something else for it: the person holding it, on the real VLP-16 set with the board's points removed). Raises
     :class:`InputError` for fewer than :data:`MIN_POSES` usable poses (with the count and why each other
-    pose was skipped), a bad cloud or transform, and a degenerate set of board normals. A solve that diverges, loses the
-    board in a later round or ends with a point-to-plane RMS above ``settings.max_plane_rms_m`` is
-    returned with ``converged=False`` and a warning: the caller must not accept it.
+    pose was skipped), a bad cloud or transform, and a degenerate set of board normals. A solve that diverges or
+    ends with a point-to-plane RMS above ``settings.max_plane_rms_m`` is returned with ``converged=False`` and a
+    warning: the caller must not accept it.
 
     Returns a :class:`~backend.core.result.TransformResult` (kind ``lidar_camera``, method ``target``, parent
     ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance holds the reported
@@ -603,6 +611,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     lens_poses = [o.T_camera_board_lens for o in observations]
     T_init, _ = check_transform(T_init, "T_init")
     margin_m = settings.plate_margin_m
+    centre, half = plate_centre_and_half_size(board, margin_m)
     rng = np.random.default_rng(settings.seed)
 
     T, stacked, result, warnings, iterations, converged = T_init, None, None, [], 0, True
@@ -610,7 +619,6 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
     for round_index, margin in enumerate(settings.region_margins_m):
         progress(0.8 * round_index / len(settings.region_margins_m),
                  f"round {round_index + 1}: finding the board in {len(clouds)} clouds ({margin} m region)")
-        centre, half = plate_centre_and_half_size(board, margin_m)
         at_margin = replace(settings, plate_margin_m=margin_m)
         found, lost = _find_boards(clouds, T_camera_boards, T, board, margin, at_margin, rng, names)
         kept = [i for i, points in enumerate(found) if points is not None]

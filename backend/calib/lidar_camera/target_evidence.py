@@ -105,3 +105,28 @@ def share_in_image_outline(points_lidar: np.ndarray, T_camera_lidar: np.ndarray,
         return 0.0
     return float(np.mean([cv2.pointPolygonTest(polygon, (float(u), float(v)), True) >= -IN_IMAGE_SLACK_PX
                           for u, v in uv]))
+
+
+IN_IMAGE_SEARCH_M = 0.15
+"""The board's points for :func:`shares_in_image_outline` are searched within this of the plate (m), about each
+transform compared."""
+
+
+def shares_in_image_outline(observation: TargetObservation, transforms: Sequence[np.ndarray],
+                            camera: CameraIntrinsics, board: BoardSpec, settings: LidarCameraTargetSettings
+                            ) -> list[float]:
+    """Several ``T_camera_lidar`` (4x4, m) compared in the image on one pose: the board's points found in its cloud
+    about any of them (within :data:`IN_IMAGE_SEARCH_M`, ``settings.plate_margin_m`` the plate's margin), and the
+    share of them each puts inside the board's outline as the camera saw it (:func:`share_in_image_outline`). The
+    same points for every transform, so a transform is not judged on the points it picked itself."""
+    rng = np.random.default_rng(settings.seed)
+    found = []
+    for T_camera_lidar in transforms:
+        try:
+            found.append(find_board_points(observation.points_lidar, observation.T_camera_board, T_camera_lidar, board,
+                                           IN_IMAGE_SEARCH_M, settings, rng, observation.name).plane)
+        except InputError:
+            continue
+    points = np.unique(np.vstack(found), axis=0) if found else np.zeros((0, 3))
+    return [share_in_image_outline(points, T_camera_lidar, observation.T_camera_board, camera, board,
+                                   settings.plate_margin_m) for T_camera_lidar in transforms]

@@ -17,8 +17,8 @@ import pytest
 from backend.calib.board.detection import detect_board
 from backend.calib.lidar_camera import service
 from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
-from backend.calib.lidar_camera.target import camera_board_pose, find_board_points
-from backend.calib.lidar_camera.target_evidence import share_in_image_outline
+from backend.calib.lidar_camera.target import TargetObservation, camera_board_pose
+from backend.calib.lidar_camera.target_evidence import shares_in_image_outline
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.transforms import from_xyz_ypr, invert, make_T, transform_error, transform_points
@@ -113,13 +113,10 @@ def test_the_result_puts_the_board_points_on_the_board_the_camera_saw(real_pairs
     board = BoardSpec.parse(BOARD)
     settings = replace(service.target_settings(board), plate_margin_m=margin_m)
     transforms = [result.T_parent_child, *reference_runs()]
-    shares = []
-    for pair in real_pairs:
-        T_camera_board = camera_board_pose(pair.image, CAMERA, board, detection=pair.detection)
-        found = np.unique(np.vstack([find_board_points(pair.points, T_camera_board, T, board, 0.15, settings,
-                                                       np.random.default_rng(0), pair.name).plane
-                                     for T in transforms]), axis=0)
-        shares.append([share_in_image_outline(found, T, T_camera_board, CAMERA, board, margin_m) for T in transforms])
+    shares = [shares_in_image_outline(TargetObservation(camera_board_pose(pair.image, CAMERA, board,
+                                                                          detection=pair.detection), pair.points,
+                                                        pair.name), transforms, CAMERA, board, settings)
+              for pair in real_pairs]
     mean = np.mean(shares, axis=0)
     print(f"board points inside the board in the image: result {mean[0]:.2f}, runs {np.round(mean[1:], 2)}")
     assert mean[0] > 0.85 and np.all(mean[0] > mean[1:] + 0.05), mean
