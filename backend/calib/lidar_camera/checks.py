@@ -1,8 +1,8 @@
 """The verdict of a LiDAR-to-camera result and its cross-checks.
 
 :func:`judge`: the sigmas against each method's tolerance, the cross-check between independent captures (the
-target's poses, the edges' two halves of the pairs, the intensity method's pairs) and any extra check made
-elsewhere, such as another method on the same pairs (:func:`method_agreement`).
+target's poses; the targetless methods' places: the edges' two halves, the intensity method's leave one out) and any
+extra check made elsewhere, such as another method on the same pairs (:func:`method_agreement`).
 
 The cross-check between LiDAR-to-camera methods (edges against intensity, on the same pairs): the difference of
 the two ``T_camera_lidar`` in the result's parameters (:func:`backend.core.transforms.params_between`: m along
@@ -18,6 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib.lidar_camera.edges import MIN_HALVES_PLACES
+from backend.calib.lidar_camera.intensity import MIN_SPREAD_PLACES
+from backend.calib.lidar_camera.places import one_place_note
 from backend.core.result import TRANSFORM_PARAMETERS, TransformResult, finite_or_none
 from backend.core.transforms import params_between
 from backend.core.verdict import CROSS_CHECK_SIGMAS, Verdict, VerdictBuilder, judge_transform_sigmas
@@ -150,9 +153,9 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
     of the pairs solved apart (``diagnostics["halves_offset"]``) differ by at most
     :data:`COVERAGE` times the sigma of that difference, taken as twice the reported sigma (each half has half the
     data, about sqrt 2 times the whole's sigma, and the difference of two is sqrt 2 times that again). Intensity:
-    :func:`_intensity_pairs_check`."""
+    :func:`_intensity_places_check`."""
     if method == "intensity":
-        _intensity_pairs_check(builder, result)
+        _intensity_places_check(builder, result)
         return
     if method == "target":
         std_spread = _diagnostic(result, "std_spread")
@@ -165,12 +168,12 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
         return
     halves_offset = _diagnostic(result, "halves_offset")
     if halves_offset is None:
-        builder.missing_check("between pairs", "one pair: add pairs taken elsewhere (two or more), or solve the same "
-                              "pairs with another method")
+        places = result.diagnostics.get("places") or []
+        builder.missing_check("between places", one_place_note(sum(map(len, places)), len(places), MIN_HALVES_PLACES))
         return
     expected = 2 * result.std_vector
     ratio = np.abs(halves_offset) / np.maximum(expected, 1e-12)
-    ratio_check(builder, "between two halves of the pairs", ratio, COVERAGE,
+    ratio_check(builder, "between two halves of the places", ratio, COVERAGE,
                 "the halves' solutions differ by at most {ratio} times the expected sigma of the difference")
 
 
@@ -197,18 +200,19 @@ def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: fl
                                f"limit {limit:g}{after}")
 
 
-def _intensity_pairs_check(builder: VerdictBuilder, result: TransformResult) -> None:
-    """The intensity method's cross-check between pairs: its leave-one-pair-out spread (``diagnostics["std_pairs"]``,
-    with three pairs or more) is at most :data:`MAX_SPREAD_RATIO` times the sigma the rest of the data gives (the
-    larger of the curvature's and the spread over image regions and restarts, which one pair already shows; an
-    undetermined curvature sigma is infinite)."""
-    std_pairs = _diagnostic(result, "std_pairs")
-    if std_pairs is None:
-        builder.missing_check("over pairs", "too few pairs for a leave-one-out re-solve (3 or more are needed)")
+def _intensity_places_check(builder: VerdictBuilder, result: TransformResult) -> None:
+    """The intensity method's cross-check between places: its leave-one-place-out spread
+    (``diagnostics["std_places"]``, with pairs from three places or more) is at most :data:`MAX_SPREAD_RATIO` times the
+    sigma the rest of the data gives (the larger of the curvature's and the spread over image regions and restarts,
+    which one pair already shows; an undetermined curvature sigma is infinite)."""
+    std_places = _diagnostic(result, "std_places")
+    if std_places is None:
+        places = result.diagnostics.get("places") or []
+        builder.missing_check("over places", one_place_note(sum(map(len, places)), len(places), MIN_SPREAD_PLACES))
         return
     within = _diagnostic(result, "std_curvature", np.inf)
     std_groups = _diagnostic(result, "std_groups")
     if std_groups is not None:
         within = np.fmax(within, std_groups)
-    ratio_check(builder, "leave one of the pairs out", std_pairs / np.maximum(within, 1e-12),
+    ratio_check(builder, "leave one of the places out", std_places / np.maximum(within, 1e-12),
                 MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")

@@ -28,8 +28,10 @@ are rigid on it) is one :class:`EdgeObservation`. Pipeline:
    (:func:`~backend.core.result.jacobian_covariance`), widened per parameter to the jackknife
    spread (:func:`~backend.core.result.widen_covariance`) over groups of edges (the points of
    an edge share the errors of its plane fits and of its image edge, which per-point noise cannot
-   see) and, with three pairs or more, over pairs. With two pairs or more, the pairs of even and of odd
-   place are also re-solved apart (:func:`_halves`): the verdict's cross-check between independent captures.
+   see) and, with pairs from three places or more, over places. With two places or more, the pairs of the places of
+   even and of odd index are also re-solved apart (:func:`_halves`): the verdict's cross-check between independent
+   captures. Pairs taken in one place (:mod:`~backend.calib.lidar_camera.places`: the rig stood still while a board
+   or a person moved) share that scene's edges and their errors, so they are one unit of both.
 6. Multi-start: the coarse search keeps its best distinct results
    (:attr:`~backend.calib.lidar_camera.edge_search.CoarseSearchSettings.candidates`), each is aligned finely,
    and the one with the most matched edge points at the final radius is the solution. Another
@@ -64,6 +66,7 @@ from scipy.spatial import cKDTree
 from backend.calib.lidar_camera.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.calib.lidar_camera.edge_search import CoarseSearchSettings, coarse_search
 from backend.calib.lidar_camera.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
+from backend.calib.lidar_camera.places import place_of_pairs
 from backend.calib.lidar_camera.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.calib.lidar_camera.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
 from backend.core.camera import CameraIntrinsics, check_camera_image
@@ -88,8 +91,10 @@ PLANE, REFLECTIVITY = 0, 1
 """Values of :attr:`LidarEdges.kind`: a plane intersection, a reflectivity step."""
 INFORMATION_UNITS = (0.01, np.radians(0.1))
 """Steps (m, rad) in which the observability test measures translation and rotation: 1 cm and 0.1 deg."""
-MIN_SPREAD_PAIRS = 3
-"""With this many pairs or more the jackknife also leaves out pairs."""
+MIN_SPREAD_PLACES = 3
+"""With pairs from this many places or more the jackknife also leaves out places."""
+MIN_HALVES_PLACES = 2
+"""With pairs from this many places or more the places are split into two halves solved apart (the cross-check)."""
 HELD_PRIOR_M = 1e-4
 """The translation prior (m, 1-sigma) that holds the translation at the guess when the scene cannot determine it:
 tight enough that the edges do not move it (a fraction of a millimetre)."""
@@ -269,6 +274,8 @@ class _Pair:
     name: str
     lidar: LidarEdges
     image: ImageEdges
+    place: int = 0
+    """Index of the place the pair was taken in (:func:`~backend.calib.lidar_camera.places.place_of_pairs`)."""
 
 
 def in_view(points_lidar: np.ndarray, T_camera_lidar: np.ndarray, camera: CameraIntrinsics, margin_deg: float,
@@ -382,10 +389,11 @@ def _check_observable(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrins
             "directions", ", ".join(names))
 
 
-def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pairs: int, t_prior: np.ndarray,
+def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, place: np.ndarray, t_prior: np.ndarray,
             settings: LidarCameraEdgesSettings, progress: ProgressCallback) -> tuple[np.ndarray | None, str | None]:
     """Jackknife std (6,) of re-solves at fixed matches (:func:`~backend.core.result.jackknife_std`), and what
-    was left out: groups of edges and, with :data:`MIN_SPREAD_PAIRS` pairs or more, pairs; the larger per parameter.
+    was left out: groups of edges and, with pairs from :data:`MIN_SPREAD_PLACES` places or more (``place``: each
+    pair's), places; the larger per parameter.
 
     The edge groups: the image is cut into :attr:`~LidarCameraEdgesSettings.spread_cell_px` squares, dealt at
     random into :attr:`~LidarCameraEdgesSettings.spread_groups` groups, and a group's matches are left out together,
@@ -398,8 +406,8 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
     _, cell = np.unique(cells, axis=0, return_inverse=True)
     deal = np.random.default_rng(0).permutation(int(cell.max()) + 1) % settings.spread_groups
     units = {"edge groups": deal[cell.ravel()]}
-    if n_pairs >= MIN_SPREAD_PAIRS:
-        units["pairs"] = matches.pair
+    if place.max() + 1 >= MIN_SPREAD_PLACES:
+        units["places"] = place[matches.pair]
     spreads = []
     for source, unit in units.items():
         left_out = np.unique(unit)
@@ -416,13 +424,14 @@ def _spread(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pai
     return np.max(spreads, axis=0), " and ".join(units)
 
 
-def _halves(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, n_pairs: int, t_prior: np.ndarray,
+def _halves(T: np.ndarray, matches: EdgeMatches, camera: CameraIntrinsics, place: np.ndarray, t_prior: np.ndarray,
             settings: LidarCameraEdgesSettings) -> np.ndarray | None:
-    """(6,) the result's ``diagnostics["halves_offset"]``: the pairs of odd and of even place re-solved apart at fixed
-    matches from ``T``, the second's solution about the first's; None with fewer than two pairs."""
-    if n_pairs < 2:
+    """(6,) the result's ``diagnostics["halves_offset"]``: the pairs of the places (``place``: each pair's) of even and
+    of odd index re-solved apart at fixed matches from ``T``, the second's solution about the first's; None with
+    pairs from fewer than :data:`MIN_HALVES_PLACES` places."""
+    if place.max() + 1 < MIN_HALVES_PLACES:
         return None
-    first = matches.pair % 2 == 0
+    first = place[matches.pair] % 2 == 0
     solved = [apply_params(T, solve_matches(T, matches.subset(half), camera, settings.fine,
                                             settings.fine.loss_scale_px, t_prior).x) for half in (first, ~first)]
     return params_between(*solved)
@@ -599,9 +608,10 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     point-to-line distances of the matched points, px), ``lidar_edge_points`` (in view at the solution),
     ``image_edge_pixels``, ``matched`` (all pairs) and ``per_pair_rms_px``. ``diagnostics`` (6-vectors in m, m, m,
     rad, rad, rad; None where undetermined): ``std_jacobian`` (``sigma^2 (J^T J)^-1``), ``std_spread`` (the
-    jackknife's, or None) and ``spread_source`` (what it left out: "edge groups" or "edge groups and pairs"),
-    ``halves_offset`` (the solution from the pairs of even place about the one from the others, :func:`_halves`: the
-    cross-check of two halves of the data; None with one pair or when not converged), ``std_multistart`` (per
+    jackknife's, or None) and ``spread_source`` (what it left out: "edge groups" or "edge groups and places"),
+    ``halves_offset`` (the solution from the places of even index about the one from the others, :func:`_halves`:
+    the cross-check of two halves of the data; None with pairs from one place or when not converged), ``places``
+    (the pairs' names grouped by the place they were taken in), ``std_multistart`` (per
     parameter the largest ``|offset|`` of a competing alignment; None when none competes), ``candidates`` (each
     start's :class:`CandidateFit`, the solution's first), ``T_init``, ``T_coarse`` (where the solution's fine
     alignment started), ``iterations`` (residual evaluations of its fine rounds), ``rounds`` and ``pairs`` (each
@@ -617,6 +627,8 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     for i, (observation, name) in enumerate(zip(pairs, names, strict=True)):
         progress(0.1 * i / len(pairs), f"finding edges in {name}")
         prepared.append(_prepare(observation, name, camera, T_init, settings))
+    for pair, place in zip(prepared, place_of_pairs([np.asarray(o.points_lidar) for o in pairs]), strict=True):
+        pair.place = int(place)
     may_hold = settings.fine.translation_prior_m is None and settings.guess_translation_sigma_m is not None
     free_share = 0.6 if may_hold else 1.0
     result, _ = _solve_prepared(prepared, camera, T_init, settings, names,
@@ -641,6 +653,7 @@ def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.
                                      [p.image.distance_px for p in prepared], camera, settings.coarse,
                                      lambda fraction, message: progress(0.5 * fraction, message))
     t_prior = T_init[:3, 3]
+    place = np.array([p.place for p in prepared])
     fits = _fine_from_starts(prepared, starts, camera, settings, t_prior, names, progress)
     best = max(fits, key=lambda f: (f.converged, len(f.matches), -(f.rms_px or np.inf)))
     # The covariance is taken at the last linearisation, about the final estimate (the last step is tiny).
@@ -649,13 +662,13 @@ def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.
     converged, warnings = best.converged, warnings + best.warnings
     std_spread, spread_source = None, None
     if settings.spread and converged:
-        std_spread, spread_source = _spread(best.T, best.matches, camera, len(prepared), t_prior, settings, progress)
+        std_spread, spread_source = _spread(best.T, best.matches, camera, place, t_prior, settings, progress)
     covariance = widen_covariance(cov_j, std_spread)
     candidates, std_multistart, warning = _multistart(best, fits, sigmas(covariance), settings)
     if warning is not None:
         warnings.append(warning)
         converged = converged and not warning.startswith(AMBIGUOUS)
-    halves_offset = _halves(best.T, best.matches, camera, len(prepared), t_prior, settings) if converged else None
+    halves_offset = _halves(best.T, best.matches, camera, place, t_prior, settings) if converged else None
     result = TransformResult(
         kind="lidar_camera", method="edges", parent="camera", child="lidar",
         T_parent_child=best.T,
@@ -666,7 +679,8 @@ def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.
                      "halves_offset": finite_or_none(halves_offset), "std_multistart": finite_or_none(std_multistart),
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
                      "T_coarse": best.T_start.tolist(), "iterations": best.iterations, "rounds": best.rounds,
-                     "pairs": [p.to_record() for p in per_pair]},
+                     "pairs": [p.to_record() for p in per_pair],
+                     "places": [[names[i] for i in np.flatnonzero(place == k)] for k in range(int(place.max()) + 1)]},
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,

@@ -17,11 +17,13 @@ several pairs are summed. Pipeline:
    1: independent) between the image value ``I`` at each projected point (bilinear) and its intensity ``L``, from a
    :attr:`~LidarCameraIntensitySettings.bins`-square joint histogram with linear (two-bin) soft binning of both,
    so that the cost changes smoothly with the transform (koide3 smooths its image side with B-splines for BFGS).
-   Pairs add as ``sum_i w_i NID_i`` with ``w_i = N_i H_i`` (:func:`_weight`), which makes the sum a negative
-   log-likelihood up to a constant: ``N H(I | L) = N (H(I, L) - H(L))`` is the image values' coding cost given the
-   intensities, and near the optimum it moves as ``N H(I, L) NID`` (``H(L)`` is fixed). ``N_i`` counts the image
-   cells of :attr:`~LidarCameraIntensitySettings.cell_px` with a point (points in one cell share their pixels'
-   errors, so they are not independent).
+   Pairs add as ``sum_i w_i NID_i`` with ``w_i = N_i H_i / n_i`` (:func:`_weight` gives ``N_i H_i``), which makes
+   the sum a negative log-likelihood up to a constant: ``N H(I | L) = N (H(I, L) - H(L))`` is the image values'
+   coding cost given the intensities, and near the optimum it moves as ``N H(I, L) NID`` (``H(L)`` is fixed).
+   ``N_i`` counts the image cells of :attr:`~LidarCameraIntensitySettings.cell_px` with a point (points in one cell
+   share their pixels' errors, so they are not independent); ``n_i`` the pairs taken in the pair's place
+   (:mod:`~backend.calib.lidar_camera.places`: a rig standing still sees one scene, whose reflectors mislead every
+   pair alike, so its pairs count once).
 3. Coarse (:func:`_coarse`): a grid of rotations about ``T_init`` (``coarse_step_deg`` steps, ``coarse_steps``
    either way per axis) on the coarse-blurred image with every ``coarse_point_stride``-th point; the ``refined``
    best turned by a compass search; ``candidates`` well-separated starts from those (then from the raw grid). Near
@@ -37,8 +39,8 @@ several pairs are summed. Pipeline:
    across each pair of axes, 85 points with steps ``curvature_step``) and fitted with a quadratic; its Hessian is
    the Fisher information of the likelihood of step 2, ``cov = H^-1``. The samples also hold the joint histograms
    of :attr:`~LidarCameraIntensitySettings.spread_groups` groups of image squares (``spread_cell_px``, dealt at
-   random) and of each pair; since histograms add, each leave-one-group-out (and, with three pairs or more,
-   leave-one-pair-out) cost is known at every sample too, so each subset's optimum is its own quadratic's, and
+   random) and of each pair; since histograms add, each leave-one-group-out (and, with three places or more,
+   leave-one-place-out) cost is known at every sample too, so each subset's optimum is its own quadratic's, and
    their jackknife spread (:func:`~backend.core.result.jackknife_std`) widens the curvature's sigmas per
    parameter (:func:`~backend.core.result.widen_covariance`): an image region's lighting or a misleading
    reflector moves the optimum in a way per-point noise cannot show.
@@ -67,11 +69,13 @@ import numpy as np
 from scipy.optimize import minimize
 
 from backend.calib.lidar_camera.edges import in_view
+from backend.calib.lidar_camera.places import place_of_pairs
 from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
 from backend.core.projection import MIN_DEPTH_M, project_cloud
 from backend.core.result import (
+    TRANSFORM_PARAMETERS,
     ProgressCallback,
     TransformResult,
     finite_or_none,
@@ -82,8 +86,8 @@ from backend.core.result import (
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
 from backend.core.uncertainty import sigmas
 
-MIN_SPREAD_PAIRS = 3
-"""With this many pairs or more the jackknife also leaves out pairs."""
+MIN_SPREAD_PLACES = 3
+"""With pairs from this many places or more the jackknife also leaves out places (the cross-check)."""
 
 
 @dataclass
@@ -324,13 +328,17 @@ class _Objective:
             return np.inf
         return float(self.weights @ self.nids(T, fine, stride)) + self.prior(T)
 
+    def reach(self) -> np.ndarray:
+        """(6,) how far the search goes from ``T_init`` per parameter (m, m, m, rad, rad, rad): the coarse grid's
+        reach widened by one grid step (per rotation axis) and ``max_translation_m``. Beyond, the cost's other basins
+        (a road scene has them some 8 deg off) are nearer than the truth can be, given how far off the initial guess
+        may be."""
+        rotation = np.radians((self.settings.coarse_steps + 1) * self.settings.coarse_step_deg)
+        return np.r_[np.full(3, self.settings.max_translation_m), np.full(3, rotation)]
+
     def in_reach(self, T: np.ndarray) -> bool:
-        """Whether ``T`` lies within the coarse grid's reach of ``T_init`` widened by one grid step (per rotation
-        axis) and within ``max_translation_m``: beyond, the cost's other basins (a road scene has them some 8 deg
-        off) are nearer than the truth can be, given how far off the initial guess may be."""
-        offset = params_between(self.T_init, T)
-        reach = np.radians((self.settings.coarse_steps + 1) * self.settings.coarse_step_deg)
-        return bool(np.abs(offset[3:]).max() <= reach and np.abs(offset[:3]).max() <= self.settings.max_translation_m)
+        """Whether ``T`` lies within :meth:`reach` of ``T_init`` on every parameter."""
+        return bool(np.all(np.abs(params_between(self.T_init, T)) <= self.reach()))
 
 
 # ---------------------------------------------------------------- preparing a pair
@@ -480,6 +488,25 @@ def _fine(objective: _Objective, T_start: np.ndarray, settings: LidarCameraInten
     return T
 
 
+AT_EDGE_SHARE = 0.9
+"""A parameter at this share of the search's reach or more lies at its edge: Nelder-Mead pressed outward by a cost
+still falling there ends along the edge, not on it (on the real VLP-16 street frames at 0.94-0.97 of it), and an
+optimum this far from the guess lies beyond what the guess allows anyway (the coarse grid reaches 0.75 of it)."""
+
+
+def _at_search_edge(objective: _Objective, T: np.ndarray) -> list[str]:
+    """The parameters on which the solution ``T`` lies at the edge of the search's reach of ``T_init``
+    (:meth:`_Objective.reach`, :data:`AT_EDGE_SHARE`): there the cost was still falling when the search stopped, so the
+    solution is no optimum and the curvature's sigmas describe nothing. Each as ``"r_y -3.0 of 3 deg"``."""
+    offset, reach = params_between(objective.T_init, T), objective.reach()
+    edges = []
+    for i in np.flatnonzero(np.abs(offset) >= AT_EDGE_SHARE * reach):
+        scale, unit = (100.0, "cm") if i < 3 else (np.degrees(1.0), "deg")
+        name = TRANSFORM_PARAMETERS[i].removesuffix("_m").removesuffix("_rad")
+        edges.append(f"{name} {scale * offset[i]:+.1f} of {scale * reach[i]:g} {unit}")
+    return edges
+
+
 # ---------------------------------------------------------------- uncertainty
 
 
@@ -546,13 +573,13 @@ class _Curvature:
     """6x6 (m, rad) from the fitted Hessian; inf on the diagonal where undetermined."""
     std_regions: np.ndarray | None
     """(6,) leave-one-image-region-out jackknife std, or None."""
-    std_pairs: np.ndarray | None
-    """(6,) leave-one-pair-out jackknife std, or None (fewer than :data:`MIN_SPREAD_PAIRS` pairs)."""
+    std_places: np.ndarray | None
+    """(6,) leave-one-place-out jackknife std, or None (fewer than :data:`MIN_SPREAD_PLACES` places)."""
 
 
 def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, settings: LidarCameraIntensitySettings,
-               progress: ProgressCallback) -> _Curvature:
-    """The cost's quadratic about ``T`` and its jackknife (module step 5)."""
+               place: np.ndarray, progress: ProgressCallback) -> _Curvature:
+    """The cost's quadratic about ``T`` and its jackknife (module step 5); ``place`` (pairs,) is each pair's place."""
     step = np.r_[np.full(3, settings.curvature_step[0]), np.full(3, np.radians(settings.curvature_step[1]))]
     offsets = _sample_offsets()
     groups = settings.spread_groups
@@ -590,14 +617,15 @@ def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, s
     if not settings.spread:
         return _Curvature(covariance, None, None)
     subsets = {"image regions": [(full - joints[:, :, g], weights) for g in range(groups)]}
-    if n_pairs >= MIN_SPREAD_PAIRS:
-        subsets["pairs"] = [(full, np.where(np.arange(n_pairs) == i, 0.0, weights)) for i in range(n_pairs)]
+    n_places = int(place.max()) + 1
+    if n_places >= MIN_SPREAD_PLACES:
+        subsets["places"] = [(full, np.where(place == k, 0.0, weights)) for k in range(n_places)]
     spreads = {}
     for source, subset in subsets.items():
         estimates = [step * np.clip(_minimum(*_local_quadratic(values(joint_sum, w))), -AXIS_STEPS[-1], AXIS_STEPS[-1])
                      for joint_sum, w in subset]  # the quadratic holds only as far as it was sampled
         spreads[source] = jackknife_std(np.array(estimates))
-    return _Curvature(covariance, spreads["image regions"], spreads.get("pairs"))
+    return _Curvature(covariance, spreads["image regions"], spreads.get("places"))
 
 
 def _check_flat(covariance: np.ndarray, mean_mi: float, settings: LidarCameraIntensitySettings,
@@ -646,9 +674,10 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     over pairs), ``mutual_information_nats`` (mean), ``points_in_image`` (all pairs) and ``per_pair_nid``.
     ``diagnostics`` (6-vectors in m, m, m, rad, rad, rad; None where undetermined or not computed):
     ``std_curvature`` (the cost's curvature), ``std_groups`` (over the scenes' parts: the larger of the
-    leave-one-image-region-out jackknife and the restarts' spread), ``std_pairs`` (the leave-one-pair-out jackknife,
-    with :data:`MIN_SPREAD_PAIRS` pairs or more), ``std_spread`` (the largest of those two per parameter),
-    ``spread_source`` ("image regions" (and "pairs": what the jackknife left out) and "restarts"), ``candidates``
+    leave-one-image-region-out jackknife and the restarts' spread), ``std_places`` (the leave-one-place-out jackknife,
+    with pairs from :data:`MIN_SPREAD_PLACES` places or more), ``std_spread`` (the largest of those two per
+    parameter), ``spread_source`` ("image regions" (and "places": what the jackknife left out) and "restarts"),
+    ``places`` (the pairs' names, grouped by the place they were taken in), ``candidates``
     (the fine search from each coarse grid point as :class:`IntensityCandidate`, the solution's first), ``T_init``,
     ``T_coarse`` (the grid point the solution's search started from), ``evaluations`` (of the cost) and ``pairs``
     (each pair's :class:`IntensityPairResiduals`).
@@ -663,7 +692,9 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     for i, (observation, name) in enumerate(zip(pairs, names, strict=True)):
         progress(0.05 * i / len(pairs), f"preparing {name}")
         prepared.append(_prepare(observation, name, camera, T_init, settings))
-    weights = np.array([_weight(p, T_init, camera, settings) for p in prepared])
+    place = place_of_pairs([np.asarray(o.points_lidar) for o in pairs])
+    place_share = 1.0 / np.bincount(place)[place]  # a place's pairs count once
+    weights = place_share * np.array([_weight(p, T_init, camera, settings) for p in prepared])
     objective = _Objective(prepared, weights, camera, settings, T_init)
     starts = _coarse(objective, T_init, settings, lambda fraction, message: progress(0.05 + 0.25 * fraction, message))
     screened = []
@@ -681,7 +712,7 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     best = int(np.argmin([objective(T) for T in ends]))
     T = ends[best]
     # The weights at the solution, where the likelihood's scale is meant (they were taken at T_init for the search).
-    objective.weights = np.array([_weight(p, T, camera, settings) for p in prepared])
+    objective.weights = place_share * np.array([_weight(p, T, camera, settings) for p in prepared])
     restarts = [T]
     rng = np.random.default_rng(1)
     for k in range(settings.restarts):
@@ -690,15 +721,15 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         restarts.append(_fine(objective, apply_params(T, kick), settings))
     T = min(restarts, key=objective)
     std_restarts = jackknife_std(np.array([params_between(T, T_k) for T_k in restarts])) if settings.restarts else None
-    curvature = _curvature(objective, T, camera, settings, lambda f, m: progress(0.9 + 0.1 * f, m))
+    curvature = _curvature(objective, T, camera, settings, place, lambda f, m: progress(0.9 + 0.1 * f, m))
     joints = np.array([p.joint(T, camera, True, settings.bins)[0][0] for p in prepared])
     nid, mi = nid_and_mi(joints)
     _check_flat(curvature.covariance, float(mi.mean()), settings, names)
     groups = [g for g in (curvature.std_regions, std_restarts) if g is not None]
     std_groups = np.max(groups, axis=0) if groups else None
-    spreads = [g for g in (std_groups, curvature.std_pairs) if g is not None]
+    spreads = [g for g in (std_groups, curvature.std_places) if g is not None]
     spread = np.max(spreads, axis=0) if spreads else None
-    parts = {"image regions": curvature.std_regions, "pairs": curvature.std_pairs, "restarts": std_restarts}
+    parts = {"image regions": curvature.std_regions, "places": curvature.std_places, "restarts": std_restarts}
     source = " and ".join(name for name, part in parts.items() if part is not None) or None
     covariance = widen_covariance(curvature.covariance, spread)
     warnings: list[str] = []
@@ -711,6 +742,13 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         competing = k != best and far and mean_nids[k] - mean_nids[best] <= settings.tie_nid
         candidates.append(IntensityCandidate(starts[k], T_end, mean_nids[k], offset, competing))
     candidates.insert(0, candidates.pop(best))
+    at_edge = _at_search_edge(objective, T)
+    if at_edge:
+        warnings.append(f"the best alignment lies at the edge of the search ({', '.join(at_edge)} from the initial "
+                        "guess), where the cost was still falling: the intensities favour an alignment beyond the "
+                        "search - the initial guess is further off than the search allows, or the intensities in view "
+                        "do not determine the transform (try --method edges); not accepted")
+        converged = False
     competing = [c for c in candidates if c.competing]
     if competing:
         apart = np.max(np.abs([c.offset for c in competing]), axis=0)
@@ -733,7 +771,8 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
                    "per_pair_nid": [p.nid for p in per_pair]},
         diagnostics={"std_curvature": finite_or_none(sigmas(curvature.covariance)),
                      "std_spread": finite_or_none(spread), "std_groups": finite_or_none(std_groups),
-                     "std_pairs": finite_or_none(curvature.std_pairs), "spread_source": source,
+                     "std_places": finite_or_none(curvature.std_places), "spread_source": source,
+                     "places": [[names[i] for i in np.flatnonzero(place == k)] for k in range(int(place.max()) + 1)],
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
                      "T_coarse": starts[best].tolist(), "evaluations": objective.evaluations,
                      "pairs": [p.to_record() for p in per_pair]},

@@ -8,7 +8,7 @@ one pair at a time (``align`` with one iteration returns that pair's ``H`` and `
 transform); no library sums several pairs' normal equations, so the step is taken here.
 
 Scenes are the independent units. Pairs whose target clouds lie on each other where they were
-taken (:data:`SAME_PLACE_FITNESS`) were taken in one place and form one scene: repeated frames of a
+taken (:func:`~backend.core.clouds.group_by_place`) were taken in one place and form one scene: repeated frames of a
 rig standing still are not independent evidence. Each scene is also solved on its own, and the
 cross-check of the verdict compares it with the joint solve of the *other* scenes: a scene agrees
 when, on every axis, it lies within the larger of the stated tolerance and
@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 import viser.transforms as vtf
-from scipy.spatial import cKDTree
 
 from backend.calib.lidar_lidar.checks import judge_fit, judge_one_scene, scenes_cross_check
 from backend.calib.lidar_lidar.gicp import (
@@ -47,7 +46,7 @@ from backend.calib.lidar_lidar.gicp import (
     register_pair,
     sector_jackknife,
 )
-from backend.core.clouds import check_cloud
+from backend.core.clouds import check_cloud, group_by_place
 from backend.core.errors import InputError
 from backend.core.result import (
     ProgressCallback,
@@ -60,10 +59,6 @@ from backend.core.result import (
 from backend.core.transforms import params_between
 from backend.core.verdict import CROSS_CHECK_SIGMAS, ROTATION_TOLERANCE_DEG, TRANSLATION_TOLERANCE_M
 
-SAME_PLACE_FITNESS = 0.8
-"""Two pairs were taken in one place when at least this share of one's target points lies within the fine voxel
-size of the other's target points, as captured (in simulation: repeated frames of a rig standing still 1.00, the rig
-moved 1 m 0.49, moved 1 m and turned 30 deg 0.17)."""
 TOLERANCE = np.r_[np.full(3, TRANSLATION_TOLERANCE_M), np.full(3, np.radians(ROTATION_TOLERANCE_DEG))]
 """The stated tolerance per axis (m, rad): deviations within it always agree."""
 COARSE_EPSILON = (np.radians(0.1), 1e-3)
@@ -155,27 +150,6 @@ def _refine(pairs: list[_Pair], T: np.ndarray, settings: LidarLidarSettings,
     return joint_gicp([p.fine for p in pairs], T, settings, settings.max_correspondence_m, fine=True)
 
 
-def group_scenes(targets: list[np.ndarray], settings: LidarLidarSettings) -> list[list[int]]:
-    """Indices of the pairs taken in each place, in first-seen order, from their target clouds (m, target frame).
-
-    Pairs ``i`` and ``j`` share a place when :data:`SAME_PLACE_FITNESS` of either's target points lie within
-    ``settings.voxel_m`` of the other's, as captured (the target LiDAR did not move between them).
-    """
-    trees = [cKDTree(t) for t in targets]
-    scene_of = list(range(len(targets)))
-    for j in range(len(targets)):
-        for i in range(j):
-            if scene_of[i] != i:
-                continue
-            near = max(np.isfinite(trees[i].query(targets[j], distance_upper_bound=settings.voxel_m)[0]).mean(),
-                       np.isfinite(trees[j].query(targets[i], distance_upper_bound=settings.voxel_m)[0]).mean())
-            if near >= SAME_PLACE_FITNESS:
-                scene_of[j] = i
-                break
-    firsts = sorted(set(scene_of))
-    return [[k for k, s in enumerate(scene_of) if s == first] for first in firsts]
-
-
 def _quality(pairs: list[_Pair], T: np.ndarray, settings: LidarLidarSettings) -> dict[str, Any]:
     """Mean fitness over ``pairs`` and the statistics of all their inlier distances (see :func:`evaluate_alignment`)."""
     qualities = [evaluate_alignment(p.source, p.target, T, settings.max_correspondence_m,
@@ -216,10 +190,11 @@ def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarra
     solve (see :func:`backend.calib.lidar_lidar.gicp.assemble_result`).
 
     The pairs are solved jointly (:func:`joint_gicp`) from ``T_init`` (or from global registration on the
-    first pair), grouped into scenes (:func:`group_scenes`), and every scene is solved on its own for the
-    cross-check (see the module docstring). One pair is :func:`register_pair`. ``names`` are the (source,
-    target) names of each pair's clouds (files, capture ids) for messages; default ``pair i source`` /
-    ``pair i target``. Raises :class:`InputError` naming the cloud for a bad one, and for a non-rigid ``T_init``.
+    first pair), grouped into scenes by their target clouds (:func:`~backend.core.clouds.group_by_place`), and every
+    scene is solved on its own for the cross-check (see the module docstring). One pair is :func:`register_pair`.
+    ``names`` are the (source, target) names of each pair's clouds (files, capture ids) for messages; default
+    ``pair i source`` / ``pair i target``. Raises :class:`InputError` naming the cloud for a bad one, and for a
+    non-rigid ``T_init``.
     """
     settings = settings or LidarLidarSettings()
     if not pairs:
@@ -239,7 +214,7 @@ def register_pairs(pairs: list[tuple[np.ndarray, np.ndarray]], T_init: np.ndarra
     T_init, init_method = initial_guess(T_init, *checked[0], settings, progress, warnings)
     progress(0.05, f"preprocessing {len(pairs)} frame pairs")
     prepared = [_prepare(s, t, settings) for s, t in checked]
-    groups = group_scenes([np.asarray(p.fine[1].points())[:, :3] for p in prepared], settings)
+    groups = group_by_place([np.asarray(p.fine[1].points())[:, :3] for p in prepared], settings.voxel_m)
 
     fit = _refine(prepared, T_init, settings, progress)
     T = fit.T_target_source

@@ -91,7 +91,7 @@ def test_simulated_rig_recovers_the_truth_from_10cm_5deg(sim_result):
     # reported sigmas (0.3-1.0 mm, 0.004-0.013 deg) per solve; this one 0.4 mm, 0.003 deg, 0.6 sigma.
     assert np.all(np.abs(error[:3]) < 0.01) and np.all(np.abs(error[3:]) < 0.2)
     assert np.all(np.abs(error) < 3 * sigma), (error, sigma)
-    assert sim_result.diagnostics["spread_source"] == "edge groups and pairs"
+    assert sim_result.diagnostics["spread_source"] == "edge groups and places"
     assert sim_result.residuals["edge_rms_px"] < 1.0 and sim_result.residuals["matched"] > 300
 
 
@@ -128,7 +128,7 @@ def test_verdicts_on_the_simulated_rig_are_trusted_only_within_tolerance(sim_res
     # of their difference); three sigmas (about 2.5 mm and 0.025 deg) fit in the tolerances, and so does the error.
     assert verdict.level == "trusted", verdict.reasons
     assert np.all(np.abs(error[:3]) <= translation_m) and np.all(np.abs(error[3:]) <= rotation_deg)
-    assert any(r.startswith("cross-check between two halves of the pairs: ") for r in verdict.reasons)
+    assert any(r.startswith("cross-check between two halves of the places: ") for r in verdict.reasons)
     assert sim_result.to_record()["verdict"] == verdict.to_dict()
     # Halves that disagree fail the cross-check by the rule: 4 sigmas of their difference 'check', 10 mm (a pair
     # from another rig, say; about 12 sigmas) 'reject'.
@@ -137,9 +137,9 @@ def test_verdicts_on_the_simulated_rig_are_trusted_only_within_tolerance(sim_res
         disagreeing = replace(sim_result,
                               diagnostics={**sim_result.diagnostics, "halves_offset": [offset_m, 0, 0, 0, 0, 0]})
         assert judge(disagreeing).level == level and any(
-            r.startswith("cross-check between two halves of the pairs failed") for r in disagreeing.verdict.reasons)
+            r.startswith("cross-check between two halves of the places failed") for r in disagreeing.verdict.reasons)
     one_pair = judge(solve_edges(CAM_FRONT, sim_pairs[:1], initial_guess(1)))
-    assert one_pair.level != "trusted" and any(r.startswith("no cross-check between pairs: one pair")
+    assert one_pair.level != "trusted" and any(r.startswith("no cross-check between places: one pair")
                                                for r in one_pair.reasons), one_pair.reasons
 
 

@@ -120,7 +120,8 @@ def test_synthetic_scene_recovers_the_truth_with_covering_sigmas(synthetic_resul
     assert record["method"] == "intensity" and record["kind"] == "lidar_camera"
     assert (record["parent"], record["child"]) == ("camera", "lidar")
     assert len(record["covariance"]) == 6 and record["diagnostics"]["spread_source"].startswith("image regions")
-    assert record["diagnostics"]["std_pairs"] is None and len(record["diagnostics"]["std_curvature"]) == 6
+    assert record["diagnostics"]["std_places"] is None and len(record["diagnostics"]["std_curvature"]) == 6
+    assert record["diagnostics"]["places"] == [["synthetic"]]
 
 
 @pytest.mark.slow
@@ -133,7 +134,7 @@ def test_the_service_judges_it_and_names_the_missing_cross_checks(synthetic_resu
     reasons = " ".join(verdict.reasons)
     assert verdict.level == "check"
     assert "no cross-check against the edges method: the edges method could not solve these pairs" in reasons
-    assert "no cross-check over pairs" in reasons
+    assert "no cross-check over places: one pair: pairs from 3 or more places are needed" in reasons
     assert cli_summary(synthetic_result)["verdict"]["level"] == "check"
 
 
@@ -142,6 +143,17 @@ def test_the_method_and_the_cross_check_reach_the_service():
     assert body.method == "intensity" and body.cross_check
     with pytest.raises(InputError, match="cross-check between methods is made for the targetless methods"):
         solve_pairs(CAMERA, None, [], TRUTH, method="target", cross_check=True)
+
+
+@pytest.mark.slow
+def test_an_optimum_beyond_the_search_is_not_accepted():
+    """The truth 4.5 deg off in pitch, beyond FAST's reach (3 deg): the search ends at its edge with the cost still
+    falling outward, which is no optimum, so no sigma can describe it."""
+    result = solve_intensity(CAMERA, [synthetic_pair()], off(TRUTH, (0.0, 4.5, 0.0)), FAST)
+    assert not result.converged
+    edge = next(w for w in result.warnings if w.startswith("the best alignment lies at the edge of the search ("))
+    assert "r_y -" in edge and "of 3 deg" in edge and edge.endswith("not accepted")
+    assert judge(result).level == "reject"
 
 
 def test_a_cloud_without_intensity_is_refused():
