@@ -343,9 +343,10 @@ class LidarCameraStep:
                 evidence = lidar_camera_service.session_pose_evidence(session, lidar, result_id)
                 image = to_rgb(pose_evidence_figure(evidence, f"{result_id}: each pose's board at the result"),
                                POSES_WIDTH_PX)
-            except InputError as exc:
+            except Exception as exc:  # noqa: BLE001 - an exception would end the thread unseen, the old figure shown
                 image = PLACEHOLDER
-                self.poses_text.content += f"\n\n{WARNING} the poses cannot be drawn: {exc.input}: {exc.message}"
+                why = f"{exc.input}: {exc.message}" if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+                self.poses_text.content += f"\n\n{WARNING} the poses cannot be drawn: {why}"
             if shown == self._poses_shown:
                 self.poses_image.image = image
 
