@@ -65,6 +65,13 @@ from scipy.spatial import cKDTree
 
 from backend.calib.lidar_camera.edge_alignment import EdgeMatches, FineAlignmentSettings, match_edges, solve_matches
 from backend.calib.lidar_camera.edge_search import CoarseSearchSettings, coarse_search
+from backend.calib.lidar_camera.held_translation import (
+    AMBIGUOUS,
+    HELD_PRIOR_M,
+    held_covariance,
+    mark_held,
+    translation_undetermined,
+)
 from backend.calib.lidar_camera.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
 from backend.calib.lidar_camera.places import place_of_pairs
 from backend.calib.lidar_camera.plane_edges import PlaneEdgeSettings, find_plane_edges
@@ -95,13 +102,6 @@ MIN_SPREAD_PLACES = 3
 """With pairs from this many places or more the jackknife also leaves out places."""
 MIN_HALVES_PLACES = 2
 """With pairs from this many places or more the places are split into two halves solved apart (the cross-check)."""
-HELD_PRIOR_M = 1e-4
-"""The translation prior (m, 1-sigma) that holds the translation at the guess when the scene cannot determine it:
-tight enough that the edges do not move it (a fraction of a millimetre)."""
-
-
-AMBIGUOUS = "ambiguous"
-"""How the warning of a result whose competing alignments lie too far apart begins (:func:`_multistart`)."""
 AMBIGUOUS_ADVICE = " (a repeating pattern in view, or edges all far away that leave the translation free); not accepted"
 
 
@@ -179,8 +179,9 @@ class LidarCameraEdgesSettings:
     """1-sigma (m, per axis) of the initial guess's translation: a tape measure's. When no translation prior is given
     and the scene cannot determine the translation (alignments far apart fit about equally well: edges all far away, a
     repeating pattern; or the edges pin it less well than this), the rotation is solved with the translation held at
-    the guess, which is reported with this sigma (:func:`_held_covariance`); None leaves such a result ambiguous
-    (not converged). Edges that all run one way are refused either way: they leave the rotation loose as well."""
+    the guess, which is reported with this sigma (:mod:`~backend.calib.lidar_camera.held_translation`); None leaves
+    such a result ambiguous (not converged). Edges that all run one way are refused either way: they leave the rotation
+    loose as well."""
     max_ambiguity: tuple[float, float] = (0.05, 0.5)
     """Competing alignments further from the best than this on some parameter (m, deg) make the result ambiguous:
     ``converged=False``. Nearer, the sigmas are widened to cover them (the multi-start spread). These are the
@@ -633,7 +634,8 @@ def solve_edges(camera: CameraIntrinsics, pairs: Sequence[EdgeObservation], T_in
     free_share = 0.6 if may_hold else 1.0
     result, _ = _solve_prepared(prepared, camera, T_init, settings, names,
                                 lambda fraction, message: progress(0.1 + (free_share - 0.1) * fraction, message))
-    why = _translation_undetermined(result, settings.guess_translation_sigma_m) if may_hold else None
+    why = (translation_undetermined(result, settings.guess_translation_sigma_m, "the edges", AMBIGUOUS_ADVICE)
+           if may_hold else None)
     if why is not None:
         result = _solve_held(prepared, camera, T_init, settings, names, why,
                              lambda fraction, message: progress(0.6 + 0.4 * fraction,
@@ -688,61 +690,22 @@ def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.
     return result, best
 
 
-def _translation_undetermined(result: TransformResult, guess_sigma_m: float) -> str | None:
-    """Why the free solve's ``result`` leaves the translation to the guess, or None: alignments far apart fit about
-    equally well, or the edges pin some axis of the translation less well than the guess's ``guess_sigma_m`` (m)."""
-    ambiguous = next((w for w in result.warnings if w.startswith(AMBIGUOUS)), None)
-    if ambiguous is not None:
-        return ambiguous.removesuffix(AMBIGUOUS_ADVICE).removeprefix(AMBIGUOUS + ": ")
-    loose = [(axis, s) for axis, s in zip("xyz", result.std["trans_m"], strict=True) if s is None or s > guess_sigma_m]
-    if not loose:
-        return None
-    return "the edges pin the translation less well than the guess: " + ", ".join(
-        f"{axis} {'undetermined' if s is None else f'sigma {100 * s:.1f} cm'}" for axis, s in loose)
-
-
 def _solve_held(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.ndarray,
                 settings: LidarCameraEdgesSettings, names: list[str], why: str, progress: ProgressCallback
                 ) -> TransformResult:
     """The rotation solved with the translation held at ``T_init``'s (:data:`HELD_PRIOR_M`), its covariance that of
-    the guess's translation sigma (:func:`_held_covariance`), and ``why`` the scene could not determine it in the
-    warning and ``diagnostics["translation_held"]``."""
+    the guess's translation sigma (:func:`~backend.calib.lidar_camera.held_translation.held_covariance`), and ``why``
+    the scene could not determine it in the warning and ``diagnostics["translation_held"]``."""
     sigma_m = settings.guess_translation_sigma_m
     assert sigma_m is not None  # only held when the guess has a sigma
     held = replace(settings, fine=replace(settings.fine, translation_prior_m=HELD_PRIOR_M),
                    coarse=replace(settings.coarse, max_translation_m=HELD_PRIOR_M))
     result, best = _solve_prepared(prepared, camera, T_init, held, names, progress)
-    covariance, edges_alone = _held_covariance(best.result, sigma_m)
+    # The edges' information: the robust-loss Jacobian without the prior's three last rows, scaled by the residual
+    # variance as jacobian_covariance does.
+    J = best.result.jac[:-3]
+    covariance, alone = held_covariance(J.T @ J / (2 * best.result.cost / max(len(J) - 6, 1)), sigma_m)
     result.covariance = widen_covariance(covariance, result.std_vector)
-    alone = ", ".join(f"{axis} {'undetermined' if not np.isfinite(s) else f'{100 * s:.1f} cm'}"
-                      for axis, s in zip("xyz", edges_alone, strict=True))
-    result.warnings.append(f"translation held at the guess \u00b1 {100 * sigma_m:g} cm: this scene cannot determine it "
-                           f"({why}); the edges alone pin it to {alone} (1 sigma, camera axes). Add pairs of other "
-                           "scenes, nearer edges in several directions, to determine it, or pass the measured "
-                           "mounting as a translation prior")
-    result.diagnostics["translation_held"] = {"sigma_m": sigma_m, "why": why,
-                                              "edges_alone_m": finite_or_none(edges_alone)}
+    mark_held(result, sigma_m, why, alone, "the edges",
+              "Add pairs of other scenes, nearer edges in several directions, to determine it")
     return result
-
-
-def _held_covariance(solved: OptimizeResult, guess_sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """The (6, 6) covariance of a held solve whose translation is the guess's, known to ``guess_sigma_m`` (m) per
-    axis, and the (3,) translation sigmas (m) the edges alone give (inf where they give none).
-
-    From the edges' information ``I`` (the robust-loss Jacobian without the prior's three last rows, scaled by the
-    residual variance as :func:`~backend.core.result.jacobian_covariance`): the rotation given the translation has
-    covariance ``I_rr^-1``, and a translation error ``dt`` moves the solved rotation by ``A dt`` with
-    ``A = -I_rr^-1 I_rt``, so ``C_tt = s^2 1``, ``C_rt = A C_tt`` and ``C_rr = I_rr^-1 + A C_tt A^T``. The edges'
-    own hold on the translation is not used: the scene was just found unable to determine it.
-    """
-    J = solved.jac[:-3]
-    information = J.T @ J / (2 * solved.cost / max(len(J) - 6, 1))
-    rotation_given_translation = np.linalg.inv(information[3:, 3:])
-    A = -rotation_given_translation @ information[3:, :3]
-    C_tt = guess_sigma_m**2 * np.eye(3)
-    covariance = np.block([[C_tt, (A @ C_tt).T], [A @ C_tt, rotation_given_translation + A @ C_tt @ A.T]])
-    try:
-        edges_alone = np.sqrt(np.clip(np.diag(np.linalg.inv(information))[:3], 0, None))
-    except np.linalg.LinAlgError:
-        edges_alone = np.full(3, np.inf)
-    return 0.5 * (covariance + covariance.T), edges_alone

@@ -44,6 +44,12 @@ several pairs are summed. Pipeline:
    their jackknife spread (:func:`~backend.core.result.jackknife_std`) widens the curvature's sigmas per
    parameter (:func:`~backend.core.result.widen_covariance`): an image region's lighting or a misleading
    reflector moves the optimum in a way per-point noise cannot show.
+6. Checks (:func:`_solve_prepared`): a solution at the edge of the search (:func:`_at_search_edge`: the cost still
+   falling there) or beside another alignment that fits as well (ambiguous) is not accepted. Without a translation
+   prior, a scene that leaves the translation undetermined (ambiguous, pinned less well than the guess's
+   :attr:`~LidarCameraIntensitySettings.guess_translation_sigma_m`, or pulled to the search's edge) is solved again
+   with the translation held at the guess (:mod:`~backend.calib.lidar_camera.held_translation`), as the edges method
+   does.
 
 Refusals (:class:`InputError`, naming the pair): a cloud with no intensity channel; too few points in view; an
 image or a set of intensities with (nearly) one value; a cost that is flat: the mutual information at the
@@ -61,7 +67,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import cv2
@@ -69,6 +75,12 @@ import numpy as np
 from scipy.optimize import minimize
 
 from backend.calib.lidar_camera.edges import in_view
+from backend.calib.lidar_camera.held_translation import (
+    HELD_PRIOR_M,
+    held_covariance,
+    mark_held,
+    translation_undetermined,
+)
 from backend.calib.lidar_camera.places import place_of_pairs
 from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.clouds import check_cloud
@@ -86,6 +98,8 @@ from backend.core.result import (
 from backend.core.transforms import apply_params, check_transform, params_between, transform_points
 from backend.core.uncertainty import sigmas
 
+NOT_ACCEPTED = "; not accepted"
+"""How the warning of a result that must not be accepted ends."""
 MIN_SPREAD_PLACES = 3
 """With pairs from this many places or more the jackknife also leaves out places (the cross-check)."""
 
@@ -167,7 +181,14 @@ class LidarCameraIntensitySettings:
     about the image (a real road frame gives about 0.2)."""
     max_flat_sigma: tuple[float, float] = (0.5, 1.0)
     """The curvature's 1-sigma (m, deg) beyond which a parameter counts as undetermined (a flat cost): a rotation
-    that flat is refused; a translation that flat is refused unless a translation prior holds it."""
+    that flat is refused; a translation that flat is held at the guess (``guess_translation_sigma_m``), or refused
+    when that is None and no translation prior holds it."""
+    guess_translation_sigma_m: float | None = 0.05
+    """1-sigma (m, per axis) of the initial guess's translation: a tape measure's. When no translation prior is given
+    and the scene cannot determine the translation (alignments far apart fit about equally well, or the intensities
+    pin it less well than this), the rotation is solved with the translation held at the guess, which is reported
+    with this sigma (:mod:`~backend.calib.lidar_camera.held_translation`); None leaves such a result ambiguous (not
+    converged) or refused as flat."""
 
 
 @dataclass
@@ -575,6 +596,8 @@ class _Curvature:
     """(6,) leave-one-image-region-out jackknife std, or None."""
     std_places: np.ndarray | None
     """(6,) leave-one-place-out jackknife std, or None (fewer than :data:`MIN_SPREAD_PLACES` places)."""
+    information: np.ndarray
+    """6x6 (m, rad) the data's own: the Hessian of the cost without the translation prior."""
 
 
 def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, settings: LidarCameraIntensitySettings,
@@ -610,12 +633,13 @@ def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, s
 
     full = joints.sum(axis=2)
     _, hessian = _local_quadratic(values(full, weights))
+    information = _local_quadratic(values(full, weights) - priors)[1] / np.outer(step, step)
     determined = np.diag(hessian) > 0
     covariance = np.diag(np.full(6, np.inf))  # parameters = step * x, so cov = S cov_x S
     covariance[np.ix_(determined, determined)] = (np.outer(step, step)[np.ix_(determined, determined)]
                                                   * np.linalg.inv(hessian[np.ix_(determined, determined)]))
     if not settings.spread:
-        return _Curvature(covariance, None, None)
+        return _Curvature(covariance, None, None, information)
     subsets = {"image regions": [(full - joints[:, :, g], weights) for g in range(groups)]}
     n_places = int(place.max()) + 1
     if n_places >= MIN_SPREAD_PLACES:
@@ -625,12 +649,13 @@ def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, s
         estimates = [step * np.clip(_minimum(*_local_quadratic(values(joint_sum, w))), -AXIS_STEPS[-1], AXIS_STEPS[-1])
                      for joint_sum, w in subset]  # the quadratic holds only as far as it was sampled
         spreads[source] = jackknife_std(np.array(estimates))
-    return _Curvature(covariance, spreads["image regions"], spreads.get("places"))
+    return _Curvature(covariance, spreads["image regions"], spreads.get("places"), information)
 
 
 def _check_flat(covariance: np.ndarray, mean_mi: float, settings: LidarCameraIntensitySettings,
                 names: list[str]) -> None:
-    """Refuse a flat cost: too little mutual information, or a parameter the curvature leaves undetermined."""
+    """Refuse a flat cost: too little mutual information, or a parameter the curvature leaves undetermined (the
+    translation only when neither a translation prior nor the guess's sigma can hold it)."""
     where = ", ".join(names)
     if mean_mi < settings.min_mutual_information:
         raise InputError(
@@ -642,7 +667,7 @@ def _check_flat(covariance: np.ndarray, mean_mi: float, settings: LidarCameraInt
     limit_m, limit_deg = settings.max_flat_sigma
     flat = [f"r_{axis} (sigma {np.degrees(s):.2g} deg)" for axis, s in zip("xyz", std[3:], strict=True)
             if not np.degrees(s) <= limit_deg]
-    if settings.translation_prior_m is None:
+    if settings.translation_prior_m is None and settings.guess_translation_sigma_m is None:
         flat = [f"t_{axis} (sigma {s:.2g} m)" for axis, s in zip("xyz", std[:3], strict=True)
                 if not s <= limit_m] + flat
     if flat:
@@ -666,7 +691,9 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
     initial ``T_camera_lidar``, within the coarse grid's reach of the truth (4.5 deg per axis with the defaults; the
     translation within a few cm). Raises :class:`InputError` for no pairs, a bad image, cloud or transform, a cloud
     without intensities, too few points in view, a flat cost (see the module). A solve that ends ambiguous (another
-    alignment fits as well) is returned with ``converged=False`` and a warning.
+    alignment fits as well) or at the search's edge is returned with ``converged=False`` and a warning; without a
+    translation prior, one whose translation is undetermined is solved again with it held at the guess (module step
+    6; ``diagnostics["translation_held"]``).
 
     Returns a :class:`~backend.core.result.TransformResult` (kind ``lidar_camera``, method ``intensity``, parent
     ``camera``, child ``lidar``): ``T_parent_child`` is ``T_camera_lidar``; its covariance holds the reported
@@ -693,10 +720,52 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         progress(0.05 * i / len(pairs), f"preparing {name}")
         prepared.append(_prepare(observation, name, camera, T_init, settings))
     place = place_of_pairs([np.asarray(o.points_lidar) for o in pairs])
+    may_hold = settings.translation_prior_m is None and settings.guess_translation_sigma_m is not None
+    free_share = 0.6 if may_hold else 1.0
+    result, _, at_edge = _solve_prepared(prepared, place, camera, T_init, settings, names,
+                                         lambda f, m: progress(0.05 + (free_share - 0.05) * f, m))
+    why = None
+    if may_hold and at_edge and all(axis.startswith("t_") for axis in at_edge):
+        why = f"the intensities pull the translation to the search's edge ({', '.join(at_edge)})"
+    elif may_hold and not at_edge:
+        why = translation_undetermined(result, settings.guess_translation_sigma_m, "the intensities", NOT_ACCEPTED)
+    if why is not None:
+        result = _solve_held(prepared, place, camera, T_init, settings, names, why,
+                             lambda f, m: progress(0.6 + 0.4 * f, f"translation held at the guess: {m}"))
+    progress(1.0, "done")
+    result.seconds = time.perf_counter() - started
+    return result
+
+
+def _solve_held(prepared: list[_Pair], place: np.ndarray, camera: CameraIntrinsics, T_init: np.ndarray,
+                settings: LidarCameraIntensitySettings, names: list[str], why: str, progress: ProgressCallback
+                ) -> TransformResult:
+    """The rotation solved with the translation held at ``T_init``'s (:data:`HELD_PRIOR_M`), its covariance that of
+    the guess's translation sigma (:func:`~backend.calib.lidar_camera.held_translation.held_covariance`, from the
+    curvature without the prior), and ``why`` the scene could not determine it in the warning and
+    ``diagnostics["translation_held"]``."""
+    sigma_m = settings.guess_translation_sigma_m
+    assert sigma_m is not None  # only held when the guess has a sigma
+    result, information, _ = _solve_prepared(prepared, place, camera, T_init,
+                                             replace(settings, translation_prior_m=HELD_PRIOR_M), names, progress)
+    covariance, alone = held_covariance(information, sigma_m)
+    result.covariance = widen_covariance(covariance, result.std_vector)
+    mark_held(result, sigma_m, why, alone, "the intensities",
+              "Add pairs taken in other places, with reflective surfaces near and in several directions, to determine "
+              "it")
+    return result
+
+
+def _solve_prepared(prepared: list[_Pair], place: np.ndarray, camera: CameraIntrinsics, T_init: np.ndarray,
+                    settings: LidarCameraIntensitySettings, names: list[str], progress: ProgressCallback
+                    ) -> tuple[TransformResult, np.ndarray, list[str]]:
+    """The search, the uncertainty and the checks of the module's steps 3-5 over the prepared pairs (``place``: each
+    one's place): the result, the data's information (6x6, m and rad: the curvature without the translation prior)
+    and the parameters at the search's edge (:func:`_at_search_edge`)."""
     place_share = 1.0 / np.bincount(place)[place]  # a place's pairs count once
     weights = place_share * np.array([_weight(p, T_init, camera, settings) for p in prepared])
     objective = _Objective(prepared, weights, camera, settings, T_init)
-    starts = _coarse(objective, T_init, settings, lambda fraction, message: progress(0.05 + 0.25 * fraction, message))
+    starts = _coarse(objective, T_init, settings, lambda fraction, message: progress(0.3 * fraction, message))
     screened = []
     for k, T_start in enumerate(starts):
         progress(0.3 + 0.2 * k / len(starts), f"screening start {k + 1} of {len(starts)}")
@@ -747,7 +816,7 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         warnings.append(f"the best alignment lies at the edge of the search ({', '.join(at_edge)} from the initial "
                         "guess), where the cost was still falling: the intensities favour an alignment beyond the "
                         "search - the initial guess is further off than the search allows, or the intensities in view "
-                        "do not determine the transform (try --method edges); not accepted")
+                        f"do not determine the transform (try --method edges){NOT_ACCEPTED}")
         converged = False
     competing = [c for c in candidates if c.competing]
     if competing:
@@ -755,13 +824,12 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         warnings.append(f"ambiguous: {len(competing) + 1} alignments fit about equally well (mean NID "
                         f"{mean_nids[best]:.4f} at the solution, {', '.join(f'{c.nid:.4f}' for c in competing)} at "
                         f"the others), up to {1000 * apart[:3].max():.0f} mm and {np.degrees(apart[3:].max()):.2f} "
-                        "deg apart; not accepted")
+                        f"deg apart{NOT_ACCEPTED}")
         converged = False
     nid_init = nid_and_mi(np.array([p.joint(T_init, camera, True, settings.bins)[0][0] for p in prepared]))[0]
     per_pair = [IntensityPairResiduals(p.name, len(p.points), int(joints[i].sum().round()), float(nid[i]),
                                        float(nid_init[i]), float(mi[i])) for i, p in enumerate(prepared)]
-    progress(1.0, "done")
-    return TransformResult(
+    result = TransformResult(
         kind="lidar_camera", method="intensity", parent="camera", child="lidar",
         T_parent_child=T,
         covariance=covariance,
@@ -779,5 +847,5 @@ def solve_intensity(camera: CameraIntrinsics, pairs: Sequence[IntensityObservati
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,
-        seconds=time.perf_counter() - started,
     )
+    return result, curvature.information, at_edge

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -53,10 +54,11 @@ def reflectivity(u: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.clip(0.5 + 1.5 * field, 0.05, 0.95)
 
 
-def hit(origins: np.ndarray, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where camera-frame rays from ``origins`` hit the wall or the floor (nearest), and the reflectivity there."""
+def hit(origins: np.ndarray, rays: np.ndarray, wall_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where camera-frame rays from ``origins`` hit the wall ``wall_m`` ahead or the floor (nearest), and the
+    reflectivity there."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        t_wall = (WALL_M - origins[:, 2]) / rays[:, 2]
+        t_wall = (wall_m - origins[:, 2]) / rays[:, 2]
         t_floor = (FLOOR_M - origins[:, 1]) / rays[:, 1]
     t_wall, t_floor = np.where(t_wall > 0, t_wall, np.inf), np.where(t_floor > 0, t_floor, np.inf)
     t = np.minimum(t_wall, t_floor)
@@ -67,19 +69,19 @@ def hit(origins: np.ndarray, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.cache
-def synthetic_pair(seed: int = 0) -> IntensityObservation:
-    """A textured wall and floor seen by the camera (grey = a gamma of reflectivity, noise) and by a 64-beam LiDAR
-    (intensity = reflectivity, noise) at :data:`TRUTH`."""
+def synthetic_pair(seed: int = 0, wall_m: float = WALL_M) -> IntensityObservation:
+    """A textured wall ``wall_m`` ahead and a floor seen by the camera (grey = a gamma of reflectivity, noise) and by a
+    64-beam LiDAR (intensity = reflectivity, noise) at :data:`TRUTH`."""
     rng = np.random.default_rng(seed)
     u, v = np.meshgrid(np.arange(CAMERA.width), np.arange(CAMERA.height))
     rays = np.column_stack([(u.ravel() - 320) / 500, (v.ravel() - 240) / 500, np.ones(u.size)])
-    _, value = hit(np.zeros_like(rays), rays)
+    _, value = hit(np.zeros_like(rays), rays, wall_m)
     image = np.clip(30 + 200 * value**0.7 + rng.normal(0, 4, value.size), 0, 255).astype(np.uint8)
     elevation, azimuth = np.meshgrid(np.radians(np.linspace(-20, 8, 64)), np.radians(np.arange(-40, 40, 0.6)))
     directions = np.column_stack([np.cos(elevation.ravel()) * np.cos(azimuth.ravel()),
                                   np.cos(elevation.ravel()) * np.sin(azimuth.ravel()), np.sin(elevation.ravel())])
     origin = np.tile(TRUTH[:3, 3], (len(directions), 1))
-    points_camera, value = hit(origin, directions @ TRUTH[:3, :3].T)
+    points_camera, value = hit(origin, directions @ TRUTH[:3, :3].T, wall_m)
     points = transform_points(invert(TRUTH), points_camera)
     keep = np.isfinite(points).all(axis=1) & (np.linalg.norm(points, axis=1) < 60)
     intensity = 255 * value[keep] + rng.normal(0, 3, keep.sum())
@@ -143,6 +145,25 @@ def test_the_method_and_the_cross_check_reach_the_service():
     assert body.method == "intensity" and body.cross_check
     with pytest.raises(InputError, match="cross-check between methods is made for the targetless methods"):
         solve_pairs(CAMERA, None, [], TRUTH, method="target", cross_check=True)
+
+
+@pytest.mark.slow
+def test_a_far_scene_without_a_prior_holds_the_translation_at_the_guess():
+    """The wall 30 m away: its intensities pin the translation to 5-7 cm only, worse than a tape measure. Without a
+    translation prior the rotation is solved with the translation held at the guess, reported as +-5 cm."""
+    T_init = off(TRUTH, (1.5, -1.2, 1.3), (0.03, -0.02, 0.02))  # a tape measure's guess
+    result = solve_intensity(CAMERA, [synthetic_pair(wall_m=30.0)], T_init, replace(FAST, translation_prior_m=None))
+    error = params_between(TRUTH, result.T_parent_child)
+    sigma = result.std_vector
+    assert result.converged, result.warnings
+    held = result.diagnostics["translation_held"]
+    assert held["sigma_m"] == 0.05 and held["why"].startswith("the intensities pin the translation less well than")
+    assert np.allclose(result.T_parent_child[:3, 3], T_init[:3, 3], atol=0.001)
+    assert np.allclose(sigma[:3], 0.05)
+    assert np.degrees(np.abs(error[3:])).max() < 0.2 and np.all(np.abs(error) <= 3 * sigma), (error, sigma)
+    assert any(w.startswith("translation held at the guess \u00b1 5 cm: this scene cannot determine it (the "
+                            "intensities pin") for w in result.warnings), result.warnings
+    assert judge(result).level == "check"
 
 
 @pytest.mark.slow
