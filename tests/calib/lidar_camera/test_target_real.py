@@ -1,5 +1,6 @@
 """The target solve on the real VLP-16 + fisheye set (``../shared/data/vlp16_camera_checkerboard``): its verdict
-follows the cross-check rule and is never ``trusted`` while the result misses the reference runs.
+follows the cross-check rule and is never ``trusted`` while the result misses the reference runs; the targetless
+intensity method, which the street misleads, is rejected.
 
 The set's README gives three reference runs of the CMU toolbox (about 2.7 cm and 1.2 deg apart); the solve starts
 3 deg (each of yaw, pitch, roll) and 5 cm off run 1, as a tape measure would give it.
@@ -99,6 +100,18 @@ def test_with_the_lens_sigma_the_set_states_the_sigma_covers_the_reference_runs(
         trans_m, rot_deg = transform_error(result.T_parent_child, T_run)
         assert np.all(np.abs(np.r_[trans_m, np.radians(rot_deg)]) <= 3 * result.std_vector), (trans_m, rot_deg)
     assert result.verdict.level != "trusted"
+
+
+def test_the_intensity_method_misled_by_the_street_is_rejected(real_pairs) -> None:
+    """Started at run 1, the street's intensities favour an alignment 7 deg away, at the edge of the search, and the
+    eight pairs are one place (a rig standing still), so nothing cross-checks it. Before pairs counted by place it
+    answered 7 deg and 24 cm off with a 0.3 deg sigma, 'check', its leave-one-pair-out check passing."""
+    result = service.solve_pairs(CAMERA, None, real_pairs, reference_runs()[0], method="intensity")
+    reasons = " ".join(result.verdict.reasons)
+    assert not result.converged and result.verdict.level == "reject", result.verdict.reasons
+    assert "the best alignment lies at the edge of the search (r_x +" in reasons, reasons
+    assert "no cross-check over places: the 8 pairs were taken in one place" in reasons, reasons
+    assert result.diagnostics["places"] == [[pair.name for pair in real_pairs]]
 
 
 def test_the_result_puts_the_board_points_on_the_board_the_camera_saw(real_pairs) -> None:
