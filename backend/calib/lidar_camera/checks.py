@@ -168,8 +168,7 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
         return
     halves_offset = _diagnostic(result, "halves_offset")
     if halves_offset is None:
-        places = result.diagnostics.get("places") or []
-        builder.missing_check("between places", one_place_note(sum(map(len, places)), len(places), MIN_HALVES_PLACES))
+        _missing_places_check(builder, result, "between places", MIN_HALVES_PLACES)
         return
     expected = 2 * result.std_vector
     ratio = np.abs(halves_offset) / np.maximum(expected, 1e-12)
@@ -200,6 +199,13 @@ def ratio_check(builder: VerdictBuilder, name: str, ratio: np.ndarray, limit: fl
                                f"limit {limit:g}{after}")
 
 
+def _missing_places_check(builder: VerdictBuilder, result: TransformResult, name: str, needed: int) -> None:
+    """The cross-check ``name`` named missing: the result's pairs (``diagnostics["places"]``) came from fewer than
+    ``needed`` places."""
+    places = result.diagnostics.get("places") or []
+    builder.missing_check(name, one_place_note(sum(map(len, places)), len(places), needed))
+
+
 def _intensity_places_check(builder: VerdictBuilder, result: TransformResult) -> None:
     """The intensity method's cross-check between places: its leave-one-place-out spread
     (``diagnostics["std_places"]``, with pairs from three places or more) is at most :data:`MAX_SPREAD_RATIO` times the
@@ -207,8 +213,7 @@ def _intensity_places_check(builder: VerdictBuilder, result: TransformResult) ->
     which one pair already shows; an undetermined curvature sigma is infinite)."""
     std_places = _diagnostic(result, "std_places")
     if std_places is None:
-        places = result.diagnostics.get("places") or []
-        builder.missing_check("over places", one_place_note(sum(map(len, places)), len(places), MIN_SPREAD_PLACES))
+        _missing_places_check(builder, result, "over places", MIN_SPREAD_PLACES)
         return
     within = _diagnostic(result, "std_curvature", np.inf)
     std_groups = _diagnostic(result, "std_groups")

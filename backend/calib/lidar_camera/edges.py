@@ -73,7 +73,7 @@ from backend.calib.lidar_camera.held_translation import (
     translation_undetermined,
 )
 from backend.calib.lidar_camera.image_edges import ImageEdges, ImageEdgeSettings, find_image_edges
-from backend.calib.lidar_camera.places import place_of_pairs
+from backend.calib.lidar_camera.places import named_places, place_of_pairs
 from backend.calib.lidar_camera.plane_edges import PlaneEdgeSettings, find_plane_edges
 from backend.calib.lidar_camera.reflectivity_edges import ReflectivityEdgeSettings, find_reflectivity_edges
 from backend.core.camera import CameraIntrinsics, check_camera_image
@@ -682,7 +682,7 @@ def _solve_prepared(prepared: list[_Pair], camera: CameraIntrinsics, T_init: np.
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
                      "T_coarse": best.T_start.tolist(), "iterations": best.iterations, "rounds": best.rounds,
                      "pairs": [p.to_record() for p in per_pair],
-                     "places": [[names[i] for i in np.flatnonzero(place == k)] for k in range(int(place.max()) + 1)]},
+                     "places": named_places(place, names)},
         settings=asdict(settings),
         converged=converged,
         warnings=warnings,

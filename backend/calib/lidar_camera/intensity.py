@@ -81,7 +81,7 @@ from backend.calib.lidar_camera.held_translation import (
     mark_held,
     translation_undetermined,
 )
-from backend.calib.lidar_camera.places import place_of_pairs
+from backend.calib.lidar_camera.places import named_places, place_of_pairs
 from backend.core.camera import CameraIntrinsics, check_camera_image
 from backend.core.clouds import check_cloud
 from backend.core.errors import InputError
@@ -632,8 +632,9 @@ def _curvature(objective: _Objective, T: np.ndarray, camera: CameraIntrinsics, s
         return nid_and_mi(joint_sum)[0] @ pair_weights + priors
 
     full = joints.sum(axis=2)
-    _, hessian = _local_quadratic(values(full, weights))
-    information = _local_quadratic(values(full, weights) - priors)[1] / np.outer(step, step)
+    full_values = values(full, weights)
+    _, hessian = _local_quadratic(full_values)
+    information = _local_quadratic(full_values - priors)[1] / np.outer(step, step)
     determined = np.diag(hessian) > 0
     covariance = np.diag(np.full(6, np.inf))  # parameters = step * x, so cov = S cov_x S
     covariance[np.ix_(determined, determined)] = (np.outer(step, step)[np.ix_(determined, determined)]
@@ -840,7 +841,7 @@ def _solve_prepared(prepared: list[_Pair], place: np.ndarray, camera: CameraIntr
         diagnostics={"std_curvature": finite_or_none(sigmas(curvature.covariance)),
                      "std_spread": finite_or_none(spread), "std_groups": finite_or_none(std_groups),
                      "std_places": finite_or_none(curvature.std_places), "spread_source": source,
-                     "places": [[names[i] for i in np.flatnonzero(place == k)] for k in range(int(place.max()) + 1)],
+                     "places": named_places(place, names),
                      "candidates": [c.to_record() for c in candidates], "T_init": T_init.tolist(),
                      "T_coarse": starts[best].tolist(), "evaluations": objective.evaluations,
                      "pairs": [p.to_record() for p in per_pair]},

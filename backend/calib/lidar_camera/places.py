@@ -25,6 +25,12 @@ def place_of_pairs(clouds: list[np.ndarray]) -> np.ndarray:
     return place
 
 
+def named_places(place: np.ndarray, names: list[str]) -> list[list[str]]:
+    """The pairs' ``names`` grouped by their ``place`` (:func:`place_of_pairs`), places in index order: a result's
+    ``diagnostics["places"]``."""
+    return [[names[i] for i in np.flatnonzero(place == k)] for k in range(int(place.max()) + 1)]
+
+
 def one_place_note(n_pairs: int, n_places: int, needed: int) -> str:
     """Why a cross-check over places cannot be made: ``n_pairs`` pairs from ``n_places`` places, ``needed`` wanted."""
     advice = (f"pairs from {needed} or more places are needed - add pairs taken with the rig elsewhere, or solve the "
