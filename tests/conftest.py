@@ -455,6 +455,14 @@ def assert_uncovered(row: Locator, timeout_s: float = UI_WAIT_S) -> None:
          timeout_s)
 
 
+def close_toast(page: Page, title: str) -> None:
+    """Close the notification titled ``title`` with its close button, as a user would rather than wait the 8 s it
+    floats over the panel, and wait until it has gone."""
+    toast = page.locator(".mantine-Notification-root", has=page.get_by_text(title, exact=True))
+    toast.locator(".mantine-Notification-closeButton").click()
+    expect(toast).to_have_count(0)
+
+
 def wait_still(locator: Locator, timeout_s: float = UI_WAIT_S) -> None:
     """Wait until ``locator``'s box stops moving (an animation such as a notification sliding in has ended)."""
     steady(locator.bounding_box, f"{locator} still moving after {timeout_s:g} s", 1, 0.1, timeout_s)

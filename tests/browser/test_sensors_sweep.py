@@ -18,7 +18,17 @@ from rosbags.rosbag2 import StoragePlugin
 
 from backend.core.sweep_geometry import SweepGeometry
 from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY
-from tests.conftest import ARTIFACTS, Studio, assert_uncovered, button, choose, studio_page, text_input, wait_body
+from tests.conftest import (
+    ARTIFACTS,
+    Studio,
+    assert_uncovered,
+    button,
+    choose,
+    close_toast,
+    studio_page,
+    text_input,
+    wait_body,
+)
 from tests.devices.test_rosbag_source import write_bag
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -54,8 +64,7 @@ def test_add_a_simulated_velodyne_and_stream_it(browser: Browser, studio: Studio
 
 
 def _stream_and_capture(page: Page, studio: Studio) -> None:
-    # The "Sensor added" toast floats over the panel until it closes itself (8 s): wait, or it takes the clicks.
-    expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden()
+    close_toast(page, "Sensor added")  # it floats over the panel and would take the clicks
     page.get_by_text("4 · LiDARs", exact=True).click()
     button(page, "Start live").scroll_into_view_if_needed()
     # Adding velo_sim changed the closed step's live boxes: a titled viser folder filled while closed can stay at
@@ -100,7 +109,7 @@ def test_import_a_bag_topic(browser: Browser, studio: Studio, tmp_path) -> None:
         button(page, "Add sensor").click()
         wait_body(page, re.compile(r"bag_lidar \(lidar3d\) under base_link · rosbag"))
 
-        expect(page.get_by_text("Sensor added", exact=True)).to_be_hidden()  # the toast floats over the panel (8 s)
+        close_toast(page, "Sensor added")  # it floats over the panel
         page.get_by_text("4 · LiDARs", exact=True).click()
         page.get_by_text("Import", exact=True).click()
         choose(page, "Into LiDAR", "bag_lidar")

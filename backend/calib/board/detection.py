@@ -66,6 +66,16 @@ SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 """Full-accuracy flags of ``findChessboardCornersSB``: the most accurate of OpenCV's own on every set measured."""
 LIVE_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
 """Preview flags: fast, and the corners of preview frames are not kept."""
+CROP_MARGIN_SQUARES = 1.5
+"""The full-accuracy search runs on the board's neighbourhood: its inner corners' bounding box grown by this many
+of its widest corner spacings (the outer squares and a quiet zone), as a fast search (:data:`LIVE_FLAGS`) finds
+them. Measured on the demo's 1280x720 renders: 2.2 times faster on boards waved close (48 views), 3.2 times on a
+board 2-3 m away in the yard (10 views); the refined corners (:func:`refine_corners`, window 0.3) agree with the
+whole image's within 0.02 px (median 0.0003), and the detector's own corners lie 0.090 px (RMS) from the truth
+against 0.098 px. OpenCV searches the whole image at every scale, which is most of its time."""
+CROP_MAX_SHARE = 0.5
+"""A neighbourhood larger than this share of the image is not worth cropping: the whole image is searched (the
+board fills OpenCV's 640x480 stereo views, and their corners stay exactly as before)."""
 
 FALLBACKS: dict[tuple[str, bool], tuple[str, ...]] = {
     ("checkerboard", False): ("sb-normalised", "normalised+clahe"),
@@ -236,16 +246,45 @@ def _find_corners(gray: np.ndarray, board: BoardSpec, live: bool,
     ``sb_normalise`` adds ``CALIB_CB_NORMALIZE_IMAGE`` to the full-accuracy checkerboard flags.
     """
     if board.kind == "checkerboard":
-        flags = LIVE_FLAGS if live else SB_FLAGS | (cv2.CALIB_CB_NORMALIZE_IMAGE if sb_normalise else 0)
-        found, corners = cv2.findChessboardCornersSB(gray, board.corner_grid, flags=flags)
-        if not found:
-            return None
-        return corners.reshape(-1, 2).astype(np.float64), np.arange(board.n_corners)
+        if live:
+            return _checkerboard_corners(gray, board, LIVE_FLAGS)
+        flags = SB_FLAGS | (cv2.CALIB_CB_NORMALIZE_IMAGE if sb_normalise else 0)
+        window = _board_window(gray, board)
+        if window is not None:
+            found = _checkerboard_corners(gray[window], board, flags)
+            if found is not None:
+                return found[0] + [window[1].start, window[0].start], found[1]
+        return _checkerboard_corners(gray, board, flags)
     detector = cv2.aruco.CharucoDetector(board.charuco_board())
     corners, ids, _, _ = detector.detectBoard(gray)
     if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
         return None
     return corners.reshape(-1, 2).astype(np.float64), ids.ravel().astype(int)
+
+
+def _checkerboard_corners(gray: np.ndarray, board: BoardSpec, flags: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``findChessboardCornersSB`` with ``flags``: corners (N, 2) float64 px and ids (N,), or None."""
+    found, corners = cv2.findChessboardCornersSB(gray, board.corner_grid, flags=flags)
+    if not found:
+        return None
+    return corners.reshape(-1, 2).astype(np.float64), np.arange(board.n_corners)
+
+
+def _board_window(gray: np.ndarray, board: BoardSpec) -> tuple[slice, slice] | None:
+    """(rows, columns) of ``gray`` about the checkerboard a fast search finds (:data:`CROP_MARGIN_SQUARES`), or None
+    when it finds none or the window would be more than :data:`CROP_MAX_SHARE` of the image."""
+    found = _checkerboard_corners(gray, board, LIVE_FLAGS)
+    if found is None:
+        return None
+    corners_px = found[0]
+    reach_px = CROP_MARGIN_SQUARES * _nearest_spacing(board, corners_px).max()
+    x0, y0 = np.maximum(np.floor(corners_px.min(axis=0) - reach_px), 0).astype(int)
+    x1, y1 = np.ceil(corners_px.max(axis=0) + reach_px).astype(int)
+    height, width = gray.shape[:2]
+    x1, y1 = min(x1, width), min(y1, height)
+    if (x1 - x0) * (y1 - y0) > CROP_MAX_SHARE * width * height:
+        return None
+    return slice(y0, y1), slice(x0, x1)
 
 
 def _treat(treated: dict[str, np.ndarray], name: str) -> np.ndarray:
