@@ -111,15 +111,17 @@ def test_with_the_lens_sigma_the_set_states_the_sigma_covers_the_reference_runs(
 
 
 def test_the_intensity_method_misled_by_the_street_is_rejected(real_pairs) -> None:
-    """Started at run 1, the street's intensities favour an alignment 7 deg away, at the edge of the search, and the
-    eight pairs are one place (a rig standing still), so nothing cross-checks it. Before pairs counted by place it
-    answered 7 deg and 24 cm off with a 0.3 deg sigma, 'check', its leave-one-pair-out check passing."""
-    result = service.solve_pairs(CAMERA, None, real_pairs, reference_runs()[0], method="intensity")
+    """Started at run 1, the street's intensities favour an alignment 6 deg away, at the edge of the search, and the
+    pairs are one place (a rig standing still), so nothing cross-checks it. Before pairs counted by place, all eight
+    answered 7 deg and 24 cm off with a 0.3 deg sigma, 'check', its leave-one-pair-out check passing. Every other pair
+    (four: half the solve's time) is enough to show it: the other four end the same way (r_x +5.9 of 6 deg)."""
+    pairs = real_pairs[::2]
+    result = service.solve_pairs(CAMERA, None, pairs, reference_runs()[0], method="intensity")
     reasons = " ".join(result.verdict.reasons)
     assert not result.converged and result.verdict.level == "reject", result.verdict.reasons
     assert "the best alignment lies at the edge of the search (r_x +" in reasons, reasons
-    assert "no cross-check over places: the 8 pairs were taken in one place" in reasons, reasons
-    assert result.diagnostics["places"] == [[pair.name for pair in real_pairs]]
+    assert "no cross-check over places: the 4 pairs were taken in one place" in reasons, reasons
+    assert result.diagnostics["places"] == [[pair.name for pair in pairs]]
 
 
 def test_the_result_puts_the_board_points_on_the_board_the_camera_saw(real_pairs, result) -> None:
