@@ -27,7 +27,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from bench_util import log
+from bench_util import log, pose_error
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
@@ -38,15 +38,14 @@ from backend.calib.board.detection import detect_board  # noqa: E402
 from backend.calib.lidar_camera import service  # noqa: E402
 from backend.calib.lidar_camera.target import camera_board_pose  # noqa: E402
 from backend.core.boards import BoardSpec  # noqa: E402
-from backend.core.transforms import transform_error  # noqa: E402
 
 SEEDS = range(5)
 
 
 def distance(T, T_other):
-    """(translation norm in mm, rotation angle in deg) of ``T`` from ``T_other``."""
-    trans_m, rot_deg = transform_error(T, T_other)
-    return {"mm": round(float(1000 * np.linalg.norm(trans_m)), 1), "deg": round(float(np.linalg.norm(rot_deg)), 2)}
+    """:func:`bench_util.pose_error` of ``T`` from ``T_other``, as printed: ``{"mm": ..., "deg": ...}``."""
+    mm, deg = pose_error(T, T_other)
+    return {"mm": round(mm, 1), "deg": round(deg, 2)}
 
 
 def main():

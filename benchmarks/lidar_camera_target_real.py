@@ -30,7 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from bench_util import log
+from bench_util import log, pose_error
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
@@ -47,15 +47,8 @@ from backend.calib.lidar_camera.target_evidence import (  # noqa: E402
 )
 from backend.core.boards import BoardSpec  # noqa: E402
 from backend.core.projection import project_cloud  # noqa: E402
-from backend.core.transforms import transform_error  # noqa: E402
 from backend.plots.lidar_camera import pose_evidence_figure  # noqa: E402
 from backend.plots.render import to_rgb  # noqa: E402
-
-
-def distance(T, T_reference):
-    """(translation norm in mm, rotation angle in deg) of ``T`` from ``T_reference``."""
-    trans_m, rot_deg = transform_error(T, T_reference)
-    return float(1000 * np.linalg.norm(trans_m)), float(np.linalg.norm(rot_deg))
 
 
 def crops(pairs, observations, T_run, T_result, board, settings, path):
@@ -115,8 +108,8 @@ def main():
                       "without_deg": fit.get("without_deg"), "without_sigmas": fit.get("without_sigmas"),
                       "image_check": dict(zip(transforms, shares_in_image_outline(
                           observation, list(transforms.values()), CAMERA, board, settings), strict=True))})
-    before_mm, before_deg = distance(T_init, runs[0])
-    after = {name: distance(T, T_run) for name, T_run in transforms.items() if name != "result"}
+    before_mm, before_deg = pose_error(T_init, runs[0])
+    after = {name: pose_error(T, T_run) for name, T_run in transforms.items() if name != "result"}
     if args.figures:
         args.figures.mkdir(parents=True, exist_ok=True)
         evidence = pose_evidence(board, observations, result.diagnostics, T, service.target_settings(board))

@@ -54,15 +54,17 @@ class Reproduction:
 def plane_of(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane of (N, 3) ``points`` (m): unit normal n and distance d >= 0 with n.x = d."""
     centroid = points.mean(axis=0)
-    normal = np.linalg.svd(points - centroid)[2][-1]
-    distance = float(normal @ centroid)
-    return (normal, distance) if distance >= 0 else (-normal, -distance)
+    return _with_distance_positive(np.linalg.svd(points - centroid)[2][-1], centroid)
 
 
 def board_plane(T_camera_board: np.ndarray) -> tuple[np.ndarray, float]:
     """The board's plane in the camera's frame, as :func:`plane_of` gives planes, from its 4x4 pose (m)."""
-    normal = T_camera_board[:3, 2]
-    distance = float(normal @ T_camera_board[:3, 3])
+    return _with_distance_positive(T_camera_board[:3, 2], T_camera_board[:3, 3])
+
+
+def _with_distance_positive(normal: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, float]:
+    """The plane through ``point`` with unit ``normal`` as (n, d) with n.x = d and d >= 0 (the toolbox's sign)."""
+    distance = float(normal @ point)
     return (normal, distance) if distance >= 0 else (-normal, -distance)
 
 

@@ -59,6 +59,12 @@ def start() -> np.ndarray:
     return reference_runs()[0] @ from_xyz_ypr(np.full(3, 0.05 / np.sqrt(3)), np.radians([3.0, 3.0, 3.0]))
 
 
+def apart(T: np.ndarray, T_other: np.ndarray) -> tuple[float, float]:
+    """(translation norm in m, rotation angle in deg) of ``T`` from ``T_other``."""
+    trans_m, rot_deg = transform_error(T, T_other)
+    return float(np.linalg.norm(trans_m)), float(np.linalg.norm(rot_deg))
+
+
 def solve(pairs: list[service.PairData]) -> TransformResult:
     return service.solve_pairs(CAMERA, BoardSpec.parse(BOARD), pairs, start())
 
@@ -73,8 +79,7 @@ def test_the_verdict_follows_the_cross_check_rule_on_the_real_set(result) -> Non
     runs = reference_runs()
     assert result.converged, result.warnings
 
-    distances = [transform_error(result.T_parent_child, T_run) for T_run in runs]
-    off = [(float(np.linalg.norm(t_m)), float(np.linalg.norm(r_deg))) for t_m, r_deg in distances]
+    off = [apart(result.T_parent_child, T_run) for T_run in runs]
     agrees = any(t_m <= AGREES_M and r_deg <= AGREES_DEG for t_m, r_deg in off)
     print("from the runs: " + ", ".join(f"{100 * t:.1f} cm / {r:.2f} deg" for t, r in off)
           + f"; verdict {result.verdict.level}: {result.verdict.reasons}")
@@ -159,10 +164,6 @@ def test_the_runs_come_from_the_off_board_points_the_toolbox_keeps(real_pairs, r
     clouds = [scan_points(pair.points) for pair in real_pairs]
     clicks = clicks_on_boards(clouds, T_camera_boards, board.object_points.mean(axis=0), runs[0])
     found = reproduce([board_plane(T) for T in T_camera_boards], clouds, clicks, seed=0)
-
-    def apart(T: np.ndarray, T_other: np.ndarray) -> tuple[float, float]:
-        trans_m, rot_deg = transform_error(T, T_other)
-        return float(np.linalg.norm(trans_m)), float(np.linalg.norm(rot_deg))
 
     toolbox, on_board, ours = found["toolbox"], found["board"], result.T_parent_child
     for name, found_by in (("toolbox's", toolbox), ("board's", on_board)):
