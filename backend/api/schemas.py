@@ -70,8 +70,9 @@ class SensorUpdate(FiniteModel):
 
 
 class IntrinsicsSolveRequest(FiniteModel):
-    model: Literal["pinhole-radtan", "fisheye-equidistant", "auto"] = Field(
-        "pinhole-radtan", description="'auto': compare the lens models on held-out views and solve with the best")
+    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "auto"] = Field(
+        "pinhole-radtan", description="'photogrammetric': the collinearity model with K1-K3, P1, P2, A1, A2; "
+                                      "'auto': compare the lens models on held-out views and solve with the best")
     auto_for: Literal["any", "camera_info", "kalibr"] = Field(
         "any", description="with 'auto': choose only among the models this export carries (kalibr: no k3)")
     estimate_k3: bool = False
@@ -79,6 +80,8 @@ class IntrinsicsSolveRequest(FiniteModel):
     fix_aspect: bool = False
     drop_outliers: bool = False
     outlier_factor: float = Field(3.0, gt=1.0)
+    pixel_size_um: float | None = Field(None, gt=0, lt=1000, description="the pixel pitch (um): the photogrammetric "
+                                        "model's parameters are reported in mm too")
     capture_ids: list[str] | None = None
 
 

@@ -15,15 +15,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     intr = sub.add_parser("intrinsics", help="calibrate a camera from a folder of board images")
     intr.add_argument("images_dir", type=Path)
     intr.add_argument("--board", required=True, help="e.g. checkerboard:9x6:0.025")
-    intr.add_argument("--model", default="pinhole-radtan", choices=["pinhole-radtan", "fisheye-equidistant", "auto"],
-                      help="auto: compare the lens models on held-out views and solve with the recommended one")
+    intr.add_argument("--model", default="pinhole-radtan",
+                      choices=["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "auto"],
+                      help="photogrammetric: the collinearity model with K1-K3, P1, P2 and the affine A1, A2; "
+                           "auto: compare the lens models on held-out views and solve with the recommended one")
     intr.add_argument("--for", dest="auto_for", default="any", choices=["any", "camera_info", "kalibr"],
-                      help="with --model auto: choose only among the models this export carries (kalibr: no k3)")
+                      help="with --model auto: choose only among the models this export carries (kalibr: no k3); "
+                           "--out camera.yaml implies camera_info")
+    intr.add_argument("--pixel-size-um", type=float, help="the sensor's pixel pitch (um): the photogrammetric "
+                      "model's parameters are reported in mm too")
     intr.add_argument("--k3", action="store_true", help="estimate k3 (pinhole-radtan)")
     intr.add_argument("--no-tangential", action="store_true", help="fix p1 = p2 = 0 (pinhole-radtan)")
     intr.add_argument("--fix-aspect", action="store_true", help="keep fx = fy")
     intr.add_argument("--drop-outliers", action="store_true", help="re-solve without outlier views")
-    intr.add_argument("--out", type=Path, help="write the ROS camera_info YAML here")
+    intr.add_argument("--out", type=Path, help="write the camera here: ROS camera_info YAML, or the camera JSON "
+                      "(any model, with its sigmas) for a .json name")
     intr.add_argument("--camera-name", default="camera", help="camera_name in the YAML")
     intr.add_argument("--json", action="store_true", help="print the result as one JSON object")
     intr.set_defaults(handler=prints_summary(run_intrinsics))
@@ -32,15 +38,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.intrinsics.service import IntrinsicsSettings, solve_files
     from backend.core.boards import BoardSpec
-    from backend.exports.ros_camera_info import dump_camera_info
 
     check_outputs(args.out)
     if args.auto_for != "any" and args.model != "auto":
         raise InputError(f"--for {args.auto_for} chooses among models: it applies to --model auto, not "
                          f"--model {args.model}", "for")
-    settings = IntrinsicsSettings(model=args.model, auto_for=args.auto_for, estimate_k3=args.k3,
+    if args.pixel_size_um is not None and not 0 < args.pixel_size_um < 1000:
+        raise InputError(f"--pixel-size-um is {args.pixel_size_um}; expected the pixel pitch in micrometres "
+                         "(0 to 1000, e.g. 4.8)", "pixel-size-um")
+    as_json = args.out is not None and args.out.suffix.lower() == ".json"
+    if args.out is not None and not as_json and args.model == "photogrammetric":
+        raise InputError(f"--out {args.out} is ROS camera_info YAML, which cannot carry the photogrammetric model; "
+                         "write the camera JSON instead (--out camera.json)", "out")
+    auto_for = "camera_info" if args.out is not None and not as_json and args.model == "auto" else args.auto_for
+    settings = IntrinsicsSettings(model=args.model, auto_for=auto_for, estimate_k3=args.k3,
                                   estimate_tangential=not args.no_tangential, fix_aspect=args.fix_aspect,
-                                  drop_outliers=args.drop_outliers)
+                                  drop_outliers=args.drop_outliers, pixel_size_um=args.pixel_size_um)
     result, skipped = solve_files(args.images_dir, BoardSpec.parse(args.board), settings,
                                        progress_to_stderr(False))
     for item in skipped:
@@ -50,15 +63,32 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     summary = result.summary()
     summary["views"] += [{"image": s["input"], "rms_px": None, "used": False} for s in skipped]
     if args.out:
-        write_outputs(args.command, [(args.out, dump_camera_info(result.camera, args.camera_name))], summary)
+        write_outputs(args.command, [(args.out, _camera_file(result, args.camera_name, as_json))], summary)
     if not args.json:
         cam = result.camera
-        print(f"rms {result.rms_px:.4f} px over {sum(v.used for v in result.views)} views\n"
-              f"fx {cam.K[0, 0]:.3f} +- {result.std['fx']:.3f}  fy {cam.K[1, 1]:.3f} +- {result.std['fy']:.3f}\n"
-              f"cx {cam.K[0, 2]:.3f} +- {result.std['cx']:.3f}  cy {cam.K[1, 2]:.3f} +- {result.std['cy']:.3f}\n"
-              f"dist {[round(d, 6) for d in cam.dist]}\n"
-              f"cross-validation: {result.cross_validation['status']} ({result.cross_validation['detail']})")
+        print(f"rms {result.rms_px:.4f} px over {sum(v.used for v in result.views)} views")
+        if result.photogrammetric:
+            for name, p in result.photogrammetric["parameters"].items():
+                mm = f"  ({p['value_mm']:.6g} +- {p['sigma_mm']:.2g} {p['unit_mm']})" if "value_mm" in p else ""
+                print(f"{name} {p['value_px']:.6g} +- {p['sigma_px']:.2g} {p['unit_px']}{mm}")
+        else:
+            print(f"fx {cam.K[0, 0]:.3f} +- {result.std['fx']:.3f}  fy {cam.K[1, 1]:.3f} +- {result.std['fy']:.3f}\n"
+                  f"cx {cam.K[0, 2]:.3f} +- {result.std['cx']:.3f}  cy {cam.K[1, 2]:.3f} +- {result.std['cy']:.3f}\n"
+                  f"dist {[round(d, 6) for d in cam.dist]}")
+        print(f"cross-validation: {result.cross_validation['status']} ({result.cross_validation['detail']})")
         if result.model_comparison:
             print(f"model: {result.model_comparison['reason']}")
         print(f"verdict: {result.verdict.level}: " + "; ".join(result.verdict.reasons))
     return summary
+
+
+def _camera_file(result, camera_name: str, as_json: bool) -> str:
+    """The text of ``--out``: the camera JSON (with the sigmas and any photogrammetric report) or camera_info."""
+    from backend.exports.camera_json import dump_camera_json
+    from backend.exports.ros_camera_info import dump_camera_info
+
+    if not as_json:
+        return dump_camera_info(result.camera, camera_name)
+    extra = {"std": result.std, "rms_px": result.rms_px}
+    return dump_camera_json(result.camera, camera_name,
+                            extra | ({"photogrammetric": result.photogrammetric} if result.photogrammetric else {}))

@@ -22,7 +22,8 @@ from backend.core.errors import InputError
 def add_parser(sub: argparse._SubParsersAction) -> None:
     lc = sub.add_parser("lidar-camera", help="LiDAR-to-camera extrinsics: T_camera_lidar with its uncertainty")
     lc.add_argument("--camera", type=Path, required=True, metavar="camera.yaml",
-                    help="the camera's ROS camera_info YAML (as `intrinsics --out` writes it)")
+                    help="the camera's ROS camera_info YAML or camera JSON (as `intrinsics --out` writes them; the "
+                         "JSON carries any model, the photogrammetric one included)")
     lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
                     help="an image and the cloud taken with it (repeat for every board pose or scene); "
                          "IMAGE:CLOUD1,CLOUD2,... merges several scans of a static scene into one denser cloud")
@@ -37,8 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="how far the board's plate reaches beyond the pattern's outer corners (m); default: "
                          "estimated with the transform from the scan lines that cross the plate")
     lc.add_argument("--intrinsics-std", metavar="FX,FY,CX,CY,D1,...",
-                    help="target: the 1-sigma of the camera's intrinsics (px: fx, fy, cx, cy; then each distortion "
-                         "coefficient), carried into the board poses and the result's sigma")
+                    help="target: the 1-sigma of the camera's intrinsics (px: fx, fy, cx, cy, or c, xp, yp for the "
+                         "photogrammetric model; then each distortion coefficient), carried into the board poses and "
+                         "the result's sigma")
     lc.add_argument("--translation-prior", type=float, metavar="M",
                     help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
                          "whose edges are all far away (they fix the rotation, hardly the translation); without it, "
@@ -56,10 +58,10 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.lidar_camera.service import cli_summary, solve_files
     from backend.core.boards import BoardSpec
     from backend.core.transforms import check_transform
-    from backend.exports.ros_camera_info import load_camera_info
+    from backend.exports.camera_json import load_camera
 
     pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in parse_pairs(args.pair)]
-    camera, _ = load_camera_info(args.camera)
+    camera, _ = load_camera(args.camera)
     if args.method == "target" and not args.board:
         raise InputError("--method target needs the board's spec, e.g. --board checkerboard:9x6:0.04", "--board")
     T_init = read_init(args)

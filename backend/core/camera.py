@@ -2,7 +2,10 @@
 
 ``pinhole-radtan`` is OpenCV's standard model (``dist = [k1, k2, p1, p2, k3]``,
 ROS ``plumb_bob``); ``fisheye-equidistant`` is OpenCV's fisheye model
-(``dist = [k1, k2, k3, k4]``, ROS ``equidistant``). Points are in the camera's
+(``dist = [k1, k2, k3, k4]``, ROS ``equidistant``); ``photogrammetric`` is the collinearity model with
+self-calibration (:mod:`backend.core.photogrammetric`: ``K`` holds the principal distance ``c`` as ``fx = fy``
+and the principal point, ``dist = [K1, K2, K3, P1, P2, A1, A2]`` in pixel units), which ROS cannot carry.
+Points are in the camera's
 optical frame (x right, y down, z forward, metres); pixels follow OpenCV (centre
 of the top-left pixel is (0, 0)).
 """
@@ -15,14 +18,17 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from backend.core import photogrammetric
 from backend.core.errors import InputError
 
-CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant"]
+CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric"]
+CAMERA_MODELS: tuple[CameraModelName, ...] = ("pinhole-radtan", "fisheye-equidistant", "photogrammetric")
 ROS_DISTORTION_NAMES: dict[str, str] = {"pinhole-radtan": "plumb_bob", "fisheye-equidistant": "equidistant"}
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 DIST_NAMES: dict[str, list[str]] = {
     "pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"],
     "fisheye-equidistant": ["k1", "k2", "k3", "k4"],
+    "photogrammetric": photogrammetric.NAMES,
 }
 
 
@@ -48,6 +54,11 @@ class CameraIntrinsics:
         return self.model == "fisheye-equidistant"
 
     @property
+    def is_opencv(self) -> bool:
+        """Whether OpenCV's functions take ``K`` and ``dist`` as they are (not the photogrammetric model)."""
+        return self.model != "photogrammetric"
+
+    @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) in pixels, as OpenCV expects."""
         return self.width, self.height
@@ -71,10 +82,15 @@ class CameraIntrinsics:
         OpenCV's ``projectPoints`` and ``fisheye.projectPoints`` formulas written out in
         numpy (they agree to 1e-9 px): from Python those functions always compute the
         2N x 15 Jacobian as well, which makes them about 15x slower than this. Like them,
-        this ignores the skew ``K[0, 1]``. Only the five ``pinhole-radtan`` coefficients
+        this ignores the skew ``K[0, 1]``. ``photogrammetric`` is :func:`backend.core.photogrammetric.distort`
+        (in float64). Only the five ``pinhole-radtan`` coefficients
         of the conventions are supported. Computed in the dtype of ``x`` and ``y``
         (float32 in, float32 out: about 1e-4 px at 1280x720); ``x`` and ``y`` are not modified.
         """
+        if self.model == "photogrammetric":
+            xo, yo = photogrammetric.distort(x * float(self.K[0, 0]), y * float(self.K[1, 1]), self.dist)
+            return (xo + float(self.K[0, 2])).astype(x.dtype, copy=False), (yo + float(self.K[1, 2])).astype(
+                y.dtype, copy=False)
         if not self.is_fisheye and self.dist[5:].any():
             raise ValueError("pinhole-radtan takes dist = [k1, k2, p1, p2, k3]; rational terms are not supported")
         # Python floats, so that float32 arrays stay float32.
@@ -112,6 +128,9 @@ class CameraIntrinsics:
     def undistort_points(self, pixels: np.ndarray) -> np.ndarray:
         """Normalised image coordinates (x/z, y/z) of (N, 2) distorted pixels."""
         uv = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if self.model == "photogrammetric":
+            xbar, ybar = photogrammetric.undistort(uv[:, 0, 0] - self.K[0, 2], uv[:, 0, 1] - self.K[1, 2], self.dist)
+            return np.column_stack([xbar / self.K[0, 0], ybar / self.K[1, 1]])
         if self.is_fisheye:
             return cv2.fisheye.undistortPoints(uv, self.K, self.dist[:4]).reshape(-1, 2)
         # The iterative variant with a tight criterion: plain undistortPoints stops after

@@ -232,7 +232,11 @@ def _is_rigid(T: np.ndarray) -> bool:
 
 def kalibr_refusal(name: str, camera: CameraIntrinsics) -> str | None:
     """Why Kalibr's ``pinhole`` + ``radtan``/``equidistant`` cannot describe ``camera`` (a message naming
-    ``name``: a skewed ``K``, or a ``k3`` above :data:`K3_TOLERANCE_PX`), or None if it can."""
+    ``name``: a model it has no name for, a skewed ``K``, or a ``k3`` above :data:`K3_TOLERANCE_PX`), or None if
+    it can."""
+    if camera.model not in DISTORTION_MODELS:
+        return (f"{name}: Kalibr's camchain cannot carry the {camera.model} model (it holds pinhole-radtan and "
+                f"pinhole-equi); export {name}'s camera JSON or OpenCV YAML, or solve it with pinhole-radtan")
     if abs(camera.K[0, 1]) > 1e-12 * abs(camera.K[0, 0]):
         return (f"{name}: K has skew {camera.K[0, 1]!r} px, which Kalibr's pinhole [fu, fv, pu, pv] cannot hold; "
                 "recalibrate without skew")

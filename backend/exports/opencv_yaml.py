@@ -6,8 +6,9 @@ Written and read with :class:`cv2.FileStorage` only. Nodes:
 - ``distortion_model``: the model name of ``../shared/conventions.md``;
 - ``camera_matrix``: 3x3 ``!!opencv-matrix`` ``K`` (px);
 - ``distortion_coefficients``: 1xN ``!!opencv-matrix`` (unitless), ``[k1, k2,
-  p1, p2, k3]`` for ``pinhole-radtan`` and ``[k1, k2, k3, k4]`` for
-  ``fisheye-equidistant``;
+  p1, p2, k3]`` for ``pinhole-radtan``, ``[k1, k2, k3, k4]`` for
+  ``fisheye-equidistant`` and ``[K1, K2, K3, P1, P2, A1, A2]`` (px units) for ``photogrammetric``, whose
+  seven coefficients OpenCV's functions refuse rather than misread;
 - any extras the caller passes, e.g. ``avg_reprojection_error`` (px).
 
 OpenCV writes doubles with 17 significant digits, so values round-trip exactly.
@@ -32,6 +33,7 @@ CAMERA_KEYS = ("image_width", "image_height", "distortion_model", "camera_matrix
 _MODEL_NAMES: dict[str, CameraModelName] = {
     "pinhole-radtan": "pinhole-radtan",
     "fisheye-equidistant": "fisheye-equidistant",
+    "photogrammetric": "photogrammetric",
     "plumb_bob": "pinhole-radtan",
     "equidistant": "fisheye-equidistant",
 }
@@ -107,7 +109,7 @@ def read_opencv_yaml(path: Path) -> CameraIntrinsics:
         raise nodes.error("camera_matrix", f"is {shorten(K.tolist())}", expected)
     model = nodes.model()
     dist = nodes.matrix("distortion_coefficients").ravel()
-    counts = (4, 5) if model == "pinhole-radtan" else (4,)
+    counts = (4, 5) if model == "pinhole-radtan" else (len(DIST_NAMES[model]),)
     if dist.size not in counts:
         raise nodes.error(
             "distortion_coefficients",

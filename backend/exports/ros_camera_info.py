@@ -70,8 +70,12 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
 
     ``R`` is the identity (a monocular camera is not rectified against another)
     and ``P`` is :func:`projection_matrix`. Raises ``ValueError`` if ``camera``
-    holds more distortion coefficients than its model has, and :class:`InputError` for a NaN or infinity.
+    holds more distortion coefficients than its model has, and :class:`InputError` for a NaN or infinity or a
+    model ROS has no name for (:func:`ros_refusal`).
     """
+    refusal = ros_refusal(camera)
+    if refusal is not None:
+        raise InputError(refusal, "model")
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")
@@ -90,6 +94,15 @@ def dump_camera_info(camera: CameraIntrinsics, camera_name: str) -> str:
     # which is exactly yaml-cpp's layout in parse_yml.cpp; an infinite width keeps
     # each list on one line.
     return dump_yaml(document)
+
+
+def ros_refusal(camera: CameraIntrinsics) -> str | None:
+    """Why camera_info cannot carry ``camera``'s model (naming it, and what to write instead), or None if it can."""
+    if camera.model in ROS_DISTORTION_NAMES:
+        return None
+    return (f"camera_info cannot carry the {camera.model} model: ROS's distortion models here are "
+            f"{' and '.join(ROS_DISTORTION_NAMES.values())}; write the camera JSON (camera.json) or the OpenCV YAML, "
+            "or solve with pinhole-radtan")
 
 
 def write_camera_info(path: Path, camera: CameraIntrinsics, camera_name: str) -> None:

@@ -288,7 +288,28 @@ solve (translation in mm along the parent's axes, rotation in deg about the fram
 <tr><th>parameter</th>{% for n in params[c.sensor] %}<th>{{ n.name }}</th>{% endfor %}</tr>
 <tr><th>value</th>{% for n in params[c.sensor] %}<td class="n">{{ n.value | number(6) }}</td>{% endfor %}</tr>
 <tr><th>1-sigma</th>{% for n in params[c.sensor] %}<td class="n">{{ n.std | number(3) }}</td>{% endfor %}</tr>
+{% if params[c.sensor][0].value_mm is defined %}
+<tr><th>value (mm)</th>{% for n in params[c.sensor] %}<td class="n">{{ n.value_mm | number(6) }}
+  {{ n.unit_mm }}</td>{% endfor %}</tr>
+<tr><th>1-sigma (mm)</th>{% for n in params[c.sensor] %}<td class="n">{{ n.std_mm | number(3) }}</td>{% endfor %}</tr>
+{% endif %}
 </table>
+{% if r.photogrammetric is defined %}{% set pg = r.photogrammetric %}
+<p>Photogrammetric model ({{ pg.axes }}; pixel size {{ pg.pixel_size_um if pg.pixel_size_um else "not given" }}
+  um). As OpenCV's pinhole-radtan: {{ "exact" if pg.opencv.exact else "within %.3g px over the image (%s)" |
+  format(pg.opencv.max_residual_px, pg.opencv.note) }}.</p>
+<table>
+<tr><th>correlation</th>{% for n in pg.correlation.names %}<th>{{ n }}</th>{% endfor %}</tr>
+{% for row in pg.correlation.matrix %}<tr><th>{{ pg.correlation.names[loop.index0] }}</th>{% for v in row %}
+  <td class="n">{{ v | fixed(3) }}</td>{% endfor %}</tr>{% endfor %}
+</table>
+<table>
+<tr><th>interior-exterior (largest over {{ pg.interior_exterior.per_view | length }} views)</th>
+  {% for n in pg.interior_exterior.exterior %}<th>{{ n }}</th>{% endfor %}</tr>
+{% for row in pg.interior_exterior.largest %}<tr><th>{{ pg.interior_exterior.interior[loop.index0] }}</th>
+  {% for v in row %}<td class="n">{{ v | fixed(3) }}</td>{% endfor %}</tr>{% endfor %}
+</table>
+{% endif %}
 <h4>Verdict</h4>{{ reasons(r.verdict) }}
 {% for w in r.warnings %}<p class="warn">warning: {{ w }}</p>{% endfor %}
 {% if c.unreadable %}<p class="warn">views left out of the plots: {{ c.unreadable | join("; ") }}</p>{% endif %}

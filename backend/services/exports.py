@@ -5,9 +5,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from backend.calib.rig.service import solve_rig
-from backend.core.camera import ROS_DISTORTION_NAMES, CameraIntrinsics
+from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError, shorten
 from backend.core.rig import Frame, Rig
+from backend.exports.camera_json import dump_camera_json
 from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS, Convention, ExportFormat
 from backend.exports.frame_tree import ancestors
 from backend.exports.kalibr_camchain import dump_kalibr_camchain, kalibr_refusal
@@ -15,11 +16,12 @@ from backend.exports.opencv_yaml import dump_opencv_yaml
 from backend.exports.pose_table import dump_pose_table
 from backend.exports.rig_transforms import dump_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
-from backend.exports.ros_camera_info import dump_camera_info
+from backend.exports.ros_camera_info import dump_camera_info, ros_refusal
 from backend.exports.urdf import dump_urdf
 from backend.store.session import Session
 
-MEDIA_TYPES: dict[str, str] = {"urdf": "application/xml", "launch": "text/x-python", "pose-table": "text/csv"}
+MEDIA_TYPES: dict[str, str] = {"camera-json": "application/json", "urdf": "application/xml",
+                               "launch": "text/x-python", "pose-table": "text/csv"}
 """The media type of each format that is not YAML (the others are ``application/yaml``)."""
 
 
@@ -35,17 +37,17 @@ def accepted_camera(session: Session, sensor: str) -> CameraIntrinsics:
 
 def camera_exports(name: str, camera: CameraIntrinsics) -> dict[str, str | None]:
     """Each one-camera export and whether it carries ``camera`` as it is: None if it does, else why not (what to
-    do instead). ``camera_info`` writes ROS's ``plumb_bob`` or ``equidistant``, ``opencv`` any model, and Kalibr's
-    camchain radtan [k1, k2, r1, r2] or equidistant, without a k3 that matters."""
-    return {"camera_info": None if camera.model in ROS_DISTORTION_NAMES else f"ROS has no model for {camera.model}",
-            "opencv": None, "kalibr": kalibr_refusal(name, camera)}
+    do instead). ``camera_info`` writes ROS's ``plumb_bob`` or ``equidistant``, ``opencv`` and ``camera-json`` any
+    model under its name, and Kalibr's camchain radtan [k1, k2, r1, r2] or equidistant, without a k3 that matters."""
+    return {"camera_info": ros_refusal(camera), "opencv": None, "camera-json": None,
+            "kalibr": kalibr_refusal(name, camera)}
 
 
 def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, *,
                 convention: Convention | None = None, cameras: Sequence[str] | None = None) -> tuple[str, str]:
     """Return (file name, text) of one export of the session's rig.
 
-    ``sensor`` is the camera of camera_info and opencv (the other formats ignore it); ``convention``
+    ``sensor`` is the camera of camera_info, opencv and camera-json (the other formats ignore it); ``convention``
     (default ``optical``) applies to rig, urdf and launch only; ``cameras`` (default: every camera Kalibr can
     describe) to kalibr only. A choice given for a format it does not apply to is refused (422), as is an
     unknown format or convention. Data the rig lacks is refused naming the sensor: a camera without
@@ -83,7 +85,12 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
     if fmt == "camera_info":
         return f"{sensor}.yaml", dump_camera_info(camera, sensor)
     result_id = session.accepted(f"{sensor}/intrinsics")
-    extra = {"avg_reprojection_error": session.result(result_id)["rms_px"]} if result_id else None
+    record = session.result(result_id) if result_id else None
+    if fmt == "camera-json":
+        kept = ("rms_px", "std", "correlation", "photogrammetric")
+        return f"{sensor}.json", dump_camera_json(camera, sensor, {key: record[key] for key in kept
+                                                                   if record and key in record})
+    extra = {"avg_reprojection_error": record["rms_px"]} if record else None
     return f"{sensor}_opencv.yaml", dump_opencv_yaml(camera, extra)
 
 

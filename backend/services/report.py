@@ -37,8 +37,15 @@ def render_report(session: Session) -> str:
 
 
 def intrinsics_parameters(camera: CameraReport) -> list[dict[str, Any]]:
-    """``{"name", "value", "std"}`` of fx, fy, cx, cy (px) and each distortion coefficient of the model."""
+    """``{"name", "value", "std"}`` of fx, fy, cx, cy (px) and each distortion coefficient of the model; for the
+    photogrammetric model of c, xp, yp and its coefficients in px units, with ``value_mm`` and ``std_mm`` where the
+    pixel size is known."""
     record = camera.record
+    if "photogrammetric" in record:
+        return [{"name": f"{name} ({p['unit_px']})", "value": p["value_px"], "std": p["sigma_px"],
+                 **({"value_mm": p["value_mm"], "std_mm": p["sigma_mm"], "unit_mm": p["unit_mm"]}
+                    if "value_mm" in p else {})}
+                for name, p in record["photogrammetric"]["parameters"].items()]
     K, std = record["camera"]["K"], record["std"]
     rows = [{"name": name, "value": K[i][j], "std": std.get(name)}
             for name, (i, j) in zip(("fx", "fy", "cx", "cy"), ((0, 0), (1, 1), (0, 2), (1, 2)), strict=True)]

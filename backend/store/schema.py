@@ -40,7 +40,7 @@ FiniteTree = Annotated[dict[str, Any], AfterValidator(_finite_tree)]
 
 
 class CameraModel(FiniteModel):
-    model: Literal["pinhole-radtan", "fisheye-equidistant"]
+    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric"]
     width: int = Field(gt=0, description="image width (px)")
     height: int = Field(gt=0, description="image height (px)")
     K: list[list[float]] = Field(description="3x3 camera matrix (px), row-major")

@@ -10,6 +10,7 @@ from backend.calib._session import session_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.intrinsics.service import IntrinsicsSettings
 from backend.calib.rig import service as rig_service
+from backend.core.camera import DIST_NAMES
 from backend.core.errors import InputError
 from backend.plots.board import live_view
 from backend.plots.intrinsics import projection_maps, view_rms_bars
@@ -73,9 +74,14 @@ class IntrinsicsStep:
                 self.bars = {name: gui.add_progress_bar(0.0, color="teal") for name in PARAM_NAMES}
                 self.coverage_text = gui.add_markdown("No views yet.")
             with gui.add_folder("Solve"):
-                self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant", "auto"],
-                                              hint="auto: compare the lens models on held-out views, solve with "
-                                                   "the recommended one")
+                self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant",
+                                                                "photogrammetric", "auto"],
+                                              hint="photogrammetric: c, xp, yp, K1-K3, P1, P2 and the affine A1, A2 "
+                                                   "(not for ROS); auto: compare the lens models on held-out views, "
+                                                   "solve with the recommended one")
+                self.pixel_size = gui.add_number("Pixel size (µm, 0: unknown)", initial_value=0.0, min=0.0,
+                                                 max=100.0, step=0.01, visible=False,
+                                                 hint="the photogrammetric parameters are then given in mm too")
                 self.auto_for = gui.add_dropdown("Auto: for the export", options=list(AUTO_FOR), visible=False,
                                                  hint="choose only among the lens models this export can carry "
                                                       "(Kalibr: no k3)")
@@ -96,6 +102,8 @@ class IntrinsicsStep:
             with gui.add_folder("Export"):
                 self.export_ros = gui.add_button("Download ROS camera_info YAML")
                 self.export_opencv = gui.add_button("Download OpenCV YAML")
+                self.export_json = gui.add_button("Download camera JSON", hint="any model, the photogrammetric one "
+                                                  "included, with its sigmas and correlations")
                 self.export_rig = gui.add_button("Download rig transforms YAML")
 
         self.camera.on_update(lambda _: self._select_camera())
@@ -106,10 +114,11 @@ class IntrinsicsStep:
         self.import_button.on_upload(lambda _: self._import(self.import_button.value))
         self.solve_button.on_click(lambda _: self._solve())
         self.wave_button.on_click(lambda _: self._wave_board())
-        self.model.on_update(lambda _: setattr(self.auto_for, "visible", self.model.value == "auto"))
+        self.model.on_update(lambda _: self._model_chosen())
         self.history.on_update(lambda _: self._show_result(self.history.value))
         self.export_ros.on_click(lambda event: self.ctx.download(event, "camera_info", self.sensor))
         self.export_opencv.on_click(lambda event: self.ctx.download(event, "opencv", self.sensor))
+        self.export_json.on_click(lambda event: self.ctx.download(event, "camera-json", self.sensor))
         self.export_rig.on_click(lambda event: self.ctx.download(event, "rig", self.sensor))
         ctx.on_session_closing(self.stop_live)
         ctx.on_session_changed(self._on_session)
@@ -263,7 +272,12 @@ class IntrinsicsStep:
         return IntrinsicsSettings(model=self.model.value, auto_for=AUTO_FOR[self.auto_for.value],
                                   estimate_k3=self.k3.value,
                                   estimate_tangential=self.tangential.value, fix_aspect=self.fix_aspect.value,
-                                  drop_outliers=self.drop_outliers.value)
+                                  drop_outliers=self.drop_outliers.value,
+                                  pixel_size_um=float(self.pixel_size.value) or None)
+
+    def _model_chosen(self) -> None:
+        self.auto_for.visible = self.model.value == "auto"
+        self.pixel_size.visible = self.model.value in ("photogrammetric", "auto")
 
     def _solve(self) -> None:
         session, sensor = self.ctx.session, self.sensor
@@ -317,11 +331,13 @@ def parameters_markdown(record: dict) -> str:
     uncertainty."""
     camera, std = record["camera"], record["std"]
     K = camera["K"]
-    names = {"pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"], "fisheye-equidistant": ["k1", "k2", "k3", "k4"]}
-    rows = [("fx", K[0][0], std["fx"]), ("fy", K[1][1], std["fy"]), ("cx", K[0][2], std["cx"]),
-            ("cy", K[1][2], std["cy"])]
-    rows += list(zip(names[camera["model"]], camera["dist"], std["dist"], strict=True))
-    table = "\n".join(f"| {n} | {v:.6g} | {s:.2g} |" for n, v, s in rows)
+    if "photogrammetric" in record:
+        table = photogrammetric_markdown(record["photogrammetric"])
+    else:
+        rows = [("fx", K[0][0], std["fx"]), ("fy", K[1][1], std["fy"]), ("cx", K[0][2], std["cx"]),
+                ("cy", K[1][2], std["cy"])]
+        rows += list(zip(DIST_NAMES[camera["model"]], camera["dist"], std["dist"], strict=True))
+        table = "| param | value | σ |\n|---|---|---|\n" + "\n".join(f"| {n} | {v:.6g} | {s:.2g} |" for n, v, s in rows)
     corr = record["correlation"]
     matrix = np.array(corr["matrix"])
     strong = [f"{corr['names'][i]}–{corr['names'][j]} {matrix[i, j]:+.2f}"
@@ -330,11 +346,30 @@ def parameters_markdown(record: dict) -> str:
     outliers = [v["image"] for v in record["views"] if v["outlier"]]
     unc = record["projection_uncertainty"]
     return (
-        f"{used} views used\n\n| param | value | σ |\n|---|---|---|\n{table}\n\n"
+        f"{used} views used\n\n{table}\n\n"
         f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
         f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
         f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
     )
+
+
+def photogrammetric_markdown(block: dict) -> str:
+    """The photogrammetric parameters in px and (with the pixel size) mm, with sigmas, and the largest correlation
+    of each interior parameter with a view's exterior orientation."""
+    in_mm = block["pixel_size_um"] is not None
+    header = "| param | value (px) | σ (px) |" + (" value (mm) | σ (mm) |" if in_mm else "")
+    rows = [header, "|---|---|---|" + ("---|---|" if in_mm else "")]
+    for name, p in block["parameters"].items():
+        mm = f" {p['value_mm']:.6g} {p['unit_mm']} | {p['sigma_mm']:.2g} |" if in_mm else ""
+        rows.append(f"| {name} | {p['value_px']:.6g} {p['unit_px']} | {p['sigma_px']:.2g} |{mm}")
+    cross = block["interior_exterior"]
+    largest = np.array(cross["largest"])
+    pairs = [f"{cross['interior'][i]}–{cross['exterior'][j]} {largest[i, j]:+.2f}"
+             for i, j in zip(*np.nonzero(np.abs(largest) > 0.9), strict=True)]
+    conversion = block["opencv"]
+    return ("\n".join(rows) + f"\n\nInterior–exterior correlations above 0.9 (largest over the views): "
+            f"{', '.join(pairs) or 'none'}\n\nAs OpenCV's pinhole-radtan: "
+            f"{'exact' if conversion['exact'] else 'within ' + format(conversion['max_residual_px'], '.3g') + ' px'}")
 
 
 def checks_markdown(record: dict) -> str:

@@ -381,3 +381,33 @@ def test_token(tmp_path: Path):
         other.cookies.set("calib_token", "nope")
         assert other.get("/api/health").status_code == 401
     app.state.studio.jobs.shutdown()
+
+
+@pytest.mark.slow
+def test_a_photogrammetric_solve_through_the_api_and_the_camera_json_export(client: TestClient, solved: dict):
+    session = solved["session"]
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve",
+                           json={"model": "photogrammetric", "pixel_size_um": 6.0})
+    assert response.status_code == 202, response.text
+    status = wait_job(client, response.json()["id"])
+    assert status["state"] == "done", status
+    rid = status["result_id"]
+    record = client.get(f"/api/sessions/{session}/results/{rid}").json()
+    assert record["camera"]["model"] == "photogrammetric" and len(record["camera"]["dist"]) == 7
+    assert record["photogrammetric"]["parameters"]["c"]["unit_mm"] == "mm"
+    # 13 VGA views do not pin K3 down at the image corners: the verdict says so and the result cannot be accepted
+    assert record["verdict"]["level"] == "reject", record["verdict"]
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept",
+                           json={"result_id": rid, "confirm": True})
+    assert response.status_code == 409 and "worst projection across the image" in response.text
+    # the camera JSON carries the accepted camera with its sigmas and correlations
+    accepted = client.get(f"/api/sessions/{session}").json()["accepted"]["cam/intrinsics"]
+    exported = client.get(f"/api/sessions/{session}/export/camera-json", params={"sensor": "cam"})
+    assert exported.status_code == 200 and exported.headers["content-type"].startswith("application/json")
+    assert 'filename="cam.json"' in exported.headers["content-disposition"]
+    document, kept = exported.json(), client.get(f"/api/sessions/{session}/results/{accepted}").json()
+    assert document["model"] == kept["camera"]["model"] and document["dist"] == kept["camera"]["dist"]
+    assert document["std"] == kept["std"] and document["correlation"] == kept["correlation"]
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve",
+                           json={"model": "photogrammetric", "pixel_size_um": -1})
+    assert response.status_code == 422 and "pixel_size_um" in response.text

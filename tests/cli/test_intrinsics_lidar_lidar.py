@@ -113,7 +113,8 @@ def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_pat
     comparison = out["model_comparison"]
     assert comparison["status"] == "compared"
     models = [c["model"] for c in comparison["candidates"]]
-    assert models == ["pinhole-radtan k1-k2", "fisheye-equidistant", "pinhole-radtan k1-k3", "pinhole-rational"]
+    assert models == ["pinhole-radtan k1-k2", "fisheye-equidistant", "pinhole-radtan k1-k3", "photogrammetric",
+                      "pinhole-rational"]
     assert all(0 < c["held_out_rms_px"] < 0.5 for c in comparison["candidates"])
     winner = next(c for c in comparison["candidates"] if c["recommended"])
     assert comparison["recommended"] == winner["model"] and comparison["reason"].startswith(winner["model"])
@@ -227,3 +228,34 @@ def test_export_camera_info_from_session(left_images, tmp_path: Path):
     run = cli_in_process("export", session.path, "--format", "camera_info", "--sensor", "cam_right")
     assert run.returncode != 0 and run.stdout == ""
     assert run.stderr.strip().splitlines()[-1].startswith("error: cam_right")
+
+
+def test_the_photogrammetric_model_is_refused_for_camera_info_before_any_work(left_images, tmp_path: Path):
+    folder = copy_images(left_images[:3], tmp_path / "three")
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--model", "photogrammetric",
+                                               "--out", str(tmp_path / "camera.yaml"), "--json"))
+    assert error == {"message": f"--out {tmp_path / 'camera.yaml'} is ROS camera_info YAML, which cannot carry the "
+                                "photogrammetric model; write the camera JSON instead (--out camera.json)",
+                     "input": "out"}
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--model", "photogrammetric",
+                                               "--pixel-size-um", "-4.8", "--json"))
+    assert error["input"] == "pixel-size-um" and "pixel pitch in micrometres" in error["message"]
+
+
+@pytest.mark.slow
+def test_the_photogrammetric_model_in_mm_to_camera_json(left_images, tmp_path: Path):
+    from backend.exports.camera_json import load_camera
+
+    folder = copy_images(left_images, tmp_path / "images")
+    run = cli_in_process("intrinsics", folder, "--board", BOARD, "--model", "photogrammetric", "--pixel-size-um", "6",
+                         "--out", str(tmp_path / "camera.json"), "--json")
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    camera, name = load_camera(tmp_path / "camera.json")
+    assert name == "camera" and camera.model == out["camera"]["model"] == "photogrammetric"
+    np.testing.assert_array_equal(camera.dist, out["camera"]["dist"])
+    c = out["photogrammetric"]["parameters"]["c"]
+    assert c["value_mm"] == pytest.approx(c["value_px"] * 0.006)
+    assert c["sigma_mm"] == pytest.approx(c["sigma_px"] * 0.006)
+    saved = json.loads((tmp_path / "camera.json").read_text())
+    assert saved["photogrammetric"] == out["photogrammetric"] and saved["std"] == out["std"]

@@ -4,8 +4,10 @@ Each candidate is fitted on all but one fold of the views and tested on the view
 held-out view gets its own pose by PnP with the fitted intrinsics, then its corners' RMS): a model with
 more coefficients always fits its own views better, but only a model that follows the lens also predicts
 new ones. The recommendation is the simplest candidate whose held-out RMS is within
-:data:`WITHIN_BEST` of the best output model's. OpenCV's rational model (8 coefficients) is compared too,
-but it is not an output model here (no export or projection carries it), so it can only be reported.
+:data:`WITHIN_BEST` of the best output model's; the photogrammetric model (ten parameters, affine terms
+included) is a candidate only where no export is named, since ROS and Kalibr cannot carry it. OpenCV's
+rational model (8 coefficients) is compared too, but it is not an output model here (no export or
+projection carries it), so it can only be reported.
 """
 
 from __future__ import annotations
@@ -16,18 +18,21 @@ from typing import Any
 import cv2
 import numpy as np
 
+from backend.calib.board.pose import board_pose
+from backend.calib.intrinsics import photogrammetric
 from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.solver import (
     TERM_CRITERIA,
     IntrinsicsResult,
     IntrinsicsSettings,
     View,
+    _calibrate,
     _check_views,
-    _opencv_calibrate,
     _pick_corners,
     calibrate_intrinsics,
 )
 from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 
@@ -40,7 +45,7 @@ WITHIN_BEST = 0.05
 SIMPLE = "pinhole-radtan k1-k2"
 """The model kept when the views are too few to compare."""
 EXPORT_MODELS: dict[str, frozenset[str]] = {
-    "any": frozenset({SIMPLE, "fisheye-equidistant", "pinhole-radtan k1-k3"}),
+    "any": frozenset({SIMPLE, "fisheye-equidistant", "pinhole-radtan k1-k3", "photogrammetric"}),
     "camera_info": frozenset({SIMPLE, "fisheye-equidistant", "pinhole-radtan k1-k3"}),
     "kalibr": frozenset({SIMPLE, "fisheye-equidistant"}),
 }
@@ -66,6 +71,7 @@ def candidates(base: IntrinsicsSettings) -> list[Candidate]:
         Candidate(SIMPLE, replace(radtan, estimate_k3=False), 2 + tangential),
         Candidate("fisheye-equidistant", replace(radtan, model="fisheye-equidistant"), 4),
         Candidate("pinhole-radtan k1-k3", replace(radtan, estimate_k3=True), 3 + tangential),
+        Candidate("photogrammetric", replace(radtan, model="photogrammetric"), len(photogrammetric.INTERIOR) - 3),
         Candidate("pinhole-rational", None, 6 + tangential),
     ]
 
@@ -74,7 +80,7 @@ def _fit(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[
          base: IntrinsicsSettings) -> tuple[np.ndarray, np.ndarray]:
     """K and dist of ``candidate`` fitted on ``views``."""
     if candidate.settings is not None:
-        K, dist, _, _ = _opencv_calibrate(views, board, size, candidate.settings)
+        K, dist, _, _ = _calibrate(views, board, size, candidate.settings)
         return K, dist
     flags = (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_ZERO_TANGENT_DIST * (not base.estimate_tangential)
              | cv2.CALIB_FIX_ASPECT_RATIO * base.fix_aspect)
@@ -84,11 +90,21 @@ def _fit(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[
     return K, dist.ravel()[:8]
 
 
-def _held_out_residuals(fisheye: bool, K: np.ndarray, dist: np.ndarray, view: View, board: BoardSpec) -> np.ndarray:
-    """(N, 2) residuals (px) of a view the model was not fitted on, posed by PnP with the fitted intrinsics."""
+def _held_out_residuals(model: str, K: np.ndarray, dist: np.ndarray, view: View, board: BoardSpec,
+                        size: tuple[int, int]) -> np.ndarray:
+    """(N, 2) residuals (px) of a view the model was not fitted on, posed by PnP with the fitted intrinsics
+    (for the photogrammetric model: PnP on the undistorted corners, then refined in pixels)."""
     obj = view.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3)
     img = view.detection.corners_px.reshape(-1, 1, 2)
-    if fisheye:
+    if model == "photogrammetric":
+        camera = CameraIntrinsics(model, size[0], size[1], K, dist)
+        T = board_pose(camera, board, view.detection)
+        if T is None:
+            raise InputError(f"{view.name}: the held-out view could not be posed", view.name)
+        rvec, tvec = cv2.Rodrigues(T[:3, :3])[0], T[:3, 3:]
+        _, _, rvecs, tvecs = photogrammetric.bundle_adjust(camera, [obj], [img], [rvec], [tvec], fix_interior=True)
+        return img.reshape(-1, 2) - photogrammetric.project(camera, obj, rvecs[0], tvecs[0])[0]
+    if model == "fisheye-equidistant":
         _, rvec, tvec = cv2.fisheye.solvePnP(obj, img, K, dist[:4], flags=cv2.SOLVEPNP_ITERATIVE)
         projected, _ = cv2.fisheye.projectPoints(obj, rvec, tvec, K, dist[:4])
     else:
@@ -101,12 +117,12 @@ def _held_out_rms(candidate: Candidate, views: list[View], board: BoardSpec, siz
                   base: IntrinsicsSettings) -> dict[str, Any]:
     """``{"model", "n_dist", "held_out_rms_px"}`` over :data:`FOLDS` folds, or with ``error`` if a fit failed."""
     residuals = []
-    fisheye = candidate.name == "fisheye-equidistant"
+    model = candidate.settings.model if candidate.settings else "pinhole-radtan"
     try:
         for fold in range(FOLDS):
             train = [v for i, v in enumerate(views) if i % FOLDS != fold]
             K, dist = _fit(candidate, train, board, size, base)
-            residuals += [_held_out_residuals(fisheye, K, dist, v, board)
+            residuals += [_held_out_residuals(model, K, dist, v, board, size)
                           for i, v in enumerate(views) if i % FOLDS == fold]
     except (InputError, cv2.error) as exc:
         message = exc.message if isinstance(exc, InputError) else exc.err
@@ -158,8 +174,8 @@ def compare_models(views: list[View], board: BoardSpec, size: tuple[int, int],
 
 def settings_for(recommended: str, base: IntrinsicsSettings) -> IntrinsicsSettings:
     """``base`` with the model (and k3) of a recommended output model's name."""
-    if recommended == "fisheye-equidistant":
-        return replace(base, model="fisheye-equidistant")
+    if recommended in ("fisheye-equidistant", "photogrammetric"):
+        return replace(base, model=recommended)
     return replace(base, model="pinhole-radtan", estimate_k3=recommended == "pinhole-radtan k1-k3")
 
 

@@ -1,7 +1,8 @@
 """Camera intrinsic calibration with honest uncertainties.
 
 OpenCV does the solve (``calibrateCamera`` for ``pinhole-radtan``,
-``fisheye.calibrate`` for ``fisheye-equidistant``). OpenCV reports per-parameter
+``fisheye.calibrate`` for ``fisheye-equidistant``); the ``photogrammetric`` model, which OpenCV cannot fit, is
+solved by :mod:`backend.calib.intrinsics.photogrammetric` from OpenCV's solve. OpenCV reports per-parameter
 standard deviations but not their covariance, so we rebuild the full problem's
 Jacobian from OpenCV's own analytic projection Jacobians (``projectPoints``) and
 compute ``cov = sigma^2 (J^T J)^-1`` over intrinsics *and* every view's pose,
@@ -32,6 +33,7 @@ import numpy as np
 from backend.calib.board.coverage import view_parameters
 from backend.calib.board.detection import Detection
 from backend.calib.board.pose import board_pose
+from backend.calib.intrinsics import photogrammetric
 from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.crossval import grid_pixels, projection_difference
 from backend.core.boards import BoardSpec
@@ -51,7 +53,7 @@ UNCERTAINTY_GRID = (16, 9)
 TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 SEED_RADIUS = 0.7
 """Views whose corners all lie within this fraction of the half-diagonal from the image centre seed a second
-solve (:func:`_opencv_calibrate`): near the centre distortion is mild, so their solve starts near the lens."""
+solve (:func:`_calibrate`): near the centre distortion is mild, so their solve starts near the lens."""
 SETTLED_RMS_PX = 0.1
 """A plain solve that fits its views this well (px RMS) is at the corner detector's noise floor and is kept without
 the seeded second solve: the wrong minima seen fitted at 0.15-0.72 px, where the true lens fitted at 0.04 px."""
@@ -81,6 +83,8 @@ class IntrinsicsSettings:
     """Also estimate sigmas by leaving out one view at a time, and report the larger (see :func:`_jackknife_std`)."""
     cross_validate: bool = True
     """Also calibrate each half of the views and compare them (:func:`_cross_validate`), the verdict's cross-check."""
+    pixel_size_um: float | None = None
+    """The sensor's pixel pitch (um): the photogrammetric model's parameters are then reported in mm too."""
 
 
 @dataclass
@@ -140,6 +144,8 @@ class IntrinsicsResult(SolveResult):
     warnings: list[str] = field(default_factory=list)
     model_comparison: dict[str, Any] | None = None
     """With ``model="auto"``: the held-out comparison of the candidate models and the recommendation."""
+    photogrammetric: dict[str, Any] | None = None
+    """With the ``photogrammetric`` model: :func:`backend.calib.intrinsics.photogrammetric.report`."""
 
     def summary(self) -> dict[str, Any]:
         unc = self.projection_uncertainty
@@ -154,6 +160,7 @@ class IntrinsicsResult(SolveResult):
             "cross_validation": {k: v for k, v in self.cross_validation.items()
                                  if k not in ("difference_px", "expected_px")},
             "model_comparison": self.model_comparison,
+            **({"photogrammetric": self.photogrammetric} if self.photogrammetric else {}),
             "verdict": self.verdict.to_dict(),
             "seconds": self.seconds,
         }
@@ -191,17 +198,20 @@ def _check_views(views: list[View], board: BoardSpec) -> None:
         )
 
 
-def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-                      guess: CameraIntrinsics | None = None):
-    """OpenCV's solve of ``views``, from ``guess`` if given; returns (K, dist, rvecs, tvecs).
+def _calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+               guess: CameraIntrinsics | None = None):
+    """The solve of ``views`` in ``settings.model``, from ``guess`` if given; returns (K, dist, rvecs, tvecs).
 
     Without a guess, OpenCV starts from a distortion-free camera, and with a strong lens and boards in the
     image corners it can settle in a wrong minimum (the demo's wide lens: 0.72 px RMS and fx 3 px off, where
     the true lens fits to 0.04 px). So the views near the centre (:data:`SEED_RADIUS`) are solved first and
     all views are solved again from there, as mrcal seeds its solves from the image centre's points; the
     solve that fits all views better is kept. A plain solve within :data:`SETTLED_RMS_PX` is kept at once.
-    Raises the plain solve's :class:`InputError` when neither runs.
+    Raises the plain solve's :class:`InputError` when neither runs. The photogrammetric model starts from
+    this solve of OpenCV's model (:func:`_photogrammetric_calibrate`).
     """
+    if settings.model == "photogrammetric":
+        return _photogrammetric_calibrate(views, board, size, guess)
     if guess is not None:
         return _opencv_solve(views, board, size, settings, guess)
     scored, failure = [], None  # (RMS over all views in px, solve) of each solve that ran
@@ -225,6 +235,22 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
     if not scored:
         raise failure
     return min(scored, key=lambda rms_solve: rms_solve[0])[1]
+
+
+def _photogrammetric_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int],
+                               guess: CameraIntrinsics | None):
+    """The photogrammetric bundle adjustment of ``views``, from ``guess`` or else from OpenCV's five-coefficient
+    solve with ``fx = fy`` (the model with ``A1 = A2 = 0``); returns (K, dist, rvecs, tvecs)."""
+    if guess is None:
+        K, dist, rvecs, tvecs = _calibrate(views, board, size, IntrinsicsSettings(estimate_k3=True, fix_aspect=True))
+        guess = photogrammetric.start_from_opencv(K, dist, size)
+    else:
+        poses = [board_pose(guess, board, v.detection) for v in views]
+        if any(T is None for T in poses):
+            raise InputError("a view's board could not be posed from the starting camera", "views")
+        rvecs, tvecs = zip(*(to_rvec_tvec(T) for T in poses), strict=True)
+    return photogrammetric.bundle_adjust(guess, [v.detection.object_points(board) for v in views],
+                                         [v.detection.corners_px for v in views], list(rvecs), list(tvecs))
 
 
 def _solve_rms(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
@@ -267,6 +293,8 @@ def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], se
 def _project(camera: CameraIntrinsics, object_points: np.ndarray, rvec, tvec) -> tuple[np.ndarray, np.ndarray]:
     """Project board points; returns pixels (N, 2) and the Jacobian columns in the
     order [rvec(3), tvec(3), fx, fy, cx, cy, dist...] (2N rows, u and v interleaved)."""
+    if camera.model == "photogrammetric":
+        return photogrammetric.project(camera, object_points, rvec, tvec)
     pts = object_points.astype(np.float64).reshape(-1, 1, 3)
     if camera.is_fisheye:
         uv, J = cv2.fisheye.projectPoints(pts, rvec, tvec, camera.K, camera.dist[:4])
@@ -279,31 +307,36 @@ def _project(camera: CameraIntrinsics, object_points: np.ndarray, rvec, tvec) ->
 
 
 def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> np.ndarray:
-    """Matrix A (n_all x n_free) mapping free intrinsic parameters to [fx, fy, cx, cy, dist...]."""
+    """Matrix A (n_all x n_free) mapping free intrinsic parameters to [fx, fy, cx, cy, dist...].
+
+    The photogrammetric model has one principal distance: ``fy`` moves with ``fx`` as with ``fix_aspect``.
+    """
     names = ["fx", "fy", "cx", "cy", *DIST_NAMES[camera.model]]
+    tied = settings.fix_aspect or camera.model == "photogrammetric"
     fixed = set()
     if camera.model == "pinhole-radtan":
         fixed |= set() if settings.estimate_k3 else {"k3"}
         fixed |= set() if settings.estimate_tangential else {"p1", "p2"}
     columns = []
     for i, name in enumerate(names):
-        if name in fixed or (name == "fy" and settings.fix_aspect):
+        if name in fixed or (name == "fy" and tied):
             continue
         column = np.zeros(len(names))
         column[i] = 1.0
-        if name == "fx" and settings.fix_aspect:
+        if name == "fx" and tied:
             column[1] = camera.K[1, 1] / camera.K[0, 0]  # fy moves with fx at the fixed ratio
         columns.append(column)
     return np.column_stack(columns)
 
 
 def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, rvecs, tvecs, used: np.ndarray,
-                A: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
-    """Residuals and pose of every view, and the covariance of [fx, fy, cx, cy, dist...].
+                A: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
+    """Residuals and pose of every view, the covariance of [fx, fy, cx, cy, dist...], and the covariance over
+    the free intrinsics (``A``'s columns) and every used view's ``rvec`` and ``tvec``.
 
     ``rvecs``/``tvecs`` are OpenCV's poses of the used views; excluded views get a
     pose by PnP so their residuals can still be shown. Covariance units are px^2
-    for fx, fy, cx, cy and unitless^2 for the distortion coefficients.
+    for fx, fy, cx, cy and the distortion coefficients' units squared (unitless in OpenCV's models).
     """
     n_free = A.shape[1]
     n_used = int(np.count_nonzero(used))
@@ -337,7 +370,7 @@ def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, r
     normal = (jac * scale).T @ (jac * scale)
     cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
     cov_all = 0.5 * (cov_all + cov_all.T)
-    return residuals, A @ cov_all[:n_free, :n_free] @ A.T
+    return residuals, A @ cov_all[:n_free, :n_free] @ A.T, cov_all
 
 
 def _embed(matrix: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -358,7 +391,7 @@ def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics
     estimates = []
     for i in range(len(views)):
         progress(0.6 + 0.3 * i / len(views), f"jackknife: re-solving without view {i + 1} of {len(views)}")
-        K, dist, _, _ = _opencv_calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
+        K, dist, _, _ = _calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
         estimates.append(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()])
     return jackknife_std(np.array(estimates))
 
@@ -402,7 +435,7 @@ def _with_corners(views: list[View], corner_set: str) -> list[View]:
 
 def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
     """Reprojection RMS (px) of a plain solve (no uncertainty) on ``views``."""
-    return _solve_rms(views, board, size, settings.model, _opencv_calibrate(views, board, size, settings))
+    return _solve_rms(views, board, size, settings.model, _calibrate(views, board, size, settings))
 
 
 def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
@@ -436,11 +469,11 @@ def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], 
     for half in (views[0::2], views[1::2]):
         try:
             _check_views(half, board)
-            K, dist, rvecs, tvecs = _opencv_calibrate(half, board, size, settings)
+            K, dist, rvecs, tvecs = _calibrate(half, board, size, settings)
         except InputError as exc:
             return {"status": "not made", "detail": f"a half of the views cannot be solved alone: {exc.message}"}
         camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
-        _, cov = _covariance(camera, half, board, rvecs, tvecs, np.ones(len(half), bool),
+        _, cov, _ = _covariance(camera, half, board, rvecs, tvecs, np.ones(len(half), bool),
                              _free_intrinsics(camera, settings))
         halves.append((camera, np.array(_projection_uncertainty(camera, cov)["sigma_px"]) * inflation))
     (a, sigma_a), (b, sigma_b) = halves
@@ -492,11 +525,11 @@ def calibrate_intrinsics(
     for attempt in range(2):
         active = [v for v, u in zip(views, used, strict=True) if u]
         _check_views(active, board)
-        K, dist, rvecs, tvecs = _opencv_calibrate(active, board, image_size, settings)
+        K, dist, rvecs, tvecs = _calibrate(active, board, image_size, settings)
         camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
         progress(0.6 + 0.2 * attempt, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
-        residuals, cov = _covariance(camera, views, board, rvecs, tvecs, used, A)
+        residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A)
         view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
         outlier = view_rms > settings.outlier_factor * np.median(view_rms[used])
         if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):
@@ -532,6 +565,13 @@ def calibrate_intrinsics(
         for v, u, o, rms, (r, T) in zip(views, used, outlier, view_rms, residuals, strict=True)
     ]
     warnings = [f"{v.name}: reprojection RMS {v.rms_px:.2f} px is an outlier" for v in view_results if v.outlier]
+    correlation_names = [n for n, e in zip(names, estimated, strict=True) if e]
+    model_report = None
+    if settings.model == "photogrammetric":  # one principal distance c: fy is fx, and is left out of the tables
+        kept = [k for k, n in enumerate(correlation_names) if n != "fy"]
+        correlation, correlation_names = correlation[np.ix_(kept, kept)], photogrammetric.INTERIOR
+        model_report = photogrammetric.report(camera, np.delete(std_all, 1), correlation, cov_all, rvecs, tvecs,
+                                              [v.name for v in active], settings.pixel_size_um)
     progress(1.0, "done")
     return IntrinsicsResult(
         camera=camera,
@@ -541,7 +581,7 @@ def calibrate_intrinsics(
         views=view_results,
         std={"fx": float(std_all[0]), "fy": float(std_all[1]), "cx": float(std_all[2]), "cy": float(std_all[3]),
              "dist": std_all[4:].tolist()},
-        correlation_names=[n for n, e in zip(names, estimated, strict=True) if e],
+        correlation_names=correlation_names,
         correlation=np.clip(correlation, -1, 1),
         projection_uncertainty=projection,
         seconds=time.perf_counter() - started,
@@ -549,4 +589,5 @@ def calibrate_intrinsics(
         cross_validation=cross_validation,
         verdict=intrinsics_verdict(projection, cross_validation),
         warnings=warnings,
+        photogrammetric=model_report,
     )

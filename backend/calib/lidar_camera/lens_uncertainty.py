@@ -21,8 +21,15 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError
 
-K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+K_ENTRIES = {"fx": ((0, 0),), "fy": ((1, 1),), "cx": ((0, 2),), "cy": ((1, 2),)}
 """Where each pinhole parameter sits in K."""
+PHOTOGRAMMETRIC_K_ENTRIES = {"c": ((0, 0), (1, 1)), "xp": ((0, 2),), "yp": ((1, 2),)}
+"""Where the photogrammetric model's principal distance (both focal entries) and principal point sit in K."""
+
+
+def k_entries(model: str) -> dict[str, tuple[tuple[int, int], ...]]:
+    """The parameters of ``model`` that sit in K, and where."""
+    return PHOTOGRAMMETRIC_K_ENTRIES if model == "photogrammetric" else K_ENTRIES
 
 
 @dataclass
@@ -30,7 +37,8 @@ class LensUncertainty:
     """The 1-sigma of some of a camera's intrinsic parameters and their correlation."""
 
     names: list[str]
-    """Parameter names: ``fx``, ``fy``, ``cx``, ``cy`` (px) and the model's distortion coefficients (``k1``...)."""
+    """Parameter names: ``fx``, ``fy``, ``cx``, ``cy`` (px; ``c``, ``xp``, ``yp`` in the photogrammetric model) and
+    the model's distortion coefficients (``k1``...)."""
     sigma: np.ndarray
     """(P,) their 1-sigma (px; the coefficients unitless)."""
     correlation: np.ndarray
@@ -40,9 +48,10 @@ class LensUncertainty:
 
     @classmethod
     def from_sigmas(cls, camera: CameraIntrinsics, sigmas: list[float], source: str) -> LensUncertainty:
-        """From ``fx, fy, cx, cy`` and each of ``camera``'s distortion coefficients' 1-sigma, in that order
-        (uncorrelated); :class:`InputError` naming ``source`` for a wrong count or a negative sigma."""
-        names = [*K_ENTRIES, *DIST_NAMES[camera.model]]
+        """From ``fx, fy, cx, cy`` (photogrammetric: ``c, xp, yp``) and each of ``camera``'s distortion coefficients'
+        1-sigma, in that order (uncorrelated); :class:`InputError` naming ``source`` for a wrong count or a negative
+        sigma."""
+        names = [*k_entries(camera.model), *DIST_NAMES[camera.model]]
         if len(sigmas) != len(names) or not all(np.isfinite(s) and s >= 0 for s in sigmas):
             raise InputError(f"expected {len(names)} sigmas of 0 or more, for {', '.join(names)} ({camera.model}); got "
                              f"{sigmas}", source)
@@ -52,7 +61,10 @@ class LensUncertainty:
     def from_record(cls, record: dict[str, Any]) -> LensUncertainty | None:
         """From an intrinsics result's record (its ``std`` and ``correlation``); None when it holds no sigma."""
         std, model = record.get("std") or {}, record["camera"]["model"]
-        values = {name: std.get(name) for name in K_ENTRIES} | dict(zip(DIST_NAMES[model], std.get("dist") or [],
+        pinhole = {name: std.get(name) for name in K_ENTRIES}
+        if model == "photogrammetric":  # c is fx and fy together
+            pinhole = {"c": std.get("fx"), "xp": std.get("cx"), "yp": std.get("cy")}
+        values = pinhole | dict(zip(DIST_NAMES[model], std.get("dist") or [],
                                                                         strict=False))
         names = [name for name, value in values.items() if value is not None and np.isfinite(value) and value > 0]
         if not names:
@@ -71,8 +83,10 @@ class LensUncertainty:
         cameras = []
         for name, sigma in zip(self.names, self.sigma, strict=True):
             K, dist = camera.K.copy(), camera.dist.copy()
-            if name in K_ENTRIES:
-                K[K_ENTRIES[name]] += sigma
+            entries = k_entries(camera.model)
+            if name in entries:
+                for entry in entries[name]:
+                    K[entry] += sigma
             else:
                 dist[DIST_NAMES[camera.model].index(name)] += sigma
             cameras.append(CameraIntrinsics(camera.model, camera.width, camera.height, K, dist))

@@ -52,7 +52,7 @@ from backend.core.rig import Frame, Rig
 from backend.core.transforms import invert
 from backend.devices.image_folder import image_files
 from backend.devices.image_io import read_image
-from backend.exports.ros_camera_info import load_camera_info
+from backend.exports.camera_json import load_camera
 from backend.store.session import Session
 
 KIND = "multicam"
@@ -102,6 +102,10 @@ def starting_cameras(known: dict[str, CameraIntrinsics | None], observations: li
     (which the rig solve then refines, as it does all of them with ``refine``)."""
     cameras, estimate = {}, []
     for name, camera in known.items():
+        if camera is not None and not camera.is_opencv:
+            raise InputError(f"{name}'s intrinsics are in the {camera.model} model, which the rig's bundle adjustment "
+                             "does not solve (it takes pinhole-radtan and fisheye-equidistant); calibrate "
+                             f"{name} with one of those for the multi-camera solve", name)
         if camera is None:
             views = [View(o.frame, o.detection) for o in observations if o.camera == name]
             progress(0.0, f"calibrating {name}'s intrinsics from its {len(views)} views")
@@ -361,7 +365,7 @@ def solve_files(folders: dict[str, Path], board: BoardSpec, intrinsics_files: di
     unknown = sorted(set(intrinsics_files) - set(folders))
     if unknown:
         raise InputError(f"--intrinsics names camera {unknown[0]}, which has no --camera folder", unknown[0])
-    known = {name: load_camera_info(intrinsics_files[name])[0] if name in intrinsics_files else None
+    known = {name: load_camera(intrinsics_files[name])[0] if name in intrinsics_files else None
              for name in folders}
     observations, sizes, warnings = folder_observations(folders, board, known,
                                                         lambda f, m: progress(0.4 * f, m))

@@ -10,6 +10,7 @@ same corners in the same process, and with the reference's RMS.
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import cv2
@@ -160,3 +161,27 @@ def test_verdict_is_check_with_a_consistent_cross_validation(result):
     summary = result.summary()
     assert summary["verdict"] == result.verdict.to_dict() and result.to_record()["verdict"] == summary["verdict"]
     assert result.to_record()["cross_validation"]["difference_px"]
+
+
+@pytest.mark.slow
+def test_the_photogrammetric_model_fits_no_worse_than_opencvs_five_coefficients(views):
+    """The photogrammetric model contains OpenCV's with fx = fy (A1 = A2 = 0), and A1 stands in for fx != fy: on the
+    same corners it fits no worse than OpenCV's five coefficients with a free aspect, and its JSON carries every
+    parameter with its sigma and the correlation tables."""
+    ours = calibrate_intrinsics(views, BOARD, (640, 480), IntrinsicsSettings(model="photogrammetric"))
+    corners = ours.corners["chosen"]
+    image_points = [(v.detection.refined[corners] if corners != "sb" else v.detection.corners_px).astype(np.float32)
+                    for v in views]
+    rms, *_ = cv2.calibrateCamera([v.detection.object_points(BOARD) for v in views], image_points, (640, 480),
+                                  np.eye(3), None, flags=0)  # k1, k2, p1, p2, k3 and fx, fy all free
+    assert ours.rms_px <= rms + 1e-6, (ours.rms_px, rms)
+    summary = json.loads(json.dumps(ours.summary()))
+    block = summary["photogrammetric"]
+    assert summary["camera"]["model"] == "photogrammetric" and len(summary["camera"]["dist"]) == 7
+    assert set(block["parameters"]) == {"c", "xp", "yp", "K1", "K2", "K3", "P1", "P2", "A1", "A2"}
+    assert all(p["sigma_px"] > 0 and "value_mm" not in p for p in block["parameters"].values())  # no pixel size
+    assert block["correlation"]["names"] == summary["correlation"]["names"] == list(block["parameters"])
+    matrix = np.array(block["correlation"]["matrix"])
+    k1, k2, k3 = 3, 4, 5
+    assert matrix[k1, k2] < -0.9 and matrix[k2, k3] < -0.9 and matrix[k1, k3] > 0.8  # the team's signs
+    assert len(block["interior_exterior"]["per_view"]) == len(views)

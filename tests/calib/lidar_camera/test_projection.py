@@ -462,3 +462,27 @@ def test_a_lens_model_that_folds_before_the_image_corners_sees_up_to_its_fold() 
     drawn, _, _ = render_overlays([(np.zeros((camera.height, camera.width, 3), np.uint8), points, None)], np.eye(4),
                                   camera, OverlayStyle())
     assert drawn[0].any()
+
+
+def test_a_photogrammetric_camera_projects_clouds_by_its_own_equations() -> None:
+    """The overlay's projection takes the photogrammetric model too: without the affine terms it is OpenCV's
+    projection of the converted camera, with them the model's own equations (in float32 within 1e-3 px)."""
+    from backend.core.camera_conversion import convert
+    from tests.core.test_photogrammetric_model import blackfly
+
+    rng = np.random.default_rng(4)
+    points_cam = rng.uniform([-6, -5, 0.5], [6, 5, 12], (50_000, 3))
+    points = transform_points(invert(T_CAMERA_SENSOR), points_cam)
+    plain = project_cloud(points, T_CAMERA_SENSOR, blackfly(), dtype=np.float64)
+    reference = opencv_pixels(convert(blackfly(), "pinhole-radtan").camera, points, T_CAMERA_SENSOR)
+    assert len(plain) > 10_000
+    np.testing.assert_allclose(plain.uv, reference[plain.index], atol=1e-6, rtol=0)
+    camera = blackfly(A1=4e-4, A2=-2.5e-4)
+    projection = project_cloud(points, T_CAMERA_SENSOR, camera)
+    np.testing.assert_allclose(projection.uv, camera.project(points_cam[projection.index]), atol=1e-3, rtol=0)
+    expected = camera.project(points_cam)
+    in_image = np.all((expected >= -0.5) & (expected < np.array(camera.image_size) - 0.5), axis=1)
+    radius = np.linalg.norm(points_cam[:, :2], axis=1) / points_cam[:, 2]
+    folded = in_image & (radius > visible_radius(camera))  # the polynomial folds points from far outside back in
+    assert folded.sum() > 100
+    np.testing.assert_array_equal(np.sort(projection.index), np.flatnonzero(in_image & ~folded))
