@@ -276,8 +276,11 @@ class IntrinsicsStep:
                                   pixel_size_um=float(self.pixel_size.value) or None)
 
     def _model_chosen(self) -> None:
+        """Show the options of the chosen model: the photogrammetric model always estimates its ten parameters."""
         self.auto_for.visible = self.model.value == "auto"
         self.pixel_size.visible = self.model.value in ("photogrammetric", "auto")
+        for option in (self.k3, self.tangential, self.fix_aspect):
+            option.visible = self.model.value != "photogrammetric"
 
     def _solve(self) -> None:
         session, sensor = self.ctx.session, self.sensor
@@ -357,11 +360,13 @@ def photogrammetric_markdown(block: dict) -> str:
     """The photogrammetric parameters in px and (with the pixel size) mm, with sigmas, and the largest correlation
     of each interior parameter with a view's exterior orientation."""
     in_mm = block["pixel_size_um"] is not None
-    header = "| param | value (px) | σ (px) |" + (" value (mm) | σ (mm) |" if in_mm else "")
+    header = "| param | in px | σ |" + (" in mm | σ |" if in_mm else "")
     rows = [header, "|---|---|---|" + ("---|---|" if in_mm else "")]
     for name, p in block["parameters"].items():
-        mm = f" {p['value_mm']:.6g} {p['unit_mm']} | {p['sigma_mm']:.2g} |" if in_mm else ""
-        rows.append(f"| {name} | {p['value_px']:.6g} {p['unit_px']} | {p['sigma_px']:.2g} |{mm}")
+        mm = f" {p['value_mm']:.6g} {_unit(p['unit_mm'])} | {p['sigma_mm']:.2g} |" if in_mm else ""
+        rows.append(f"| {name} | {p['value_px']:.6g} {_unit(p['unit_px'])} | {p['sigma_px']:.2g} |{mm}")
+    if in_mm:
+        rows.append(f"\nPixel size {block['pixel_size_um']:g} µm; in mm, xp and yp are from the image centre.")
     cross = block["interior_exterior"]
     largest = np.array(cross["largest"])
     pairs = [f"{cross['interior'][i]}–{cross['exterior'][j]} {largest[i, j]:+.2f}"
@@ -370,6 +375,11 @@ def photogrammetric_markdown(block: dict) -> str:
     return ("\n".join(rows) + f"\n\nInterior–exterior correlations above 0.9 (largest over the views): "
             f"{', '.join(pairs) or 'none'}\n\nAs OpenCV's pinhole-radtan: "
             f"{'exact' if conversion['exact'] else 'within ' + format(conversion['max_residual_px'], '.3g') + ' px'}")
+
+
+def _unit(unit: str) -> str:
+    """A unit as the report's JSON spells it (``px^-2``, ``1``) written for reading (px⁻², none)."""
+    return "" if unit == "1" else unit.replace("^-", "⁻").translate(str.maketrans("1246", "¹²⁴⁶"))
 
 
 def checks_markdown(record: dict) -> str:

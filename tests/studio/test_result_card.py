@@ -59,3 +59,20 @@ def test_accept_previews_first_and_a_reject_is_previewed_then_refused(tmp_path, 
     finally:
         jobs.shutdown()
         server.stop()
+
+
+def test_the_intrinsics_panel_gives_the_photogrammetric_parameters_in_px_and_mm():
+    """The step's parameter table of a photogrammetric solve (a simulated Blackfly's, at its 4.8 um pixels)."""
+    from backend.calib.intrinsics.solver import IntrinsicsSettings, calibrate_intrinsics
+    from studio.wizard.intrinsics_step import parameters_markdown
+    from tests.calib.intrinsics.test_photogrammetric import BOARD, noisy_views
+
+    result = calibrate_intrinsics(noisy_views(8, 2), BOARD, (1280, 1024), IntrinsicsSettings(
+        model="photogrammetric", pixel_size_um=4.8, jackknife=False, cross_validate=False))
+    table = parameters_markdown(result.to_record())
+    assert "| param | in px | σ | in mm | σ |" in table
+    c = result.photogrammetric["parameters"]["c"]
+    assert f"| c | {c['value_px']:.6g} px | {c['sigma_px']:.2g} | {c['value_mm']:.6g} mm |" in table
+    assert "| K1 | " in table and " px⁻² | " in table and " mm⁻² | " in table
+    assert "Pixel size 4.8 µm; in mm, xp and yp are from the image centre." in table
+    assert "As OpenCV's pinhole-radtan: within " in table and "Interior–exterior correlations above 0.9" in table
