@@ -9,6 +9,7 @@ from backend.devices import (  # noqa: F401
     cloud_files,
     depth_files,
     dynamixel_servo,
+    hokuyo,
     image_folder,
     kinect2,
     node_network,

@@ -261,12 +261,14 @@ class SweptScanner(CaptureDevice):
     def __init__(self, servo_port: str, scanner: dict | None = None, steps: int = 173, start_deg: float = -90.0,
                  end_deg: float = 90.0, geometry: dict | None = None, servo_id: int = 1, baudrate: int = 57600,
                  tolerance_deg: float = 0.2, move_timeout_s: float = 5.0, settle_s: float = 0.0,
-                 stale_scans: int = 3, sim_speed_deg_s: float = 240.0):
+                 stale_scans: int = 64, sim_speed_deg_s: float = 240.0):
         """Settings as stored in the rig.
 
         Args:
             servo_port: the servo's serial port, or ``"sim"`` for the built-in Dynamixel simulator.
             scanner: the 2D scanner's device settings, e.g. ``{"driver": "ydlidar", "port": "sim"}``,
+                ``{"driver": "hokuyo", "host": "192.168.0.10"}`` (with ``"host": "sim"`` and the simulated servo: a
+                simulated UTM-30LX-EW on the simulated horn, the endpoint registered as ``"hokuyo"``),
                 or ``{"driver": "sim", ...}`` (only with ``servo_port="sim"``: a ray-cast scanner on
                 the simulated horn, the endpoint registered as ``"swept_head"``; keys of the simulation
                 package's ``SimSweptScannerHead``). Default ``{"driver": "sim"}`` with the simulated servo.
@@ -278,7 +280,7 @@ class SweptScanner(CaptureDevice):
             move_timeout_s: how long one step may take (s).
             settle_s: extra wait after settling, before the scan (s; lets a real rig stop swinging).
             stale_scans: a streaming scanner's scans started before the servo settled are dropped;
-                at most this many per step.
+                at most this many per step (a 40 Hz Hokuyo queues about 16 while the servo swings to the start).
             sim_speed_deg_s: the simulated servo's speed (deg/s).
         """
         if int(steps) < 2:
@@ -310,8 +312,10 @@ class SweptScanner(CaptureDevice):
         self.scanner: CaptureDevice | None = None
         self._sim: Any = None
         """With ``servo_port="sim"``, the simulated servo (``port``, ``stop()``) while open."""
-        self.simulated_head = False
-        """True while :attr:`scanner` is the simulated head on the simulated horn (it knows the truth)."""
+        self._truth: Any = None
+        """In simulation, what knows the truth (``ground_truth()``): the simulated head on the simulated horn, or the
+        simulated Hokuyo bolted to it (which this device then also stops)."""
+        self._scanner_sim: Any = None
         self._sweeps = 0
 
     def describe(self) -> str:
@@ -341,7 +345,12 @@ class SweptScanner(CaptureDevice):
                     self.scanner = start_simulator("swept_head", self.describe(), servo=self._sim, **settings)
                 except TypeError as exc:
                     raise DeviceError(f"bad simulated scanner settings {settings}: {exc}", self.describe()) from None
-                self.simulated_head = True
+                self._truth = self.scanner
+            elif settings.get("driver") == "hokuyo" and settings.get("host") == "sim" and self._sim is not None:
+                # a simulated UTM-30LX-EW speaking SCIP 2.0 on 127.0.0.1, scanning from the simulated horn
+                self._scanner_sim = self._truth = start_simulator("hokuyo", self.describe(), servo=self._sim)
+                self.scanner = create_device(settings | {"host": self._scanner_sim.host,
+                                                         "port": self._scanner_sim.port})
             else:
                 self.scanner = create_device(settings)
             self.scanner.open()
@@ -388,8 +397,8 @@ class SweptScanner(CaptureDevice):
             "sweep_seconds": time.monotonic() - started,
             "servo_retries": self.servo.retried - retries_before,
         }
-        if self.simulated_head:
-            meta.update({"simulated": True, **self.scanner.ground_truth()})
+        if self._truth is not None:
+            meta.update({"simulated": True, **self._truth.ground_truth()})
         self._sweeps += 1
         return Sample(t0, points=self.geometry.transform(points_scanner, angles), intensity=intensity, meta=meta)
 
@@ -405,9 +414,12 @@ class SweptScanner(CaptureDevice):
     def close(self) -> None:
         """Close the scanner, the servo and the simulator. Safe twice."""
         scanner, self.scanner = self.scanner, None
-        self.simulated_head = False
+        self._truth = None
         if scanner is not None:
             scanner.close()
+        scanner_sim, self._scanner_sim = self._scanner_sim, None
+        if scanner_sim is not None:
+            scanner_sim.stop()
         servo, self.servo = self.servo, None
         if servo is not None:
             servo.close()

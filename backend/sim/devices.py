@@ -11,7 +11,10 @@ Drivers never import simulators (the dependency runs sim -> devices -> core). Im
   ``"velodyne"`` (``velodyne`` with ``host="sim"``: a :class:`~backend.sim.velodyne_udp.Vlp16UdpSimulator`
   sending to the driver's port), ``"dynamixel"`` (``swept_scanner`` with ``servo_port="sim"``: a
   :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` on a pty) and ``"swept_head"`` (its
-  ``scanner={"driver": "sim"}``: a :class:`~backend.sim.swept_head.SimSweptScannerHead` on that servo's horn).
+  ``scanner={"driver": "sim"}``: a :class:`~backend.sim.swept_head.SimSweptScannerHead` on that servo's horn) and
+  ``"hokuyo"`` (``hokuyo`` with ``host="sim"``: a :class:`~backend.sim.hokuyo_sim.HokuyoSimulator` on 127.0.0.1,
+  scanning the yard from the demo rig's ``scanner_2d`` mounting, or, for ``swept_scanner`` with
+  ``scanner={"driver": "hokuyo", "host": "sim"}``, from the simulated servo's horn: :class:`HokuyoOnServo`).
 
 :mod:`backend.services` imports it, so every front-end (API, studio, CLI) has the simulators; a process that
 reaches devices without services (the node agent of ``calib-studio node``) imports it itself.
@@ -19,6 +22,7 @@ reaches devices without services (the node agent of ``calib-studio node``) impor
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -28,6 +32,7 @@ from backend.sim.camera_device import SimulatedCamera
 from backend.sim.demo_rig import demo_rig
 from backend.sim.depth_device import SimulatedDepthCamera
 from backend.sim.dynamixel_sim import DynamixelSimulator
+from backend.sim.hokuyo_sim import HokuyoSimulator
 from backend.sim.lidar_device import SimulatedLidar
 from backend.sim.swept_head import SimSweptScannerHead
 from backend.sim.velodyne_udp import Vlp16UdpSimulator
@@ -68,9 +73,47 @@ def start_swept_head(servo: DynamixelSimulator, **settings: Any) -> SimSweptScan
     return SimSweptScannerHead(servo, **settings)
 
 
+@dataclass
+class HokuyoOnServo:
+    """A simulated UTM-30LX-EW bolted to a simulated servo's horn: the endpoint a ``hokuyo`` driver connects to
+    (``host``, ``port``) and the truth its scans are ray-cast from (:meth:`ground_truth`, as the swept head's)."""
+
+    simulator: HokuyoSimulator
+    head: SimSweptScannerHead
+
+    @property
+    def host(self) -> str:
+        return self.simulator.host
+
+    @property
+    def port(self) -> int:
+        return self.simulator.port
+
+    def ground_truth(self) -> dict[str, Any]:
+        return self.head.ground_truth()
+
+    def stop(self) -> None:
+        self.simulator.stop()
+        self.head.close()
+
+
+def start_hokuyo(servo: DynamixelSimulator | None = None, **settings: Any) -> HokuyoSimulator | HokuyoOnServo:
+    """A UTM-30LX-EW speaking SCIP 2.0 on 127.0.0.1 (its ``host`` and ``port``): scanning the yard from the demo
+    rig's ``scanner_2d`` mounting, or, on ``servo``'s horn, from the pose the horn's physical angle and the true
+    sweep geometry give (:class:`HokuyoOnServo`; ``settings`` then go to the head, as ``scanner={"driver": "sim"}``
+    takes them)."""
+    if servo is None:
+        return HokuyoSimulator(**settings).start()
+    head = SimSweptScannerHead(servo, **settings)
+    head.open()
+    return HokuyoOnServo(HokuyoSimulator(pose=head.T_yard_scanner, scene=head.scene, range_noise_m=head.range_noise_m,
+                                         seed=head.seed).start(), head)
+
+
 for _driver in SIMULATED_DRIVERS:
     register_driver(_driver)
 register_simulator("ydlidar", start_ydlidar)
 register_simulator("velodyne", start_velodyne)
 register_simulator("dynamixel", start_dynamixel)
 register_simulator("swept_head", start_swept_head)
+register_simulator("hokuyo", start_hokuyo)

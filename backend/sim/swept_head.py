@@ -68,6 +68,15 @@ class SimSweptScannerHead(CaptureDevice):
         self._scene = LidarScene(self._T_yard_base @ default_board_pose())
         self._count = 0
 
+    @property
+    def scene(self) -> LidarScene | None:
+        """The yard it scans (in the yard's frame), while open."""
+        return self._scene
+
+    def T_yard_scanner(self) -> np.ndarray:
+        """The scanner's true pose in the yard now (4x4, m): the horn's physical angle through the TRUE geometry."""
+        return self._T_yard_base @ self.T_base_mount @ self.geometry.T_mount_scanner(self.servo_sim.true_angle_rad())
+
     def read(self) -> Sample:
         if self._scene is None:
             raise DeviceDisconnected("read() before open()", self.describe())

@@ -57,6 +57,8 @@ DRIVERS: dict[str, DriverChoice] = {
                              RANGE_KINDS, "sim"),
     "velodyne_pcap": DriverChoice("Velodyne pcap recording: its path", RANGE_KINDS, ""),
     "ydlidar": DriverChoice("YDLiDAR TG30 at 512000 baud: serial port (/dev/ttyUSB0), or sim", RANGE_KINDS, "sim"),
+    "hokuyo": DriverChoice("Hokuyo over SCIP 2.0: the UTM-30LX-EW's address (192.168.0.10 or HOST:PORT), a USB "
+                           "model's serial port (/dev/ttyACM0), or sim", RANGE_KINDS, "sim"),
     "swept_scanner": DriverChoice("2D scanner on a Dynamixel servo: the servo's serial port, or sim",
                                   RANGE_KINDS, "sim"),
     "cloud_files": DriverChoice("point-cloud files (.pcd .ply .las .laz .npy): a folder or one file",
@@ -102,6 +104,19 @@ def _velodyne(source: str) -> dict:
     return {"driver": "velodyne", "host": host or VELODYNE_LISTEN_HOST, "port": int(port)}
 
 
+def _hokuyo(source: str) -> dict:
+    """A Hokuyo's settings from *Source*: ``sim``, a serial device path, or ``HOST[:PORT]``."""
+    text = source.strip() or "sim"
+    if text == "sim":
+        return {"driver": "hokuyo", "host": "sim"}
+    if text.startswith("/"):
+        return {"driver": "hokuyo", "serial_port": text}
+    host, _, port = text.partition(":")
+    if not host or (port and not (port.isdigit() and 0 < int(port) < 65536)):
+        raise InputError(f"Hokuyo source {text!r} must be HOST, HOST:PORT, a serial port (/dev/...) or sim", "source")
+    return {"driver": "hokuyo", "host": host, **({"port": int(port)} if port else {})}
+
+
 def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0, topic: str = "",
                     time_window_s: tuple[float, float] = (0.0, 0.0), scanner_port: str = "sim") -> dict:
     """Capture settings for the rig from the form fields; :class:`InputError` names the field that is wrong.
@@ -120,6 +135,8 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
         return _velodyne(text)
     if driver == "ydlidar":
         return {"driver": "ydlidar", "port": text or "sim"}
+    if driver == "hokuyo":
+        return _hokuyo(text)
     if driver in ("kinect2", "realsense"):
         return {"driver": driver, "serial": text or None}
     if driver == "node":
@@ -176,6 +193,11 @@ def device_form(device: dict[str, Any]) -> DeviceForm | None:
         key = {"simulated": "camera", "simulated_lidar": "sensor", "ydlidar": "port", "node": "node",
                "sim_depth": "node"}.get(driver, "serial")
         return DeviceForm(driver, text(key))
+    if driver == "hokuyo":
+        if device.get("serial_port"):
+            return DeviceForm(driver, str(device["serial_port"]))
+        port = device.get("port")
+        return DeviceForm(driver, text("host") + (f":{port}" if port and device.get("host") != "sim" else ""))
     if driver == "velodyne":
         host, port = device.get("host"), device.get("port")
         return DeviceForm(driver, "sim" if host == "sim" else f"{'' if host == VELODYNE_LISTEN_HOST else host + ':'}"

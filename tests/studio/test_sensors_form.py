@@ -30,8 +30,8 @@ from studio.wizard.sensors_step import (
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
     assert sorted(DRIVERS) == driver_names()
     assert drivers_for("camera") == ["uvc", "folder", "simulated", "rosbag", "node"]
-    range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "swept_scanner", "cloud_files",
-                     "rosbag", "node"}
+    range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "hokuyo", "swept_scanner",
+                     "cloud_files", "rosbag", "node"}
     for kind in RANGE_KINDS:
         depth_drivers = {"kinect2", "realsense", "depth_files", "sim_depth"} if kind == "depth" else set()
         assert set(drivers_for(kind)) == range_drivers | depth_drivers
@@ -50,6 +50,10 @@ def test_settings_from_the_form(tmp_path):
     assert device_settings("velodyne", "192.168.1.77:2369") == {"driver": "velodyne", "host": "192.168.1.77",
                                                                 "port": 2369}
     assert device_settings("ydlidar", "/dev/ttyUSB0") == {"driver": "ydlidar", "port": "/dev/ttyUSB0"}
+    assert device_settings("hokuyo", "") == {"driver": "hokuyo", "host": "sim"}
+    assert device_settings("hokuyo", "192.168.0.10") == {"driver": "hokuyo", "host": "192.168.0.10"}
+    assert device_settings("hokuyo", "10.0.0.7:10941") == {"driver": "hokuyo", "host": "10.0.0.7", "port": 10941}
+    assert device_settings("hokuyo", "/dev/ttyACM0") == {"driver": "hokuyo", "serial_port": "/dev/ttyACM0"}
     assert device_settings("kinect2", "") == {"driver": "kinect2", "serial": None}
     assert device_settings("realsense", " 123 ") == {"driver": "realsense", "serial": "123"}
     assert device_settings("sim_depth", "sn4") == {"driver": "sim_depth", "node": "sn4", "seed": 0}
@@ -71,7 +75,9 @@ def test_a_sensors_device_reads_back_into_the_form(tmp_path):
     forms = [DeviceForm("uvc", "/dev/video2", 1280, 720), DeviceForm("simulated", "cam_wide"),
              DeviceForm("simulated_lidar", "scanner_2d"), DeviceForm("velodyne", "sim"),
              DeviceForm("velodyne", "2368"), DeviceForm("velodyne", "192.168.1.77:2369"),
-             DeviceForm("ydlidar", "/dev/ttyUSB0"), DeviceForm("kinect2", "0123"), DeviceForm("realsense", ""),
+             DeviceForm("ydlidar", "/dev/ttyUSB0"), DeviceForm("hokuyo", "sim"), DeviceForm("hokuyo", "192.168.0.10"),
+             DeviceForm("hokuyo", "10.0.0.7:10941"), DeviceForm("hokuyo", "/dev/ttyACM0"),
+             DeviceForm("kinect2", "0123"), DeviceForm("realsense", ""),
              DeviceForm("sim_depth", "sn4"), DeviceForm("node", "sn2"), DeviceForm("swept_scanner", "sim"),
              DeviceForm("swept_scanner", "/dev/ttyUSB1", scanner_port="/dev/ttyUSB0"),
              DeviceForm("rosbag", str(bag), topic="/points", time_window_s=(1.0, 2.5)),
@@ -89,6 +95,7 @@ def test_a_sensors_device_reads_back_into_the_form(tmp_path):
     ("velodyne_pcap", "/no/such/run.pcap", {}, "source", "/no/such/run.pcap does not exist"),
     ("velodyne", "70000", {}, "source", "must be a UDP port"),
     ("velodyne", "lidar:abc", {}, "source", "must be a UDP port"),
+    ("hokuyo", "10.0.0.7:port", {}, "source", "must be HOST, HOST:PORT"),
     ("swept_scanner", "/dev/ttyUSB1", {"scanner_port": ""}, "scanner_port", "real 2D scanner's serial port"),
     ("node", " ", {}, "source", "needs the name its agent was started with"),
     ("nonsense", "x", {}, "device", "unknown device"),
@@ -101,7 +108,7 @@ def test_bad_form_input_names_the_field(tmp_path, driver, source, extra, field, 
     assert info.value.input == field
 
 
-@pytest.mark.parametrize("driver", ["simulated_lidar", "velodyne", "ydlidar"])
+@pytest.mark.parametrize("driver", ["simulated_lidar", "velodyne", "ydlidar", "hokuyo"])
 def test_the_simulated_range_sensors_open_from_the_form(driver):
     with create_device(device_settings(driver, DRIVERS[driver].default_source)) as device:
         sample = device.read()

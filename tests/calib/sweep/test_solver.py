@@ -26,6 +26,7 @@ from backend.devices.dynamixel_servo import (
 from backend.sim import dynamixel_sim as dsim
 from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY
 from backend.sim.dynamixel_sim import DynamixelSimulator
+from backend.sim.lidar_scene import LidarScene
 
 TRUTH = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY)
 
@@ -135,8 +136,6 @@ def test_servo_that_never_answers_is_reported():
 
 @pytest.mark.slow
 def test_full_sweep_with_true_geometry_is_a_flat_floor(full_sweep):
-    from backend.sim.lidar_scene import LidarScene
-
     sample, _ = full_sweep
     meta = sample.meta
     assert meta["steps"] == 173 and len(meta["servo_angles_rad"]) == 173 and meta["frame"] == "mount"
@@ -265,3 +264,25 @@ def test_swept_scanner_drives_a_real_scanner_driver_and_checks_settings():
     with pytest.raises(DeviceError, match="cannot open"):
         create_device({"driver": "swept_scanner", "servo_port": "/nonexistent/tty", "scanner": {"driver": "ydlidar",
                                                                                                 "port": "sim"}}).open()
+
+
+@pytest.mark.slow
+def test_a_hokuyo_on_the_servo_is_calibrated_like_the_ydlidar():
+    """The servo-scanner rig: a UTM-30LX-EW speaking SCIP 2.0 (its simulator on 127.0.0.1) on the Dynamixel (its
+    simulator on a pty), both byte-level; the sweep's calibration recovers the true geometry from a wrong start."""
+    with create_device({"driver": "swept_scanner", "servo_port": "sim", "steps": 87, "geometry": DEFAULT_SIM_GEOMETRY,
+                        "scanner": {"driver": "hokuyo", "host": "sim"}}) as device:
+        sample = device.read()
+    assert sample.meta["simulated"] and sample.meta["true_geometry"] == DEFAULT_SIM_GEOMETRY
+    assert len(sample.meta["servo_angles_rad"]) == 87 and np.bincount(sample.meta["point_step"]).min() > 100
+    assert sample.intensity.max() > 5000  # the Hokuyo's own intensities, the white board the brightest
+    base = points_in_base(sample)
+    assert np.median(LidarScene().distance_to_mesh(base[::20])) < 0.01
+    start = TRUTH.copy()
+    start.T_servo_scanner = np.eye(4)
+    start.T_servo_scanner[:3, 3] = TRUTH.T_servo_scanner[:3, 3] + [0.0, 0.012, -0.016]
+    start.zero_offset_rad = TRUTH.zero_offset_rad - math.radians(1.0)
+    result = calibrate_sweep(SweptScanner.scans_of(sample), start, SweepCalibrationSettings(up_mount=(0.0, 0.0, 1.0)))
+    error_t = result.geometry.T_servo_scanner[:3, 3] - TRUTH.T_servo_scanner[:3, 3]
+    assert np.abs(error_t[1:]).max() < 0.002 and result.converged
+    assert abs(math.degrees(result.geometry.zero_offset_rad - TRUTH.zero_offset_rad)) < 0.1
