@@ -20,7 +20,7 @@ from backend.core.sweep_geometry import SweepGeometry
 from backend.devices.base import CaptureDevice, DeviceDisconnected, Sample
 from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, DEFAULT_SIM_MOUNT
 from backend.sim.dynamixel_sim import DynamixelSimulator
-from backend.sim.lidar_scene import LidarScene, default_board_pose, robot_place
+from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, robot_place
 
 
 class SimSweptScannerHead(CaptureDevice):
@@ -82,18 +82,41 @@ class SimSweptScannerHead(CaptureDevice):
             raise DeviceDisconnected("read() before open()", self.describe())
         angle = self.servo_sim.true_angle_rad()
         T_base_scanner = self.T_base_mount @ self.geometry.T_mount_scanner(angle)
-        rng = np.random.default_rng([self.seed, self._count])
-        scan = self._scene.scan_2d(self._T_yard_base @ T_base_scanner, angle_step_deg=self.angle_step_deg,
-                                   max_range_m=self.max_range_m, range_noise_m=self.range_noise_m, rng=rng)
+        scan = planar_scan(self._scene, self._T_yard_base @ T_base_scanner, self.angle_step_deg, self.fov_deg,
+                           self.max_range_m, self.range_noise_m, np.random.default_rng([self.seed, self._count]))
         self._count += 1
-        azimuth = (scan.azimuth_rad + np.pi) % (2 * np.pi) - np.pi
-        keep = np.abs(azimuth) <= math.radians(self.fov_deg) / 2 + 1e-9
-        return Sample(time.time(), points=scan.points[keep], intensity=scan.intensity[keep],
+        return Sample(time.time(), points=scan.points, intensity=scan.intensity,
                       meta={"T_base_scanner": T_base_scanner.tolist(), "true_servo_angle_rad": angle,
-                            "labels": scan.labels[keep]})
+                            "labels": scan.labels})
 
     def close(self) -> None:
         self._scene = None
 
     def describe(self) -> str:
         return "simulated swept scanner head"
+
+
+def planar_scan(scene: LidarScene, T_yard_scanner: np.ndarray, angle_step_deg: float, fov_deg: float,
+                max_range_m: float, range_noise_m: float, rng: np.random.Generator) -> LidarScan:
+    """One scan of a 2D scanner at ``T_yard_scanner`` (4x4, m), its beams every ``angle_step_deg`` within
+    ``fov_deg`` centred on its x axis, in the scanner frame (:meth:`LidarScene.scan_2d`)."""
+    scan = scene.scan_2d(T_yard_scanner, angle_step_deg=angle_step_deg, max_range_m=max_range_m,
+                         range_noise_m=range_noise_m, rng=rng)
+    azimuth = (scan.azimuth_rad + np.pi) % (2 * np.pi) - np.pi
+    keep = np.abs(azimuth) <= math.radians(fov_deg) / 2 + 1e-9
+    return LidarScan(**{name: value[keep] if isinstance(value, np.ndarray) and value.ndim and len(value) == len(keep)
+                        else value for name, value in vars(scan).items()})
+
+
+def static_sweep(scene: LidarScene, T_yard_mount: np.ndarray, geometry: SweepGeometry, servo_angles_rad: np.ndarray,
+                 *, angle_step_deg: float = 0.25, fov_deg: float = 270.0, max_range_m: float = 30.0,
+                 range_noise_m: float = 0.01, seed: int = 0) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """The raw scans ``(servo angle (rad), points (m, scanner frame), intensity)`` of one sweep through
+    ``servo_angles_rad`` with the servo at each angle exactly, as :meth:`SweptScanner.scans_of` gives them, without
+    the real-time servo: for tests and benchmarks that need many sweeps (the truth is ``geometry``)."""
+    scans = []
+    for k, angle in enumerate(np.asarray(servo_angles_rad, dtype=float)):
+        scan = planar_scan(scene, T_yard_mount @ geometry.T_mount_scanner(float(angle)), angle_step_deg, fov_deg,
+                           max_range_m, range_noise_m, np.random.default_rng([seed, k]))
+        scans.append((float(angle), scan.points, scan.intensity))
+    return scans

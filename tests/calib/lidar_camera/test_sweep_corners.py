@@ -1,0 +1,125 @@
+"""LiDAR-to-camera from board corners in a swept scanner's intensity image (the servo-scanner rig).
+
+A 2D scanner (0.25 deg beams, 1 cm range noise) nodded by a servo through 173 steps of 1.05 deg, as the rig's
+Turret WidowX does, with a camera on top; the board is the rig's (7 x 9 squares of 57 mm, 6 x 8 inner corners),
+held 0.65-0.75 m in front at five placements. The sweeps are ray-cast at the servo's angles exactly
+(:func:`backend.sim.swept_head.static_sweep`), the camera images rendered; truth is known.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from backend.calib.board.detection import detect_board
+from backend.calib.lidar_camera.sweep_corners import CornerPlacement, find_sweep_corners, solve_sweep_corners
+from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from backend.core.sweep_geometry import SweepGeometry
+from backend.core.transforms import from_xyz_ypr, invert, make_T, transform_error, transform_points
+from backend.sim.board_renderer import render_board_image
+from backend.sim.demo_rig import DEFAULT_SIM_MOUNT, demo_rig
+from backend.sim.lidar_scene import R_BODY_OPTICAL, LidarScene, board_pose
+from backend.sim.swept_head import static_sweep
+
+BOARD_SPEC = "checkerboard:8x6:0.057"
+BOARD = BoardSpec.parse(BOARD_SPEC)
+NODDING = SweepGeometry(axis=np.array([0.0, 1.0, 0.0]), zero_offset_rad=math.radians(1.2),
+                        T_servo_scanner=from_xyz_ypr(np.array([0.02, 0.01, 0.04]), np.radians([0.6, -0.8, 0.4])))
+"""The servo nods the scanner about the mount's y axis (left), from 90 deg down to 90 deg up."""
+SERVO_RAD = np.radians(np.linspace(-90, 90, 173))
+T_BASE_MOUNT = np.array(DEFAULT_SIM_MOUNT)
+T_MOUNT_CAMERA = from_xyz_ypr(np.array([0.02, -0.03, 0.12]), np.radians([1.5, 6.0, 0.5])) @ make_T(R_BODY_OPTICAL,
+                                                                                                    np.zeros(3))
+"""The camera on top of the scanner, 12 cm up, looking ahead and a little down (its optical frame)."""
+PLACEMENTS = [(1.1, 0.05, 0.82, 10, 5, 3), (1.1, -0.1, 0.8, -15, -5, -4), (1.05, 0.0, 0.88, 5, 10, 8),
+              (1.12, 0.1, 0.78, 20, -10, 2), (1.0, -0.05, 0.84, -5, 0, -6)]
+"""Board centres (m, base_link) and yaw, pitch, roll (deg) of :func:`board_pose`."""
+GUESS = invert(T_MOUNT_CAMERA) @ from_xyz_ypr(np.array([0.03, 0.02, -0.03]), np.radians([3.0, -3.0, 2.0]))
+"""A tape-measure mounting guess of the LiDAR in the camera: 4.7 cm and 5 deg off."""
+
+
+def observe(place: tuple, seed: int) -> tuple[list, np.ndarray, np.ndarray]:
+    """The sweep's raw scans, the camera image and ``T_mount_board`` of one placement."""
+    T_base_board = board_pose(*place, board=BOARD_SPEC)
+    scans = static_sweep(LidarScene(T_base_board, board=BOARD_SPEC), T_BASE_MOUNT, NODDING, SERVO_RAD, seed=seed)
+    camera = demo_rig().get("cam_front").intrinsics
+    T_camera_board = invert(T_BASE_MOUNT @ T_MOUNT_CAMERA) @ T_base_board
+    image = render_board_image(camera, BOARD, T_camera_board, np.random.default_rng(seed))
+    return scans, image, invert(T_BASE_MOUNT) @ T_base_board
+
+
+@pytest.fixture(scope="module")
+def placements() -> list[tuple[CornerPlacement, list, np.ndarray]]:
+    found = []
+    for k, place in enumerate(PLACEMENTS):
+        scans, image, T_mount_board = observe(place, k)
+        corners = find_sweep_corners(scans, NODDING, BOARD, f"placement{k}")
+        found.append((CornerPlacement(f"placement{k}", corners, detect_board(image, BOARD)), scans, T_mount_board))
+    return found
+
+
+def true_image_px(points_mount: np.ndarray, image) -> np.ndarray:
+    """Column and row in a sweep's intensity image where the nodding scanner sees mount-frame points."""
+    def in_scanner(point: np.ndarray, servo: float) -> np.ndarray:
+        return (invert(NODDING.T_mount_scanner(servo)) @ np.r_[point, 1.0])[:3]
+
+    out = []
+    for point in points_mount:
+        servo = brentq(lambda angle, p=point: in_scanner(p, angle)[2], SERVO_RAD[0], SERVO_RAD[-1])
+        x, y, _ = in_scanner(point, servo)
+        columns = image.scan_angles_rad
+        out.append([(math.atan2(y, x) - columns[0]) / (columns[1] - columns[0]),
+                    np.interp(servo, image.servo_angles_rad, np.arange(len(image.servo_angles_rad)))])
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_corners_in_the_intensity_image_and_in_3d(placements):
+    for placement, _, T_mount_board in placements:
+        corners = placement.lidar
+        true_3d = transform_points(T_mount_board, BOARD.object_points)
+        nearest = true_3d[np.linalg.norm(corners.points_m[:, None] - true_3d[None], axis=2).argmin(axis=1)]
+        assert len(corners.ids) >= 40  # of 48: the refinement drops the odd corner its neighbours disagree with
+        error_px = corners.image_px - true_image_px(nearest, corners.image)
+        # within half a servo step and half a beam's spacing (RMS) of where the scanner saw the true corner
+        assert np.sqrt(np.mean(error_px**2, axis=0)).max() < 0.5 and np.abs(error_px).max() < 1.5, error_px
+        error_m = np.linalg.norm(corners.points_m - nearest, axis=1)
+        assert np.median(error_m) < 0.006 and error_m.max() < 0.015
+        assert 0.007 < corners.plane_rms_m < 0.013  # the 1 cm range noise
+
+
+@pytest.mark.slow
+def test_the_extrinsic_from_the_corner_pairs(placements):
+    camera = demo_rig().get("cam_front").intrinsics
+    result = solve_sweep_corners([p for p, _, _ in placements], BOARD, camera, "camera", "sweep", GUESS)
+    assert (result.kind, result.method, result.parent, result.child) == ("lidar_camera", "corners", "camera", "sweep")
+    error_m, error_deg = transform_error(result.T_parent_child, invert(T_MOUNT_CAMERA))
+    assert np.linalg.norm(error_m) < 0.01 and np.linalg.norm(error_deg) < 0.3, (error_m, error_deg)
+    std = result.std
+    assert np.all(np.abs(error_m) < 3 * np.array(std["trans_m"])) and np.all(
+        np.abs(error_deg) < 3 * np.array(std["rot_deg"])), (error_m, error_deg, std)
+    assert result.residuals["outliers"] <= 5 and result.residuals["corners"] >= 200
+    assert set(result.diagnostics["placements"]) == {f"placement{k}" for k in range(5)}
+    assert not result.warnings
+
+
+@pytest.mark.slow
+def test_a_half_turn_symmetric_board_needs_the_mounting_guess(placements):
+    camera = demo_rig().get("cam_front").intrinsics
+    with pytest.raises(InputError, match="looks the same turned a half turn.*give the mounting guess"):
+        solve_sweep_corners([placements[0][0]], BOARD, camera, "camera", "sweep")
+
+
+@pytest.mark.slow
+def test_a_board_too_far_for_its_corners_is_named():
+    scans, _, _ = observe((2.6, 0.0, 0.8, 0, 0, 0), 9)
+    with pytest.raises(InputError, match=r"^far: the board") as error:
+        find_sweep_corners(scans, NODDING, BOARD, "far")
+    assert error.value.input == "far"
+    no_intensity = [(angle, points, None) for angle, points, _ in scans]
+    with pytest.raises(InputError, match="the sweep has no intensities"):
+        find_sweep_corners(no_intensity, NODDING, BOARD, "dark")
