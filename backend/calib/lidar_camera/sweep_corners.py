@@ -155,7 +155,7 @@ def _board_plane(scans: Sequence[ScanAtAngle], geometry: SweepGeometry, image: S
         raise InputError(f"only {len(board_points)} returns fall on the board; bring it closer", "sweep")
     for _ in range(3):  # least squares, then again without the returns far from it
         centroid = board_points.mean(axis=0)
-        normal = np.linalg.svd(board_points - centroid)[2][2]
+        normal = np.linalg.svd(board_points - centroid, full_matrices=False)[2][2]
         residual = (board_points - centroid) @ normal
         keep = np.abs(residual) < max(PLANE_INLIER_M, 3 * np.std(residual))
         if keep.all():
@@ -180,7 +180,7 @@ def _orderings(board: BoardSpec) -> list[np.ndarray]:
     return [grid.ravel(), grid[::-1, ::-1].ravel(), grid[:, ::-1].ravel(), grid[::-1, :].ravel()]
 
 
-def _matched(placement: CornerPlacement, board: BoardSpec, camera: CameraIntrinsics, T_guess: np.ndarray | None
+def matched_pairs(placement: CornerPlacement, board: BoardSpec, camera: CameraIntrinsics, T_guess: np.ndarray | None
              ) -> tuple[np.ndarray, np.ndarray]:
     """The placement's LiDAR corners (N, 3) and camera corners (N, 2, px) paired, in the ordering the camera's
     PnP of the LiDAR corners fits best. A board whose pattern is the same turned a half turn (odd squares both
@@ -222,7 +222,7 @@ def solve_sweep_corners(placements: Sequence[CornerPlacement], board: BoardSpec,
     started = time.perf_counter()
     if not placements:
         raise InputError("no placement of the board to solve from", "placements")
-    matched = [_matched(p, board, camera, T_guess) for p in placements]
+    matched = [matched_pairs(p, board, camera, T_guess) for p in placements]
     points = np.concatenate([m[0] for m in matched])
     pixels = np.concatenate([m[1] for m in matched])
     owner = np.concatenate([np.full(len(m[0]), k) for k, m in enumerate(matched)])

@@ -13,8 +13,10 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import brentq
+from scipy.spatial.transform import Rotation
 
 from backend.calib.board.detection import detect_board
+from backend.calib.lidar_camera.pan_axis import PanPosition, pan_motion, solve_pan_axis
 from backend.calib.lidar_camera.sweep_corners import CornerPlacement, find_sweep_corners, solve_sweep_corners
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
@@ -42,12 +44,15 @@ GUESS = invert(T_MOUNT_CAMERA) @ from_xyz_ypr(np.array([0.03, 0.02, -0.03]), np.
 """A tape-measure mounting guess of the LiDAR in the camera: 4.7 cm and 5 deg off."""
 
 
-def observe(place: tuple, seed: int) -> tuple[list, np.ndarray, np.ndarray]:
-    """The sweep's raw scans, the camera image and ``T_mount_board`` of one placement."""
-    T_base_board = board_pose(*place, board=BOARD_SPEC)
+def observe(place: tuple, seed: int, T_mount_camera: np.ndarray = T_MOUNT_CAMERA, turn_rad: float = 0.0
+            ) -> tuple[list, np.ndarray, np.ndarray]:
+    """The sweep's raw scans, the camera image and ``T_mount_board`` of one placement (turned ``turn_rad`` about
+    the mount's vertical axis, for a camera panned that way)."""
+    turn = make_T(Rotation.from_rotvec([0.0, 0.0, turn_rad]).as_matrix(), np.zeros(3))
+    T_base_board = T_BASE_MOUNT @ turn @ invert(T_BASE_MOUNT) @ board_pose(*place, board=BOARD_SPEC)
     scans = static_sweep(LidarScene(T_base_board, board=BOARD_SPEC), T_BASE_MOUNT, NODDING, SERVO_RAD, seed=seed)
     camera = demo_rig().get("cam_front").intrinsics
-    T_camera_board = invert(T_BASE_MOUNT @ T_MOUNT_CAMERA) @ T_base_board
+    T_camera_board = invert(T_BASE_MOUNT @ T_mount_camera) @ T_base_board
     image = render_board_image(camera, BOARD, T_camera_board, np.random.default_rng(seed))
     return scans, image, invert(T_BASE_MOUNT) @ T_base_board
 
@@ -123,3 +128,40 @@ def test_a_board_too_far_for_its_corners_is_named():
     no_intensity = [(angle, points, None) for angle, points, _ in scans]
     with pytest.raises(InputError, match="the sweep has no intensities"):
         find_sweep_corners(no_intensity, NODDING, BOARD, "dark")
+
+
+PAN_AXIS = Rotation.from_euler("xy", [0.5, -0.4], degrees=True).apply([0.0, 0.0, 1.0])
+"""The pan head's true axis in the mount frame: up, 0.6 deg off."""
+PAN_POINT = np.array([0.0, -0.01, 0.0])
+"""A point of the true axis (m, mount frame): the camera sits 3 cm off it."""
+
+
+@pytest.mark.slow
+def test_a_camera_on_a_pan_head_is_one_camera_with_a_pan_axis():
+    """The camera turned to the left, the centre and the right (+45, 0, -45 deg): its pose at zero and the axis
+    from all three at once, and each position's own solve agrees with where the axis puts it."""
+    camera = demo_rig().get("cam_front").intrinsics
+    positions = []
+    for k, pan_deg in enumerate((45.0, 0.0, -45.0)):
+        pan = math.radians(pan_deg)
+        T_mount_camera = pan_motion(PAN_AXIS, PAN_POINT, pan) @ T_MOUNT_CAMERA
+        placements = []
+        for j, place in enumerate(PLACEMENTS[:3]):
+            scans, image, _ = observe(place, 10 * k + j, T_mount_camera, pan)
+            name = f"pan{pan_deg:+.0f}/{j}"
+            placements.append(CornerPlacement(name, find_sweep_corners(scans, NODDING, BOARD, name),
+                                              detect_board(image, BOARD)))
+        positions.append(PanPosition(pan, placements))
+    result = solve_pan_axis(positions, BOARD, camera, GUESS)
+    axis_error_deg = math.degrees(math.acos(min(1.0, float(result.axis @ PAN_AXIS))))
+    assert axis_error_deg < 0.1 and axis_error_deg < 3 * result.axis_sigma_deg + 0.02, (axis_error_deg, result)
+    error_m, error_deg = transform_error(result.T_lidar_camera_zero, T_MOUNT_CAMERA)
+    assert np.linalg.norm(error_m) < 0.01 and np.linalg.norm(error_deg) < 0.3, (error_m, error_deg)
+    # the predicted pose at any reading: here 20 deg, where no board was seen
+    predicted_m, predicted_deg = transform_error(result.T_lidar_camera(math.radians(20.0)),
+                                                 pan_motion(PAN_AXIS, PAN_POINT, math.radians(20.0)) @ T_MOUNT_CAMERA)
+    assert np.linalg.norm(predicted_m) < 0.01 and np.linalg.norm(predicted_deg) < 0.3
+    assert [round(p["pan_deg"]) for p in result.positions] == [45, 0, -45]
+    assert all(p["agrees"] for p in result.positions), result.positions
+    with pytest.raises(InputError, match="at least 2 different readings"):
+        solve_pan_axis(positions[:1], BOARD, camera, GUESS)

@@ -1,0 +1,165 @@
+"""A camera turned by a pan head (a servo) to several positions: one camera with a pan axis.
+
+The servo-scanner rig turns its camera to the left, the centre and the right to cover the scanner's field. Rather
+than one transform per position, the camera is one sensor with a pan axis in the LiDAR's frame: at a pan reading
+``theta`` (rad),
+
+    T_lidar_camera(theta) = P(theta) @ T_lidar_camera(0),    P(theta) = rotation by theta about the axis line,
+
+the axis line being a unit direction ``a`` through a point ``c`` (m, LiDAR frame). So any position is predicted from
+its reading. The ten parameters (the pose at zero: 6; the direction: 2; the point, across the axis: 2) are fitted
+to every position's board corners at once (their reprojection error in pixels, the corner pairs of
+:func:`backend.calib.lidar_camera.sweep_corners.matched_pairs`), starting from each position's own solve. Each
+position's own solve is the cross-check: where the model puts the camera at that reading against where that
+position's corners alone put it, in units of the own solve's sigma.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from backend.calib.lidar_camera.sweep_corners import CornerPlacement, matched_pairs, solve_sweep_corners
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.errors import InputError
+from backend.core.result import jacobian_covariance
+from backend.core.transforms import apply_params, invert, make_T, transform_error, transform_points
+from backend.core.uncertainty import sigmas
+
+MIN_POSITIONS = 2
+"""Fewest pan positions: two fix the axis's direction and its line."""
+CROSS_CHECK_SIGMAS = 3.0
+"""A position whose own solve lies farther than this many of its sigmas from the model's prediction disagrees."""
+
+
+@dataclass
+class PanPosition:
+    """The camera at one reading of the pan head, and the board placements it saw there."""
+
+    pan_rad: float
+    placements: list[CornerPlacement]
+
+
+@dataclass
+class PanAxisResult:
+    """The camera's pose at pan reading zero, its pan axis, their sigmas and each position's cross-check."""
+
+    T_lidar_camera_zero: np.ndarray
+    """4x4 (m): the camera in the LiDAR's frame at pan reading 0."""
+    axis: np.ndarray
+    """(3,) unit direction of the pan axis in the LiDAR's frame (positive readings turn about it)."""
+    axis_point_m: np.ndarray
+    """(3,) the point of the axis line nearest the LiDAR's origin (m)."""
+    axis_sigma_deg: float
+    """1-sigma of the axis's direction (deg, the larger of its two tangent components)."""
+    std: dict[str, list[float]]
+    """1-sigma of the pose at zero: ``trans_m`` (m) and ``rot_deg`` (deg)."""
+    rms_px: float
+    positions: list[dict[str, Any]]
+    """Per position: its reading, corners, and how far its own solve lies from the prediction (mm, deg, sigmas)."""
+    seconds: float
+
+    def T_lidar_camera(self, pan_rad: float) -> np.ndarray:
+        """The camera's pose at any pan reading (rad): the model's prediction."""
+        return pan_motion(self.axis, self.axis_point_m, pan_rad) @ self.T_lidar_camera_zero
+
+    def summary(self) -> dict[str, Any]:
+        return {"T_lidar_camera_zero": self.T_lidar_camera_zero.tolist(), "axis": self.axis.tolist(),
+                "axis_point_m": self.axis_point_m.tolist(), "axis_sigma_deg": self.axis_sigma_deg, "std": self.std,
+                "rms_px": self.rms_px, "positions": self.positions, "seconds": self.seconds}
+
+
+def pan_motion(axis: np.ndarray, point: np.ndarray, pan_rad: float) -> np.ndarray:
+    """4x4 rotation by ``pan_rad`` about the line through ``point`` along the unit ``axis`` (LiDAR frame)."""
+    R = Rotation.from_rotvec(float(pan_rad) * np.asarray(axis, float)).as_matrix()
+    return make_T(R, point - R @ point)
+
+
+def _tangent_basis(axis: np.ndarray) -> np.ndarray:
+    """(2, 3) two unit vectors across ``axis``."""
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    first = np.cross(axis, helper)
+    first /= np.linalg.norm(first)
+    return np.array([first, np.cross(axis, first)])
+
+
+def _start(solves: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Axis, axis point and pose at zero from the positions' own ``(reading, T_lidar_camera)``: the axis from the
+    relative rotation of the two positions farthest apart, the point where it holds the cameras' centres."""
+    (theta_a, T_a), (theta_b, T_b) = min(solves, key=lambda s: s[0]), max(solves, key=lambda s: s[0])
+    rotvec = Rotation.from_matrix(T_b[:3, :3] @ T_a[:3, :3].T).as_rotvec()
+    axis = rotvec / np.linalg.norm(rotvec) * np.sign(theta_b - theta_a)
+    # t_b = R t_a + (I - R) c: the point on the axis in least squares (its part along the axis is free)
+    R = T_b[:3, :3] @ T_a[:3, :3].T
+    point = np.linalg.lstsq(np.eye(3) - R, T_b[:3, 3] - R @ T_a[:3, 3], rcond=None)[0]
+    point -= axis * (axis @ point)
+    return axis, point, pan_motion(axis, point, -theta_a) @ T_a
+
+
+def solve_pan_axis(positions: Sequence[PanPosition], board: BoardSpec, camera: CameraIntrinsics,
+                   T_guess: np.ndarray | None = None) -> PanAxisResult:
+    """The pan-axis model of a camera from board corners at two or more pan positions (:class:`PanPosition`);
+    ``T_guess`` (``T_camera_lidar`` at reading 0, the mounting guess) pairs a half-turn-symmetric board's corners.
+    :class:`InputError` for fewer than two positions or positions that do not turn the camera."""
+    started = time.perf_counter()
+    if len({round(p.pan_rad, 6) for p in positions}) < MIN_POSITIONS:
+        raise InputError(f"{len(positions)} pan position(s): the axis needs at least {MIN_POSITIONS} different "
+                         "readings", "positions")
+    own, data = [], []
+    for position in positions:
+        guess = None if T_guess is None else T_guess @ invert(pan_motion(*_guess_axis(T_guess), position.pan_rad))
+        solve = solve_sweep_corners(position.placements, board, camera, "camera", "lidar", guess)
+        own.append((position.pan_rad, invert(solve.T_parent_child), solve))
+        pairs = [matched_pairs(p, board, camera, solve.T_parent_child) for p in position.placements]
+        data.append((position.pan_rad, np.concatenate([q[0] for q in pairs]), np.concatenate([q[1] for q in pairs])))
+    axis0, point0, T_zero0 = _start([(theta, T) for theta, T, _ in own])
+    if abs(Rotation.from_matrix(own[-1][1][:3, :3] @ own[0][1][:3, :3].T).magnitude()) < np.radians(1.0):
+        raise InputError("the positions' own solves differ by less than 1 deg: the pan head did not turn the camera",
+                         "positions")
+    basis = _tangent_basis(axis0)
+
+    def model(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        axis = axis0 + params[6:8] @ basis
+        axis /= np.linalg.norm(axis)
+        return apply_params(T_zero0, params[:6]), axis, point0 + params[8:10] @ basis
+
+    def residual(params: np.ndarray) -> np.ndarray:
+        T_zero, axis, point = model(params)
+        return np.concatenate([(camera.project(transform_points(invert(pan_motion(axis, point, theta) @ T_zero),
+                                                                points)) - pixels).ravel()
+                               for theta, points, pixels in data])
+
+    fit = least_squares(residual, np.zeros(10), method="lm", x_scale=np.r_[[0.01] * 3, [0.001] * 5, [0.01] * 2])
+    T_zero, axis, point = model(fit.x)
+    sigma = sigmas(jacobian_covariance(fit, 10))
+    result_positions = []
+    for theta, _, solve in own:
+        predicted = pan_motion(axis, point, theta) @ T_zero
+        error_m, error_deg = transform_error(invert(predicted), solve.T_parent_child)
+        own_std = solve.std
+        ratio = max(np.max(np.abs(error_m) / np.array(own_std["trans_m"])),
+                    np.max(np.abs(error_deg) / np.array(own_std["rot_deg"])))
+        result_positions.append({"pan_deg": float(np.degrees(theta)), "corners": solve.residuals["corners"],
+                                 "own_rms_px": solve.residuals["rms_px"],
+                                 "from_prediction_mm": float(1000 * np.linalg.norm(error_m)),
+                                 "from_prediction_deg": float(np.linalg.norm(error_deg)),
+                                 "sigmas": float(ratio), "agrees": bool(ratio <= CROSS_CHECK_SIGMAS)})
+    residuals = fit.fun.reshape(-1, 2)
+    return PanAxisResult(T_zero, axis, point, float(np.degrees(sigma[6:8].max())),
+                         {"trans_m": sigma[:3].tolist(), "rot_deg": np.degrees(sigma[3:6]).tolist()},
+                         float(np.sqrt(np.mean(np.sum(residuals**2, axis=1)))), result_positions,
+                         time.perf_counter() - started)
+
+
+def _guess_axis(T_camera_lidar_guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pan axis a mounting guess implies: the camera's own up axis (its optical frame's -y) through its
+    centre, in the LiDAR's frame."""
+    T_lidar_camera = invert(T_camera_lidar_guess)
+    return -T_lidar_camera[:3, 1], T_lidar_camera[:3, 3]
