@@ -137,21 +137,25 @@ PAN_POINT = np.array([0.0, -0.01, 0.0])
 
 
 @pytest.mark.slow
-def test_a_camera_on_a_pan_head_is_one_camera_with_a_pan_axis():
-    """The camera turned to the left, the centre and the right (+45, 0, -45 deg): its pose at zero and the axis
-    from all three at once, and each position's own solve agrees with where the axis puts it."""
+def test_a_camera_on_a_pan_head_is_one_camera_with_a_pan_axis(placements):
+    """The camera turned to the left, the centre and the right (+45, 0, -45 deg; at 0 it is the camera of the
+    other tests, with their placements): its pose at zero and the axis from all three at once, and each position's
+    own solve agrees with where the axis puts it."""
     camera = demo_rig().get("cam_front").intrinsics
     positions = []
     for k, pan_deg in enumerate((45.0, 0.0, -45.0)):
         pan = math.radians(pan_deg)
+        if pan_deg == 0.0:
+            positions.append(PanPosition(pan, [placement for placement, _, _ in placements]))
+            continue
         T_mount_camera = pan_motion(PAN_AXIS, PAN_POINT, pan) @ T_MOUNT_CAMERA
-        placements = []
+        turned = []
         for j, place in enumerate(PLACEMENTS[:3]):
             scans, image, _ = observe(place, 10 * k + j, T_mount_camera, pan)
             name = f"pan{pan_deg:+.0f}/{j}"
-            placements.append(CornerPlacement(name, find_sweep_corners(scans, NODDING, BOARD, name),
-                                              detect_board(image, BOARD)))
-        positions.append(PanPosition(pan, placements))
+            turned.append(CornerPlacement(name, find_sweep_corners(scans, NODDING, BOARD, name),
+                                          detect_board(image, BOARD)))
+        positions.append(PanPosition(pan, turned))
     result = solve_pan_axis(positions, BOARD, camera, GUESS)
     axis_error_deg = math.degrees(math.acos(min(1.0, float(result.axis @ PAN_AXIS))))
     assert axis_error_deg < 0.1 and axis_error_deg < 3 * result.axis_sigma_deg + 0.02, (axis_error_deg, result)

@@ -270,11 +270,11 @@ def test_swept_scanner_drives_a_real_scanner_driver_and_checks_settings():
 def test_a_hokuyo_on_the_servo_is_calibrated_like_the_ydlidar():
     """The servo-scanner rig: a UTM-30LX-EW speaking SCIP 2.0 (its simulator on 127.0.0.1) on the Dynamixel (its
     simulator on a pty), both byte-level; the sweep's calibration recovers the true geometry from a wrong start."""
-    with create_device({"driver": "swept_scanner", "servo_port": "sim", "steps": 87, "geometry": DEFAULT_SIM_GEOMETRY,
+    with create_device({"driver": "swept_scanner", "servo_port": "sim", "steps": 58, "geometry": DEFAULT_SIM_GEOMETRY,
                         "scanner": {"driver": "hokuyo", "host": "sim"}}) as device:
         sample = device.read()
     assert sample.meta["simulated"] and sample.meta["true_geometry"] == DEFAULT_SIM_GEOMETRY
-    assert len(sample.meta["servo_angles_rad"]) == 87 and np.bincount(sample.meta["point_step"]).min() > 100
+    assert len(sample.meta["servo_angles_rad"]) == 58 and np.bincount(sample.meta["point_step"]).min() > 100
     assert sample.intensity.max() > 5000  # the Hokuyo's own intensities, the white board the brightest
     base = points_in_base(sample)
     assert np.median(LidarScene().distance_to_mesh(base[::20])) < 0.01
