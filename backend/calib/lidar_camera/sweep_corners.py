@@ -17,7 +17,11 @@ beam's footprint and in angles rather than a perspective. Pipeline (per placemen
 
 The extrinsic comes from every placement's 3D-2D pairs at once: PnP with RANSAC on the undistorted corners, then
 a least-squares refinement of the reprojection error in pixels; sigma from the Jacobian, widened to the
-leave-one-placement-out spread (:func:`~backend.core.result.widen_covariance`).
+leave-one-placement-out spread (:func:`~backend.core.result.widen_covariance`). The verdict
+(:func:`backend.calib.lidar_camera.checks.judge`) takes that spread as the cross-check between placements, as the
+target method's between poses, and, given the sweeps' clouds, the target method's own answer on the same
+placements (the board's plane and outline in the cloud, the camera's board pose): the corners and the plate are
+different cues of the same data.
 """
 
 from __future__ import annotations
@@ -32,6 +36,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.pose import board_pose
+from backend.calib.lidar_camera.checks import CrossCheck, compare_methods, judge
+from backend.calib.lidar_camera.target import LidarCameraTargetSettings, TargetObservation, solve_target
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
@@ -216,9 +223,11 @@ def matched_pairs(placement: CornerPlacement, board: BoardSpec, camera: CameraIn
 
 
 def solve_sweep_corners(placements: Sequence[CornerPlacement], board: BoardSpec, camera: CameraIntrinsics,
-                        camera_frame: str, lidar_frame: str, T_guess: np.ndarray | None = None) -> TransformResult:
-    """``T_camera_lidar`` from board corners in sweeps and images (one :class:`CornerPlacement` each);
-    ``T_guess``, the mounting guess, chooses how a half-turn-symmetric board's corners pair."""
+                        camera_frame: str, lidar_frame: str, T_guess: np.ndarray | None = None,
+                        clouds: Sequence[np.ndarray] | None = None) -> TransformResult:
+    """``T_camera_lidar`` from board corners in sweeps and images (one :class:`CornerPlacement` each), judged;
+    ``T_guess``, the mounting guess, chooses how a half-turn-symmetric board's corners pair; ``clouds``, each
+    placement's sweep assembled (mount frame, m), let the target method cross-check the result."""
     started = time.perf_counter()
     if not placements:
         raise InputError("no placement of the board to solve from", "placements")
@@ -252,14 +261,38 @@ def solve_sweep_corners(placements: Sequence[CornerPlacement], board: BoardSpec,
                               if np.any(keep & (owner == k)) else None,
                               "lidar_plane_rms_m": p.lidar.plane_rms_m}
                      for k, p in enumerate(placements)}
-    warnings = [] if spread is not None else [f"{len(placements)} placement(s): the leave-one-placement-out "
-                                              "cross-check needs 3"]
-    return TransformResult(
+    result = TransformResult(
         kind="lidar_camera", method="corners", parent=camera_frame, child=lidar_frame, T_parent_child=T,
         covariance=covariance,
         residuals={"rms_px": float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))), "corners": int(keep.sum()),
                    "outliers": int((~keep).sum())},
-        diagnostics={"placements": per_placement}, warnings=warnings, seconds=time.perf_counter() - started)
+        diagnostics={"placements": per_placement, "std_jacobian": np.sqrt(np.diag(cov_jacobian)).tolist(),
+                     "std_spread": None if spread is None else spread.tolist()})
+    judge(result, [_target_cross_check(result, placements, board, camera, clouds)])
+    result.seconds = time.perf_counter() - started
+    return result
+
+
+def _target_cross_check(result: TransformResult, placements: Sequence[CornerPlacement], board: BoardSpec,
+                        camera: CameraIntrinsics, clouds: Sequence[np.ndarray] | None) -> CrossCheck:
+    """The target method on the same placements (the plate in the sweeps' clouds against the camera's board pose),
+    compared with the corners' result in their combined sigmas; named missing without the clouds or when it
+    cannot solve."""
+    name = "the target method on the same placements"
+    if clouds is None:
+        return CrossCheck(name, "the sweeps' clouds were not given")
+    observations = [TargetObservation(board_pose(camera, board, p.camera), np.asarray(cloud), p.name)
+                    for p, cloud in zip(placements, clouds, strict=True)]
+    try:
+        target = solve_target(board, observations, result.T_parent_child,
+                              LidarCameraTargetSettings(solve_plate_margin=True))
+    except InputError as exc:
+        return CrossCheck(name, f"it could not solve: {exc.message}")
+    agreement = compare_methods(result.T_parent_child, result.covariance, target.T_parent_child, target.covariance,
+                                "target")
+    result.diagnostics["target_method"] = {"T_camera_lidar": target.T_parent_child.tolist(), "std": target.std,
+                                           "sigmas": agreement.sigmas}
+    return CrossCheck(name, agreement.detail(), agreement.sigmas)
 
 
 def _refine(T_start: np.ndarray, points: np.ndarray, pixels: np.ndarray, camera: CameraIntrinsics):

@@ -100,7 +100,8 @@ def test_corners_in_the_intensity_image_and_in_3d(placements):
 @pytest.mark.slow
 def test_the_extrinsic_from_the_corner_pairs(placements):
     camera = demo_rig().get("cam_front").intrinsics
-    result = solve_sweep_corners([p for p, _, _ in placements], BOARD, camera, "camera", "sweep", GUESS)
+    clouds = [NODDING.assemble(scans)[0] for _, scans, _ in placements]
+    result = solve_sweep_corners([p for p, _, _ in placements], BOARD, camera, "camera", "sweep", GUESS, clouds)
     assert (result.kind, result.method, result.parent, result.child) == ("lidar_camera", "corners", "camera", "sweep")
     error_m, error_deg = transform_error(result.T_parent_child, invert(T_MOUNT_CAMERA))
     assert np.linalg.norm(error_m) < 0.01 and np.linalg.norm(error_deg) < 0.3, (error_m, error_deg)
@@ -109,7 +110,12 @@ def test_the_extrinsic_from_the_corner_pairs(placements):
         np.abs(error_deg) < 3 * np.array(std["rot_deg"])), (error_m, error_deg, std)
     assert result.residuals["outliers"] <= 5 and result.residuals["corners"] >= 200
     assert set(result.diagnostics["placements"]) == {f"placement{k}" for k in range(5)}
-    assert not result.warnings
+    # judged like the target method: its sigmas, the spread over placements, and the target method's own answer
+    reasons = " | ".join(result.verdict.reasons)
+    assert "leave one of the poses out" in reasons and "the target method on the same placements" in reasons
+    assert result.diagnostics["target_method"]["sigmas"] < 3, reasons
+    assert result.verdict.level in ("trusted", "check"), reasons
+    print(f"corners: {result.verdict.level}: {reasons}")
 
 
 @pytest.mark.slow
