@@ -4,8 +4,9 @@ OpenCV cannot fit this model (it has no affine terms), so the solve is a Levenbe
 orientation ``[c, xp, yp, K1, K2, K3, P1, P2, A1, A2]`` and every view's pose, with the analytic Jacobian of
 :func:`project`. It is written here (:func:`levenberg_marquardt`) because SciPy's solvers do not use the bundle's
 structure: with 48 views MINPACK's dense QR took 1.4 s a solve (a minute for the view jackknife) and TRF with LSMR
-5 s, where eliminating the poses (the Schur complement) takes 0.2 s to the same solution (RMS equal to 1e-14 px). It starts from OpenCV's five-coefficient solve with ``fx = fy``, which is
-this model with ``A1 = A2 = 0`` exactly, so it can only fit better.
+5 s, where eliminating the poses (the Schur complement) takes 0.2 s to the same solution (RMS equal to 1e-14 px).
+It starts from OpenCV's five-coefficient solve with ``fx = fy``, which is this model with ``A1 = A2 = 0`` exactly,
+so it can only fit better.
 
 The report (:func:`report`) gives every parameter in pixels and, with the pixel size, in mm, with its sigma, and
 the correlations of the interior orientation with each view's exterior orientation (``X0, Y0, Z0``: the

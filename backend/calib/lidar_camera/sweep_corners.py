@@ -74,8 +74,11 @@ class SweepCorners:
     """The intensity image the corners were found in."""
 
 
-def sweep_image(scans: Sequence[ScanAtAngle]) -> tuple[SweepImage, float]:
-    """A sweep's intensity image, one row per step and one column per beam, and the beam spacing (rad)."""
+def sweep_image(scans: Sequence[ScanAtAngle], intensity_range: tuple[float, float] | None = None
+                ) -> tuple[SweepImage, float]:
+    """A sweep's intensity image, one row per step and one column per beam, and the beam spacing (rad);
+    ``intensity_range`` maps to 1..255 (default the 1st..99th percentile, as
+    :func:`~backend.core.sweep_geometry.intensity_image`)."""
     points, servo, intensity = stack_scans(scans)
     if not np.any(intensity):
         raise InputError("the sweep has no intensities: its scanner must report them to find a board's corners",
@@ -85,7 +88,8 @@ def sweep_image(scans: Sequence[ScanAtAngle]) -> tuple[SweepImage, float]:
     spacing = float(np.median(np.diff(first))) if len(first) > 1 else math.radians(0.25)
     columns = int(round((beam.max() - beam.min()) / spacing)) + 1
     image = intensity_image(points, intensity, servo, beam, (len(scans), columns),
-                            servo_range_rad=(scans[0][0], scans[-1][0]), scan_range_rad=(beam.min(), beam.max()))
+                            servo_range_rad=(scans[0][0], scans[-1][0]), scan_range_rad=(beam.min(), beam.max()),
+                            intensity_range=intensity_range)
     image.servo_angles_rad = np.array([angle for angle, _, _ in scans])  # each row is a step, as read back
     return image, spacing
 
@@ -94,15 +98,11 @@ def find_sweep_corners(scans: Sequence[ScanAtAngle], geometry: SweepGeometry, bo
                        name: str = "sweep") -> SweepCorners:
     """The board's corners in a sweep (raw scans, as :meth:`SweptScanner.scans_of` gives them) assembled with
     ``geometry``; :class:`InputError` naming ``name`` when the board is not found or too small to be."""
-    image, spacing = sweep_image(scans)
-    step = float(np.median(np.abs(np.diff(image.servo_angles_rad)))) if len(scans) > 1 else spacing
-    stretch = max(step / spacing, 1.0)
-    square = cv2.resize(image.intensity, (image.intensity.shape[1], int(round(image.intensity.shape[0] * stretch))),
-                        interpolation=cv2.INTER_CUBIC)
-    detection = detect_board(square, board)
-    if detection is None:
+    found = _detect_in_sweep(scans, board)
+    if found is None:
         raise InputError(f"{name}: the board is not found in the sweep's intensity image; bring it closer (its squares "
                          f"should span {MIN_SQUARE_PX:g} servo steps or more) and keep it whole in the sweep", name)
+    image, detection, stretch = found
     corners = _best_corners(detection)
     rows = (corners[:, 1] + 0.5) / stretch - 0.5
     square_rows = _square_size_px(corners, detection.ids, board) / stretch
@@ -114,6 +114,30 @@ def find_sweep_corners(scans: Sequence[ScanAtAngle], geometry: SweepGeometry, bo
     normal, offset, rms = _board_plane(scans, geometry, image, image_px)
     distance = (offset - origins @ normal) / (directions @ normal)
     return SweepCorners(detection.ids, image_px, origins + directions * distance[:, None], rms, image)
+
+
+INTENSITY_SCALES: tuple[tuple[float, float] | None, ...] = (None, (0.0, 255.0))
+"""The intensity scales the board is searched at: the image's own 1st..99th percentile, then a fixed one (0..255,
+the sensors' usual range): a stretch set by the whole scene can leave a board's squares too alike to find."""
+STRETCH_FACTORS = (1.0, 0.9, 1.1)
+"""Row resampling factors tried, times the step over the beam spacing: the detector is sensitive to a board's
+aspect, which a sweep only approximates (the rows follow the servo, not the board)."""
+
+
+def _detect_in_sweep(scans: Sequence[ScanAtAngle], board: BoardSpec
+                     ) -> tuple[SweepImage, Detection, float] | None:
+    """The sweep's image, the board found in it resampled to square angles, and the row factor used; the scales of
+    :data:`INTENSITY_SCALES` and factors of :data:`STRETCH_FACTORS` are tried in turn. None when none finds it."""
+    for scale in INTENSITY_SCALES:
+        image, spacing = sweep_image(scans, scale)
+        step = float(np.median(np.abs(np.diff(image.servo_angles_rad)))) if len(scans) > 1 else spacing
+        for factor in STRETCH_FACTORS:
+            stretch = max(step / spacing * factor, 1.0)
+            size = (image.intensity.shape[1], int(round(image.intensity.shape[0] * stretch)))
+            detection = detect_board(cv2.resize(image.intensity, size, interpolation=cv2.INTER_CUBIC), board)
+            if detection is not None:
+                return image, detection, size[1] / image.intensity.shape[0]
+    return None
 
 
 def _best_corners(detection: Detection) -> np.ndarray:

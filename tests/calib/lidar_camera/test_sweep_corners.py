@@ -1,9 +1,10 @@
 """LiDAR-to-camera from board corners in a swept scanner's intensity image (the servo-scanner rig).
 
-A 2D scanner (0.25 deg beams, 1 cm range noise) nodded by a servo through 173 steps of 1.05 deg, as the rig's
-Turret WidowX does, with a camera on top; the board is the rig's (7 x 9 squares of 57 mm, 6 x 8 inner corners),
-held 0.65-0.75 m in front at five placements. The sweeps are ray-cast at the servo's angles exactly
-(:func:`backend.sim.swept_head.static_sweep`), the camera images rendered; truth is known.
+A 2D scanner (0.25 deg beams, 1 cm range noise) nodded by a servo in steps of 1.05 deg, as the rig's Turret
+WidowX does (here the 87 of its 173 steps, -45..45 deg, that see the boards), with a camera on top; the board is
+the rig's (7 x 9 squares of 57 mm, 6 x 8 inner corners), held 0.65-0.75 m in front at five placements. The
+sweeps are ray-cast at the servo's angles exactly (:func:`backend.sim.swept_head.static_sweep`), the camera images
+rendered; truth is known.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ BOARD = BoardSpec.parse(BOARD_SPEC)
 NODDING = SweepGeometry(axis=np.array([0.0, 1.0, 0.0]), zero_offset_rad=math.radians(1.2),
                         T_servo_scanner=from_xyz_ypr(np.array([0.02, 0.01, 0.04]), np.radians([0.6, -0.8, 0.4])))
 """The servo nods the scanner about the mount's y axis (left), from 90 deg down to 90 deg up."""
-SERVO_RAD = np.radians(np.linspace(-90, 90, 173))
+SERVO_RAD = np.radians(np.linspace(-45, 45, 87))
+"""The part of the rig's sweep (173 steps of 1.05 deg over 180 deg) that holds the boards: the same steps."""
 T_BASE_MOUNT = np.array(DEFAULT_SIM_MOUNT)
 T_MOUNT_CAMERA = from_xyz_ypr(np.array([0.02, -0.03, 0.12]), np.radians([1.5, 6.0, 0.5])) @ make_T(R_BODY_OPTICAL,
                                                                                                     np.zeros(3))
