@@ -49,7 +49,7 @@ def convert(camera: CameraIntrinsics, model: CameraModelName) -> Conversion:
         start, unpack = _opencv_start(camera), _opencv_camera
         note = "A1 and A2 have no OpenCV counterpart: fx, fy and the distortion were fitted over the image"
     elif pair == ("pinhole-radtan", "photogrammetric"):
-        start, unpack = _photogrammetric_start(camera), _photogrammetric_camera
+        start, unpack = _photogrammetric_start(camera), photogrammetric_camera
         note = "fx != fy has no exact photogrammetric counterpart: c, A1 and the distortion were fitted over the image"
     else:
         raise ValueError(f"no conversion from {camera.model} to {model}")
@@ -94,7 +94,13 @@ def _photogrammetric_start(camera: CameraIntrinsics) -> np.ndarray:
     return np.r_[fy, camera.K[0, 2], camera.K[1, 2], coefficients]
 
 
-def _photogrammetric_camera(source: CameraIntrinsics, params: np.ndarray) -> CameraIntrinsics:
+def interior_orientation(camera: CameraIntrinsics) -> np.ndarray:
+    """``[c, xp, yp, K1, K2, K3, P1, P2, A1, A2]`` (px units) of a photogrammetric camera."""
+    return np.r_[camera.K[0, 0], camera.K[0, 2], camera.K[1, 2], camera.dist[:7]]
+
+
+def photogrammetric_camera(source: CameraIntrinsics, params: np.ndarray) -> CameraIntrinsics:
+    """The photogrammetric camera of :func:`interior_orientation` ``params``, at ``source``'s image size."""
     c, xp, yp = params[:3]
     return CameraIntrinsics("photogrammetric", source.width, source.height,
                             np.array([[c, 0.0, xp], [0.0, c, yp], [0.0, 0.0, 1.0]]), params[3:10])

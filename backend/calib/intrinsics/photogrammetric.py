@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from backend.core import photogrammetric
 from backend.core.camera import CameraIntrinsics
-from backend.core.camera_conversion import convert
+from backend.core.camera_conversion import convert, interior_orientation, photogrammetric_camera
 
 INTERIOR = ["c", "xp", "yp", *photogrammetric.NAMES]
 """The interior orientation's parameters, in the order of the covariance's free intrinsics."""
@@ -75,9 +75,7 @@ def bundle_adjust(camera: CameraIntrinsics, object_points: list[np.ndarray], ima
         poses = params[n_interior:].reshape(n_views, 6)
         if fix_interior:
             return camera, poses
-        c, xp, yp = params[:3]
-        K = np.array([[c, 0.0, xp], [0.0, c, yp], [0.0, 0.0, 1.0]])
-        return CameraIntrinsics("photogrammetric", camera.width, camera.height, K, params[3:n_interior]), poses
+        return photogrammetric_camera(camera, params[:n_interior]), poses
 
     def evaluate(params: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
         """Each view's residuals (2N,), Jacobian by the interior orientation (2N, 10 or 0) and by its pose (2N, 6)."""
@@ -91,7 +89,7 @@ def bundle_adjust(camera: CameraIntrinsics, object_points: list[np.ndarray], ima
         return residuals, interior, pose
 
     start = np.concatenate([
-        [] if fix_interior else [camera.K[0, 0], camera.K[0, 2], camera.K[1, 2], *camera.dist[:7]],
+        [] if fix_interior else interior_orientation(camera),
         np.column_stack([np.reshape(rvecs, (n_views, 3)), np.reshape(tvecs, (n_views, 3))]).ravel()])
     solution_x = levenberg_marquardt(evaluate, start, n_interior)
     model, poses = unpack(solution_x)
@@ -201,7 +199,7 @@ def report(camera: CameraIntrinsics, std: np.ndarray, correlation: np.ndarray, c
     table; the interior-exterior correlations per view and the largest of each pair over the views; and the
     nearest OpenCV camera with the residual over the image.
     """
-    values = np.r_[camera.K[0, 0], camera.K[0, 2], camera.K[1, 2], camera.dist[:7]]
+    values = interior_orientation(camera)
     powers = np.array([1, 1, 1, *(photogrammetric.PIXEL_POWERS[n] for n in photogrammetric.NAMES)], float)
     centre = np.array([0.0, (camera.width - 1) / 2, (camera.height - 1) / 2, *np.zeros(7)])
     parameters = {}

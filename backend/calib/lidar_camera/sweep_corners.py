@@ -153,13 +153,18 @@ def _square_size_px(corners: np.ndarray, ids: np.ndarray, board: BoardSpec) -> f
     return float(np.median(steps)) if len(steps) else 0.0
 
 
+def _column_width_rad(image: SweepImage) -> float:
+    """The beam angle (rad) one column of the intensity image spans (its columns are evenly spaced)."""
+    columns = image.scan_angles_rad
+    return float(columns[-1] - columns[0]) / max(len(columns) - 1, 1)
+
+
 def _corner_rays(image: SweepImage, image_px: np.ndarray, geometry: SweepGeometry
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Origins and unit directions (N, 3, mount frame) of the beams through image points (column, row)."""
     rows = np.arange(len(image.servo_angles_rad))
     servo = np.interp(image_px[:, 1], rows, image.servo_angles_rad)
-    columns = image.scan_angles_rad
-    beam = columns[0] + image_px[:, 0] * (columns[-1] - columns[0]) / max(len(columns) - 1, 1)
+    beam = image.scan_angles_rad[0] + image_px[:, 0] * _column_width_rad(image)
     origins, directions = [], []
     for s, a in zip(servo, beam, strict=True):
         T = geometry.T_mount_scanner(float(s))
@@ -175,8 +180,7 @@ def _board_plane(scans: Sequence[ScanAtAngle], geometry: SweepGeometry, image: S
     points, servo, _ = stack_scans(scans)
     beam = np.arctan2(points[:, 1], points[:, 0])
     row = np.round(np.interp(servo, image.servo_angles_rad, np.arange(len(image.servo_angles_rad)))).astype(int)
-    columns = image.scan_angles_rad
-    column = np.round((beam - columns[0]) / ((columns[-1] - columns[0]) / max(len(columns) - 1, 1))).astype(int)
+    column = np.round((beam - image.scan_angles_rad[0]) / _column_width_rad(image)).astype(int)
     centre = image_px.mean(axis=0)
     hull = cv2.convexHull(np.round(centre + 0.9 * (image_px - centre)).astype(np.int32))
     mask = cv2.fillConvexPoly(np.zeros(image.intensity.shape, np.uint8), hull, 1).astype(bool)
