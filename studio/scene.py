@@ -21,6 +21,9 @@ from backend.calib.rig.service import EdgeResidual, RigTree
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.rig import Frame, Rig
+from backend.core.targets import CameraTarget
+from backend.core.test_field import TestField
+from backend.core.transforms import transform_points
 
 DEFAULT_FOV_RAD = np.radians(60.0)
 FRUSTUM_SCALE_M = 0.15
@@ -39,6 +42,10 @@ SENSOR_COLOURS = {
     "depth": (40, 170, 90),
 }
 SOLVED_COLOUR = (235, 130, 20)
+TEST_FIELD_COLOUR = (250, 200, 40)
+"""Colour of a test field's surveyed marker centres."""
+TEST_FIELD_POINT_M = 0.05
+"""Drawn size of a test field's marker centre (m)."""
 """Frusta of a solved camera rig on show (:meth:`RigScene.show_solved_cameras`), beside the rig's own (blue)."""
 RIG_TREE = "/rig_tree"
 """Scene path of the fused rig tree, the rig step's layer group."""
@@ -199,15 +206,22 @@ class RigScene:
         for handle in self._boards.pop(f"{step}/{'live' if live else 'captured'}", []):
             handle.remove()
 
-    def show_boards(self, step: str, rig: Rig, camera: str, board: BoardSpec, T_camera_boards: list[np.ndarray],
+    def show_boards(self, step: str, rig: Rig, camera: str, board: CameraTarget, T_camera_boards: list[np.ndarray],
                     live: bool = False) -> None:
         """Draw the board at each pose in front of ``camera`` (captured views, or the live view) in ``step``'s
-        layer group, under ``/steps/<step>/boards/<live|captured>/``."""
+        layer group, under ``/steps/<step>/boards/<live|captured>/`` (a test field as its marker centres)."""
         kind = "live" if live else "captured"
         self.clear_boards(step, live)
         root = f"{self.group(step)}/boards/{kind}"
-        texture, width_m, height_m, T_board_plane = _board_drawing(board)
         T_root_camera = rig.T_root_frame(camera)
+        if isinstance(board, TestField):  # the surveyed marker centres, where each view puts the wall
+            self._boards[f"{step}/{kind}"] = [
+                self.server.scene.add_point_cloud(f"{root}/{i}", transform_points(T_root_camera @ T_camera_wall,
+                                                                                  board.centres_m),
+                                                  colors=TEST_FIELD_COLOUR, point_size=TEST_FIELD_POINT_M)
+                for i, T_camera_wall in enumerate(T_camera_boards)]
+            return
+        texture, width_m, height_m, T_board_plane = _board_drawing(board)
         self._boards[f"{step}/{kind}"] = [
             self.server.scene.add_image(f"{root}/{i}", texture, render_width=width_m, render_height=height_m,
                                         format="png", **viser_pose(T_root_camera @ T_camera_board @ T_board_plane))

@@ -32,7 +32,12 @@ class SessionCreate(FiniteModel):
 
 
 class BoardUpdate(FiniteModel):
-    board: str = Field(examples=["charuco:11x8:0.03:0.022:DICT_5X5_100"])
+    board: str = Field(examples=["charuco:11x8:0.03:0.022:DICT_5X5_100", "testfield:DICT_4X4_50:0.15:survey.csv"],
+                       max_length=500)
+
+
+class VTargetUpdate(FiniteModel):
+    v_target: str = Field(examples=["vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50"], max_length=200)
 
 
 class SensorCreate(FiniteModel):

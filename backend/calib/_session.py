@@ -14,6 +14,8 @@ from typing import Any
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.rig import Rig
+from backend.core.targets import CameraTarget, parse_target
+from backend.core.v_target import VTarget
 from backend.devices.base import Sample
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
 from backend.store.schema import CaptureRecord
@@ -28,11 +30,36 @@ def lidar_names(rig: Rig) -> list[str]:
     return [f.name for f in rig.frames.values() if f.kind in LIDAR_KINDS]
 
 
-def session_board(session: Session) -> BoardSpec:
+def session_board(session: Session) -> CameraTarget:
+    """The session's camera target: a board, or a test field whose survey the session holds."""
     if not session.board:
         raise InputError(f"session {session.name!r} has no board spec yet; set one such as checkerboard:9x6:0.025",
                          "board")
-    return BoardSpec.parse(session.board)
+    return parse_target(session.board, session.path)
+
+
+def session_plane_board(session: Session, use: str) -> BoardSpec:
+    """The session's board for ``use`` (e.g. "the target method"), which a test field cannot serve."""
+    board = session_board(session)
+    if not isinstance(board, BoardSpec):
+        raise InputError(f"the session's target is a test field ({session.board}); {use} needs a board: set a "
+                         "checkerboard or ChArUco spec", "board")
+    return board
+
+
+def pair_board(session: Session) -> BoardSpec | None:
+    """The board a LiDAR-camera pair's image is searched for: the session's, unless it has none or it is a test
+    field (a wall the pairs do not show)."""
+    board = session_board(session) if session.board else None
+    return board if isinstance(board, BoardSpec) else None
+
+
+def session_v_target(session: Session) -> VTarget:
+    """The session's V-target, for the vtarget LiDAR-camera method."""
+    if not session.v_target:
+        raise InputError(f"session {session.name!r} has no V-target spec yet; set one such as "
+                         "vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50", "v_target")
+    return VTarget.parse(session.v_target)
 
 
 def check_camera(session: Session, camera: str) -> None:

@@ -17,7 +17,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 
-from backend.cli import depth, intrinsics, lidar_camera, lidar_lidar, multicam, rig, sensors, targets
+from backend.cli import depth, intrinsics, lidar_camera, lidar_lidar, multicam, rig, sensors, targets, test_field
 from backend.cli._common import (
     EXIT_CANCELLED,
     EXIT_INPUT_ERROR,
@@ -33,9 +33,9 @@ __all__ = ["EXIT_CANCELLED", "EXIT_INPUT_ERROR", "EXIT_INTERNAL_ERROR", "build_p
 AddParser = Callable[[argparse._SubParsersAction], None]
 """A command group's ``add_parser(subparsers)``."""
 
-GROUPS: tuple[AddParser, ...] = (intrinsics.add_parser, lidar_lidar.add_parser, lidar_camera.add_parser,
-                                 multicam.add_parser, targets.add_parser, sensors.add_parser, rig.add_parser,
-                                 depth.add_parser)
+GROUPS: tuple[AddParser, ...] = (intrinsics.add_parser, test_field.add_parser, lidar_lidar.add_parser,
+                                 lidar_camera.add_parser, multicam.add_parser, targets.add_parser, sensors.add_parser,
+                                 rig.add_parser, depth.add_parser)
 """The backend's command groups, in the order ``--help`` lists their commands."""
 
 

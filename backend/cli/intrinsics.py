@@ -12,9 +12,11 @@ from backend.core.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    intr = sub.add_parser("intrinsics", help="calibrate a camera from a folder of board images")
+    intr = sub.add_parser("intrinsics", help="calibrate a camera from a folder of board or test-field images")
     intr.add_argument("images_dir", type=Path)
-    intr.add_argument("--board", required=True, help="e.g. checkerboard:9x6:0.025")
+    intr.add_argument("--board", required=True, metavar="SPEC",
+                      help="a board, e.g. checkerboard:9x6:0.025, or a wall test field of surveyed markers, "
+                           "testfield:DICT:MARKER:SURVEY, e.g. testfield:DICT_4X4_50:0.15:wall.csv")
     intr.add_argument("--model", default="pinhole-radtan",
                       choices=["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "auto"],
                       help="photogrammetric: the collinearity model with K1-K3, P1, P2 and the affine A1, A2; "
@@ -37,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.intrinsics.service import IntrinsicsSettings, solve_files
-    from backend.core.boards import BoardSpec
+    from backend.core.targets import parse_target
 
     check_outputs(args.out)
     if args.auto_for != "any" and args.model != "auto":
@@ -54,7 +56,7 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     settings = IntrinsicsSettings(model=args.model, auto_for=auto_for, estimate_k3=args.k3,
                                   estimate_tangential=not args.no_tangential, fix_aspect=args.fix_aspect,
                                   drop_outliers=args.drop_outliers, pixel_size_um=args.pixel_size_um)
-    result, skipped = solve_files(args.images_dir, BoardSpec.parse(args.board), settings,
+    result, skipped = solve_files(args.images_dir, parse_target(args.board), settings,
                                        progress_to_stderr(False))
     for item in skipped:
         print(f"warning: {item['message']}", file=sys.stderr)

@@ -27,13 +27,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lc.add_argument("--pair", action="append", required=True, metavar="IMAGE:CLOUD",
                     help="an image and the cloud taken with it (repeat for every board pose or scene); "
                          "IMAGE:CLOUD1,CLOUD2,... merges several scans of a static scene into one denser cloud")
-    lc.add_argument("--method", choices=["target", "edges", "intensity"], default="target",
-                    help="target: a board seen by both sensors; edges: targetless, aligns the edges of the scene; "
+    lc.add_argument("--method", choices=["target", "vtarget", "edges", "intensity"], default="target",
+                    help="target: a board seen by both sensors; vtarget: V-shaped targets of two plates with markers "
+                         "(--board takes the V-target's spec); edges: targetless, aligns the edges of the scene; "
                          "intensity: targetless, matches the LiDAR's intensities with the image (needs intensities)")
     lc.add_argument("--cross-check", action="store_true",
                     help="edges, intensity: also solve with the other targetless method and put the two methods' "
                          "agreement into the verdict")
-    lc.add_argument("--board", help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target)")
+    lc.add_argument("--board", metavar="SPEC",
+                    help="board spec, e.g. checkerboard:9x6:0.04 (needed for --method target), or the V-target's, "
+                         "e.g. vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50 (for --method vtarget)")
     lc.add_argument("--plate-margin", type=float, metavar="M",
                     help="how far the board's plate reaches beyond the pattern's outer corners (m); default: "
                          "estimated with the transform from the scan lines that cross the plate")
@@ -58,18 +61,22 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.lidar_camera.service import cli_summary, solve_files
     from backend.core.boards import BoardSpec
     from backend.core.transforms import check_transform
+    from backend.core.v_target import VTarget
     from backend.exports.camera_json import load_camera
 
     pairs = [(image, [Path(c) for c in str(cloud).split(",")]) for image, cloud in parse_pairs(args.pair)]
     camera, _ = load_camera(args.camera)
-    if args.method == "target" and not args.board:
-        raise InputError("--method target needs the board's spec, e.g. --board checkerboard:9x6:0.04", "--board")
+    if args.method in ("target", "vtarget") and not args.board:
+        what, example = (("the V-target's spec", "vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50") if args.method == "vtarget"
+                         else ("the board's spec", "checkerboard:9x6:0.04"))
+        raise InputError(f"--method {args.method} needs {what}, e.g. --board {example}", "--board")
     T_init = read_init(args)
     if T_init is None:
         raise InputError("give the initial T_camera_lidar (the mounting as measured, within ~10 cm and 5 deg) with "
                          "--init or --init-xyzypr", "--init")
     check_transform(T_init, init_name(args))
-    board = BoardSpec.parse(args.board) if args.board else None
+    board = None if not args.board else VTarget.parse(args.board) if args.method == "vtarget" else BoardSpec.parse(
+        args.board)
     lens = None if args.intrinsics_std is None else LensUncertainty.from_sigmas(
         camera, parse_floats(args.intrinsics_std), "--intrinsics-std")
     result = solve_files(camera, board, pairs, T_init, method=args.method, plate_margin_m=args.plate_margin,

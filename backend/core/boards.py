@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from backend.core.errors import InputError, shorten
+from backend.core.markers import marker_cells
 
 BoardKind = Literal["checkerboard", "charuco"]
 
@@ -113,6 +114,12 @@ class BoardSpec:
         return np.column_stack([grid, np.zeros(len(grid), np.float32)])
 
     @property
+    def plane_xy(self) -> np.ndarray:
+        """(N, 2) corner positions in the board's plane (m), as for any target (:class:`~backend.core.test_field.
+        TestField` has its own)."""
+        return self.object_points[:, :2]
+
+    @property
     def size_m(self) -> tuple[float, float]:
         """Printed size of the full board including the outer squares (m)."""
         if self.kind == "checkerboard":
@@ -140,19 +147,13 @@ class BoardSpec:
             cells = []
         else:
             board = self.charuco_board()
-            dictionary = board.getDictionary()
-            bits = dictionary.markerSize + 2  # the marker's cells along a side, its one-cell black border included
-            cell_m = self.marker_m / bits
             dark = np.ones((n_y, n_x), bool)
             cells = []
             for marker_id, corners in zip(board.getIds().ravel(), board.getObjPoints(), strict=True):
                 top_left = np.asarray(corners)[0, :2]
                 column, row = np.floor((top_left + self.marker_m / 2) / self.square_m).astype(int)
                 dark[row, column] = False
-                black_rows, black_cols = np.nonzero(dictionary.generateImageMarker(int(marker_id), bits) == 0)
-                cell_x0 = top_left[0] + black_cols * cell_m
-                cell_y0 = top_left[1] + black_rows * cell_m
-                cells.append(np.column_stack([cell_x0, cell_y0, cell_x0 + cell_m, cell_y0 + cell_m]))
+                cells.append(marker_cells(self.dictionary, int(marker_id), self.marker_m, top_left))
         rows, cols = np.nonzero(dark)
         squares = np.column_stack([cols, rows, cols + 1, rows + 1]) * self.square_m
         return np.concatenate([squares, *cells]).astype(float)

@@ -52,6 +52,9 @@ MAX_CLOUD_POINTS = Limit("CALIB_MAX_CLOUD_POINTS", 50_000_000, "points", "a poin
 MAX_TARGET_SQUARES = Limit("CALIB_MAX_TARGET_SQUARES", 10_000, "squares", "a printable target")
 """Most squares (a ChArUco board's each hold a marker or none) drawn into one target PDF; checked from the spec."""
 
+MAX_TEXT_UPLOAD_MB = Limit("CALIB_MAX_TEXT_UPLOAD_MB", 2, "MB", "a text upload")
+"""Largest request uploading a text file (a test field's survey)."""
+
 BYTES_PER_MB = 1_000_000
 MAX_NODE_FRAME_MB = Limit("CALIB_MAX_NODE_FRAME_MB", 256, "MB", "a node's frame")
 """Largest frame a node agent's stream or capture may send; Zenoh drops a bigger message before it is taken in."""

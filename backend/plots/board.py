@@ -11,13 +11,14 @@ import numpy as np
 
 from backend.calib.board.detection import normalised, to_gray
 from backend.core.boards import BoardSpec
+from backend.core.targets import CameraTarget
 from backend.plots.render import PANEL_WIDTH_PX
 
 if TYPE_CHECKING:
     from backend.calib.board.detection import Detection
 
 
-def draw_detection(image: np.ndarray, board: BoardSpec, detection: Detection | None) -> np.ndarray:
+def draw_detection(image: np.ndarray, board: CameraTarget, detection: Detection | None) -> np.ndarray:
     """BGR uint8 copy of ``image`` with the detected corners drawn (or a red 'no board' banner).
 
     Images deeper than 8 bits (thermal raw counts) are shown ``normalised``.
@@ -28,12 +29,13 @@ def draw_detection(image: np.ndarray, board: BoardSpec, detection: Detection | N
     if detection is None:
         cv2.putText(canvas, "board not found", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.2, (0, 0, 255), 3)
         return canvas
-    if board.kind == "checkerboard":
+    if isinstance(board, BoardSpec) and board.kind == "checkerboard":
         cv2.drawChessboardCorners(canvas, board.corner_grid, detection.corners_px.astype(np.float32).reshape(-1, 1, 2),
                                   True)
-    else:
+    else:  # a ChArUco board's corners, or a test field's marker centres, each with its id
+        ids = detection.ids if isinstance(board, BoardSpec) else np.asarray(board.ids)[detection.ids]
         cv2.aruco.drawDetectedCornersCharuco(canvas, detection.corners_px.astype(np.float32).reshape(-1, 1, 2),
-                                             detection.ids.reshape(-1, 1))
+                                             ids.reshape(-1, 1).astype(np.int32))
     return canvas
 
 
@@ -50,7 +52,7 @@ def heatmap_overlay(image: np.ndarray, heatmap: np.ndarray | None) -> np.ndarray
     return (canvas * (1 - alpha) + tint * alpha).astype(np.uint8)
 
 
-def live_view(image: np.ndarray, board: BoardSpec, detection: Detection | None, heatmap: np.ndarray | None,
+def live_view(image: np.ndarray, board: CameraTarget, detection: Detection | None, heatmap: np.ndarray | None,
               width: int = PANEL_WIDTH_PX) -> np.ndarray:
     """The preview: coverage tint, then the detected corners, scaled to the panel (RGB)."""
     drawn = draw_detection(heatmap_overlay(image, heatmap), board, detection)

@@ -17,12 +17,14 @@ import numpy as np
 
 from backend.calib._session import session_board
 from backend.calib.board.coverage import PARAM_NAMES, Coverage, enough_data
-from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.detection import Detection
 from backend.calib.board.live_detection import LiveDetector
 from backend.calib.board.pose import board_pose, nominal_camera
 from backend.calib.intrinsics import service as intrinsics_service
+from backend.calib.test_field.detection import detect_target, detect_test_field
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
+from backend.core.targets import CameraTarget
 from backend.devices.base import Sample
 from backend.services.sensor_stream import SensorStream
 from backend.store.schema import CaptureRecord
@@ -96,6 +98,14 @@ class LiveCallbacks:
     """(message, is_error)."""
 
 
+def preview_detector(board: CameraTarget) -> Callable[[np.ndarray], Detection | None]:
+    """The fast detection a live preview runs on every frame: a board's at reduced resolution
+    (:class:`LiveDetector`); a test field's markers as they are (the marker search is fast at full size)."""
+    if isinstance(board, BoardSpec):
+        return LiveDetector(board).detect
+    return lambda image: detect_test_field(image, board, "frame").detection
+
+
 class LiveCapture(SensorStream):
     """One camera's live preview and (auto-)capture loop."""
 
@@ -109,7 +119,7 @@ class LiveCapture(SensorStream):
         self.auto_capture = auto_capture
         self.coverage = coverage_from_captures(session, sensor, self.board)
         self._capture_next = threading.Event()
-        self._detector = LiveDetector(self.board)
+        self._preview_detection = preview_detector(self.board)
 
     def capture_now(self) -> None:
         """Keep the next frame with a board, whether or not it adds coverage."""
@@ -117,10 +127,10 @@ class LiveCapture(SensorStream):
 
     def handle(self, sample: Sample) -> None:
         image = sample.image
-        detection = self._detector.detect(image)  # fast, for the preview
+        detection = self._preview_detection(image)  # fast, for the preview
         wanted = self._capture_next.is_set() or (self.auto_capture and worth_keeping(self.coverage, detection))
         if detection is not None and wanted:
-            detection = detect_board(image, self.board)  # full accuracy for what is kept
+            detection = detect_target(image, self.board, "frame")[0]  # full accuracy for what is kept
         if detection is not None and wanted:
             self._capture_next.clear()
             try:

@@ -1,20 +1,20 @@
-"""Render a calibration board as a simulated camera sees it.
+"""Render printed plates, a calibration board or any other print, as a simulated camera sees them.
 
-Every sub-pixel's exact ray through the distorted lens (:mod:`backend.sim.camera_rays`)
-is intersected with the board plane (z = 0 in the board frame). The hit point is
-looked up in a mip-mapped texture of the printed board (trilinear: the level whose
-texel matches the sub-pixel's footprint), then 2x2 sub-pixels are averaged per
-pixel. The result is composited over a textured background, lit with a smooth
-gradient and vignetting, blurred and given sensor noise.
+A plate carries a print on the plane z = 0 of its frame (x and y along the print, z into the plate, metres), so
+the camera sees the print from plate z < 0. Every sub-pixel's exact ray through the distorted lens
+(:mod:`backend.sim.camera_rays`) is intersected with that plane. The hit point is looked up in a mip-mapped
+texture of the print (:class:`PlateTexture`; trilinear: the level whose texel matches the sub-pixel's footprint),
+then 2x2 sub-pixels are averaged per pixel. The plates are composited far to near over a textured background
+(:func:`render_plates`), lit with a smooth gradient and vignetting, blurred and given sensor noise.
 
-The board is printed on a white plate that extends :data:`PLATE_MARGIN_SQUARES`
-squares beyond the pattern on every side; the board frame is the one of
-:class:`BoardSpec` (origin at the first inner corner, x along the columns, y along
-the rows, z into the board, metres), so the camera sees the print from board z < 0.
+A calibration board (:func:`render_board_image`) is printed on a white plate that extends
+:data:`PLATE_MARGIN_SQUARES` squares beyond the pattern on every side; the board frame is the one of
+:class:`BoardSpec` (origin at the first inner corner, x along the columns, y along the rows, z into the board).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -31,7 +31,9 @@ PLATE_MARGIN_SQUARES = 1.0
 SUPERSAMPLE = 2
 """Sub-pixels per pixel along each axis."""
 TEXELS_PER_SQUARE = 256
-"""Resolution of the finest texture level (a power of two; each mip level halves it)."""
+"""Resolution of a board's print (texels per square; a power of two, so that the mip levels halve the squares)."""
+COARSEST_TEXELS = 8
+"""Mip-mapping stops at the last level whose shorter side still has this many texels (a board's: one per square)."""
 PAPER_REFLECTANCE = 0.85
 """Fraction of light the white paper reflects (0..1)."""
 INK_REFLECTANCE = 0.06
@@ -41,14 +43,37 @@ _TEXTURE_ONE = 65535.0
 
 
 @dataclass(frozen=True)
-class _PlateTexture:
-    """Mip-mapped texture of the plate: per level (h, w, 2) uint16 of premultiplied reflectance and coverage."""
+class PlateTexture:
+    """Mip-mapped texture of a plate's print: per level (h, w, 2) uint16 of premultiplied reflectance and coverage.
+
+    Level 0 is the print, padded with transparent texels on the right and at the bottom to a size that every
+    level halves exactly; level k + 1 is level k halved.
+    """
 
     levels: tuple[np.ndarray, ...]
     corners_m: np.ndarray
-    """(4, 3) board-frame plate corners (m), as :func:`plate_corners_m`."""
-    texels_per_m: float
-    """Texels per metre of level 0."""
+    """(4, 3) plate-frame corners of the print (m): TL, TR, BR, BL, on z = 0."""
+    texels_per_m: np.ndarray
+    """(2,) texels per metre of level 0 along the plate's x and y."""
+    print_texels: tuple[int, int]
+    """Width and height of the print in level-0 texels (without the padding)."""
+
+
+def plate_texture(print_image: np.ndarray, corners_m: np.ndarray) -> PlateTexture:
+    """The :class:`PlateTexture` of a uint8 grayscale ``print_image`` (255 white paper, 0 black ink) that covers the
+    plate-frame rectangle ``corners_m`` (4, 3) (m: TL, TR, BR, BL on z = 0, edges along x and y)."""
+    height, width = print_image.shape
+    halvings = max(0, int(np.log2(min(height, width) / COARSEST_TEXELS)))
+    reflectance = INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * (print_image.astype(np.float32) / 255.0)
+    level = np.rint(np.dstack([reflectance, np.ones_like(reflectance)]) * _TEXTURE_ONE).astype(np.uint16)
+    level = np.pad(level, ((0, -height % 2**halvings), (0, -width % 2**halvings), (0, 0)))
+    levels = [level]
+    for _ in range(halvings):
+        level = cv2.resize(level, (level.shape[1] // 2, level.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        levels.append(level)
+    corners_m = np.asarray(corners_m, dtype=float)
+    texels_per_m = np.array([width, height]) / (corners_m[2, :2] - corners_m[0, :2])
+    return PlateTexture(tuple(levels), corners_m, texels_per_m, (width, height))
 
 
 def plate_corners_m(board: BoardSpec) -> np.ndarray:
@@ -88,17 +113,47 @@ def render_board_image(
             corners along a random direction; drawn from 0..0.2 when None.
         vignetting: relative darkening at the image corners.
     """
+    return render_plates(camera, [(_board_texture(board), T_camera_board)], rng, blur_px=blur_px,
+                         noise_sigma=noise_sigma, brightness=brightness, gradient=gradient, vignetting=vignetting)
+
+
+def render_plates(
+    camera: CameraIntrinsics,
+    plates: Sequence[tuple[PlateTexture, np.ndarray]],
+    rng: np.random.Generator,
+    *,
+    blur_px: float = 0.7,
+    noise_sigma: float = 2.0,
+    brightness: float | None = None,
+    gradient: float | None = None,
+    vignetting: float = 0.2,
+    background: bool = True,
+) -> np.ndarray:
+    """A uint8 grayscale (H, W) image of printed plates, each ``(texture, T_camera_plate)`` (plate to optical, m).
+
+    The plates are drawn far to near by the camera's distance to each plate's plane (painter's order): right for
+    parallel plates (markers standing off a wall) and for plates that meet along an edge (which cannot hide each
+    other while the camera sees both prints). A plate seen from behind, or not wholly in front of the camera, is
+    not drawn. ``background`` False leaves black behind the plates; the other arguments are those of
+    :func:`render_board_image`.
+    """
     rays = ray_field(camera, SUPERSAMPLE)
     if brightness is None:
         brightness = rng.uniform(160.0, 230.0)
     if gradient is None:
         gradient = rng.uniform(0.0, 0.2)
     gradient_angle = rng.uniform(0.0, 2 * np.pi)
-    reflectance = _background(rng, camera.width, camera.height)
-    plate = _render_plate(rays, _plate_texture(board), np.asarray(T_camera_board, dtype=float))
-    if plate is not None:
-        premultiplied, coverage, rows, cols = plate
-        reflectance[rows, cols] = reflectance[rows, cols] * (1.0 - coverage) + premultiplied
+    if background:
+        reflectance = _background(rng, camera.width, camera.height)
+    else:
+        reflectance = np.zeros((camera.height, camera.width), np.float32)
+    poses = [np.asarray(T_camera_plate, dtype=float) for _, T_camera_plate in plates]
+    plane_distances_m = [abs(T[:3, 2] @ T[:3, 3]) for T in poses]
+    for index in sorted(range(len(plates)), key=plane_distances_m.__getitem__, reverse=True):
+        drawn = _render_plate(rays, plates[index][0], poses[index])
+        if drawn is not None:
+            premultiplied, coverage, rows, cols = drawn
+            reflectance[rows, cols] = reflectance[rows, cols] * (1.0 - coverage) + premultiplied
     illumination = _illumination(camera.width, camera.height, brightness, gradient, gradient_angle, vignetting)
     radiance = reflectance * illumination
     if blur_px > 0:
@@ -108,18 +163,18 @@ def render_board_image(
 
 
 def _render_plate(
-    rays: RayField, texture: _PlateTexture, T_camera_board: np.ndarray
+    rays: RayField, texture: PlateTexture, T_camera_plate: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, slice, slice] | None:
     """Premultiplied reflectance and coverage (both (h, w) float32) of the plate over its pixel box.
 
     Returns None unless the printed side faces the camera and the whole plate is in
     front of it (z > 0 in the optical frame).
     """
-    plate_camera = transform_points(T_camera_board, texture.corners_m)
-    t_board_camera = -T_camera_board[:3, :3].T @ T_camera_board[:3, 3]
-    if t_board_camera[2] >= 0 or np.any(plate_camera[:, 2] <= 0):
+    plate_camera = transform_points(T_camera_plate, texture.corners_m)
+    t_plate_camera = -T_camera_plate[:3, :3].T @ T_camera_plate[:3, 3]
+    if t_plate_camera[2] >= 0 or np.any(plate_camera[:, 2] <= 0):
         return None
-    H_texel_ray = _texel_homography(texture, T_camera_board)
+    H_texel_ray = _texel_homography(texture, T_camera_plate)
     box = _plate_pixel_box(rays, texture, H_texel_ray)
     if box is None:
         return None
@@ -146,31 +201,32 @@ def _render_plate(
     return pixels[..., 0], pixels[..., 1], rows, cols
 
 
-def _texel_homography(texture: _PlateTexture, T_camera_board: np.ndarray) -> np.ndarray:
+def _texel_homography(texture: PlateTexture, T_camera_plate: np.ndarray) -> np.ndarray:
     """3x3 homography from normalised image coordinates (x/z, y/z) to level-0 texel coordinates.
 
-    Texel centres are at integer coordinates. Rays meeting the board plane behind the
+    Texel centres are at integer coordinates. Rays meeting the plate's plane behind the
     camera map to points that are not on the plate, as long as the plate is wholly
     in front of the camera.
     """
-    R_board_camera = T_camera_board[:3, :3].T
-    t_board_camera = -R_board_camera @ T_camera_board[:3, 3]
+    R_plate_camera = T_camera_plate[:3, :3].T
+    t_plate_camera = -R_plate_camera @ T_camera_plate[:3, 3]
     # A ray d meets z = 0 at t + lambda * R d with lambda = -t_z / (R d)_z, so the hit
     # point is ((t_x R_z - t_z R_x) d, (t_y R_z - t_z R_y) d) / (R_z d).
-    r_x, r_y, r_z = R_board_camera
-    t_x, t_y, t_z = t_board_camera
-    H_board_ray = np.array([t_x * r_z - t_z * r_x, t_y * r_z - t_z * r_y, r_z])
-    # Texel (0, 0) is centred half a texel inside the plate's top-left corner (x0, y0).
-    texel = texture.texels_per_m
+    r_x, r_y, r_z = R_plate_camera
+    t_x, t_y, t_z = t_plate_camera
+    H_plate_ray = np.array([t_x * r_z - t_z * r_x, t_y * r_z - t_z * r_y, r_z])
+    # Texel (0, 0) is centred half a texel inside the print's top-left corner (x0, y0).
+    texel_x, texel_y = texture.texels_per_m
     x0, y0 = texture.corners_m[0, :2]
-    H_texel_board = np.array([[texel, 0, -0.5 - x0 * texel], [0, texel, -0.5 - y0 * texel], [0, 0, 1]])
-    return H_texel_board @ H_board_ray
+    H_texel_plate = np.array([[texel_x, 0, -0.5 - x0 * texel_x], [0, texel_y, -0.5 - y0 * texel_y], [0, 0, 1]])
+    return H_texel_plate @ H_plate_ray
 
 
-def _plate_pixel_box(rays: RayField, texture: _PlateTexture, H_texel_ray: np.ndarray) -> tuple[slice, slice] | None:
-    """Row and column slices (px) of the image that hold the plate, found on the coarse ray nodes."""
+def _plate_pixel_box(rays: RayField, texture: PlateTexture, H_texel_ray: np.ndarray) -> tuple[slice, slice] | None:
+    """Row and column slices (px) of the image that hold the plate, found on the coarse ray nodes; None when they
+    hold less than 2 x 2 pixels of it (a plate cut by the image's edge to a sliver is not drawn)."""
     texel_uv = cv2.perspectiveTransform(rays.node_xy, H_texel_ray)
-    height_tex, width_tex = texture.levels[0].shape[:2]
+    width_tex, height_tex = texture.print_texels
     inside = (texel_uv[..., 0] >= -0.5) & (texel_uv[..., 0] <= width_tex - 0.5)
     inside &= (texel_uv[..., 1] >= -0.5) & (texel_uv[..., 1] <= height_tex - 0.5)
     node_rows, node_cols = np.nonzero(inside)
@@ -183,12 +239,12 @@ def _plate_pixel_box(rays: RayField, texture: _PlateTexture, H_texel_ray: np.nda
     u1 = rays.node_u[min(node_cols.max() + 1, len(rays.node_u) - 1)]
     rows = slice(int(np.clip(np.floor(v0), 0, height)), int(np.clip(np.ceil(v1) + 1, 0, height)))
     cols = slice(int(np.clip(np.floor(u0), 0, width)), int(np.clip(np.ceil(u1) + 1, 0, width)))
-    if rows.start >= rows.stop or cols.start >= cols.stop:
+    if rows.stop - rows.start < 2 or cols.stop - cols.start < 2:  # none, or a sliver at the image's edge
         return None
     return rows, cols
 
 
-def _mip_level(texel_uv: np.ndarray, supersample: int, texture: _PlateTexture) -> np.ndarray:
+def _mip_level(texel_uv: np.ndarray, supersample: int, texture: PlateTexture) -> np.ndarray:
     """Fractional mip level (float32, per pixel) whose texel spans one sub-pixel's footprint (longer axis).
 
     ``texel_uv`` (h, w, 2) holds level-0 texel coordinates at pixel spacing. The
@@ -198,26 +254,20 @@ def _mip_level(texel_uv: np.ndarray, supersample: int, texture: _PlateTexture) -
     d_drow, d_dcol = np.gradient(texel_uv, axis=(0, 1))
     footprint_sq = np.maximum(np.sum(d_dcol**2, axis=2), np.sum(d_drow**2, axis=2))
     level = 0.5 * np.log2(np.maximum(footprint_sq, 1e-12)) - np.log2(supersample)
-    height, width = texture.levels[0].shape[:2]
+    width, height = texture.print_texels
     u, v = texel_uv[..., 0], texel_uv[..., 1]
     on_plate = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
     lowest, highest = (level[on_plate].min(), level[on_plate].max()) if on_plate.any() else (0.0, 0.0)
-    return np.clip(level, max(lowest, 0.0), min(highest, len(texture.levels) - 1.0))
+    # Within the texture's levels: a plate magnified everywhere (texels wider than sub-pixels) uses level 0.
+    return np.clip(level, *np.clip([lowest, highest], 0.0, len(texture.levels) - 1.0))
 
 
 @lru_cache(maxsize=4)
-def _plate_texture(board: BoardSpec) -> _PlateTexture:
-    """The (cached) mip-mapped texture of the plate carrying ``board``, down to one texel per square."""
-    pattern = board.render(TEXELS_PER_SQUARE).astype(np.float32) / 255.0
-    reflectance = INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * pattern
+def _board_texture(board: BoardSpec) -> PlateTexture:
+    """The (cached) mip-mapped texture of the plate carrying ``board``: its print in the white margin."""
     margin = int(round(PLATE_MARGIN_SQUARES * TEXELS_PER_SQUARE))
-    reflectance = np.pad(reflectance, margin, constant_values=PAPER_REFLECTANCE)
-    level = np.rint(np.dstack([reflectance, np.ones_like(reflectance)]) * _TEXTURE_ONE).astype(np.uint16)
-    levels = [level]
-    for _ in range(int(np.log2(TEXELS_PER_SQUARE))):
-        level = cv2.resize(level, (level.shape[1] // 2, level.shape[0] // 2), interpolation=cv2.INTER_AREA)
-        levels.append(level)
-    return _PlateTexture(tuple(levels), plate_corners_m(board), TEXELS_PER_SQUARE / board.square_m)
+    print_image = np.pad(board.render(TEXELS_PER_SQUARE), margin, constant_values=255)
+    return plate_texture(print_image, plate_corners_m(board))
 
 
 def _background(rng: np.random.Generator, width: int, height: int) -> np.ndarray:

@@ -121,6 +121,7 @@ class SessionFile(FiniteModel):
     title: str = ""
     created: float
     board: str | None = None
+    v_target: str | None = Field(None, description="the V-target's spec for LiDAR-camera solves, if one is used")
     rig: RigModel
     accepted: dict[str, str] = Field(default_factory=dict, description="slot -> result id")
     acceptance_log: list[Acceptance] = Field(default_factory=list)

@@ -8,11 +8,14 @@ Layout::
     <root>/<name>/captures/<sensor>/<id>.json     capture metadata (write-once)
     <root>/<name>/results/<id>.json               one solve result each (write-once)
     <root>/<name>/depth_network.json              a depth cell's layout, guided state, verification (atomic)
+    <root>/<name>/survey.csv                      the test field's survey, as uploaded (atomic)
+    <root>/<name>/surveys/survey-<n>.csv          each survey it replaced (write-once)
     <root>/<name>/quarantine/<same path>          a broken capture or result, moved aside
     <root>/<name>/quarantine/<folder>/<id>.why.json   why it was moved: file, moved, to, reason, at
     <root>/<name>/removed/<sensor>-<n>/captures/  a removed sensor's captures, until it is restored
 
-Nothing is ever overwritten but ``session.json``, and that only atomically, so
+Nothing is ever overwritten but ``session.json`` (and the survey, whose previous version is kept), and that only
+atomically, so
 captures and results survive crashes, and accepting an older result (revert) is
 just another entry in the acceptance log.
 
@@ -50,6 +53,7 @@ from backend.core.depth import stored_intrinsics
 from backend.core.errors import InputError, NotFoundError
 from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.rig import Frame, Rig
+from backend.core.test_field import SESSION_SURVEY, parse_survey
 from backend.core.verdict import Verdict
 from backend.devices.image_io import encode_png, read_image
 from backend.store.atomic import remove_stale_temp_files, write_bytes_atomic, write_json_atomic
@@ -261,12 +265,36 @@ class Session:
         with self._change():
             self._data.board = spec
 
+    @property
+    def v_target(self) -> str | None:
+        """The V-target's spec (:class:`~backend.core.v_target.VTarget`), or None."""
+        return self._data.v_target
+
+    def set_v_target(self, spec: str) -> None:
+        with self._change():
+            self._data.v_target = spec
+
+    def set_survey(self, data: bytes, name: str) -> None:
+        """Keep an uploaded test-field survey (``name`` for messages) as the session's :data:`SESSION_SURVEY`,
+        after reading it (:func:`~backend.core.test_field.parse_survey`); a bad file changes nothing."""
+        parse_survey(data, name)
+        with self.lock:
+            current = self.path / SESSION_SURVEY
+            if current.exists():
+                kept = self.path / "surveys"
+                kept.mkdir(exist_ok=True)
+                number = len(list(kept.glob("survey-*.csv"))) + 1
+                write_bytes_atomic(kept / f"survey-{number}.csv", current.read_bytes(), exclusive=True)
+            write_bytes_atomic(current, data)
+
     def info(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "title": self._data.title,
             "created": self._data.created,
             "board": self.board,
+            "v_target": self.v_target,
+            "survey": (self.path / SESSION_SURVEY).exists(),
             "sensors": [f.name for f in self.rig.sensors()],
             "accepted": dict(self._data.accepted),
             "acceptance_log": [entry.model_dump() for entry in self._data.acceptance_log],

@@ -78,5 +78,5 @@ def test_an_upload_whose_client_left_stops_and_stores_nothing(api: str, left_ima
          "the server did not stop the upload whose client left", timeout_s=30)
     assert detected == ["left0.jpg"], "images were still checked after the client left"
     message = next(r.getMessage() for r in caplog.records if "the client left" in r.getMessage())
-    assert "POST /api/sessions/s/sensors/cam/captures" in message and "detecting the board in left1.jpg" in message
+    assert "POST /api/sessions/s/sensors/cam/captures" in message and "detecting the target in left1.jpg" in message
     assert httpx.get(f"{api}/api/sessions/s/sensors/cam/captures").json() == []

@@ -162,13 +162,13 @@ def test_the_pixel_limit_is_configurable(client: TestClient, board_jpg: bytes, m
     assert upload_images(client, [("left01.jpg", board_jpg)]).status_code == 201
 
 
-def test_a_cv2_error_in_board_detection_is_a_422(client: TestClient, board_jpg: bytes, monkeypatch):
-    def fails(image, board, **kwargs):
+def test_a_cv2_error_in_target_detection_is_a_422(client: TestClient, board_jpg: bytes, monkeypatch):
+    def fails(image, board, name):
         raise cv2.error("OpenCV(4.x) error: (-215:Assertion failed) !ssize.empty() in function 'resize'")
 
-    monkeypatch.setattr(intrinsics_service, "detect_board", fails)
+    monkeypatch.setattr(intrinsics_service, "detect_target", fails)
     assert_error(upload_images(client, [("odd.jpg", board_jpg)]), 422, input="odd.jpg",
-                 says=["odd.jpg", "board search failed", "640x480 px"])
+                 says=["odd.jpg", "target search failed", "640x480 px"])
     assert stored(client, "cam") == []
 
 

@@ -63,7 +63,7 @@ def test_intrinsics_unwritable_out_refused_before_the_solve(images, tmp_path: Pa
     run = cli_in_process("intrinsics", images, "--board", BOARD, "--out", out, "--json")
     error = assert_json_failure(run)
     assert error["input"] == str(out) and words in error["message"] and str(out) in error["message"]
-    assert "detecting the board" not in run.stderr  # refused before any image was read
+    assert "detecting the target" not in run.stderr  # refused before any image was read
     assert "Traceback" not in run.stderr
 
 
@@ -116,7 +116,7 @@ def test_out_failing_after_the_solve_keeps_the_result_json(images, tmp_path: Pat
     run = cli_subprocess("intrinsics", images, "--board", BOARD, "--out", "/dev/full", "--camera-name", "left",
                          "--json", env={"TMPDIR": str(keep)})
     error = assert_json_failure(run)
-    assert "detecting the board" in run.stderr and "Traceback" not in run.stderr  # it failed after the solve
+    assert "detecting the target" in run.stderr and "Traceback" not in run.stderr  # it failed after the solve
     assert error["input"] == "/dev/full"
     assert error["message"].startswith("/dev/full: cannot write the file (No space left on device)")
     folder = _kept_folder(error["message"], keep)

@@ -40,7 +40,8 @@ def upload_captures(
     server's other requests; a client that leaves stops it at the next image, and nothing is stored."""
     payload = [read_image_upload(f, "files") for f in files]
     report = service.import_images(session, sensor, payload, skip_unusable=skip_unusable, progress=progress)
-    return {"added": [c.model_dump(exclude={"detection"}) for c in report.added], "skipped": report.skipped}
+    return {"added": [c.model_dump(exclude={"detection"}) for c in report.added], "skipped": report.skipped,
+            "notes": report.notes}
 
 
 @router.get("/captures/{capture_id}/image", responses={200: {"content": {"image/jpeg": {}}}})

@@ -1,19 +1,25 @@
-"""Sessions, their board and their sensors: add, edit, remove (and restore) a sensor."""
+"""Sessions, their targets (the board or test field and its survey, the V-target) and their sensors: add, edit,
+remove (and restore) a sensor."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, File, Query, UploadFile
 
 from backend.api.routes import deps
-from backend.api.schemas import BoardUpdate, SensorCreate, SensorUpdate, SessionCreate
+from backend.api.schemas import BoardUpdate, SensorCreate, SensorUpdate, SessionCreate, VTargetUpdate
+from backend.api.uploads import UploadRoute, file_name, upload_limit
 from backend.calib.rig import service as rig_service
-from backend.core.boards import BoardSpec
+from backend.core.errors import InputError
+from backend.core.limits import MAX_TEXT_UPLOAD_MB
 from backend.core.rig import Frame
+from backend.core.targets import parse_target
+from backend.core.test_field import MAX_SURVEY_BYTES, SESSION_SURVEY
+from backend.core.v_target import VTarget
 from backend.store.rig_io import rig_to_model
 
-router = APIRouter(tags=["sessions"])
+router = APIRouter(tags=["sessions"], route_class=UploadRoute)
 
 
 @router.get("/sessions")
@@ -24,7 +30,12 @@ def list_sessions(store: deps.StoreDep) -> list[dict[str, Any]]:
 
 @router.post("/sessions", status_code=201)
 def create_session(body: SessionCreate, store: deps.StoreDep) -> dict[str, Any]:
-    board = str(BoardSpec.parse(body.board)) if body.board else None
+    """Create a session with a board (a test field needs its survey uploaded first: create the session without a
+    board, upload the survey, then set the board)."""
+    if body.board and body.board.strip().startswith("testfield:"):
+        raise InputError(f"a new session holds no survey yet; create it without a board, upload the survey "
+                         f"(PUT /api/sessions/{body.name}/survey), then set {body.board!r} as its board", "board")
+    board = str(parse_target(body.board)) if body.board else None
     return store.create(body.name, board=board, title=body.title).info()
 
 
@@ -35,7 +46,27 @@ def get_session(session: deps.SessionDep) -> dict[str, Any]:
 
 @router.put("/sessions/{name}/board")
 def set_board(body: BoardUpdate, session: deps.SessionDep) -> dict[str, Any]:
-    session.set_board(str(BoardSpec.parse(body.board)))
+    """Set the board, or a test field (``testfield:DICT:MARKER:survey.csv``: the session's uploaded survey)."""
+    session.set_board(str(parse_target(body.board, session.path)))
+    return session.info()
+
+
+@router.put("/sessions/{name}/survey")
+@upload_limit(MAX_TEXT_UPLOAD_MB, "file")
+def upload_survey(file: Annotated[UploadFile, File(description="the survey: a line of id, X, Y, Z (m) per marker")],
+                  session: deps.SessionDep) -> dict[str, Any]:
+    """Keep a test field's survey as the session's ``survey.csv`` (the one it replaces is kept under ``surveys/``);
+    a file that does not read as a survey is refused naming its line and field, and changes nothing."""
+    name = file_name(file, "file", SESSION_SURVEY)
+    file.file.seek(0)
+    session.set_survey(file.file.read(MAX_SURVEY_BYTES + 1), name)
+    return session.info()
+
+
+@router.put("/sessions/{name}/v-target")
+def set_v_target(body: VTargetUpdate, session: deps.SessionDep) -> dict[str, Any]:
+    """Set the V-target the vtarget LiDAR-camera method solves with."""
+    session.set_v_target(str(VTarget.parse(body.v_target)))
     return session.info()
 
 

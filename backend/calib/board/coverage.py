@@ -41,10 +41,9 @@ def _board_outline(detection: Detection, board: BoardSpec) -> np.ndarray:
     """(4, 2) pixels of the outermost detected corners: up-left, up-right, down-right, down-left.
 
     For partial (ChArUco) views this is the bounding quadrilateral of the detected
-    corner ids in board coordinates.
+    corner ids in board coordinates (for a test field: in its best-fitting plane's).
     """
-    cols, _ = board.corner_grid
-    col, row = detection.ids % cols, detection.ids // cols
+    col, row = board.plane_xy[detection.ids].T
     picks = []
     for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
         picks.append(np.argmax(sx * col + sy * row))

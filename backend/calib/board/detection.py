@@ -113,6 +113,9 @@ class Detection:
     refined: dict[str, np.ndarray] = field(default_factory=dict)
     """The same corners after :func:`refine_corners`, (N, 2) px per window fraction named as in
     :func:`refinement_name` (full-accuracy checkerboards only; empty otherwise)."""
+    marker_corners_px: np.ndarray | None = None
+    """A test field's: (N, 4, 2) the corners of the marker behind each point (px), from which its centre is
+    computed again once the lens is known (:func:`~backend.core.markers.marker_centres`); None for a board."""
 
     def object_points(self, board: BoardSpec) -> np.ndarray:
         """(N, 3) float32 board-frame positions (m) of the detected corners."""
@@ -123,6 +126,8 @@ class Detection:
                 "preprocessing": self.preprocessing}
         if self.refined:
             data["refined"] = {name: corners.tolist() for name, corners in self.refined.items()}
+        if self.marker_corners_px is not None:
+            data["marker_corners_px"] = self.marker_corners_px.tolist()
         return data
 
     @classmethod
@@ -133,9 +138,11 @@ class Detection:
         if refined is None:
             legacy = data.get("refined_px")
             refined = {} if legacy is None else {refinement_name(SUBPIX_WINDOW_FRACTIONS[0]): legacy}
+        markers = data.get("marker_corners_px")
         return cls(np.asarray(data["corners_px"], float).reshape(-1, 2), np.asarray(data["ids"], int),
                    tuple(data["image_size"]), data.get("preprocessing", "none"),
-                   {name: np.asarray(corners, float).reshape(-1, 2) for name, corners in refined.items()})
+                   {name: np.asarray(corners, float).reshape(-1, 2) for name, corners in refined.items()},
+                   None if markers is None else np.asarray(markers, float).reshape(-1, 4, 2))
 
 
 def common_corners(a: Detection, b: Detection) -> tuple[np.ndarray, np.ndarray]:

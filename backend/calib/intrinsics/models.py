@@ -30,6 +30,7 @@ from backend.calib.intrinsics.solver import (
     _check_views,
     _pick_corners,
     calibrate_intrinsics,
+    planar_start,
 )
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
@@ -84,9 +85,12 @@ def _fit(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[
         return K, dist
     flags = (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_ZERO_TANGENT_DIST * (not base.estimate_tangential)
              | cv2.CALIB_FIX_ASPECT_RATIO * base.fix_aspect)
+    K_start = planar_start(views, board, size)
+    flags |= cv2.CALIB_USE_INTRINSIC_GUESS * (K_start is not None)
     _, K, dist, _, _ = cv2.calibrateCamera([v.detection.object_points(board) for v in views],
                                            [v.detection.corners_px.astype(np.float32) for v in views], size,
-                                           np.eye(3), None, flags=flags, criteria=TERM_CRITERIA)
+                                           np.eye(3) if K_start is None else K_start, None, flags=flags,
+                                           criteria=TERM_CRITERIA)
     return K, dist.ravel()[:8]
 
 

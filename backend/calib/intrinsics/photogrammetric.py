@@ -2,9 +2,10 @@
 
 OpenCV cannot fit this model (it has no affine terms), so the solve is a Levenberg-Marquardt over the interior
 orientation ``[c, xp, yp, K1, K2, K3, P1, P2, A1, A2]`` and every view's pose, with the analytic Jacobian of
-:func:`project`. It is written here (:func:`levenberg_marquardt`) because SciPy's solvers do not use the bundle's
-structure: with 48 views MINPACK's dense QR took 1.4 s a solve (a minute for the view jackknife) and TRF with LSMR
-5 s, where eliminating the poses (the Schur complement) takes 0.2 s to the same solution (RMS equal to 1e-14 px).
+:func:`project`, by the hand-written :func:`~backend.core.schur_lm.levenberg_marquardt`: SciPy's solvers do not use
+the bundle's structure: with 48 views MINPACK's dense QR took 1.4 s a solve (a minute for the view jackknife) and
+TRF with LSMR 5 s, where eliminating the poses (the Schur complement) takes 0.2 s to the same solution (RMS equal
+to 1e-14 px).
 It starts from OpenCV's five-coefficient solve with ``fx = fy``, which is this model with ``A1 = A2 = 0`` exactly,
 so it can only fit better.
 
@@ -25,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from backend.core import photogrammetric
 from backend.core.camera import CameraIntrinsics
 from backend.core.camera_conversion import convert, interior_orientation, photogrammetric_camera
+from backend.core.schur_lm import levenberg_marquardt
 
 INTERIOR = ["c", "xp", "yp", *photogrammetric.NAMES]
 """The interior orientation's parameters, in the order of the covariance's free intrinsics."""
@@ -94,59 +96,6 @@ def bundle_adjust(camera: CameraIntrinsics, object_points: list[np.ndarray], ima
     solution_x = levenberg_marquardt(evaluate, start, n_interior)
     model, poses = unpack(solution_x)
     return model.K, model.dist, [p[:3].reshape(3, 1) for p in poses], [p[3:].reshape(3, 1) for p in poses]
-
-
-MAX_ITERATIONS = 100
-"""Most Levenberg-Marquardt steps of one solve."""
-RELATIVE_DECREASE = 1e-12
-"""The solve stops when an accepted step lowers the cost by less than this fraction."""
-
-
-def levenberg_marquardt(evaluate, start: np.ndarray, n_interior: int) -> np.ndarray:
-    """Minimise the sum of squared residuals over ``[interior (n_interior), pose_1 (6), ..., pose_V (6)]``.
-
-    ``evaluate(params)`` gives each view's residuals and its Jacobians by the interior orientation and by its own
-    pose. A bundle adjustment's Levenberg-Marquardt: each step solves the damped normal equations with the poses
-    eliminated (the Schur complement, a small system in the interior orientation), then each pose alone, so a step
-    costs a few small solves rather than a QR of the whole (views x 6 + 10)-column Jacobian (MINPACK's, which took
-    about 1 s a solve at 48 views and made the view jackknife of a photogrammetric result a minute long). Damping
-    is Marquardt's (the normal matrix's diagonal), the system scaled to unit diagonal before solving, since ``c``
-    (~1e3 px) and ``K3`` (~1e-18 px^-6) differ by twenty orders.
-    """
-    x = start.copy()
-    residuals, interior, pose = evaluate(x)
-    cost = sum(float(r @ r) for r in residuals)
-    damping = 1e-3
-    for _ in range(MAX_ITERATIONS):
-        H_aa = sum(a.T @ a for a in interior) if n_interior else np.zeros((0, 0))
-        g_a = sum(a.T @ r for a, r in zip(interior, residuals, strict=True)) if n_interior else np.zeros(0)
-        H_ap = [a.T @ p for a, p in zip(interior, pose, strict=True)]
-        H_pp = [p.T @ p for p in pose]
-        g_p = [p.T @ r for p, r in zip(pose, residuals, strict=True)]
-        while True:
-            inverses = [np.linalg.inv(H + damping * np.diag(np.diag(H))) for H in H_pp]
-            step_a = np.zeros(n_interior)
-            if n_interior:
-                S = H_aa + damping * np.diag(np.diag(H_aa)) - sum(h @ inv @ h.T for h, inv in zip(H_ap, inverses,
-                                                                                                  strict=True))
-                b = -g_a + sum(h @ inv @ g for h, inv, g in zip(H_ap, inverses, g_p, strict=True))
-                scale = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
-                step_a = scale * np.linalg.solve(S * np.outer(scale, scale), b * scale)
-            step_p = [inv @ (-g - h.T @ step_a) for inv, g, h in zip(inverses, g_p, H_ap, strict=True)]
-            trial = x + np.concatenate([step_a, *step_p])
-            trial_residuals, trial_interior, trial_pose = evaluate(trial)
-            trial_cost = sum(float(r @ r) for r in trial_residuals)
-            if trial_cost < cost:
-                break
-            damping *= 4.0
-            if damping > 1e12:
-                return x
-        decrease = (cost - trial_cost) / max(cost, 1e-300)
-        x, residuals, interior, pose, cost = trial, trial_residuals, trial_interior, trial_pose, trial_cost
-        damping = max(damping / 3.0, 1e-12)
-        if decrease < RELATIVE_DECREASE:
-            break
-    return x
 
 
 def start_from_opencv(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> CameraIntrinsics:

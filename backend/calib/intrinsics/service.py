@@ -16,14 +16,15 @@ import cv2
 import numpy as np
 
 from backend.calib._session import check_camera, require_kind, result_of, session_board
-from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.detection import Detection
 from backend.calib.intrinsics.models import solve_auto
 from backend.calib.intrinsics.solver import IntrinsicsResult, IntrinsicsSettings, View
-from backend.core.boards import BoardSpec
+from backend.calib.test_field.detection import detect_target
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Rig
+from backend.core.targets import CameraTarget
 from backend.devices.image_folder import image_files
 from backend.devices.image_io import decode_image_bytes, read_image
 from backend.store.schema import CaptureRecord
@@ -42,6 +43,10 @@ class DetectedImage:
     name: str
     image: np.ndarray
     detection: Detection | None
+    reason: str = ""
+    """Why the target was not found (empty when it was)."""
+    notes: list[str] = field(default_factory=list)
+    """What was left out of the detection (a test field's markers not surveyed or seen twice)."""
 
 
 @dataclass
@@ -49,33 +54,28 @@ class ImportReport:
     added: list[CaptureRecord] = field(default_factory=list)
     skipped: list[dict[str, str]] = field(default_factory=list)
     """``{"input": file name, "message": why}`` for images that were not stored."""
+    notes: list[str] = field(default_factory=list)
+    """What was left out of the stored images' detections (a test field's markers not surveyed or seen twice)."""
 
 
-def _no_board_message(name: str, board: BoardSpec) -> str:
-    cols, rows = board.corner_grid
-    return (f"{name}: no {board.kind} with {cols}x{rows} inner corners found; check the board spec ({board}) "
-            "and that the whole board is sharp and inside the image")
-
-
-def detect_upload(image: np.ndarray, board: BoardSpec, name: str) -> Detection | None:
-    """:func:`detect_board` on an uploaded image; OpenCV failing on an odd image is an :class:`InputError`
-    naming the file, not a server error."""
+def detect_upload(image: np.ndarray, board: CameraTarget, name: str) -> DetectedImage:
+    """:func:`~backend.calib.test_field.detection.detect_target` on an uploaded image; OpenCV failing on an odd image
+    is an :class:`InputError` naming the file, not a server error."""
     try:
-        return detect_board(image, board)
+        return DetectedImage(name, image, *detect_target(image, board, name))
     except cv2.error as exc:
         reason = " ".join(str(exc.err or exc).split())[:200]
-        raise InputError(f"{name}: the board search failed on this {image.shape[1]}x{image.shape[0]} px image "
-                         f"(OpenCV: {reason}); expected an ordinary photo of the board", name) from None
+        raise InputError(f"{name}: the target search failed on this {image.shape[1]}x{image.shape[0]} px image "
+                         f"(OpenCV: {reason}); expected an ordinary photo of the target", name) from None
 
 
-def detect_uploads(files: list[tuple[str, bytes]], board: BoardSpec,
+def detect_uploads(files: list[tuple[str, bytes]], board: CameraTarget,
                    progress: ProgressCallback = no_progress) -> list[DetectedImage]:
     """Decode and detect every file; a corrupt or too large file raises :class:`InputError` naming it."""
     out = []
     for i, (name, data) in enumerate(files):
-        progress(i / max(len(files), 1), f"detecting the board in {name}")
-        image = decode_image_bytes(data, name, grayscale=False)
-        out.append(DetectedImage(name, image, detect_upload(image, board, name)))
+        progress(i / max(len(files), 1), f"detecting the target in {name}")
+        out.append(detect_upload(decode_image_bytes(data, name, grayscale=False), board, name))
     return out
 
 
@@ -113,9 +113,10 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     board = session_board(session)
     detected = detect_uploads(files, board, progress)
     report = ImportReport()
-    missing = [d.name for d in detected if d.detection is None]
+    missing = [d for d in detected if d.detection is None]
     if missing and not skip_unusable:
-        raise InputError(_no_board_message(", ".join(missing), board), missing[0])
+        others = f" (and {len(missing) - 1} more image(s) without it)" if len(missing) > 1 else ""
+        raise InputError(missing[0].reason + others, missing[0].name)
     with session.lock:
         for d in detected:
             check_size(session, sensor, d.name, d.image)
@@ -127,8 +128,9 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
                                  "camera must share one size", d.name)
         for d in detected:
             if d.detection is None:
-                report.skipped.append({"input": d.name, "message": _no_board_message(d.name, board)})
+                report.skipped.append({"input": d.name, "message": d.reason})
                 continue
+            report.notes += d.notes
             report.added.append(store_capture(session, sensor, d.image, d.detection, device="upload",
                                               timestamp_s=0.0, source=Path(d.name).name))
     return report
@@ -190,29 +192,31 @@ def apply_intrinsics(rig: Rig, record: dict[str, Any]) -> None:
     rig.get(record["sensor"]).intrinsics = CameraIntrinsics.from_dict(record["camera"])
 
 
-def solve_files(images_dir: Path, board: BoardSpec, settings: IntrinsicsSettings,
-                     progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
-    """The CLI's path: every image in a folder, no session. Returns the result and skipped images."""
+def solve_files(images_dir: Path, board: CameraTarget, settings: IntrinsicsSettings,
+                progress: ProgressCallback = no_progress) -> tuple[IntrinsicsResult, list[dict[str, str]]]:
+    """The CLI's path: every image in a folder, no session; the target a board or a wall test field. Returns the
+    result (its warnings name any test-field markers left out) and the skipped images."""
     files = image_files(images_dir)
-    views, skipped, size = [], [], None
+    views, skipped, notes, size = [], [], [], None
     for i, path in enumerate(files):
-        progress(0.5 * i / len(files), f"detecting the board in {path.name}")
+        progress(0.5 * i / len(files), f"detecting the target in {path.name}")
         image = read_image(path, grayscale=True)
         if size is None:
             size = (image.shape[1], image.shape[0])
-        detection = detect_board(image, board)
+        detection, reason, left_out = detect_target(image, board, path.name)
+        notes += left_out
         if detection is None:
-            skipped.append({"input": path.name, "message": _no_board_message(path.name, board)})
+            skipped.append({"input": path.name, "message": reason})
         else:
             views.append(View(path.name, detection))
     if skipped and (len(views) < 3 or len(skipped) > len(files) / 2):
         names = ", ".join(s["input"] for s in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
-        raise InputError(f"only {len(views)} of {len(files)} images show the board {board} (none in {names}); "
-                         "check the board spec (inner corners for checkerboards, squares for ChArUco) and capture at "
-                         "least 3 sharp views of the whole board", skipped[0]["input"])
+        raise InputError(f"only {len(views)} of {len(files)} images show the target {board} (none in {names}: "
+                         f"{skipped[0]['message']})", skipped[0]["input"])
 
     def solve_progress(fraction: float, message: str) -> None:
         progress(0.5 + 0.5 * fraction, message)
 
     result = solve_auto(views, board, size, settings, solve_progress)
+    result.warnings[:0] = notes
     return result, skipped

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.calib._session import check_camera, check_lidar, read_uploaded_cloud, session_board, store_cloud
+from backend.calib._session import check_camera, check_lidar, pair_board, read_uploaded_cloud, store_cloud
 from backend.calib.board.detection import Detection, common_corners, detect_board
 from backend.calib.board.live_detection import detect_board_live
 from backend.calib.intrinsics import service as intrinsics_service
@@ -99,7 +99,8 @@ def import_pair(session: Session, camera: str, lidar: str, image_file: tuple[str
     image_name, cloud_name = Path(image_file[0]).name, Path(cloud_file[0]).name
     image = decode_image_bytes(image_file[1], image_name)
     cloud = read_uploaded_cloud(cloud_name, cloud_file[1])
-    detection = detect_board(image, session_board(session)) if session.board else None
+    board = pair_board(session)
+    detection = detect_board(image, board) if board else None
     return store_pair(session, camera, lidar, Sample(time.time(), image=image), cloud, device="upload",
                       detection=detection, source=(image_name, cloud_name))
 
@@ -133,9 +134,10 @@ def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable
     """
     check_camera(session, camera)
     check_lidar(session, lidar)
-    board = session_board(session) if session.board else None
+    board = pair_board(session)
     if require_board and board is None:
-        raise InputError("the session has no calibration board set; set one in the session step", "board")
+        raise InputError("the session has no calibration board set (a test field is not one: the pairs do not "
+                         "show the wall); set one in the session step", "board")
     motion = float("inf")
     with ThreadPoolExecutor(max_workers=1) as pool:
         for attempt in range(attempts):

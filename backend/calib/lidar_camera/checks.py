@@ -76,7 +76,8 @@ def compare_methods(T_a: np.ndarray, covariance_a: np.ndarray, T_b: np.ndarray, 
     return MethodAgreement(other_method, params_between(T_a, T_b), np.sqrt(variance))
 
 
-TOLERANCES = {"target": (0.01, 0.3), "corners": (0.01, 0.3), "edges": (0.02, 0.3), "intensity": (0.02, 0.3)}
+TOLERANCES = {"target": (0.01, 0.3), "corners": (0.01, 0.3), "vtarget": (0.01, 0.3), "edges": (0.02, 0.3),
+              "intensity": (0.02, 0.3)}
 """Largest acceptable error per method, per axis: translation (m), rotation (deg). A board pins the LiDAR to a
 centimetre; a targetless scene's edges are mostly far (10-40 m on a road), where they fix the rotation well and
 the translation barely, so the edges method is allowed 2 cm (its translation is often held by a prior). A result is
@@ -157,7 +158,7 @@ def _spread_check(builder: VerdictBuilder, result: TransformResult, method: str)
     if method == "intensity":
         _intensity_places_check(builder, result)
         return
-    if method in ("target", "corners"):  # poses of the board, or placements of it in the sweep
+    if method in ("target", "corners", "vtarget"):  # poses of the board, placements of it in the sweep, V-targets
         std_spread = _diagnostic(result, "std_spread")
         if std_spread is None:
             builder.missing_check("over poses", "too few poses for a leave-one-out re-solve (3 or more are needed)")

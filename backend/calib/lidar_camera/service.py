@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.calib._session import check_camera, check_lidar, result_of, session_board
+from backend.calib._session import check_camera, check_lidar, result_of, session_plane_board, session_v_target
 from backend.calib.board.detection import Detection
 from backend.calib.lidar_camera.capture import check_image_size, stored_pairs
 from backend.calib.lidar_camera.checks import MANUAL_VERDICT, CrossCheck, compare_methods, judge
@@ -41,6 +41,7 @@ from backend.calib.lidar_camera.target import (
     solve_target,
 )
 from backend.calib.lidar_camera.target_evidence import PoseEvidence, pose_evidence
+from backend.calib.lidar_camera.v_target import camera_v_target_pose, solve_v_target
 from backend.calib.lidar_lidar.accumulation import accumulate_scans
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
@@ -49,11 +50,12 @@ from backend.core.overlay import ColourScale, OverlayStyle, mosaic, render_overl
 from backend.core.projection import Projection
 from backend.core.result import ProgressCallback, StoredResult, TransformResult, no_progress
 from backend.core.transforms import check_transform
+from backend.core.v_target import VTarget
 from backend.devices.cloud_files import read_cloud
 from backend.devices.image_io import encode_jpeg, read_image
 from backend.store.session import Session
 
-METHODS = ("target", "edges", "intensity")
+METHODS = ("target", "vtarget", "edges", "intensity")
 TARGETLESS = ("edges", "intensity")
 """The targetless methods: each cross-checks the other on the same pairs."""
 DEFAULT_PLATE_MARGIN_SQUARES = 1.0
@@ -185,13 +187,14 @@ def read_pair_files(pairs: Sequence[tuple[Path, Path | Sequence[Path]]],
     return read
 
 
-def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[PairData], T_init: np.ndarray,
-                *, method: str = "target", plate_margin_m: float | None = None,
+def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | VTarget | None, pairs: Sequence[PairData],
+                T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
                 lens: LensUncertainty | None = None, progress: ProgressCallback = no_progress) -> TransformResult:
     """``T_camera_lidar`` from images and clouds of the same moments, starting from ``T_init``.
 
-    ``method="target"`` needs the ``board`` both sensors see; ``plate_margin_m``: how far its plate reaches
+    ``method="target"`` needs the ``board`` both sensors see (``method="vtarget"``: the V-target,
+    :func:`solve_v_target_pairs`); ``plate_margin_m``: how far its plate reaches
     beyond the pattern's outer corners (m; default: estimated, :func:`target_settings`); ``lens``: the camera's
     intrinsics' sigmas, carried into the board poses and so into the result's sigma (else the result says they
     are not known).
@@ -216,7 +219,12 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
             lambda fraction, message: progress(0.55 + 0.45 * fraction, f"cross-check: {message}"))]
         judge(result, extra)
         return result
-    if board is None:
+    if method == "vtarget":
+        if not isinstance(board, VTarget):
+            raise InputError("the vtarget method needs the V-target's spec, e.g. "
+                             "vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50", "--board")
+        return solve_v_target_pairs(camera, board, pairs, T_init, progress)
+    if not isinstance(board, BoardSpec):
         raise InputError("the target method needs the board's spec, e.g. checkerboard:9x6:0.04", "--board")
     settings = target_settings(board, plate_margin_m)
     observations, skipped = [], []
@@ -238,6 +246,27 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequen
         "not known: the result's sigma leaves out the camera's intrinsics' own (give their sigmas, or accept the "
         "camera's intrinsics from a solve)")
     judge(result)
+    return result
+
+
+def solve_v_target_pairs(camera: CameraIntrinsics, target: VTarget, pairs: Sequence[PairData], T_init: np.ndarray,
+                         progress: ProgressCallback = no_progress) -> TransformResult:
+    """The V-target method on the pairs (:func:`~backend.calib.lidar_camera.v_target.solve_v_target`); a pair whose
+    image does not show the target's markers is left out, named in the result's warnings."""
+    placements, skipped = [], []
+    for i, p in enumerate(pairs):
+        progress(0.1 + 0.4 * i / max(len(pairs), 1), f"finding the V-target's markers in {p.name}")
+        try:
+            placement = camera_v_target_pose(p.image, camera, target, p.image_source, p.points)
+        except InputError as error:
+            skipped.append(f"{error.input}: {error.message}")
+            continue
+        placements.append(replace(placement, name=p.name))
+    if not placements:
+        raise InputError("no image shows the V-target's markers: " + "; ".join(skipped[:3]), pairs[0].image_source)
+    progress(0.5, f"fitting the plates in {len(placements)} clouds")
+    result = solve_v_target(target, placements, T_init)
+    result.warnings[:0] = skipped
     return result
 
 
@@ -272,7 +301,7 @@ def cross_check_methods(result: TransformResult, camera: CameraIntrinsics, pairs
     return CrossCheck(name, agreement.detail(), agreement.sigmas)
 
 
-def solve_files(camera: CameraIntrinsics, board: BoardSpec | None, pairs: Sequence[tuple[Path, Path]],
+def solve_files(camera: CameraIntrinsics, board: BoardSpec | VTarget | None, pairs: Sequence[tuple[Path, Path]],
                 T_init: np.ndarray, *, method: str = "target", plate_margin_m: float | None = None,
                 translation_prior_m: float | None = None, cross_check: bool = False,
                 lens: LensUncertainty | None = None, progress: ProgressCallback = no_progress) -> TransformResult:
@@ -311,7 +340,7 @@ def session_pose_evidence(session: Session, lidar: str, result_id: str) -> list[
     if result.method != "target":
         raise InputError(f"result {result_id} is of the {result.method} method; only the board (target) method has "
                          "poses", "result")
-    camera, board = camera_intrinsics(session, result.parent), session_board(session)
+    camera, board = camera_intrinsics(session, result.parent), session_plane_board(session, "the target method")
     names = {pose["name"] for pose in result.diagnostics.get("poses", [])}
     image_ids = [p.image.id for p in stored_pairs(session, result.parent, lidar) if p.name in names]
     observations = []
@@ -388,7 +417,8 @@ def solve_session(session: Session, camera: str, lidar: str, *, method: str = "t
     intrinsics = camera_intrinsics(session, camera)
     T_init = session.rig.T_a_b(camera, lidar) if T_init is None else T_init
     loaded = load_pairs(session, camera, lidar, image_ids)
-    board = session_board(session) if method == "target" else None
+    board = (session_plane_board(session, "the target method") if method == "target" else
+             session_v_target(session) if method == "vtarget" else None)
     lens_result = session.accepted(f"{camera}/intrinsics")
     lens = None if lens_result is None else LensUncertainty.from_record(session.result(lens_result))
     result = solve_pairs(intrinsics, board, loaded, T_init, method=method, plate_margin_m=plate_margin_m,

@@ -259,7 +259,7 @@ class PlaneFit:
     """(3,) unit normal of the plane (of a line: its normal within the scan plane, z = 0)."""
 
 
-def _fit_plane(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
+def fit_plane(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCameraTargetSettings,
                rng: np.random.Generator) -> PlaneFit | None:
     """The RANSAC plane with the most inliers whose normal is within ``max_normal_angle_deg`` of
     ``expected_normal``, refined by a least-squares fit; None if none.
@@ -281,7 +281,7 @@ def _fit_line(points: np.ndarray, expected_normal: np.ndarray, settings: LidarCa
     """The RANSAC line, in a 2D scanner's x-y plane, along which the board's plane (``expected_normal``)
     cuts that plane, within ``max_normal_angle_deg``; None if none.
 
-    Hand-written as :func:`_fit_plane`; a hypothesis is the line through two points, its "normal"
+    Hand-written as :func:`fit_plane`; a hypothesis is the line through two points, its "normal"
     the line's normal within the scan plane, compared with the board normal's in-plane part.
     """
     expected = np.r_[expected_normal[:2], 0.0]
@@ -372,7 +372,7 @@ def find_board_points(points_lidar: np.ndarray, T_camera_board: np.ndarray, T_ca
     region = points_lidar[in_region]
     expected_normal = T_board_lidar[2, :3]  # board z in LiDAR axes
     planar_scan = len(points_lidar) > 0 and not np.any(points_lidar[:, 2])
-    fit, needed = (_fit_line, settings.min_line_points) if planar_scan else (_fit_plane, settings.min_plane_points)
+    fit, needed = (_fit_line, settings.min_line_points) if planar_scan else (fit_plane, settings.min_plane_points)
     plate = fit(region, expected_normal, settings, rng)
     found = 0 if plate is None else int(plate.inliers.sum())
     if found < needed:
@@ -414,16 +414,17 @@ def _check_pose_count(usable: int, total: int, skipped: list[str]) -> None:
                      "board tilted and turned differently in each", "poses")
 
 
-def _check_normals(T_camera_boards: list[np.ndarray], threshold: float) -> None:
-    """Raise :class:`InputError` when the board normals leave part of the translation unobservable."""
-    normals = np.array([T[:3, 2] for T in T_camera_boards])
+def check_normals(normals: np.ndarray, threshold: float, advice: str = "tilt and turn the board between poses"
+                  ) -> None:
+    """Raise :class:`InputError` when the (N, 3) plane normals (camera frame) leave part of the translation
+    unobservable: the smallest eigenvalue of their scatter is below ``threshold``; ``advice`` says what to do."""
     eigenvalues, eigenvectors = np.linalg.eigh(normals.T @ normals / len(normals))
     if eigenvalues[0] < threshold:
         axis = np.round(eigenvectors[:, 0], 2).tolist()
         raise InputError(
-            f"degenerate board poses: the board normals are (nearly) parallel or in one plane (smallest "
+            f"degenerate poses: the plane normals are (nearly) parallel or in one plane (smallest "
             f"eigenvalue of their scatter {eigenvalues[0]:.2g} < {threshold:g}), so the translation along "
-            f"{axis} (camera axes) is unobservable; tilt and turn the board between poses", "poses")
+            f"{axis} (camera axes) is unobservable; {advice}", "poses")
 
 
 @dataclass
@@ -630,7 +631,7 @@ def solve_target(board: BoardSpec, observations: Sequence[TargetObservation], T_
         names, T_camera_boards, clouds, found, lens_poses = (
             [items[i] for i in kept] for items in (names, T_camera_boards, clouds, found, lens_poses))
         if round_index == 0:
-            _check_normals(T_camera_boards, settings.min_normal_eigenvalue)
+            check_normals(np.array([T[:3, 2] for T in T_camera_boards]), settings.min_normal_eigenvalue)
         stacked = _Stacked.build([invert(T_cb) for T_cb in T_camera_boards], found)
         if settings.edge_weight is not None:
             edge_weight = settings.edge_weight

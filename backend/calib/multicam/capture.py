@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.calib._session import check_camera, session_board
+from backend.calib._session import check_camera, session_plane_board
 from backend.calib.board.detection import Detection, detect_board
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.lidar_camera.capture import check_image_size
@@ -199,7 +199,7 @@ def _check_cameras(session: Session, cameras: Sequence[str]) -> None:
 def _set_board(session: Session, require_board: bool) -> BoardSpec | None:
     """The session's board, or None when it has none and none is required."""
     if session.board or require_board:
-        return session_board(session)
+        return session_plane_board(session, "the multi-camera rig")
     return None
 
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.calib._session import check_camera, require_kind, result_of, session_board
+from backend.calib._session import check_camera, require_kind, result_of, session_plane_board
 from backend.calib.board.detection import Detection, common_corners, detect_board
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.calib.lidar_camera.capture import check_image_size
@@ -156,7 +156,7 @@ def solve_session(session: Session, cameras: list[str], *, refine_intrinsics: bo
     cameras = check_cameras(cameras)
     for name in cameras:
         check_camera(session, name)
-    board = session_board(session)
+    board = session_plane_board(session, "the multi-camera rig")
     observations, used = session_observations(session, cameras, set_names)
     sizes = {}
     for obs in observations:

@@ -162,7 +162,7 @@ def test_degenerate_pose_set_raises():
     base = moving_board_poses(1)[0]
     same_way = [make_T(base[:3, :3], base[:3, 3] + [0.0, dy, dz]) for dy, dz in [(-0.3, 0), (0, 0.05), (0.3, 0.02),
                                                                                  (0.15, -0.03)]]
-    with pytest.raises(InputError, match="degenerate board poses") as info:
+    with pytest.raises(InputError, match="degenerate poses") as info:
         solve_target(BOARD, _observations(same_way, beams=16, seed=0), TRUTH, SETTINGS)
     assert info.value.input == "poses"
 

@@ -1,0 +1,60 @@
+"""``calib-studio exterior``: a camera's exterior orientation in a wall test field's frame, one pose per image."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from backend.cli._common import prints_summary
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    exterior = sub.add_parser("exterior", help="a camera's pose in a wall test field's frame (spatial resection)")
+    exterior.add_argument("images", type=Path, nargs="+", metavar="IMAGE", help="images of the test field")
+    exterior.add_argument("--camera", type=Path, required=True, metavar="camera.json",
+                          help="the camera's intrinsics: camera JSON (any model) or ROS camera_info YAML")
+    exterior.add_argument("--field", required=True, metavar="SPEC",
+                          help="the test field, testfield:DICT:MARKER:SURVEY, e.g. testfield:DICT_4X4_50:0.15:wall.csv")
+    exterior.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    exterior.set_defaults(handler=prints_summary(run_exterior))
+
+
+def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
+    from backend.calib.test_field.detection import detect_test_field
+    from backend.calib.test_field.exterior import resect
+    from backend.core.errors import InputError
+    from backend.core.test_field import TestField
+    from backend.core.transforms import to_xyz_ypr
+    from backend.devices.image_io import read_image
+    from backend.exports.camera_json import load_camera
+
+    started = time.perf_counter()
+    camera, _ = load_camera(args.camera)
+    test_field = TestField.parse(args.field)
+    poses = {}
+    for path in args.images:
+        found = detect_test_field(read_image(path, grayscale=True), test_field, path.name, camera)
+        for note in found.notes[:-1] if found.detection is None else found.notes:
+            print(f"warning: {note}", file=sys.stderr)
+        if found.detection is None:
+            raise InputError(found.notes[-1], path.name)
+        result = resect(camera, test_field, found.detection, path.name)
+        for warning in result.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        poses[path.name] = {"T_wall_camera": result.T_parent_child.tolist(), "std": result.std,
+                            "residuals": result.residuals,
+                            "exterior_orientation": result.diagnostics["exterior_orientation"],
+                            "verdict": result.verdict.to_dict(), "warnings": result.warnings}
+        if not args.json:
+            xyz, ypr = to_xyz_ypr(result.T_parent_child)
+            print(f"{path.name}: T_wall_camera (x y z m, yaw pitch roll deg) {' '.join(f'{v:.4f}' for v in xyz)}  "
+                  f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}; 1-sigma trans (m) {result.std['trans_m']} "
+                  f"rot (deg) {result.std['rot_deg']}; rms {result.residuals['rms_px']:.3f} px over "
+                  f"{result.residuals['markers_used']} markers; verdict {result.verdict.level}: "
+                  + "; ".join(result.verdict.reasons))
+    return {"poses": poses, "seconds": time.perf_counter() - started}
