@@ -29,9 +29,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     demo = sub.add_parser("demo", help="open the studio on a demo session of the simulated rig")
     demo.add_argument("--sessions", type=Path, default=Path("sessions"), help="where the demo session is kept")
     demo.add_argument("--fresh", action="store_true", help="rebuild the demo session from scratch")
-    demo.add_argument("--rig", choices=["default", "depth-cell"], default="default",
+    demo.add_argument("--rig", choices=["default", "depth-cell", "disaster-response", "servo-scanner"],
+                      default="default",
                       help="default: the simulated robot rig; depth-cell: six simulated Kinect v2 nodes over a "
-                           "10 x 15 x 5 m cell, each its own node-agent process")
+                           "10 x 15 x 5 m cell, each its own node-agent process; disaster-response: a Blackfly and "
+                           "a Livox with a wall test field and V-targets; servo-scanner: a Hokuyo swept by a "
+                           "Dynamixel servo, a camera on a pan head, a board in the sweep's intensity")
     _add_serve_args(demo)
     demo.set_defaults(handler=run_serve)
 

@@ -6,6 +6,7 @@ import argparse
 import logging
 import signal
 import sys
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import uvicorn
@@ -15,8 +16,8 @@ from backend.api.auth import is_loopback, new_token
 from backend.api.origin import OriginPolicy
 from backend.api.viewer_guard import new_secret, origin_check, secret_check, start_viewer
 from backend.api.viewer_proxy import MAX_MESSAGE_BYTES, mount_viewer_proxy
-from backend.services.demo import start_demo_build
-from backend.services.jobs import JobRunner
+from backend.services.demo import DEMO_NAME, start_demo_build
+from backend.services.jobs import Job, JobRunner
 from backend.store.session import SessionStore
 from studio.app import StudioApp
 
@@ -26,6 +27,20 @@ if TYPE_CHECKING:
 
 def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
+
+
+def _demo_builder(rig: str) -> tuple[str, Callable[..., Job]]:
+    """The session name and the build starter (``start(store, jobs, fresh=...) -> Job``) of ``demo --rig RIG``
+    (all but the depth cell, which also starts its nodes' processes)."""
+    if rig == "disaster-response":
+        from backend.services import demo_disaster_response as demo
+
+        return demo.DISASTER_RESPONSE_NAME, demo.start_disaster_response_build
+    if rig == "servo-scanner":
+        from backend.services import demo_servo_scanner as demo
+
+        return demo.SERVO_SCANNER_NAME, demo.start_servo_scanner_build
+    return DEMO_NAME, start_demo_build
 
 
 def _start_depth_cell(args: argparse.Namespace, store: SessionStore, jobs: JobRunner,
@@ -84,8 +99,9 @@ def serve(args: argparse.Namespace) -> int:
     if args.command == "demo" and args.rig == "depth-cell":
         nodes = _start_depth_cell(args, store, jobs, studio)
     elif args.command == "demo":  # the page serves while a missing demo is built; the studio opens it when ready
-        _log(f"preparing the demo session in {store.root}/demo ...")
-        studio.session_step.open_when_built(start_demo_build(store, jobs, fresh=args.fresh))
+        name, start_build = _demo_builder(args.rig)
+        _log(f"preparing the {name} session in {store.root}/{name} ...")
+        studio.session_step.open_when_built(start_build(store, jobs, fresh=args.fresh))
     logging.getLogger("uvicorn.error").setLevel(logging.WARNING)
     try:
         uvicorn.run(app, host=args.host, port=args.port, log_level="warning", ws_max_size=MAX_MESSAGE_BYTES,

@@ -332,14 +332,12 @@ def start_demo(sessions: Path, free_port: Callable[[], int], log: Path, command:
     return process, api_port, viewer_port
 
 
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int], demo_template: Path
-           ) -> Iterator[Studio]:
-    """``calib-studio demo`` in a subprocess, on a copy of the run's demo session (so it starts in seconds)."""
-    tmp = tmp_path_factory.mktemp("studio")
-    fresh_demo(demo_template, tmp / "sessions")
-    log = tmp / "studio.log"
-    process, api_port, viewer_port = start_demo(tmp / "sessions", free_port, log)
+@contextlib.contextmanager
+def serving(sessions: Path, free_port: Callable[[], int], log: Path, command: tuple[str, ...] = ("demo",)
+            ) -> Iterator[Studio]:
+    """The studio :func:`start_demo` starts with ``command`` on ``sessions``, once it has printed its URL and answers
+    ``/api/health``; stopped afterwards."""
+    process, api_port, viewer_port = start_demo(sessions, free_port, log, command)
     lines: queue.Queue[str] = queue.Queue()
 
     def drain() -> None:  # keep reading so the studio never blocks on a full pipe
@@ -359,6 +357,16 @@ def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int
         yield studio
     finally:
         stop_process(process)
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int], demo_template: Path
+           ) -> Iterator[Studio]:
+    """``calib-studio demo`` in a subprocess, on a copy of the run's demo session (so it starts in seconds)."""
+    tmp = tmp_path_factory.mktemp("studio")
+    fresh_demo(demo_template, tmp / "sessions")
+    with serving(tmp / "sessions", free_port, tmp / "studio.log") as studio:
+        yield studio
 
 
 def wait_health(api: str, process: subprocess.Popen, log_tail: Callable[[], str], timeout_s: float = UI_WAIT_S

@@ -171,7 +171,9 @@ class LidarCameraPairCapture(FiniteModel):
 class LidarCameraSolveRequest(FiniteModel):
     camera: str = Field(examples=["cam_front"])
     lidar: str = Field(examples=["lidar_top"])
-    method: Literal["target", "edges", "intensity"] = "target"
+    method: Literal["target", "vtarget", "edges", "intensity"] = Field(
+        "target", description="target: the session's board; vtarget: the session's V-target (PUT .../v-target); "
+                              "edges, intensity: targetless")
     image_ids: list[str] | None = Field(None, description="solve from the pairs of these image captures; default all")
     init: Pose | None = Field(None, description="initial T_camera_lidar; default the rig's current transform")
     init_xyz_m: Vector3 | None = deprecated("init.xyz_m")

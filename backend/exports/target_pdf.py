@@ -31,6 +31,7 @@ import math
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -152,10 +153,14 @@ def target_kind(spec: str) -> str:
     return kind
 
 
-def target_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM) -> TargetSheet:
-    """The PDF of any target spec: :func:`board_sheet`, :func:`field_sheet` or :func:`v_target_sheet`."""
-    sheet = {"testfield": field_sheet, "vtarget": v_target_sheet}.get(target_kind(spec), board_sheet)
-    return sheet(spec, paper, margin_mm)
+def target_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM,
+                 folder: Path | None = None) -> TargetSheet:
+    """The PDF of any target spec: :func:`board_sheet`, :func:`field_sheet` (its survey read from the session
+    ``folder`` if given) or :func:`v_target_sheet`."""
+    kind = target_kind(spec)
+    if kind == "testfield":
+        return field_sheet(spec, paper, margin_mm, folder)
+    return (v_target_sheet if kind == "vtarget" else board_sheet)(spec, paper, margin_mm)
 
 
 def board_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM) -> TargetSheet:
@@ -180,11 +185,13 @@ def board_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGI
     return TargetSheet(board_filename(board), layout, render_pages([page], layout), 1)
 
 
-def field_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM) -> TargetSheet:
-    """A page per marker of the test field ``spec`` (reading its survey file), in the survey's order, on ``paper``
-    with margins of ``margin_mm`` (mm), as :func:`board_sheet` does a board. :class:`InputError` for a bad spec or
-    survey file (naming it), paper or margin, and for markers that do not fit the paper."""
-    field = TestField.parse(spec)
+def field_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGIN_MM,
+                folder: Path | None = None) -> TargetSheet:
+    """A page per marker of the test field ``spec`` (reading its survey file, a session's from its ``folder`` if
+    given), in the survey's order, on ``paper`` with margins of ``margin_mm`` (mm), as :func:`board_sheet` does a
+    board. :class:`InputError` for a bad spec or survey file (naming it), paper or margin, and for markers that do
+    not fit the paper."""
+    field = TestField.parse(spec, folder)
     side_mm = 1000.0 * field.marker_m
     quiet = 1 / len(marker_image(field.dictionary, 0, 1))  # one of the marker's cells a side (its border's included)
     footprint = Footprint(f"each marker of {field}", "marker", (side_mm, side_mm), "markers", (side_mm,), quiet,

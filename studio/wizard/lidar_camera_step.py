@@ -68,12 +68,16 @@ MAX_SLIDER_TRANSLATION_M = 0.5
 """The translation sliders reach this far either way from where they were centred."""
 COLOURISED_POINT_SIZE_M = 0.02
 PLACEHOLDER = np.full((90, 160, 3), 235, np.uint8)
-METHODS = {"target (board)": "target", "targetless (edges)": "edges", "targetless (intensity)": "intensity"}
+METHODS = {"target (board)": "target", "V-target (two plates)": "vtarget", "targetless (edges)": "edges",
+           "targetless (intensity)": "intensity"}
 HELP = ("Capture image + cloud pairs with the board held still in view of both (or, for the targetless method, of a "
         "scene with plenty of straight edges). For the board, take 20 or more, near and far, low and high, the board "
         "tilted 15-45 deg from facing the camera every way (turned, leaning, rolled). Move the sliders (increments "
         "along and about the camera's or the LiDAR's axes; keys: W/S A/D R/F move, I/K J/L U/O turn, Shift for fine, "
-        "Z/Y undo/redo) until edges, poles and the board line up, then solve from there and nudge what is left.")
+        "Z/Y undo/redo) until edges, poles and the board line up, then solve from there and nudge what is left. "
+        "For V-targets (the session's V-target, step 1), untick Board in view and place the target at nine "
+        "positions, two heights each, both faces towards the sensors, leaning some and laying some on their side: "
+        "upright targets alone leave the LiDAR's height along the ridges undetermined.")
 FULL_SIZE_LINK = ('<a href="{url}" target="calib_studio_overlay" rel="opener" style="display:block;padding:6px 10px;'
                   'border-radius:4px;background:#228be6;color:#fff;text-align:center;text-decoration:none;'
                   'font-size:0.85em">Open the full-size overlay ↗</a>')
@@ -287,7 +291,8 @@ class LidarCameraStep:
 
     def _solve(self) -> None:
         session, pair, T_init, method = self.ctx.session, self.pair, self.editor.T, METHODS[self.method.value]
-        prior_m = float(self.translation_prior.value) if method != "target" and self.translation_prior.value else None
+        targetless = method in ("edges", "intensity")
+        prior_m = float(self.translation_prior.value) if targetless and self.translation_prior.value else None
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed to solve.", error=True)
             return

@@ -1,4 +1,5 @@
-"""Step 1: choose or create a session and set its calibration board; print the board."""
+"""Step 1: choose or create a session and set its targets (the board or a wall test field with its survey, the
+V-target); print them."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ import threading
 
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
-from backend.exports.target_pdf import PAPERS_MM, board_sheet
+from backend.core.targets import parse_target
+from backend.core.test_field import SESSION_SURVEY
+from backend.core.v_target import VTarget
+from backend.exports.target_pdf import PAPERS_MM, target_sheet, v_target_sheet
 from backend.services.jobs import Job
 from studio.context import StudioContext
 from studio.marks import WARNING
@@ -29,6 +33,21 @@ class SessionStep:
                                                "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT")
             self.create_button = gui.add_button("Create session")
             self.summary = gui.add_markdown("No session open.")
+            with gui.add_folder("Targets", expand_by_default=False):
+                self.survey_button = gui.add_upload_button(
+                    "Upload a test field's survey", mime_type="text/*", disabled=True,
+                    hint="a line of id, X, Y, Z (m) per marker centre, in the wall's frame; then set the board to "
+                         f"testfield:DICT:MARKER:{SESSION_SURVEY}")
+                self.board = gui.add_text("Session board", initial_value="", disabled=True,
+                                          hint="a board spec, or testfield:DICT:MARKER:survey.csv (the uploaded "
+                                               "survey)")
+                self.board_button = gui.add_button("Set the board", disabled=True)
+                self.v_target = gui.add_text("V-target", initial_value="", disabled=True,
+                                             hint="vtarget:WxH:ANGLE:COLSxROWS:MARKER:DICT, e.g. "
+                                                  "vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50 (LiDAR-camera, step 6)")
+                self.v_target_button = gui.add_button("Set the V-target", disabled=True)
+                self.print_v_target = gui.add_button("Print the V-target", disabled=True,
+                                                     hint="its two faces as a PDF at exact scale, a page each")
             self.paper = gui.add_dropdown("Paper", options=["auto", *PAPERS_MM], initial_value="auto",
                                           hint="auto: the first paper the board fits, in this list's order")
             self.print_target = gui.add_button("Print the target", disabled=True,
@@ -39,6 +58,10 @@ class SessionStep:
         self.open_button.on_click(lambda _: self._open())
         self.create_button.on_click(lambda _: self._create())
         self.print_target.on_click(self._download_target)
+        self.survey_button.on_upload(lambda _: self._upload_survey())
+        self.board_button.on_click(lambda _: self._set_target("board", self.board.value))
+        self.v_target_button.on_click(lambda _: self._set_target("V-target", self.v_target.value))
+        self.print_v_target.on_click(self._download_v_target)
         ctx.on_session_changed(self._show)
 
     def _refresh(self) -> None:
@@ -69,6 +92,40 @@ class SessionStep:
         self._refresh()
         self.ctx.open_session(session)
 
+    def _upload_survey(self) -> None:
+        upload, session = self.survey_button.value, self.ctx.session
+        try:
+            session.set_survey(upload.content, upload.name)
+        except InputError as exc:
+            self.ctx.notify("Survey not kept", exc.message, error=True)
+            return
+        self.ctx.notify("Survey kept", f"{upload.name} is the session's {SESSION_SURVEY}.")
+        self._show(session)
+
+    def _set_target(self, what: str, spec: str) -> None:
+        """Set the open session's board (a board or a test field) or its V-target from ``spec``."""
+        session = self.ctx.session
+        try:
+            if what == "board":
+                session.set_board(str(parse_target(spec, session.path)))
+            else:
+                session.set_v_target(str(VTarget.parse(spec)))
+        except InputError as exc:
+            self.ctx.notify(f"Cannot set the {what}", exc.message, error=True)
+            return
+        self.ctx.notify(f"{what.capitalize()} set", spec)
+        self._show(session)
+
+    def _download_v_target(self, event) -> None:
+        """Send the open session's V-target as a printable PDF to the page that clicked."""
+        session = self.ctx.session
+        try:
+            sheet = v_target_sheet(session.v_target or "", self.paper.value)
+        except InputError as exc:
+            self.ctx.notify("Cannot print the V-target", exc.message, error=True)
+            return
+        event.client.send_file_download(sheet.filename, sheet.pdf)
+
     def _download_target(self, event) -> None:
         """Send the open session's board as a printable PDF to the page that clicked (a toast says why not)."""
         session = self.ctx.session
@@ -76,7 +133,7 @@ class SessionStep:
             self.ctx.notify("No board", "Open a session with a board spec first.", error=True)
             return
         try:
-            sheet = board_sheet(session.board, self.paper.value)
+            sheet = target_sheet(session.board, self.paper.value, folder=session.path)
         except InputError as exc:
             self.ctx.notify("Cannot print the target", exc.message, error=True)
             return
@@ -88,8 +145,14 @@ class SessionStep:
         if self.choice.value != session.name:
             self.choice.value = session.name
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
+        survey = " (survey uploaded)" if (session.path / SESSION_SURVEY).exists() else ""
         self.summary.content = (f"**{session.name}** {session.title}\n\n"
-                                f"Board: `{session.board}`  \nSensors: {sensors}")
+                                f"Board: `{session.board}`{survey}  \nV-target: `{session.v_target}`  \n"
+                                f"Sensors: {sensors}")
+        for handle in (self.survey_button, self.board, self.board_button, self.v_target, self.v_target_button):
+            handle.disabled = False
+        self.print_v_target.disabled = not session.v_target
+        self.board.value, self.v_target.value = session.board or "", session.v_target or ""
 
     def open_when_built(self, job: Job) -> None:
         """Open the session ``job`` builds (e.g. the demo) once it is done, showing its progress meanwhile.

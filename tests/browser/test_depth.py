@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import contextlib
 import json
-import queue
 import re
 import shutil
-import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -41,17 +39,14 @@ from backend.store.session import SessionStore
 from studio.app import StudioApp
 from tests.conftest import (
     ARTIFACTS,
-    START_WAIT_S,
     Studio,
     button,
     choose,
     poll,
-    start_demo,
-    stop_process,
+    serving,
     studio_page,
     text_input,
     wait_body,
-    wait_health,
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -79,20 +74,8 @@ def cell(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int])
     tmp = tmp_path_factory.mktemp("depth_studio")
     ensure_depth_cell_session(SessionStore(tmp / PRISTINE))
     shutil.copytree(tmp / PRISTINE, tmp / "sessions")
-    log = tmp / "studio.log"
-    process, api_port, _ = start_demo(tmp / "sessions", free_port, log, ("serve",))
-    lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
-    studio = Studio("", f"http://127.0.0.1:{api_port}", process, log)
-    try:
-        try:
-            studio.url = lines.get(timeout=START_WAIT_S).strip()
-        except queue.Empty:
-            pytest.fail(f"the studio printed no URL (exit code {process.poll()}):\n{studio.log_tail()}")
-        wait_health(studio.api, process, studio.log_tail)
+    with serving(tmp / "sessions", free_port, tmp / "studio.log", ("serve",)) as studio:
         yield studio
-    finally:
-        stop_process(process)
 
 
 def _heights_within(page: Page, tolerance_m: float) -> list[float]:
