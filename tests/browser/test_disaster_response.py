@@ -57,7 +57,7 @@ def test_the_v_target_path(browser: Browser, rig: Studio) -> None:
         page.get_by_text("1 · Session", exact=True).click()  # fold it away: room for the next steps
 
         unfold(page, "3 · Camera intrinsics", page.get_by_label("Camera", exact=True).first)
-        wait_body(page, re.compile(r"photogrammetric"))
+        wait_body(page, re.compile(r"r0001 \(accepted\) · intrinsics"))
         page.screenshot(path=ARTIFACTS / "studio_disaster_response_intrinsics.png")
         page.get_by_text("3 · Camera intrinsics", exact=True).click()
 
