@@ -155,6 +155,16 @@ def parse_xyzypr(text: str, option: str):
     return from_xyz_ypr(np.array(values[:3]), np.radians(values[3:]))
 
 
+def pose_text(T) -> str:
+    """``x y z  yaw pitch roll`` of a 4x4 transform: metres to 4 decimals, degrees (ROS order) to 3."""
+    import numpy as np
+
+    from backend.core.transforms import to_xyz_ypr
+
+    xyz, ypr = to_xyz_ypr(T)
+    return f"{' '.join(f'{v:.4f}' for v in xyz)}  {' '.join(f'{v:.3f}' for v in np.degrees(ypr))}"
+
+
 def init_name(args: argparse.Namespace) -> str:
     """Where the initial transform came from, for an error about it: the file, or ``--init-xyzypr``."""
     return str(args.init) if args.init is not None else "--init-xyzypr"

@@ -12,6 +12,7 @@ from backend.cli._common import (
     init_name,
     parse_floats,
     parse_pairs,
+    pose_text,
     prints_summary,
     progress_to_stderr,
     read_init,
@@ -91,11 +92,7 @@ def run_lidar_camera(args: argparse.Namespace) -> dict[str, Any]:
     if not args.json:
         import numpy as np
 
-        from backend.core.transforms import to_xyz_ypr
-
-        xyz, ypr = to_xyz_ypr(result.T_parent_child)
-        print(f"T_camera_lidar (x y z m, yaw pitch roll deg): {' '.join(f'{v:.4f}' for v in xyz)}  "
-              f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}\n"
+        print(f"T_camera_lidar (x y z m, yaw pitch roll deg): {pose_text(result.T_parent_child)}\n"
               f"{np.array2string(result.T_parent_child, precision=6, suppress_small=True)}\n"
               f"1-sigma trans (m) {summary['std']['trans_m']}  rot (deg, LiDAR axes) {summary['std']['rot_deg']}\n"
               f"residuals {summary['residuals']}")

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from backend.cli._common import prints_summary
+from backend.cli._common import pose_text, prints_summary
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -23,13 +23,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
-    import numpy as np
-
     from backend.calib.test_field.detection import detect_test_field
     from backend.calib.test_field.exterior import resect
     from backend.core.errors import InputError
     from backend.core.test_field import TestField
-    from backend.core.transforms import to_xyz_ypr
     from backend.devices.image_io import read_image
     from backend.exports.camera_json import load_camera
 
@@ -51,9 +48,8 @@ def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
                             "exterior_orientation": result.diagnostics["exterior_orientation"],
                             "verdict": result.verdict.to_dict(), "warnings": result.warnings}
         if not args.json:
-            xyz, ypr = to_xyz_ypr(result.T_parent_child)
-            print(f"{path.name}: T_wall_camera (x y z m, yaw pitch roll deg) {' '.join(f'{v:.4f}' for v in xyz)}  "
-                  f"{' '.join(f'{v:.3f}' for v in np.degrees(ypr))}; 1-sigma trans (m) {result.std['trans_m']} "
+            print(f"{path.name}: T_wall_camera (x y z m, yaw pitch roll deg) {pose_text(result.T_parent_child)}; "
+                  f"1-sigma trans (m) {result.std['trans_m']} "
                   f"rot (deg) {result.std['rot_deg']}; rms {result.residuals['rms_px']:.3f} px over "
                   f"{result.residuals['markers_used']} markers; verdict {result.verdict.level}: "
                   + "; ".join(result.verdict.reasons))

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import cv2
 import numpy as np
@@ -84,37 +85,12 @@ def plate_corners_m(board: BoardSpec) -> np.ndarray:
     return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
 
 
-def render_board_image(
-    camera: CameraIntrinsics,
-    board: BoardSpec,
-    T_camera_board: np.ndarray,
-    rng: np.random.Generator,
-    *,
-    blur_px: float = 0.7,
-    noise_sigma: float = 2.0,
-    brightness: float | None = None,
-    gradient: float | None = None,
-    vignetting: float = 0.2,
-) -> np.ndarray:
-    """A uint8 grayscale (H, W) image of ``board`` at pose ``T_camera_board`` (board to optical frame, m).
-
-    Args:
-        camera: the simulated camera; its distortion is rendered exactly.
-        board: the board printed on the plate (checkerboard or ChArUco).
-        T_camera_board: 4x4 pose of the board in the camera's optical frame (m).
-            A board seen from behind, or not wholly in front of the camera, is
-            not drawn.
-        rng: the only source of randomness (lighting, background, noise).
-        blur_px: sigma of the Gaussian lens blur (px); 0 for none.
-        noise_sigma: sigma of the additive Gaussian sensor noise (grey levels).
-        brightness: grey level a perfectly white surface would have at the image
-            centre; drawn from 160..230 when None.
-        gradient: relative change of the illumination from the centre to the image
-            corners along a random direction; drawn from 0..0.2 when None.
-        vignetting: relative darkening at the image corners.
-    """
-    return render_plates(camera, [(_board_texture(board), T_camera_board)], rng, blur_px=blur_px,
-                         noise_sigma=noise_sigma, brightness=brightness, gradient=gradient, vignetting=vignetting)
+def render_board_image(camera: CameraIntrinsics, board: BoardSpec, T_camera_board: np.ndarray,
+                       rng: np.random.Generator, **lighting: Any) -> np.ndarray:
+    """A uint8 grayscale (H, W) image of ``board`` (checkerboard or ChArUco, on its plate) at pose
+    ``T_camera_board`` (board to optical frame, m): :func:`render_plates` of the one plate, ``lighting`` its
+    keyword arguments (blur, noise, brightness, gradient, vignetting)."""
+    return render_plates(camera, [(_board_texture(board), T_camera_board)], rng, **lighting)
 
 
 def render_plates(
@@ -134,8 +110,20 @@ def render_plates(
     The plates are drawn far to near by the camera's distance to each plate's plane (painter's order): right for
     parallel plates (markers standing off a wall) and for plates that meet along an edge (which cannot hide each
     other while the camera sees both prints). A plate seen from behind, or not wholly in front of the camera, is
-    not drawn. ``background`` False leaves black behind the plates; the other arguments are those of
-    :func:`render_board_image`.
+    not drawn.
+
+    Args:
+        camera: the simulated camera; its distortion is rendered exactly.
+        plates: each plate's texture and its pose in the camera's optical frame (m).
+        rng: the only source of randomness (lighting, background, noise).
+        blur_px: sigma of the Gaussian lens blur (px); 0 for none.
+        noise_sigma: sigma of the additive Gaussian sensor noise (grey levels).
+        brightness: grey level a perfectly white surface would have at the image
+            centre; drawn from 160..230 when None.
+        gradient: relative change of the illumination from the centre to the image
+            corners along a random direction; drawn from 0..0.2 when None.
+        vignetting: relative darkening at the image corners.
+        background: a textured background behind the plates; False leaves it black.
     """
     rays = ray_field(camera, SUPERSAMPLE)
     if brightness is None:
