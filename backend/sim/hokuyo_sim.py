@@ -28,7 +28,11 @@ streamed to a connection; ``drop_after_scans`` closes a connection once it was s
 ``01``, ``GD``/``GE`` ``10``, a stream stops); ``refuse_connections`` closes each new connection at once.
 A client's disconnect resets the device (streaming stopped, laser off, time-sync mode left).
 
-Usage: ``with HokuyoSimulator() as sim: sock = socket.create_connection((sim.host, sim.port))``.
+The USB-serial models speak the same SCIP 2.0 over a CDC-ACM port: :class:`HokuyoUsbSimulator` plays the same
+device (:meth:`HokuyoSimulator.exchange`, no socket) on a pty behind a stable path, as ``/dev/ttyACM0`` would be.
+
+Usage: ``with HokuyoSimulator() as sim: sock = socket.create_connection((sim.host, sim.port))``, or
+``with HokuyoUsbSimulator() as usb: serial.Serial(usb.port)``.
 """
 
 from __future__ import annotations
@@ -41,13 +45,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 
 from backend.core.transforms import invert, transform_points
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import BOARD_INK_INTENSITY, LABELS, LidarScene, label_reflectivity
+from backend.sim.pty_device import PtyDevice
 
 N_STEPS = 1081
 """Steps 0..1080 (AMIN..AMAX), 1440 steps a turn (ARES), step 540 straight ahead (AFRT)."""
@@ -231,6 +236,16 @@ class HokuyoSimulator:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def exchange(self, received: bytes) -> bytes:
+        """The device without its socket: take ``received`` (what the driver sent since the last call, maybe
+        nothing), send the scans whose turn has ended, and return every byte now due to the driver. For a
+        transport of its own (:class:`HokuyoUsbSimulator`'s pty); the TCP server loop does the same itself."""
+        if received:
+            self._receive(received)
+        self._tick()
+        out, self._out = bytes(self._out), bytearray()
+        return out
+
     # ------------------------------------------------------------------ server loop
     def _reset(self) -> None:
         """What a power cycle (or a client's disconnect) resets."""
@@ -398,3 +413,25 @@ class HokuyoSimulator:
         self.scans_sent += 1
         ts = encode(stamp, 4)
         return echo + b"\n" + status_line(status) + ts + checksum(ts) + b"\n" + data_lines(payload, corrupt) + b"\n"
+
+
+class HokuyoUsbSimulator(PtyDevice):
+    """A USB-serial Hokuyo (SCIP 2.0 over CDC-ACM) on a pty: :class:`HokuyoSimulator`'s device, with the same
+    settings (its TCP faults aside), answering at :attr:`port`."""
+
+    def __init__(self, **settings: Any):
+        super().__init__("ttyACM-hokuyo")
+        self.sensor = HokuyoSimulator(**settings)
+        """The simulated device (never listening on TCP): its truth, commands and counters."""
+
+    def on_plug(self) -> None:
+        self.sensor._reset()
+
+    def serve(self) -> None:
+        while not self.stopping:
+            received = self.read(0.005)
+            if received is None:
+                return
+            out = self.sensor.exchange(received)
+            if out and not self.write(out):
+                return

@@ -11,7 +11,7 @@ import pytest
 
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
 from backend.devices.hokuyo import HokuyoScanner, _Link, decode, parse_message
-from backend.sim.hokuyo_sim import HokuyoSimulator
+from backend.sim.hokuyo_sim import HokuyoSimulator, HokuyoUsbSimulator
 
 STEP_RAD = 2 * math.pi / 1440
 
@@ -148,3 +148,27 @@ def test_the_built_in_simulator_is_selectable_as_host_sim():
         sample = device.read()
         assert device.simulator is not None and device.simulator.commands[-1] == "MD0000108000000"
     assert sample.intensity is None and len(sample.points) > 500
+
+
+def test_a_usb_model_over_its_serial_port():
+    """The same scans from a USB-serial model (SCIP 2.0 over a pty, as over CDC-ACM), and its unplugging named."""
+    with HokuyoUsbSimulator() as usb:
+        device = HokuyoScanner(serial_port=usb.port, reconnect_timeout_s=1.0)
+        device.open()
+        try:
+            samples = [device.read() for _ in range(3)]
+            assert usb.port in device.describe()
+            usb.unplug()
+            with pytest.raises(DeviceDisconnected, match=usb.port):
+                for _ in range(200):  # what was already in flight is read first
+                    device.read()
+        finally:
+            device.close()
+    assert usb.sensor.commands[:3] == ["QT", "VV", "PP"]
+    for sample in samples:
+        distance_mm, intensity = truth_of(usb.sensor, sample.meta["sensor_time_ms"])
+        steps = np.flatnonzero(distance_mm >= 23)
+        angle = (steps - 540) * STEP_RAD
+        expected = np.column_stack([np.cos(angle), np.sin(angle), np.zeros(len(steps))]) * distance_mm[steps, None]
+        np.testing.assert_allclose(sample.points * 1000, expected, atol=1e-9)
+        np.testing.assert_array_equal(sample.intensity, intensity[steps])
