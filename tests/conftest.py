@@ -288,6 +288,16 @@ def demo_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return built_once(tmp_path_factory, "demo_template", lambda root: ensure_demo_session(SessionStore(root)))
 
 
+def disaster_response_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A sessions folder holding the disaster-response demo session, built once per run (about 15 s,
+    :func:`built_once`), for a test to copy (:func:`fresh_demo`)."""
+    from backend.services.demo_disaster_response import ensure_disaster_response_session
+    from backend.store.session import SessionStore
+
+    return built_once(tmp_path_factory, "disaster_response_template",
+                      lambda root: ensure_disaster_response_session(SessionStore(root)))
+
+
 LENS_VIEWS = 15
 """Views of the waved board a test captures when it needs a camera's lens solved, not its coverage (the first 15
 frames of the simulated wave are spread over the image)."""

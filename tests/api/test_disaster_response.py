@@ -12,20 +12,20 @@ from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
 from backend.core.transforms import transform_error
-from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME, ensure_disaster_response_session
+from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME
 from backend.sim.disaster_response import CAMERA, LIDAR, T_CAMERA_LIVOX_TRUE
 from backend.sim.marker_targets import disaster_response_camera
-from tests.conftest import wait_job
+from tests.conftest import disaster_response_template, fresh_demo, wait_job
 
 SESSION = f"/api/sessions/{DISASTER_RESPONSE_NAME}"
 
 
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
-    root = tmp_path_factory.mktemp("sessions")
+    """The API on a copy of the disaster-response session, built once per run (the browser test's too)."""
+    root = fresh_demo(disaster_response_template(tmp_path_factory), tmp_path_factory.mktemp("api") / "sessions")
     app = create_app(root)
     with TestClient(app) as client:
-        ensure_disaster_response_session(app.state.studio.store)
         yield client
 
 

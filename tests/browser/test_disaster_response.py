@@ -15,15 +15,14 @@ import pytest
 from playwright.sync_api import Browser, expect
 
 from backend.core.transforms import transform_error
-from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME, ensure_disaster_response_session
+from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME
 from backend.sim.disaster_response import CAMERA, LIDAR, T_CAMERA_LIVOX_TRUE
-from backend.store.session import SessionStore
 from tests.conftest import (
     ARTIFACTS,
     Studio,
-    built_once,
     button,
     choose,
+    disaster_response_template,
     fresh_demo,
     serving,
     studio_page,
@@ -40,10 +39,8 @@ RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · lidar_camera · vtarget ·
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory, free_port: Callable[[], int]) -> Iterator[Studio]:
     """``calib-studio demo --rig disaster-response`` on a copy of the session, built once per run."""
-    template = built_once(tmp_path_factory, "disaster_response_template",
-                          lambda root: ensure_disaster_response_session(SessionStore(root)))
     tmp = tmp_path_factory.mktemp("disaster_response")
-    fresh_demo(template, tmp / "sessions")
+    fresh_demo(disaster_response_template(tmp_path_factory), tmp / "sessions")
     with serving(tmp / "sessions", free_port, tmp / "studio.log", ("demo", "--rig", "disaster-response")) as studio:
         yield studio
 
