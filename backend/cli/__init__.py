@@ -17,7 +17,18 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 
-from backend.cli import depth, intrinsics, lidar_camera, lidar_lidar, multicam, rig, sensors, targets, test_field
+from backend.cli import (
+    depth,
+    intrinsics,
+    lidar_camera,
+    lidar_lidar,
+    multicam,
+    rig,
+    sensors,
+    sweep_corners,
+    targets,
+    test_field,
+)
 from backend.cli._common import (
     EXIT_CANCELLED,
     EXIT_INPUT_ERROR,
@@ -35,7 +46,7 @@ AddParser = Callable[[argparse._SubParsersAction], None]
 
 GROUPS: tuple[AddParser, ...] = (intrinsics.add_parser, test_field.add_parser, lidar_lidar.add_parser,
                                  lidar_camera.add_parser, multicam.add_parser, targets.add_parser, sensors.add_parser,
-                                 rig.add_parser, depth.add_parser)
+                                 rig.add_parser, depth.add_parser, sweep_corners.add_parser)
 """The backend's command groups, in the order ``--help`` lists their commands."""
 
 

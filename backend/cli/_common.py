@@ -110,6 +110,16 @@ def keep_result(command: str, summary: dict[str, Any], unwritten: list[tuple[Pat
     return f"the result is kept in {folder} ({', '.join(files)})"
 
 
+def add_init_arguments(parser: argparse.ArgumentParser, transform: str, default: str = "") -> None:
+    """The mutually exclusive ``--init T.txt`` and ``--init-xyzypr x,y,z,yaw,pitch,roll`` of a solving command,
+    both the starting ``transform`` (e.g. "initial T_camera_lidar"); ``default`` says what applies without them."""
+    init = parser.add_mutually_exclusive_group()
+    init.add_argument("--init", type=Path, metavar="T.txt",
+                      help=f"{transform}: a 4x4 in a text file, four whitespace-separated rows")
+    init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
+                      help=f"{transform}: metres and degrees (ROS order){default}")
+
+
 def read_init(args: argparse.Namespace):
     """The initial transform (``T_target_source``, ``T_camera_lidar``) from ``--init`` or ``--init-xyzypr``, or None."""
     import numpy as np
@@ -170,13 +180,14 @@ def init_name(args: argparse.Namespace) -> str:
     return str(args.init) if args.init is not None else "--init-xyzypr"
 
 
-def parse_pairs(values: list[str], form: str = "IMAGE:CLOUD") -> list[tuple[Path, Path]]:
-    """``A:B`` arguments (``form`` names them) as path pairs (split at the last colon: paths may hold one)."""
+def parse_pairs(values: list[str], form: str = "IMAGE:CLOUD", option: str = "--pair") -> list[tuple[Path, Path]]:
+    """``A:B`` arguments of ``option`` (``form`` names them) as path pairs (split at the last colon: paths may hold
+    one)."""
     pairs = []
     for value in values:
         first, sep, second = value.rpartition(":")
         if not sep or not first or not second:
-            raise InputError(f"expected {form}, got {shorten(value)}", "--pair")
+            raise InputError(f"expected {form}, got {shorten(value)}", option)
         pairs.append((Path(first), Path(second)))
     return pairs
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.cli._common import (
+    add_init_arguments,
     init_name,
     parse_floats,
     parse_pairs,
@@ -49,10 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="edges, intensity: hold the initial translation as measured to this 1-sigma (m), for scenes "
                          "whose edges are all far away (they fix the rotation, hardly the translation); without it, "
                          "edges holds the translation at the guess +- 5 cm when the scene cannot determine it")
-    init = lc.add_mutually_exclusive_group()
-    init.add_argument("--init", type=Path, metavar="T.txt", help="initial T_camera_lidar: a 4x4 in a text file")
-    init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
-                      help="initial T_camera_lidar: metres and degrees (ROS order)")
+    add_init_arguments(lc, "initial T_camera_lidar")
     lc.add_argument("--json", action="store_true", help="print the result as one JSON object")
     lc.set_defaults(handler=prints_summary(run_lidar_camera))
 

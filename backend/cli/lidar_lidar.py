@@ -8,7 +8,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from backend.cli._common import init_name, parse_pairs, prints_summary, progress_to_stderr, read_init, warn
+from backend.cli._common import (
+    add_init_arguments,
+    init_name,
+    parse_pairs,
+    prints_summary,
+    progress_to_stderr,
+    read_init,
+    warn,
+)
 from backend.core.errors import InputError
 
 
@@ -20,11 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ll.add_argument("--pair", action="append", metavar="SRC:TGT",
                     help="a source cloud and the target cloud taken with it; repeat for every scene (the rig in "
                          "another place): one transform is solved for all, and the scenes cross-check each other")
-    init = ll.add_mutually_exclusive_group()
-    init.add_argument("--init", type=Path, metavar="T.txt",
-                      help="initial T_target_source: a 4x4 in a text file, four whitespace-separated rows")
-    init.add_argument("--init-xyzypr", metavar="x,y,z,yaw,pitch,roll",
-                      help="initial T_target_source: metres and degrees (ROS order); default: global registration")
+    add_init_arguments(ll, "initial T_target_source", "; default: global registration")
     ll.add_argument("--voxel", type=float, metavar="M", help="fine downsampling resolution (m, default 0.1)")
     ll.add_argument("--max-distance", type=float, metavar="M",
                     help="fine correspondence and inlier distance (m, default 0.2)")

@@ -167,6 +167,14 @@ def check_transform(T: Any, name: str) -> tuple[np.ndarray, float]:
     return make_T(Rotation.from_matrix(R).as_matrix(), T[:3, 3]), deviation
 
 
+def rotation_about_line(axis: np.ndarray, point: np.ndarray, angle_rad: float) -> np.ndarray:
+    """4x4 rotation by ``angle_rad`` (rad) about the line through ``point`` (m) along the unit ``axis``, both in the
+    frame the result acts in (a pan head turning a camera, a door on its hinge)."""
+    R = Rotation.from_rotvec(float(angle_rad) * np.asarray(axis, dtype=float)).as_matrix()
+    point = np.asarray(point, dtype=float)
+    return make_T(R, point - R @ point)
+
+
 def rotate_about_axis(axis: np.ndarray, angles_rad: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     """Rotate each row of ``vectors`` (N, 3) about the unit ``axis`` by its own angle (N,) (rad)."""
     rotvecs = np.outer(np.asarray(angles_rad, dtype=float), np.asarray(axis, dtype=float))

@@ -268,7 +268,8 @@ class SweptScanner(CaptureDevice):
             servo_port: the servo's serial port, or ``"sim"`` for the built-in Dynamixel simulator.
             scanner: the 2D scanner's device settings, e.g. ``{"driver": "ydlidar", "port": "sim"}``,
                 ``{"driver": "hokuyo", "host": "192.168.0.10"}`` (with ``"host": "sim"`` and the simulated servo: a
-                simulated UTM-30LX-EW on the simulated horn, the endpoint registered as ``"hokuyo"``),
+                simulated UTM-30LX-EW on the simulated horn, the endpoint registered as ``"hokuyo"``, its optional
+                ``"sim"`` dict holding the simulated head's keys, as ``{"driver": "sim", ...}`` takes them),
                 or ``{"driver": "sim", ...}`` (only with ``servo_port="sim"``: a ray-cast scanner on
                 the simulated horn, the endpoint registered as ``"swept_head"``; keys of the simulation
                 package's ``SimSweptScannerHead``). Default ``{"driver": "sim"}`` with the simulated servo.
@@ -348,7 +349,12 @@ class SweptScanner(CaptureDevice):
                 self._truth = self.scanner
             elif settings.get("driver") == "hokuyo" and settings.get("host") == "sim" and self._sim is not None:
                 # a simulated UTM-30LX-EW speaking SCIP 2.0 on 127.0.0.1, scanning from the simulated horn
-                self._scanner_sim = self._truth = start_simulator("hokuyo", self.describe(), servo=self._sim)
+                try:
+                    self._scanner_sim = self._truth = start_simulator("hokuyo", self.describe(), servo=self._sim,
+                                                                      **settings.pop("sim", {}))
+                except TypeError as exc:
+                    raise DeviceError(f"bad simulated scanner settings {self.scanner_settings}: {exc}",
+                                      self.describe()) from None
                 self.scanner = create_device(settings | {"host": self._scanner_sim.host,
                                                          "port": self._scanner_sim.port})
             else:

@@ -18,7 +18,7 @@ import numpy as np
 
 from backend.core.sweep_geometry import SweepGeometry
 from backend.devices.base import CaptureDevice, DeviceDisconnected, Sample
-from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, DEFAULT_SIM_MOUNT
+from backend.sim.demo_rig import DEFAULT_SIM_GEOMETRY, DEFAULT_SIM_MOUNT, DEMO_BOARD
 from backend.sim.dynamixel_sim import DynamixelSimulator
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, robot_place
 
@@ -36,7 +36,8 @@ class SimSweptScannerHead(CaptureDevice):
 
     def __init__(self, servo_sim: DynamixelSimulator, geometry: dict | None = None, T_base_mount: list | None = None,
                  angle_step_deg: float = 0.25, fov_deg: float = 270.0, range_noise_m: float = 0.01,
-                 max_range_m: float = 30.0, seed: int = 0, place: int = 0):
+                 max_range_m: float = 30.0, seed: int = 0, place: int = 0, board: str = DEMO_BOARD,
+                 board_pose: list | None = None):
         """Args:
         servo_sim: the :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` whose horn carries it.
         geometry: the TRUE :class:`SweepGeometry` as a dict (default :data:`DEFAULT_SIM_GEOMETRY`).
@@ -45,6 +46,9 @@ class SimSweptScannerHead(CaptureDevice):
         range_noise_m: 1-sigma range noise (m). max_range_m: farthest return (m).
         seed: seeds the noise (scan ``i`` uses ``(seed, i)``).
         place: where the robot stands in the yard (an index of :data:`~backend.sim.lidar_scene.ROBOT_PLACES`).
+        board: the spec of the board standing in the yard.
+        board_pose: its ``T_base_board`` (4x4, m, in the robot's base_link; default the yard's static board,
+            :func:`~backend.sim.lidar_scene.default_board_pose`).
         """
         self.servo_sim = servo_sim
         self.geometry = SweepGeometry.from_dict(DEFAULT_SIM_GEOMETRY if geometry is None else geometry)
@@ -55,6 +59,8 @@ class SimSweptScannerHead(CaptureDevice):
         self.max_range_m = float(max_range_m)
         self.seed = int(seed)
         self.place = place
+        self.board = board
+        self.T_base_board = default_board_pose() if board_pose is None else np.asarray(board_pose, dtype=float)
         self._T_yard_base = np.eye(4)
         self._scene: LidarScene | None = None
         self._count = 0
@@ -65,7 +71,7 @@ class SimSweptScannerHead(CaptureDevice):
 
     def open(self) -> None:
         self._T_yard_base = robot_place(self.place, self.describe())
-        self._scene = LidarScene(self._T_yard_base @ default_board_pose())
+        self._scene = LidarScene(self._T_yard_base @ self.T_base_board, board=self.board)
         self._count = 0
 
     @property

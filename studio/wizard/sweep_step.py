@@ -10,6 +10,10 @@ before accepting. The result card (:class:`~studio.result_card.ResultCard`) show
 servo zero with its sigma and the verdict, and accepts through the rig service, which writes the
 geometry into the sensor's device (not a rig edge); accepting an older result reverts. The
 geometry panel beside it holds the sweep's own numbers.
+
+Its *Board corners → camera* panel (:class:`~studio.wizard.sweep_corners_panel.SweepCornersPanel`) solves a camera
+from the board's corners in the scanner's intensity image, and a camera's pan axis, from the session's image + sweep
+pairs; its coloured sweep takes the place of the height-coloured one while shown.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
+from studio.wizard.sweep_corners_panel import SweepCornersPanel
 
 NONE = "(no swept scanner)"
 STEP = "sweep"
@@ -63,6 +68,7 @@ class SweepStep:
             self.geometry_text = gui.add_markdown("")
             self.image_mode = gui.add_dropdown("Image", options=["intensity", "range"])
             self.image = gui.add_image(BLANK_IMAGE, label="The sweep as a LiDAR image (a row per servo step)")
+            self.corners = SweepCornersPanel(ctx, STEP, self._drop_cloud)
         self.sensor.on_update(lambda _: self._select())
         self.capture_button.on_click(lambda _: self._capture())
         self.calibrate_button.on_click(lambda _: self._calibrate())
@@ -99,11 +105,13 @@ class SweepStep:
             self.captures_text.content = ("No swept scanner in this rig: add one in step 2, *Sensors* "
                                           "(device swept_scanner).")
             self._show_history(None)
+            self.corners.show(None)
             return
         captures = sweep_service.swept_captures(session, sensor)
         self.captures_text.content = (f"{len(captures)} sweep(s) captured; the latest, {captures[-1].id}, is used."
                                       if captures else "No sweep captured yet.")
         self._show_history(self._accepted())
+        self.corners.show(sensor)
 
     def _results(self) -> list[dict]:
         """The current scanner's stored sweep results, oldest first."""
@@ -165,6 +173,7 @@ class SweepStep:
         """Redraw the latest sweep (cloud, in the root frame, and image) with the picked result's geometry."""
         session, sensor, result_id = self.ctx.session, self.current, self.result_id
         self._drop_cloud()
+        self.corners.drop_cloud()
         if sensor is None or not sweep_service.swept_captures(session, sensor):
             self.image.image = BLANK_IMAGE
             return

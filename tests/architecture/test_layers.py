@@ -5,8 +5,8 @@
 - drivers (``backend/devices``) never import a simulator (``backend/sim``);
 - ``backend/`` never imports ``studio/``;
 - the studio and the API never import a solver: from a problem's folder (``backend/calib/<problem>/``) they
-  import its services only (``service``, ``guided_service``, ``capture``); what they draw comes from
-  ``backend/plots``.
+  import its services only (``service``, ``guided_service``, ``sweep_corners_service``, ``capture``); what they draw
+  comes from ``backend/plots``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("backend", "studio")
-SERVICE_MODULES = {"service", "guided_service", "capture"}
+SERVICE_MODULES = {"service", "guided_service", "sweep_corners_service", "capture"}
 
 
 def module_name(path: Path) -> str:

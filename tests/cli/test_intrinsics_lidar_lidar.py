@@ -126,7 +126,7 @@ def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_pat
 def test_intrinsics_progress_on_stderr_and_yaml_written(intrinsics_run):
     run, work = intrinsics_run
     assert run.returncode == 0, run.stderr
-    assert "detecting the board" in run.stderr and "%]" in run.stderr
+    assert "detecting the target" in run.stderr and "%]" in run.stderr
     assert "detecting" not in run.stdout and "%]" not in run.stdout
     out = json.loads(run.stdout)
     camera, name = load_camera_info(work / "camera.yaml")

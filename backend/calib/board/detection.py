@@ -66,6 +66,8 @@ SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 """Full-accuracy flags of ``findChessboardCornersSB``: the most accurate of OpenCV's own on every set measured."""
 LIVE_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
 """Preview flags: fast, and the corners of preview frames are not kept."""
+CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+"""Flags of the classic detector's fallback (:func:`detect_checkerboard_classic`)."""
 CROP_MARGIN_SQUARES = 1.5
 """The full-accuracy search runs on the board's neighbourhood: its inner corners' bounding box grown by this many
 of its widest corner spacings (the outer squares and a quiet zone), as a fast search (:data:`LIVE_FLAGS`) finds
@@ -176,17 +178,35 @@ def detect_board(image: np.ndarray, board: BoardSpec, *, live: bool = False) -> 
         if found is not None:
             if live or board.kind != "checkerboard":
                 return Detection(*found, size, name)
-            corners, ids = found
-            # Refined in the untreated image: after CLAHE a rendered wide-lens view's refined corners lay 0.088 px
-            # (RMS) from the truth, in the plain image 0.032 px; cornerSubPix weighs gradients, so linear
-            # contrast (a 16-bit image as float) makes no difference to it.
-            untreated = gray if gray.dtype == np.uint8 else gray.astype(np.float32)
-            refined = {refinement_name(fraction): refine_corners(untreated, board, corners, fraction)
-                       for fraction in SUBPIX_WINDOW_FRACTIONS}
-            keep = _agrees_with_neighbours(board, refined[refinement_name(SUBPIX_WINDOW_FRACTIONS[0])])
-            return Detection(corners[keep], ids[keep], size, name,
-                             {window: refined_px[keep] for window, refined_px in refined.items()})
+            return _refined(gray, board, *found, name)
     return None
+
+
+def detect_checkerboard_classic(gray: np.ndarray, board: BoardSpec) -> Detection | None:
+    """A checkerboard found by OpenCV's classic detector (``findChessboardCorners``, adaptive threshold) in the
+    uint8 ``gray``, refined as :func:`detect_board`'s; ``None`` if it is not seen. For images the sector-based
+    detector handles badly: a swept scanner's intensity image, blocky along its rows and curved by the sweep, where
+    it found each board of the servo-scanner rig at some row stretches and not at others, and this one found all but
+    one at every stretch (:mod:`backend.calib.lidar_camera.sweep_corners`)."""
+    found, corners = cv2.findChessboardCorners(gray, board.corner_grid, flags=CLASSIC_FLAGS)
+    if not found:
+        return None
+    return _refined(gray, board, corners.reshape(-1, 2).astype(np.float64), np.arange(board.n_corners), "classic")
+
+
+def _refined(gray: np.ndarray, board: BoardSpec, corners: np.ndarray, ids: np.ndarray, name: str) -> Detection:
+    """The full-accuracy detection of a whole checkerboard's ``corners`` (px, id order) found in ``gray`` after the
+    treatment ``name``: refined at each of :data:`SUBPIX_WINDOW_FRACTIONS`, the corners its neighbours disagree with
+    dropped."""
+    # Refined in the untreated image: after CLAHE a rendered wide-lens view's refined corners lay 0.088 px
+    # (RMS) from the truth, in the plain image 0.032 px; cornerSubPix weighs gradients, so linear
+    # contrast (a 16-bit image as float) makes no difference to it.
+    untreated = gray if gray.dtype == np.uint8 else gray.astype(np.float32)
+    refined = {refinement_name(fraction): refine_corners(untreated, board, corners, fraction)
+               for fraction in SUBPIX_WINDOW_FRACTIONS}
+    keep = _agrees_with_neighbours(board, refined[refinement_name(SUBPIX_WINDOW_FRACTIONS[0])])
+    return Detection(corners[keep], ids[keep], (gray.shape[1], gray.shape[0]), name,
+                     {window: refined_px[keep] for window, refined_px in refined.items()})
 
 
 def _nearest_spacing(board: BoardSpec, corners_px: np.ndarray) -> np.ndarray:

@@ -90,6 +90,12 @@ MAX_SPREAD_RATIO = CROSS_CHECK_SIGMAS
 without one pose is at most this many times the Jacobian's sigma on every parameter: the poses agree within their
 noise. Beyond :data:`~backend.core.verdict.REJECT_SIGMAS` times, the poses do not agree and the result is
 ``reject`` (the cross-check rule of :mod:`backend.core.verdict`)."""
+PAN_AXIS_TOLERANCE_DEG = 0.1
+"""Largest acceptable error of a pan axis's direction (deg): at 45 deg of pan it moves the predicted camera by
+less than 0.08 deg. Judged, as the transforms are, at :data:`COVERAGE` sigmas."""
+PAN_AXIS_POINT_TOLERANCE_M = 0.01
+"""Largest acceptable error of a pan axis's place across itself (m): at 45 deg of pan it moves the predicted camera
+by less than 8 mm."""
 MANUAL_VERDICT = Verdict("check", ["set by hand: no uncertainty, no cross-check"])
 """The verdict of a hand-set (``manual``) result."""
 
@@ -222,3 +228,23 @@ def _intensity_places_check(builder: VerdictBuilder, result: TransformResult) ->
         within = np.fmax(within, std_groups)
     ratio_check(builder, "leave one of the places out", std_places / np.maximum(within, 1e-12),
                 MAX_SPREAD_RATIO, "the re-solves spread at most {ratio} times the sigma the rest of the data gives")
+
+
+def judge_pan_axis(std: dict[str, list[float | None]], axis_sigma_deg: float, axis_point_sigma_m: float,
+                   positions: Sequence[dict[str, Any]]) -> Verdict:
+    """The verdict of a camera's pan-axis model (:mod:`backend.calib.lidar_camera.pan_axis`): the sigma of its pose
+    at reading 0 (``std``, as a transform result's) against the corners method's :data:`TOLERANCES`, the axis's
+    direction (deg) and place (m) against :data:`PAN_AXIS_TOLERANCE_DEG` and :data:`PAN_AXIS_POINT_TOLERANCE_M`, all
+    at :data:`COVERAGE` sigmas; each position's own solve is a cross-check (its ``sigmas``: how far the model's
+    prediction lies from it, in the own solve's sigma)."""
+    builder = VerdictBuilder()
+    translation_m, rotation_deg = TOLERANCES["corners"]
+    judge_transform_sigmas(builder, std, translation_m / COVERAGE, rotation_deg / COVERAGE)
+    builder.sigma("pan axis direction", axis_sigma_deg, PAN_AXIS_TOLERANCE_DEG / COVERAGE, "deg")
+    builder.sigma("pan axis place", 1000 * axis_point_sigma_m, 1000 * PAN_AXIS_POINT_TOLERANCE_M / COVERAGE, "mm")
+    for position in positions:
+        builder.cross_check_sigmas(
+            f"the camera's own solve at {position['pan_deg']:+.1f} deg",
+            position["sigmas"], f"the axis puts the camera {position['from_prediction_mm']:.1f} mm and "
+            f"{position['from_prediction_deg']:.3f} deg from it")
+    return builder.verdict()

@@ -7,8 +7,9 @@ beam's footprint and in angles rather than a perspective. Pipeline (per placemen
 
 1. the image is resampled along the rows to square angular pixels (:data:`SQUARE_PIXELS`: the step over the beam
    spacing), so the corner detector and its sub-pixel refinement see the board undistorted by the anisotropy;
-2. the board's corners are found there (the detector the cameras use, blur and all), and each corner's row and
-   column mapped back to a servo angle (interpolated between the steps' read-back angles) and a beam angle;
+2. the board's corners are found there (OpenCV's classic detector, then the cameras' own; refined as the cameras'
+   corners are, blur and all), and each corner's row and column mapped back to a servo angle (interpolated between
+   the steps' read-back angles) and a beam angle;
 3. each corner is lifted to 3D on its ray: the scanner's pose at that servo angle (the sweep's geometry) and the
    beam's direction, intersected with the board's plane fitted to the ranges of the returns inside the board
    (a plane through hundreds of ranges, not one range at the corner, whose beam straddles two squares);
@@ -35,7 +36,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from backend.calib.board.detection import Detection, detect_board
+from backend.calib.board.detection import Detection, detect_board, detect_checkerboard_classic
 from backend.calib.board.pose import board_pose
 from backend.calib.lidar_camera.checks import CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.target import LidarCameraTargetSettings, TargetObservation, solve_target
@@ -127,14 +128,19 @@ aspect, which a sweep only approximates (the rows follow the servo, not the boar
 def _detect_in_sweep(scans: Sequence[ScanAtAngle], board: BoardSpec
                      ) -> tuple[SweepImage, Detection, float] | None:
     """The sweep's image, the board found in it resampled to square angles, and the row factor used; the scales of
-    :data:`INTENSITY_SCALES` and factors of :data:`STRETCH_FACTORS` are tried in turn. None when none finds it."""
+    :data:`INTENSITY_SCALES` and factors of :data:`STRETCH_FACTORS` are tried in turn, each with OpenCV's classic
+    detector and then the cameras' sector-based one. The image is blocky along its rows and curved by the sweep: on
+    the servo-scanner rig's boards the sector-based detector missed about half of them at any one stretch, the
+    classic one none but a board turned 20 deg; both detectors' corners are refined alike (the same to 0.01 px), and
+    the classic detector was three times as fast. None when none finds it."""
     for scale in INTENSITY_SCALES:
         image, spacing = sweep_image(scans, scale)
         step = float(np.median(np.abs(np.diff(image.servo_angles_rad)))) if len(scans) > 1 else spacing
         for factor in STRETCH_FACTORS:
             stretch = max(step / spacing * factor, 1.0)
             size = (image.intensity.shape[1], int(round(image.intensity.shape[0] * stretch)))
-            detection = detect_board(cv2.resize(image.intensity, size, interpolation=cv2.INTER_CUBIC), board)
+            resampled = cv2.resize(image.intensity, size, interpolation=cv2.INTER_CUBIC)
+            detection = detect_checkerboard_classic(resampled, board) or detect_board(resampled, board)
             if detection is not None:
                 return image, detection, size[1] / image.intensity.shape[0]
     return None

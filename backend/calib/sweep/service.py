@@ -47,7 +47,8 @@ def is_swept(session: Session, sensor: str) -> bool:
     return session.rig.get(sensor).device.get("driver") == DRIVER
 
 
-def _check_swept(session: Session, sensor: str) -> None:
+def check_swept(session: Session, sensor: str) -> None:
+    """Refuse (naming ``sensor``) a sensor that is not a swept scanner, saying which driver it has."""
     if not is_swept(session, sensor):
         driver = session.rig.get(sensor).device.get("driver")
         raise InputError(f"sensor {sensor!r} is not a swept scanner (its driver is {driver!r}, not {DRIVER!r})",
@@ -64,7 +65,7 @@ def swept_capture(session: Session, sensor: str, capture_id: str | None = None) 
 
     Raises :class:`InputError` (404 for an unknown sensor or capture) naming the sensor or capture.
     """
-    _check_swept(session, sensor)
+    check_swept(session, sensor)
     if capture_id is None:
         swept = swept_captures(session, sensor)
         if not swept:
@@ -159,7 +160,7 @@ def apply_sweep_geometry(rig: Rig, record: dict[str, Any]) -> None:
 def sweep_result(session: Session, sensor: str, result_id: str) -> dict[str, Any]:
     """The stored sweep geometry result ``result_id`` of the swept scanner ``sensor``; raises
     :class:`InputError` naming the sensor or the result when either is not that."""
-    _check_swept(session, sensor)
+    check_swept(session, sensor)
     return result_of(session, KIND, result_id, sensor)
 
 
@@ -182,7 +183,7 @@ def capture_sweep(session: Session, sensor: str, progress: ProgressCallback = no
     The device is the rig's (``device`` settings, assembled with the geometry accepted so far). A device
     that cannot be opened or is lost mid-sweep raises :class:`DeviceError`; nothing is stored then.
     """
-    _check_swept(session, sensor)
+    check_swept(session, sensor)
     settings = session.rig.get(sensor).device
     progress(0.05, f"opening {settings.get('servo_port')} and the scanner")
     with create_device(settings) as device:
