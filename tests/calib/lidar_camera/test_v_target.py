@@ -1,7 +1,7 @@
-"""LiDAR-camera from V-shaped targets on the simulated disaster-response rig (a Blackfly and a Livox Avia, 18
-placements: nine positions at two heights, upright, leaning or lying): within 5 mm and 0.1 deg of the truth (the
-issue's bar; the paper reached 3-5 mm), through the CLI on files; a placement with one face hidden from the
-LiDAR, and upright targets only, refused by name."""
+"""LiDAR-camera from V-shaped targets on the simulated disaster-response rig (a Blackfly and a Livox Avia, the demo
+session's 18 placements: nine positions at two heights, upright, leaning or lying): within 5 mm and 0.1 deg of the
+truth (the issue's bar; the paper reached 3-5 mm), through the CLI on files; a placement with one face hidden from
+the LiDAR, and upright targets only, refused by name."""
 
 from __future__ import annotations
 
@@ -13,41 +13,41 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from backend.calib.lidar_camera.service import PairData, solve_pairs
+from backend.calib.lidar_camera.service import PairData, load_pairs, solve_pairs
 from backend.core.errors import InputError
 from backend.core.transforms import invert, make_T, transform_error
 from backend.core.v_target import VTarget
 from backend.exports.camera_json import dump_camera_json
-from backend.sim.disaster_response import (
-    MEASURED_MOUNT,
-    T_CAMERA_LIVOX_TRUE,
-    V_TARGET,
-    VTargetShot,
-    v_target_shots,
-)
+from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME
+from backend.sim.disaster_response import CAMERA as CAMERA_NAME
+from backend.sim.disaster_response import LIDAR as LIDAR_NAME
+from backend.sim.disaster_response import MEASURED_MOUNT, T_CAMERA_LIVOX_TRUE, V_TARGET
 from backend.sim.marker_targets import disaster_response_camera, render_v_target_image, v_target_cloud
-from tests.conftest import cli_in_process
+from backend.store.session import SessionStore
+from tests.conftest import cli_in_process, disaster_response_template
 
 CAMERA = disaster_response_camera()
 TARGET = VTarget.parse(V_TARGET)
 
 
 @pytest.fixture(scope="module")
-def shots() -> list[VTargetShot]:
-    return v_target_shots(CAMERA)
+def shots(tmp_path_factory) -> list[PairData]:
+    """The 18 V-target pairs of the disaster-response demo session (built once per run), in placement order."""
+    session = SessionStore(disaster_response_template(tmp_path_factory)).get(DISASTER_RESPONSE_NAME)
+    return load_pairs(session, CAMERA_NAME, LIDAR_NAME)
 
 
 @pytest.fixture(scope="module")
-def recording(shots: list[VTargetShot], tmp_path_factory) -> tuple[Path, list[str]]:
+def recording(shots: list[PairData], tmp_path_factory) -> tuple[Path, list[str]]:
     """camera.json, init.txt (the tape-measured mounting) and IMAGE:CLOUD pairs (x, y, z, intensity .npy)."""
     folder = tmp_path_factory.mktemp("v_target")
     (folder / "camera.json").write_text(dump_camera_json(CAMERA, "blackfly"))
     np.savetxt(folder / "init.txt", MEASURED_MOUNT)
     pairs = []
-    for shot in shots:
-        cv2.imwrite(str(folder / f"{shot.name}.png"), shot.image)
-        np.save(folder / f"{shot.name}.npy", np.column_stack([shot.points_lidar, shot.intensity]))
-        pairs.append(f"{folder / shot.name}.png:{folder / shot.name}.npy")
+    for k, shot in enumerate(shots):
+        cv2.imwrite(str(folder / f"vtarget_{k:02d}.png"), shot.image)
+        np.save(folder / f"vtarget_{k:02d}.npy", np.column_stack([shot.points, shot.intensity]))
+        pairs.append(f"{folder}/vtarget_{k:02d}.png:{folder}/vtarget_{k:02d}.npy")
     return folder, pairs
 
 
@@ -66,14 +66,14 @@ def test_the_v_target_solve_through_the_cli(recording):
     assert summary["residuals"]["plane_rmse_m"] < 0.025  # the Livox's 2 cm range noise, across the plates
 
 
-def test_a_placement_with_one_face_hidden_is_left_out_by_name(shots: list[VTargetShot]):
+def test_a_placement_with_one_face_hidden_is_left_out_by_name(shots: list[PairData]):
     """A target turned 70 deg shows both sensors one face only (its other face's back is towards them): the camera
     still poses it from that face's markers, the placement is named and left out, the others still solve."""
     T_camera_target = make_T(Rotation.from_euler("y", 70, degrees=True).as_matrix(), [0.3, 0.1, 3.5])
     rng = np.random.default_rng(5)
     turned = PairData("turned", "turned.png", render_v_target_image(CAMERA, TARGET, T_camera_target, rng),
                       *v_target_cloud(TARGET, invert(T_CAMERA_LIVOX_TRUE) @ T_camera_target, rng))
-    pairs = [PairData(s.name, s.name, s.image, s.points_lidar, s.intensity) for s in shots[:6]] + [turned]
+    pairs = shots[:6] + [turned]
     result = solve_pairs(CAMERA, TARGET, pairs, MEASURED_MOUNT, method="vtarget")
     assert result.residuals["placements"] == 6
     assert result.warnings == ["turned: only one face of the V-target is seen in the cloud (face 0; face 1 has 0 "
@@ -83,16 +83,15 @@ def test_a_placement_with_one_face_hidden_is_left_out_by_name(shots: list[VTarge
     assert info.value.input == "turned"
 
 
-def test_upright_targets_only_are_refused(shots: list[VTargetShot]):
+def test_upright_targets_only_are_refused(shots: list[PairData]):
     """Every ridge vertical: the plates fix the LiDAR only across them, so its height is undetermined."""
-    upright = [s for k, s in enumerate(shots) if k % 3 == 1]  # the placements neither leaning nor lying
-    pairs = [PairData(s.name, s.name, s.image, s.points_lidar, s.intensity) for s in upright]
+    pairs = [s for k, s in enumerate(shots) if k % 3 == 1]  # the placements neither leaning nor lying
     with pytest.raises(InputError, match="lean or lay some of the targets"):
         solve_pairs(CAMERA, TARGET, pairs, MEASURED_MOUNT, method="vtarget")
 
 
-def test_an_image_without_the_targets_markers_is_named(shots: list[VTargetShot]):
-    blank = PairData("blank", "blank.png", np.full_like(shots[0].image, 128), shots[0].points_lidar, None)
-    pairs = [PairData(s.name, s.name, s.image, s.points_lidar, s.intensity) for s in shots[:6]] + [blank]
+def test_an_image_without_the_targets_markers_is_named(shots: list[PairData]):
+    blank = PairData("blank", "blank.png", np.full_like(shots[0].image, 128), shots[0].points, None)
+    pairs = shots[:6] + [blank]
     result = solve_pairs(CAMERA, TARGET, pairs, MEASURED_MOUNT, method="vtarget")
     assert "blank.png: blank.png: 0 of the V-target's markers" in result.warnings[0]

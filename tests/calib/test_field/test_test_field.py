@@ -1,10 +1,12 @@
-"""A wall test field on the simulated disaster-response Blackfly (photogrammetric truth, affine terms included): the
-intrinsics from 12 images (six positions, straight and turned 90 deg) and the exterior orientation, through the CLI
-as a user runs it, against the simulator's truth; markers the survey lacks, and a survey that is wrong."""
+"""A wall test field on the simulated disaster-response Blackfly (photogrammetric truth, affine terms included):
+the intrinsics from the demo session's 12 wall images (six positions, straight and turned 90 deg) and the exterior
+orientation, through the CLI as a user runs it, against the simulator's truth; markers the survey lacks, and a
+survey that is wrong."""
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -12,16 +14,14 @@ import numpy as np
 import pytest
 
 from backend.calib.test_field.detection import detect_test_field
-from backend.core.test_field import TestField, survey_text
+from backend.core.test_field import SESSION_SURVEY, TestField, survey_text
 from backend.core.transforms import invert, transform_error
 from backend.exports.camera_json import dump_camera_json
-from backend.sim.marker_targets import (
-    disaster_response_camera,
-    field_views,
-    render_test_field_image,
-    simulated_test_field,
-)
-from tests.conftest import cli_in_process
+from backend.services.demo_disaster_response import DISASTER_RESPONSE_NAME
+from backend.sim.disaster_response import CAMERA as CAMERA_NAME
+from backend.sim.marker_targets import disaster_response_camera, field_views
+from backend.store.session import SessionStore
+from tests.conftest import cli_in_process, disaster_response_template
 
 CAMERA = disaster_response_camera()
 PIXEL_SIZE_UM = 4.8
@@ -29,18 +29,16 @@ PIXEL_SIZE_UM = 4.8
 
 @pytest.fixture(scope="module")
 def wall(tmp_path_factory) -> tuple[Path, str, list[np.ndarray]]:
-    """A folder of the 12 rendered images, the test field's spec (its survey in the folder's parent) and each
-    image's true ``T_camera_wall``."""
-    root = tmp_path_factory.mktemp("test_field")
-    spec, _ = simulated_test_field(root)
-    field = TestField.parse(spec)
-    images = root / "images"
+    """A folder of the 12 wall images the disaster-response demo renders (its session, built once per run), the
+    test field's spec (the session's survey) and each image's true ``T_camera_wall``."""
+    session = SessionStore(disaster_response_template(tmp_path_factory)).get(DISASTER_RESPONSE_NAME)
+    images = tmp_path_factory.mktemp("test_field") / "images"
     images.mkdir()
-    poses = field_views()
-    for k, T_camera_wall in enumerate(poses):
-        cv2.imwrite(str(images / f"view_{k:02d}.png"),
-                    render_test_field_image(CAMERA, field, T_camera_wall, np.random.default_rng(k)))
-    return images, spec, poses
+    for capture in session.captures(CAMERA_NAME):
+        if capture.source and capture.source.startswith("wall_"):
+            shutil.copyfile(session.path / "captures" / CAMERA_NAME / f"{capture.id}.png", images / capture.source)
+    assert len(list(images.iterdir())) == 12
+    return images, f"testfield:DICT_4X4_50:0.15:{session.path / SESSION_SURVEY}", field_views()
 
 
 def _json(run) -> dict:
@@ -71,7 +69,7 @@ def test_the_exterior_orientation_in_the_wall_frame(wall, tmp_path: Path):
     images, spec, poses = wall
     camera_file = tmp_path / "camera.json"
     camera_file.write_text(dump_camera_json(CAMERA, "blackfly"))
-    chosen = [images / "view_04.png", images / "view_09.png"]
+    chosen = [images / "wall_04.png", images / "wall_09.png"]
     summary = _json(cli_in_process("exterior", *chosen, "--camera", camera_file, "--field", spec, "--json"))
     for path in chosen:
         pose = summary["poses"][path.name]
@@ -91,10 +89,10 @@ def test_markers_the_survey_lacks_are_named_and_left_out(wall, tmp_path: Path):
     field = TestField.parse(spec)
     partial = tmp_path / "partial.csv"
     partial.write_text(survey_text(np.array(field.ids[:-2]), field.centres_m[:-2]))
-    found = detect_test_field(cv2.imread(str(images / "view_04.png"), cv2.IMREAD_GRAYSCALE),
-                              TestField.parse(f"testfield:DICT_4X4_50:0.15:{partial}"), "view_04.png")
+    found = detect_test_field(cv2.imread(str(images / "wall_04.png"), cv2.IMREAD_GRAYSCALE),
+                              TestField.parse(f"testfield:DICT_4X4_50:0.15:{partial}"), "wall_04.png")
     assert found.detection is not None and len(found.detection.ids) == 38
-    assert found.notes == [f"view_04.png: marker id(s) 38, 39 are not in the survey file {partial}; left out "
+    assert found.notes == [f"wall_04.png: marker id(s) 38, 39 are not in the survey file {partial}; left out "
                            "(survey them, or check that the file is this wall's)"]
 
 
