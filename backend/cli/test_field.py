@@ -36,10 +36,10 @@ def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
     poses = {}
     for path in args.images:
         found = detect_test_field(read_image(path, grayscale=True), test_field, path.name, camera)
-        for note in found.notes[:-1] if found.detection is None else found.notes:
+        for note in found.notes:
             print(f"warning: {note}", file=sys.stderr)
         if found.detection is None:
-            raise InputError(found.notes[-1], path.name)
+            raise InputError(found.reason, path.name)
         result = resect(camera, test_field, found.detection, path.name)
         for warning in result.warnings:
             print(f"warning: {warning}", file=sys.stderr)

@@ -26,7 +26,9 @@ class FieldDetection:
     """Marker centres (px) with ``ids`` indexing the survey's rows (:attr:`TestField.object_points`); None when
     fewer than :data:`MIN_MARKERS` surveyed markers are seen."""
     notes: list[str] = field(default_factory=list)
-    """One line per problem: ids the survey does not hold, ids seen twice, too few markers."""
+    """One line per marker left out: ids the survey does not hold, ids seen twice."""
+    reason: str = ""
+    """Why there is no detection (too few surveyed markers); empty when there is one."""
 
 
 def _ids_text(ids: np.ndarray) -> str:
@@ -57,9 +59,9 @@ def detect_test_field(image: np.ndarray, test_field: TestField, name: str,
     keep = (rows >= 0) & ~np.isin(found.ids, twice)
     height, width = image.shape[:2]
     if keep.sum() < MIN_MARKERS:
-        notes.append(f"{name}: {int(keep.sum())} surveyed marker(s) of {test_field.dictionary} found; a view needs "
-                     f"at least {MIN_MARKERS} (is the dictionary right, and the wall sharp and well lit?)")
-        return FieldDetection(None, notes)
+        return FieldDetection(None, notes, f"{name}: {int(keep.sum())} surveyed marker(s) of {test_field.dictionary} "
+                              f"found; a view needs at least {MIN_MARKERS} (is the dictionary right, and the wall "
+                              "sharp and well lit?)")
     order = np.argsort(rows[keep])
     corners = found.corners_px[keep][order]
     detection = Detection(marker_centres(corners, camera), rows[keep][order], (width, height),
@@ -80,7 +82,5 @@ def detect_target(image: np.ndarray, target: CameraTarget, name: str) -> tuple[D
     or are seen twice)."""
     if isinstance(target, TestField):
         found = detect_test_field(image, target, name)
-        if found.detection is None:
-            return None, found.notes[-1], found.notes[:-1]
-        return found.detection, "", found.notes
+        return found.detection, found.reason, found.notes
     return detect_board(image, target), no_board_message(name, target), []
