@@ -40,6 +40,17 @@ class VTargetUpdate(FiniteModel):
     v_target: str = Field(examples=["vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50"], max_length=200)
 
 
+class TestFieldUpdate(FiniteModel):
+    test_field: str = Field(examples=["testfield:DICT_4X4_50:0.15:survey.csv"], max_length=200,
+                            description="a wall test field beside the board, its survey the session's survey.csv")
+
+
+class ExteriorRequest(FiniteModel):
+    capture_id: str = Field(max_length=64, description="the camera's capture that shows the wall")
+    intrinsics_result: str | None = Field(None, max_length=64, description="a stored intrinsics result of the camera "
+                                          "to resect with; default: the camera's intrinsics in the rig (accepted)")
+
+
 class SensorCreate(FiniteModel):
     name: str = Field(pattern=NAME_PATTERN, examples=["cam_front"])
     parent: str = "base_link"

@@ -15,6 +15,7 @@ from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.rig import Rig
 from backend.core.targets import CameraTarget, parse_target
+from backend.core.test_field import SESSION_SURVEY, TestField
 from backend.core.v_target import VTarget
 from backend.devices.base import Sample
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
@@ -52,6 +53,19 @@ def pair_board(session: Session) -> BoardSpec | None:
     field (a wall the pairs do not show)."""
     board = session_board(session) if session.board else None
     return board if isinstance(board, BoardSpec) else None
+
+
+def session_test_field(session: Session) -> TestField:
+    """The session's wall test field: the one set beside its board (:attr:`Session.test_field`), else its board when
+    that is a test field."""
+    if session.test_field:
+        return TestField.parse(session.test_field, session.path, field="test_field")
+    board = session_board(session) if session.board else None
+    if not isinstance(board, TestField):
+        raise InputError(f"session {session.name!r} has no test field: upload the wall's survey, then set the test "
+                         f"field beside the board (testfield:DICT:MARKER:{SESSION_SURVEY}) or make it the board",
+                         "test_field")
+    return board
 
 
 def session_v_target(session: Session) -> VTarget:

@@ -23,9 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
-    from backend.calib.test_field.detection import detect_test_field
-    from backend.calib.test_field.exterior import resect
-    from backend.core.errors import InputError
+    from backend.calib.test_field.service import pose_entry, resect_image
     from backend.core.test_field import TestField
     from backend.devices.image_io import read_image
     from backend.exports.camera_json import load_camera
@@ -35,18 +33,10 @@ def run_exterior(args: argparse.Namespace) -> dict[str, Any]:
     test_field = TestField.parse(args.field)
     poses = {}
     for path in args.images:
-        found = detect_test_field(read_image(path, grayscale=True), test_field, path.name, camera)
-        for note in found.notes:
-            print(f"warning: {note}", file=sys.stderr)
-        if found.detection is None:
-            raise InputError(found.reason, path.name)
-        result = resect(camera, test_field, found.detection, path.name)
+        result = resect_image(read_image(path, grayscale=True), camera, test_field, path.name)
         for warning in result.warnings:
             print(f"warning: {warning}", file=sys.stderr)
-        poses[path.name] = {"T_wall_camera": result.T_parent_child.tolist(), "std": result.std,
-                            "residuals": result.residuals,
-                            "exterior_orientation": result.diagnostics["exterior_orientation"],
-                            "verdict": result.verdict.to_dict(), "warnings": result.warnings}
+        poses[path.name] = pose_entry(result)
         if not args.json:
             print(f"{path.name}: T_wall_camera (x y z m, yaw pitch roll deg) {pose_text(result.T_parent_child)}; "
                   f"1-sigma trans (m) {result.std['trans_m']} "

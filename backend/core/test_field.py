@@ -47,27 +47,28 @@ class TestField:
     """(N, 3) surveyed marker centres in the wall's frame (m), in the order of :attr:`ids`."""
 
     @classmethod
-    def parse(cls, spec: str, folder: Path | None = None) -> TestField:
-        """Parse a test-field spec and read its survey file, raising :class:`InputError` naming the bad field.
+    def parse(cls, spec: str, folder: Path | None = None, field: str = "board") -> TestField:
+        """Parse a test-field spec and read its survey file, raising :class:`InputError` naming ``field`` (the
+        input the spec came in) or the survey file.
 
         With ``folder`` (a session's), the survey is a file of that folder named by its bare name
         (:data:`SESSION_SURVEY`, as the session stores an uploaded survey), never a path that leaves it."""
         parts = spec.strip().split(":", 3)
         if parts[0] != "testfield" or len(parts) != 4:
-            raise InputError(f"test-field spec {shorten(spec)} is not {SPEC_FORMAT}", "board")
+            raise InputError(f"test-field spec {shorten(spec)} is not {SPEC_FORMAT}", field)
         _, dictionary, marker_text, survey = parts
-        dictionary_named(dictionary, spec, "board")
+        dictionary_named(dictionary, spec, field)
         try:
             marker_m = float(marker_text)
         except ValueError:
             raise InputError(f"marker size {shorten(marker_text)} in {shorten(spec)} is not a number in metres",
-                             "board") from None
+                             field) from None
         if not 0 < marker_m < 2:
-            raise InputError(f"marker size {marker_m} m in {shorten(spec)} must be in metres, between 0 and 2", "board")
+            raise InputError(f"marker size {marker_m} m in {shorten(spec)} must be in metres, between 0 and 2", field)
         if folder is not None:
             if survey != SESSION_SURVEY:
                 raise InputError(f"a session's test field reads the survey the session holds, {SESSION_SURVEY}; "
-                                 f"got {shorten(survey)} in {shorten(spec)} (upload the survey file first)", "board")
+                                 f"got {shorten(survey)} in {shorten(spec)} (upload the survey file first)", field)
             ids, centres = read_survey(folder / survey, shown=survey)
         else:
             ids, centres = read_survey(Path(survey))

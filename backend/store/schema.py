@@ -122,6 +122,8 @@ class SessionFile(FiniteModel):
     created: float
     board: str | None = None
     v_target: str | None = Field(None, description="the V-target's spec for LiDAR-camera solves, if one is used")
+    test_field: str | None = Field(None, description="a wall test field beside the board (testfield:DICT:MARKER:"
+                                   "survey.csv), for cameras' exterior orientation, if one is used")
     rig: RigModel
     accepted: dict[str, str] = Field(default_factory=dict, description="slot -> result id")
     acceptance_log: list[Acceptance] = Field(default_factory=list)

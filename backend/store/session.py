@@ -274,6 +274,15 @@ class Session:
         with self._change():
             self._data.v_target = spec
 
+    @property
+    def test_field(self) -> str | None:
+        """The spec of a wall test field beside the board (:class:`~backend.core.test_field.TestField`), or None."""
+        return self._data.test_field
+
+    def set_test_field(self, spec: str) -> None:
+        with self._change():
+            self._data.test_field = spec
+
     def set_survey(self, data: bytes, name: str) -> None:
         """Keep an uploaded test-field survey (``name`` for messages) as the session's :data:`SESSION_SURVEY`,
         after reading it (:func:`~backend.core.test_field.parse_survey`); a bad file changes nothing."""
@@ -294,6 +303,7 @@ class Session:
             "created": self._data.created,
             "board": self.board,
             "v_target": self.v_target,
+            "test_field": self.test_field,
             "survey": (self.path / SESSION_SURVEY).exists(),
             "sensors": [f.name for f in self.rig.sensors()],
             "accepted": dict(self._data.accepted),

@@ -32,6 +32,7 @@ from studio.job_panel import JobPanel
 from studio.live_toggle import LiveToggle
 from studio.marks import WARNING, mark
 from studio.result_card import ResultCard
+from studio.wizard.exterior_panel import ExteriorPanel
 
 NO_CAMERA = "(no camera)"
 RMS_PLOT_WIDTH_IN = 5.0
@@ -105,6 +106,7 @@ class IntrinsicsStep:
                 self.export_json = gui.add_button("Download camera JSON", hint="any model, the photogrammetric one "
                                                   "included, with its sigmas and correlations")
                 self.export_rig = gui.add_button("Download rig transforms YAML")
+            self.exterior = ExteriorPanel(ctx)
 
         self.camera.on_update(lambda _: self._select_camera())
         self.start_button.on_click(ctx.after_switch(self._start_live))
@@ -153,6 +155,7 @@ class IntrinsicsStep:
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
         self.history.value = self._accepted(results) or self.history.options[0]
         self._show_result(self.history.value)
+        self.exterior.show(sensor)
 
     def _wave_board(self) -> None:
         """Simulation only: the person waves the board close in front of the camera (its device's motion)."""
@@ -240,6 +243,7 @@ class IntrinsicsStep:
 
     def _on_captured(self, record: CaptureRecord, coverage: Coverage) -> None:
         self._show_coverage(coverage)
+        self.exterior.list_images()
 
     def _on_status(self, message: str, error: bool) -> None:
         self.coverage_text.content = f"{WARNING + ' ' if error else ''}{message}\n\n" + self._coverage_summary()

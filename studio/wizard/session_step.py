@@ -8,7 +8,7 @@ import threading
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.targets import parse_target
-from backend.core.test_field import SESSION_SURVEY
+from backend.core.test_field import SESSION_SURVEY, TestField
 from backend.core.v_target import VTarget
 from backend.exports.target_pdf import PAPERS_MM, target_sheet, v_target_sheet
 from backend.services.jobs import Job
@@ -42,6 +42,11 @@ class SessionStep:
                                           hint="a board spec, or testfield:DICT:MARKER:survey.csv (the uploaded "
                                                "survey)")
                 self.board_button = gui.add_button("Set the board", disabled=True)
+                self.test_field = gui.add_text("Test field beside the board", initial_value="", disabled=True,
+                                               hint=f"testfield:DICT:MARKER:{SESSION_SURVEY} (the uploaded survey): "
+                                                    "the cameras' pose in the wall's frame (step 3) while the board "
+                                                    "stays the target of the other steps")
+                self.test_field_button = gui.add_button("Set the test field", disabled=True)
                 self.v_target = gui.add_text("V-target", initial_value="", disabled=True,
                                              hint="vtarget:WxH:ANGLE:COLSxROWS:MARKER:DICT, e.g. "
                                                   "vtarget:1.0x0.6:120:3x2:0.15:DICT_4X4_50 (LiDAR-camera, step 6)")
@@ -60,6 +65,7 @@ class SessionStep:
         self.print_target.on_click(self._download_target)
         self.survey_button.on_upload(lambda _: self._upload_survey())
         self.board_button.on_click(lambda _: self._set_target("board", self.board.value))
+        self.test_field_button.on_click(lambda _: self._set_target("test field", self.test_field.value))
         self.v_target_button.on_click(lambda _: self._set_target("V-target", self.v_target.value))
         self.print_v_target.on_click(self._download_v_target)
         ctx.on_session_changed(self._show)
@@ -103,11 +109,14 @@ class SessionStep:
         self._show(session)
 
     def _set_target(self, what: str, spec: str) -> None:
-        """Set the open session's board (a board or a test field) or its V-target from ``spec``."""
+        """Set the open session's board (a board or a test field), its test field beside the board or its V-target
+        from ``spec``."""
         session = self.ctx.session
         try:
             if what == "board":
                 session.set_board(str(parse_target(spec, session.path)))
+            elif what == "test field":
+                session.set_test_field(str(TestField.parse(spec, session.path, field="test_field")))
             else:
                 session.set_v_target(str(VTarget.parse(spec)))
         except InputError as exc:
@@ -147,12 +156,16 @@ class SessionStep:
         sensors = ", ".join(f"`{f.name}` ({f.kind})" for f in session.rig.sensors()) or "none yet"
         survey = " (survey uploaded)" if (session.path / SESSION_SURVEY).exists() else ""
         self.summary.content = (f"**{session.name}** {session.title}\n\n"
-                                f"Board: `{session.board}`{survey}  \nV-target: `{session.v_target}`  \n"
+                                f"Board: `{session.board}`{survey}  \n"
+                                + (f"Test field beside it: `{session.test_field}`  \n" if session.test_field else "")
+                                + f"V-target: `{session.v_target}`  \n"
                                 f"Sensors: {sensors}")
-        for handle in (self.survey_button, self.board, self.board_button, self.v_target, self.v_target_button):
+        for handle in (self.survey_button, self.board, self.board_button, self.test_field, self.test_field_button,
+                       self.v_target, self.v_target_button):
             handle.disabled = False
         self.print_v_target.disabled = not session.v_target
         self.board.value, self.v_target.value = session.board or "", session.v_target or ""
+        self.test_field.value = session.test_field or ""
 
     def open_when_built(self, job: Job) -> None:
         """Open the session ``job`` builds (e.g. the demo) once it is done, showing its progress meanwhile.

@@ -8,14 +8,14 @@ from typing import Annotated, Any
 from fastapi import APIRouter, File, Query, UploadFile
 
 from backend.api.routes import deps
-from backend.api.schemas import BoardUpdate, SensorCreate, SensorUpdate, SessionCreate, VTargetUpdate
+from backend.api.schemas import BoardUpdate, SensorCreate, SensorUpdate, SessionCreate, TestFieldUpdate, VTargetUpdate
 from backend.api.uploads import UploadRoute, file_name, upload_limit
 from backend.calib.rig import service as rig_service
 from backend.core.errors import InputError
 from backend.core.limits import MAX_TEXT_UPLOAD_MB
 from backend.core.rig import Frame
 from backend.core.targets import parse_target
-from backend.core.test_field import MAX_SURVEY_BYTES, SESSION_SURVEY
+from backend.core.test_field import MAX_SURVEY_BYTES, SESSION_SURVEY, TestField
 from backend.core.v_target import VTarget
 from backend.store.rig_io import rig_to_model
 
@@ -67,6 +67,14 @@ def upload_survey(file: Annotated[UploadFile, File(description="the survey: a li
 def set_v_target(body: VTargetUpdate, session: deps.SessionDep) -> dict[str, Any]:
     """Set the V-target the vtarget LiDAR-camera method solves with."""
     session.set_v_target(str(VTarget.parse(body.v_target)))
+    return session.info()
+
+
+@router.put("/sessions/{name}/test-field")
+def set_test_field(body: TestFieldUpdate, session: deps.SessionDep) -> dict[str, Any]:
+    """Set a wall test field beside the board (``testfield:DICT:MARKER:survey.csv``, the session's uploaded survey),
+    for the cameras' exterior orientation; the board stays the camera target of the other steps."""
+    session.set_test_field(str(TestField.parse(body.test_field, session.path, field="test_field")))
     return session.info()
 
 

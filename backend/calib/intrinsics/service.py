@@ -31,10 +31,14 @@ from backend.store.schema import CaptureRecord
 from backend.store.session import Session
 
 KIND = IntrinsicsResult.kind
-OTHER_STEPS_META = ("paired_cloud", "multicam_set")
+WALL_VIEW_META = "wall_view"
+"""``meta`` key of an image kept for the camera's pose in a test field, not for its lens
+(:func:`backend.calib.test_field.service.resect_upload`)."""
+OTHER_STEPS_META = ("paired_cloud", "multicam_set", WALL_VIEW_META)
 """``meta`` keys that mark a camera capture kept for another calibration: a LiDAR-camera pair's image
-(:func:`backend.calib.lidar_camera.capture.store_pair`) and a camera set's
-(:func:`backend.calib.multicam.capture.capture_set`). Such an image is not a view of the lens
+(:func:`backend.calib.lidar_camera.capture.store_pair`), a camera set's
+(:func:`backend.calib.multicam.capture.capture_set`) and a test-field image kept for its pose
+(:func:`backend.calib.test_field.service.resect_upload`). Such an image is not a view of the lens
 (:func:`is_lens_view`)."""
 
 
