@@ -443,7 +443,10 @@ def choose(page: Page, label: str, option: str) -> None:
 
 def unfold(page: Page, folder: str, inside: Locator) -> None:
     """Unfold the GUI folder titled ``folder`` until ``inside`` shows; a click that lands while the page is still
-    laying out the panel (slow on a loaded machine) is tried again."""
+    laying out the panel (slow on a loaded machine) is tried again. A folder already open (viser's default) is left
+    so: a click would fold it, while ``inside`` still showed during the folding."""
+    if inside.is_visible():
+        return
     for _ in range(3):
         page.get_by_text(folder, exact=True).click()
         try:

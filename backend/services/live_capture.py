@@ -35,8 +35,9 @@ def coverage_from_captures(session: Session, sensor: str, board: BoardSpec) -> C
     """Coverage of the lens views already captured for ``sensor`` (None if there are none;
     :func:`~backend.calib.intrinsics.service.is_lens_view`)."""
     coverage = None
+    target = intrinsics_service.target_identity(session)
     for capture in session.captures(sensor):
-        if intrinsics_service.is_lens_view(capture):
+        if intrinsics_service.is_lens_view(capture, target):
             detection = Detection.from_dict(capture.detection)
             coverage = coverage or Coverage(board, detection.image_size)
             coverage.add(detection)
@@ -53,7 +54,8 @@ def data_enough(session: Session, sensor: str, coverage: Coverage) -> tuple[bool
     from the views now kept (every lens view): after views are added (or removed) its projection
     sigma no longer says how far these views can be trusted, and a solve is asked for again."""
     latest = session.results(sensor, "intrinsics")[-1:]
-    views = {capture.id for capture in session.captures(sensor) if intrinsics_service.is_lens_view(capture)}
+    target = intrinsics_service.target_identity(session)
+    views = {capture.id for capture in session.captures(sensor) if intrinsics_service.is_lens_view(capture, target)}
     current = bool(latest) and set(latest[0].get("inputs") or ()) == views
     return enough_data(coverage, latest[0]["projection_uncertainty"] if current else None)
 

@@ -39,8 +39,8 @@ def exterior_markdown(record: dict) -> str:
     trans_mm = [1000 * v for v in record["std"]["trans_m"]]
     residuals = record["residuals"]
     lines = [
-        f"**{record['id']}** · {record['child']} in the wall's frame, from {record['settings']['capture_id']} "
-        f"(intrinsics: {record['settings']['intrinsics']})",
+        f"**{record['id']}** · {record['child']} in the wall's frame, from {record['settings']['image']} "
+        f"(capture {record['settings']['capture_id']}) through the intrinsics of {record['settings']['intrinsics']}",
         "",
         f"T_wall_camera: {', '.join(f'{v:.4f}' for v in xyz)} m · yaw, pitch, roll "
         f"{', '.join(f'{v:.3f}' for v in np.degrees(ypr))}°  ",
@@ -65,7 +65,7 @@ class ExteriorPanel:
         self._images: dict[str, str] = {}
         """Image label -> capture id."""
         gui = ctx.server.gui
-        with gui.add_folder("Pose in the test field", expand_by_default=False):
+        with gui.add_folder("Pose in the test field", expand_by_default=True):
             gui.add_markdown(HELP)
             self.field_text = gui.add_markdown("")
             self.image = gui.add_dropdown("Wall image", options=[NONE], hint="one of the camera's images that shows "

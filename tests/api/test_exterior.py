@@ -3,7 +3,8 @@ session (:mod:`backend.services.demo_disaster_response`): each wall image posed 
 through the camera's accepted photogrammetric intrinsics and kept in the history (never accepted into the rig);
 the test field beside a checkerboard, with an uploaded wall image the board is not in; and the bad inputs (no test
 field, no intrinsics, an unknown capture, an image of another size or without the wall) refused with a 4xx naming
-them, nothing kept."""
+them, nothing kept; and views of another target than the board now (a board changed, a survey replaced) kept but
+not solved with."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from tests.conftest import disaster_response_template, fresh_demo
 
 SESSION = f"/api/sessions/{DISASTER_RESPONSE_NAME}"
 EXTERIOR = f"{SESSION}/sensors/{CAMERA}/exterior"
+FIELD = "testfield:DICT_4X4_50:0.15:survey.csv"
 TOLERANCE_M, TOLERANCE_DEG = 0.005, 0.1
 """How close a pose through the solved (not the true) intrinsics must come to the truth: 5 mm, 0.1 deg."""
 
@@ -92,8 +94,8 @@ def beside(client: TestClient, tmp_path_factory) -> TestClient:
 def test_a_test_field_beside_a_board_poses_an_uploaded_wall_image(beside: TestClient):
     response = beside.post(EXTERIOR, json={"capture_id": _wall_captures(beside)[0]})
     assert response.status_code == 422 and response.json()["error"]["input"] == "test_field", response.text
-    response = beside.put(f"{SESSION}/test-field", json={"test_field": "testfield:DICT_4X4_50:0.15:survey.csv"})
-    assert response.status_code == 200 and response.json()["test_field"] == "testfield:DICT_4X4_50:0.15:survey.csv"
+    response = beside.put(f"{SESSION}/test-field", json={"test_field": FIELD})
+    assert response.status_code == 200 and response.json()["test_field"] == FIELD
     assert response.json()["board"] == "checkerboard:9x6:0.025"
 
     session = beside.app.state.studio.store.get(DISASTER_RESPONSE_NAME)
@@ -143,3 +145,30 @@ def test_a_bad_test_field_spec_is_refused_naming_it(client: TestClient, spec: st
     response = client.put(f"{SESSION}/test-field", json={"test_field": spec})
     error = response.json()["error"]
     assert response.status_code == 422 and says in error["message"] and error["input"] == "test_field", response.text
+
+
+def test_views_of_another_target_are_kept_but_not_solved_with(beside: TestClient):
+    """The wall's views were detected against the test field: with a checkerboard as the board, or the wall's survey
+    replaced since (their ids index its rows), they are another target's: named, kept, not used."""
+    solve = f"{SESSION}/sensors/{CAMERA}/intrinsics/solve"
+    response = beside.post(solve, json={})
+    assert response.status_code == 422, response.text
+    assert "12 view(s) of another target: testfield:DICT_4X4_50:0.15:survey.csv" in response.json()["error"]["message"]
+    walls = list(_wall_captures(beside).values())
+    response = beside.post(solve, json={"capture_ids": walls[:3]})
+    assert response.status_code == 422 and response.json()["error"]["input"] == "capture_ids", response.text
+    assert "show another target than the session's checkerboard:9x6:0.025" in response.json()["error"]["message"]
+
+    assert beside.put(f"{SESSION}/board", json={"board": FIELD}).status_code == 200
+    session = beside.app.state.studio.store.get(DISASTER_RESPONSE_NAME)
+    surveyed = (session.path / "survey.csv").read_bytes()
+    moved = b"\n".join(line + b"1" if line.count(b",") == 3 and line[-1:].isdigit() else line
+                       for line in surveyed.splitlines())  # every Z a digit longer: another survey
+    assert moved != surveyed
+    assert beside.put(f"{SESSION}/survey", files={"file": ("wall.csv", moved, "text/csv")}).status_code == 200
+    response = beside.post(solve, json={})
+    assert response.status_code == 422, response.text
+    assert f"{FIELD} (its survey replaced since)" in response.json()["error"]["message"]
+
+    assert beside.put(f"{SESSION}/survey", files={"file": ("wall.csv", surveyed, "text/csv")}).status_code == 200
+    assert beside.post(solve, json={"model": "photogrammetric"}).status_code == 202  # the wall's views again

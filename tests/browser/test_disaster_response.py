@@ -60,7 +60,7 @@ def test_the_v_target_path(browser: Browser, rig: Studio) -> None:
         page.screenshot(path=ARTIFACTS / "studio_disaster_response_intrinsics.png")
         resect = button(page, "Resect this image")
         unfold(page, "Pose in the test field", resect)
-        expect(page.get_by_label("Wall image", exact=True)).to_have_value(re.compile(r"^wall_11\.png \(c\d{4}\)$"))
+        expect(page.get_by_label("Wall image", exact=True)).to_have_value(re.compile(r"^wall_11\.png \(\d+\)$"))
         resect.click()
         wait_body(page, re.compile(r"T_wall_camera: .* m · yaw, pitch, roll .*°\s+1σ: .* mm · .*° about x, y, z"))
         wait_body(page, re.compile(r"RMS \d\.\d{3} px over \d+ of \d+ markers\s+Verdict: (trusted|check)"))

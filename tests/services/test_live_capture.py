@@ -113,7 +113,8 @@ def test_the_demos_front_camera_opens_on_enough_data(demo_template: Path, tmp_pa
     session = SessionStore(fresh_demo(demo_template, tmp_path / "sessions")).get(DEMO_NAME)
     camera = DEMO_CAMERA
     captures = session.captures(camera)
-    lens = [capture for capture in captures if intrinsics_service.is_lens_view(capture)]
+    target = intrinsics_service.target_identity(session)
+    lens = [capture for capture in captures if intrinsics_service.is_lens_view(capture, target)]
     assert 0 < len(lens) < len([capture for capture in captures if capture.detection])  # pairs' and sets' too
     coverage = coverage_from_captures(session, camera, session_board(session))
     assert coverage.full, coverage.missing()

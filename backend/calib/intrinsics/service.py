@@ -8,6 +8,7 @@ their own.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Rig
 from backend.core.targets import CameraTarget
+from backend.core.test_field import SESSION_SURVEY
 from backend.devices.image_folder import image_files
 from backend.devices.image_io import decode_image_bytes, read_image
 from backend.store.schema import CaptureRecord
@@ -101,7 +103,7 @@ def store_capture(session: Session, sensor: str, image: np.ndarray, detection: D
     """Keep one image (live or imported) with its board detection."""
     check_size(session, sensor, source or "image", image)
     return session.add_capture(sensor, image, {
-        "timestamp_s": timestamp_s, "device": device, "source": source, "board": session.board,
+        "timestamp_s": timestamp_s, "device": device, "source": source, "board": target_identity(session),
         "detection": None if detection is None else detection.to_dict(), "meta": meta or {},
     })
 
@@ -140,14 +142,47 @@ def import_images(session: Session, sensor: str, files: list[tuple[str, bytes]],
     return report
 
 
-def is_lens_view(capture: CaptureRecord) -> bool:
-    """Whether ``capture`` is a view of the board taken for the lens (live in step 3, imported or uploaded): it has
-    a detection and is not kept for another calibration (:data:`OTHER_STEPS_META`). A pair's or a set's board
-    stands metres away, small in the image: it adds little to the lens, and its corners' larger noise (per-view
-    residuals 0.06-0.25 px RMS against 0.02-0.05 px for the demo's close views) would raise every projection sigma
-    of the lens solve, whose noise is estimated from all residuals at once. As Kalibr and ROS keep one recording
-    for the lens, the lens step counts its own views; a solve given ``capture_ids`` may still name any capture."""
-    return capture.detection is not None and not any(key in capture.meta for key in OTHER_STEPS_META)
+def target_identity(session: Session) -> str | None:
+    """What a capture's detection is made against, as its record keeps it (``board``): the session's board spec;
+    for a test field followed by ``@`` and the first 12 hex digits of its survey's SHA-256, since a detection's ids
+    index the survey's rows and a survey replaced under the same name makes earlier detections another target's."""
+    if not (session.board or "").startswith("testfield:"):
+        return session.board
+    survey = session.path / SESSION_SURVEY
+    return f"{session.board}@{hashlib.sha256(survey.read_bytes()).hexdigest()[:12] if survey.exists() else 'none'}"
+
+
+def of_target(capture: CaptureRecord, target: str | None) -> bool:
+    """Whether ``capture``'s detection was made against ``target`` (:func:`target_identity`). A test-field capture
+    kept before its survey's digest was recorded counts as its spec's."""
+    return capture.board in (target, (target or "").split("@")[0])
+
+
+def is_lens_view(capture: CaptureRecord, target: str | None) -> bool:
+    """Whether ``capture`` is a view of the session's current ``target`` (:func:`target_identity`) taken for the
+    lens (live in step 3, imported or uploaded): it has a detection made against that target (a board changed
+    since, or a survey replaced, makes it another target's) and is not kept for another calibration
+    (:data:`OTHER_STEPS_META`). A pair's or a set's board stands metres away, small in the image: it adds little
+    to the lens, and its corners' larger noise (per-view residuals 0.06-0.25 px RMS against 0.02-0.05 px for the
+    demo's close views) would raise every projection sigma of the lens solve, whose noise is estimated from all
+    residuals at once. As Kalibr and ROS keep one recording for the lens, the lens step counts its own views; a
+    solve given ``capture_ids`` may still name any capture of the target."""
+    return (capture.detection is not None and of_target(capture, target)
+            and not any(key in capture.meta for key in OTHER_STEPS_META))
+
+
+def other_target_views(session: Session, sensor: str) -> list[CaptureRecord]:
+    """The camera's lens views of another target than the session's now (a board changed since, a survey
+    replaced): kept, not used, named in the solve's warnings."""
+    target = target_identity(session)
+    return [c for c in session.captures(sensor) if is_lens_view(c, c.board) and not of_target(c, target)]
+
+
+def _targets_text(captures: list[CaptureRecord], board: str | None) -> str:
+    """The targets ``captures`` were detected against, each once; the session's ``board`` with a survey replaced
+    since is named so."""
+    specs = dict.fromkeys((c.board or "an unknown target").split("@")[0] for c in captures)
+    return ", ".join(f"{spec} (its survey replaced since)" if spec == board else spec for spec in specs)
 
 
 def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
@@ -162,14 +197,22 @@ def session_views(session: Session, sensor: str, capture_ids: list[str] | None =
     if not captures:
         raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)
     size = tuple(captures[0].image_size)
+    target = target_identity(session)
     if capture_ids is None:
-        chosen = [c for c in captures if is_lens_view(c)]
+        chosen = [c for c in captures if is_lens_view(c, target)]
         if not chosen:
+            others = other_target_views(session, sensor)
+            elsewhere = f"; {len(others)} view(s) of another target: {_targets_text(others, session.board)}"
             raise InputError(f"no views of the board taken for {sensor}'s lens yet ({len(captures)} image(s) kept "
-                             "as LiDAR-camera pairs or camera sets are not used for it); capture or import images "
-                             "of the board close to the camera first", sensor)
+                             "as LiDAR-camera pairs or camera sets are not used for it" + (elsewhere if others else "")
+                             + "); capture or import images of the board close to the camera first", sensor)
     else:
         chosen = [c for c in captures if c.id in capture_ids and c.detection]
+        elsewhere = [c for c in chosen if not of_target(c, target)]
+        if elsewhere:
+            raise InputError(f"capture(s) {', '.join(c.id for c in elsewhere[:5])} of {sensor} show another target "
+                             f"than the session's {session.board} ({_targets_text(elsewhere, session.board)}); set "
+                             "that target as the board again to solve with them", "capture_ids")
     return [View(c.id, Detection.from_dict(c.detection)) for c in chosen], size
 
 
@@ -179,6 +222,10 @@ def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, c
     board = session_board(session)
     views, size = session_views(session, sensor, capture_ids)
     result = solve_auto(views, board, size, settings, progress)
+    others = other_target_views(session, sensor) if capture_ids is None else []
+    if others:
+        result.warnings.append(f"{len(others)} earlier view(s) of {sensor} show another target "
+                               f"({_targets_text(others, session.board)}); kept, not used")
     result_id = session.add_result(sensor, result.to_record(), inputs=[v.name for v in views])
     return result_id, result
 

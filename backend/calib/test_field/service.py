@@ -122,4 +122,5 @@ def shows_the_wall(capture: CaptureRecord) -> bool:
 
 def exterior_results(session: Session, camera: str) -> list[dict[str, Any]]:
     """The camera's stored exterior orientations, oldest first."""
+    check_camera(session, camera)
     return session.results(camera, KIND)
