@@ -3,8 +3,11 @@
 With the camera's intrinsics known, the pose ``T_wall_camera`` (the camera's optical frame in the wall's, m) is
 found by PnP with RANSAC on the undistorted marker centres (a marker matched to the wrong survey row cannot pull
 it), then refined by least squares on the reprojection error in pixels through the camera's own model (any model,
-the photogrammetric one included). Sigma is the Jacobian's ``s^2 (J^T J)^-1`` with the residual variance; the
-camera's intrinsics are taken as exact, which the verdict says. The cross-check solves the pose again from each
+the photogrammetric one included). Sigma is the Jacobian's ``s^2 (J^T J)^-1`` with the residual variance, plus,
+when the intrinsics' own sigma is given (:class:`~backend.calib.lidar_camera.lens_uncertainty.LensUncertainty`),
+the lens's share: the pose found again with each intrinsic parameter moved by its 1-sigma, the moves combined with
+the parameters' correlation (first order, by finite differences, as the board target method does); without it the
+intrinsics are taken as exact, which the verdict says. The cross-check solves the pose again from each
 half of the markers (alternating over the field, so both halves span it) and weighs the two poses' difference
 against their own sigmas.
 
@@ -22,6 +25,7 @@ from scipy.optimize import least_squares
 
 from backend.calib.board.detection import Detection
 from backend.calib.intrinsics.photogrammetric import exterior_orientation
+from backend.calib.lidar_camera.lens_uncertainty import LensUncertainty
 from backend.calib.test_field.detection import MIN_MARKERS
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
@@ -79,8 +83,19 @@ def _half_poses(camera: CameraIntrinsics, centres_m: np.ndarray, pixels: np.ndar
     return out
 
 
-def resect(camera: CameraIntrinsics, test_field: TestField, detection: Detection, name: str) -> TransformResult:
-    """``T_wall_camera`` of the image ``name`` from its test-field ``detection``, with sigma and the verdict.
+def _lens_covariance(camera: CameraIntrinsics, lens: LensUncertainty, centres_m: np.ndarray, pixels: np.ndarray,
+                     T_wall_camera: np.ndarray) -> np.ndarray:
+    """(6, 6) the lens's share of the pose's covariance: the pose found again with each intrinsic parameter moved by
+    its 1-sigma, the moves combined with the parameters' correlation."""
+    moves = np.array([params_between(T_wall_camera, _refine(moved, centres_m, pixels, T_wall_camera)[0])
+                      for moved in lens.moved(camera)])
+    return moves.T @ lens.correlation @ moves
+
+
+def resect(camera: CameraIntrinsics, test_field: TestField, detection: Detection, name: str,
+           lens: LensUncertainty | None = None) -> TransformResult:
+    """``T_wall_camera`` of the image ``name`` from its test-field ``detection``, with sigma (the lens's share
+    included when ``lens`` gives the intrinsics' own sigma) and the verdict.
 
     Raises :class:`InputError` naming the image when too few markers are seen or no pose fits them."""
     started = time.perf_counter()
@@ -95,6 +110,9 @@ def resect(camera: CameraIntrinsics, test_field: TestField, detection: Detection
     T_wall_camera, fit = _refine(camera, centres_m[inliers], detection.corners_px[inliers], T_start)
     residuals_px = fit.fun.reshape(-1, 2)
     covariance = jacobian_covariance(fit)
+    if lens is not None:
+        covariance = covariance + _lens_covariance(camera, lens, centres_m[inliers], detection.corners_px[inliers],
+                                                   T_wall_camera)
     marker_ids = np.array(test_field.ids)[detection.ids]
     result = TransformResult(
         kind="test_field", method="resection", parent="wall", child="camera", T_parent_child=T_wall_camera,
@@ -113,13 +131,15 @@ def resect(camera: CameraIntrinsics, test_field: TestField, detection: Detection
         result.warnings.append(f"{name}: marker(s) {outliers} are more than {RANSAC_PX:g} px off the pose the others "
                                "agree on; left out (moved since the survey, or surveyed wrong?)")
     result.verdict = _judge(result, _half_poses(camera, centres_m[inliers], detection.corners_px[inliers],
-                                                T_wall_camera))
+                                                T_wall_camera), lens)
     result.seconds = time.perf_counter() - started
     return result
 
 
-def _judge(result: TransformResult, halves: list[tuple[np.ndarray, np.ndarray]] | None):
-    """The sigmas against the default tolerances, and the two halves' agreement as the cross-check."""
+def _judge(result: TransformResult, halves: list[tuple[np.ndarray, np.ndarray]] | None,
+           lens: LensUncertainty | None):
+    """The sigmas against the default tolerances, and the two halves' agreement as the cross-check (the lens's
+    share left out of it: a lens error moves both halves alike)."""
     builder = VerdictBuilder()
     judge_transform_sigmas(builder, result.std)
     if halves is None:
@@ -134,5 +154,8 @@ def _judge(result: TransformResult, halves: list[tuple[np.ndarray, np.ndarray]] 
                                    ratio, f"the poses from alternate markers differ by "
                                    f"{1e3 * np.linalg.norm(difference[:3]):.1f} mm and "
                                    f"{np.degrees(np.linalg.norm(difference[3:])):.3f} deg")
-    builder.note("the camera's intrinsics are taken as exact: their sigma is not carried into the pose")
+    if lens is None:
+        builder.note("the camera's intrinsics are taken as exact: their sigma is not carried into the pose")
+    else:
+        builder.note(f"the camera's intrinsics' sigma ({lens.source}) is carried into the pose's")
     return builder.verdict()

@@ -83,6 +83,16 @@ def test_the_exterior_orientation_in_the_wall_frame(wall, tmp_path: Path):
         np.testing.assert_allclose([pose["exterior_orientation"][k] for k in ("X0_m", "Y0_m", "Z0_m")],
                                    T_true[:3, 3], atol=0.003)
 
+    # the lens's own sigma, given, widens each pose's sigma and is said to be carried; a wrong count is refused
+    lens_std = "0.5,0.4,0.4,1e-9,1e-15,1e-21,1e-7,1e-7,1e-4,1e-4"  # c, xp, yp, K1-K3, P1, P2, A1, A2
+    carried = _json(cli_in_process("exterior", chosen[0], "--camera", camera_file, "--field", spec, "--json",
+                                   "--intrinsics-std", lens_std))["poses"][chosen[0].name]
+    assert np.all(np.array(carried["std"]["trans_m"]) > np.array(summary["poses"][chosen[0].name]["std"]["trans_m"]))
+    said = "the camera's intrinsics' sigma (--intrinsics-std) is carried into the pose's"
+    assert said in carried["verdict"]["reasons"]
+    run = cli_in_process("exterior", chosen[0], "--camera", camera_file, "--field", spec, "--intrinsics-std", "0.5,0.4")
+    assert run.returncode == 2 and "expected 10 sigmas" in run.stderr and "--intrinsics-std" in run.stderr
+
 
 def test_markers_the_survey_lacks_are_named_and_left_out(wall, tmp_path: Path):
     images, spec, _ = wall
