@@ -35,32 +35,6 @@ OPENCALIB = SHARED_DATA / "opencalib_lidar2camera"
 T = TypeVar("T")
 
 
-LONGEST_FIRST = [
-    "browser/test_intrinsics.py", "calib/lidar_camera/test_edges.py", "calib/intrinsics/test_sim.py",
-    "services/test_demo_start.py", "calib/lidar_camera/test_target.py", "browser/test_sensors_sweep.py",
-    "browser/test_depth.py", "browser/test_lidar_camera_solve.py", "browser/test_rig.py",
-    "store/test_store_isolation.py", "browser/test_lidar_camera.py", "browser/test_lidar.py", "api/test_routes_walk.py",
-    "browser/test_state.py", "browser/test_multicam.py", "browser/test_report.py", "services/test_report.py",
-]
-"""Test files that take longest (each 45-240 s in a CI run on 2 cores), longest first. ``scripts/test`` hands whole
-files to its workers in collection order as they free up (``--dist loadfile``), so these go first: a long file
-handed out last would run alone on one core at the end (as ``services/test_demo_start.py`` and
-``store/test_store_isolation.py`` did, collected after every calibration test). The first (a studio) builds the
-run's demo session (:func:`demo_template`, 35-60 s), for which every other studio waits; the next four need none, so
-the other workers compute meanwhile instead of waiting on its lock."""
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Order the test files :data:`LONGEST_FIRST`, the others after them as collected; a file's tests keep their
-    order."""
-    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-
-    def file_rank(item: pytest.Item) -> int:
-        return rank.get(Path(item.path).relative_to(ROOT / "tests").as_posix(), len(rank))
-
-    items.sort(key=file_rank)
-
-
 @dataclass
 class OpenCalibFrame:
     """The real OpenCalib LiDAR + camera frame (see its README): BGR image, cloud, camera, reference extrinsic."""
