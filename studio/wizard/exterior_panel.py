@@ -99,18 +99,16 @@ class ExteriorPanel:
                                  if exterior_service.shows_the_wall(c)), self.image.options[0])
         self._show_field()
 
-    def _show_field(self) -> None:
-        """Say which test field a pose would be in, or why there is none (step 1 may have set it since)."""
+    def _show_field(self) -> TestField | None:
+        """Say which test field a pose would be in, or why there is none (step 1 may have set it since); returns
+        it (None without one)."""
         try:
-            self.field_text.content = f"Test field: `{session_test_field(self.ctx.session)}`" if self.camera else ""
+            test_field = session_test_field(self.ctx.session)
         except InputError as exc:
-            self.field_text.content = f"{WARNING} {exc.message}"
-
-    def _test_field(self) -> TestField | None:
-        try:
-            return session_test_field(self.ctx.session)
-        except InputError:
+            self.field_text.content = f"{WARNING} {exc.message}" if self.camera else ""
             return None
+        self.field_text.content = f"Test field: `{test_field}`" if self.camera else ""
+        return test_field
 
     def _fill_history(self, result_id: str | None, draw: bool) -> None:
         results = exterior_service.exterior_results(self.ctx.session, self.camera)
@@ -155,8 +153,8 @@ class ExteriorPanel:
             return
         record = self.ctx.session.result(result_id)
         self.result_text.content = exterior_markdown(record)
-        test_field = self._test_field()
-        if draw and test_field is not None:
+        test_field = self._show_field() if draw else None
+        if test_field is not None:
             self.ctx.show_step(LAYER)
             self.ctx.scene.show_boards(LAYER, self.ctx.session.rig, self.camera, test_field,
                                        [invert(np.array(record["T_parent_child"]))])

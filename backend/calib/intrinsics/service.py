@@ -171,11 +171,10 @@ def is_lens_view(capture: CaptureRecord, target: str | None) -> bool:
             and not any(key in capture.meta for key in OTHER_STEPS_META))
 
 
-def other_target_views(session: Session, sensor: str) -> list[CaptureRecord]:
-    """The camera's lens views of another target than the session's now (a board changed since, a survey
-    replaced): kept, not used, named in the solve's warnings."""
-    target = target_identity(session)
-    return [c for c in session.captures(sensor) if is_lens_view(c, c.board) and not of_target(c, target)]
+def other_target_views(captures: list[CaptureRecord], target: str | None) -> list[CaptureRecord]:
+    """The lens views among ``captures`` of another target than ``target``, the session's now (a board changed
+    since, a survey replaced): kept, not used, named in the solve's warnings."""
+    return [c for c in captures if is_lens_view(c, c.board) and not of_target(c, target)]
 
 
 def _targets_text(captures: list[CaptureRecord], board: str | None) -> str:
@@ -185,9 +184,11 @@ def _targets_text(captures: list[CaptureRecord], board: str | None) -> str:
     return ", ".join(f"{spec} (its survey replaced since)" if spec == board else spec for spec in specs)
 
 
-def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None) -> tuple[list[View], tuple]:
+def session_views(session: Session, sensor: str, capture_ids: list[str] | None = None
+                  ) -> tuple[list[View], tuple, list[CaptureRecord]]:
     """The lens views (:func:`is_lens_view`) of one camera, or those of ``capture_ids`` (any capture with a
-    detection) if given, and its image size."""
+    detection) if given, its image size, and the lens views of another target left out
+    (:func:`other_target_views`; none when ``capture_ids`` are given, which may not name such views)."""
     check_camera(session, sensor)
     captures = session.captures(sensor)
     unknown = sorted(set(capture_ids or ()) - {c.id for c in captures})
@@ -198,10 +199,11 @@ def session_views(session: Session, sensor: str, capture_ids: list[str] | None =
         raise InputError(f"no captures for {sensor} yet; capture or import images of the board first", sensor)
     size = tuple(captures[0].image_size)
     target = target_identity(session)
+    others = []
     if capture_ids is None:
         chosen = [c for c in captures if is_lens_view(c, target)]
+        others = other_target_views(captures, target)
         if not chosen:
-            others = other_target_views(session, sensor)
             elsewhere = f"; {len(others)} view(s) of another target: {_targets_text(others, session.board)}"
             raise InputError(f"no views of the board taken for {sensor}'s lens yet ({len(captures)} image(s) kept "
                              "as LiDAR-camera pairs or camera sets are not used for it" + (elsewhere if others else "")
@@ -213,16 +215,15 @@ def session_views(session: Session, sensor: str, capture_ids: list[str] | None =
             raise InputError(f"capture(s) {', '.join(c.id for c in elsewhere[:5])} of {sensor} show another target "
                              f"than the session's {session.board} ({_targets_text(elsewhere, session.board)}); set "
                              "that target as the board again to solve with them", "capture_ids")
-    return [View(c.id, Detection.from_dict(c.detection)) for c in chosen], size
+    return [View(c.id, Detection.from_dict(c.detection)) for c in chosen], size, others
 
 
 def solve_session(session: Session, sensor: str, settings: IntrinsicsSettings, capture_ids: list[str] | None = None,
                   progress: ProgressCallback = no_progress) -> tuple[str, IntrinsicsResult]:
     """Solve from the session's captures and store the result (not yet accepted)."""
     board = session_board(session)
-    views, size = session_views(session, sensor, capture_ids)
+    views, size, others = session_views(session, sensor, capture_ids)
     result = solve_auto(views, board, size, settings, progress)
-    others = other_target_views(session, sensor) if capture_ids is None else []
     if others:
         result.warnings.append(f"{len(others)} earlier view(s) of {sensor} show another target "
                                f"({_targets_text(others, session.board)}); kept, not used")

@@ -91,7 +91,7 @@ class SweepShot:
 
 
 @dataclass
-class _Placements:
+class Placements:
     """The placements a solve can use, their sweeps assembled (mount frame, m), and the shots left out (why)."""
 
     found: list[CornerPlacement]
@@ -101,10 +101,10 @@ class _Placements:
 
 
 def _placements(shots: Sequence[SweepShot], board: BoardSpec, camera: CameraIntrinsics, geometry: SweepGeometry,
-                progress: ProgressCallback) -> _Placements:
+                progress: ProgressCallback) -> Placements:
     """Each shot's corners in its sweep (assembled with ``geometry``) and in its image; a shot whose board is not
     found in either is left out, named with the reason. :class:`InputError` when none is left."""
-    kept = _Placements([], [], [], [])
+    kept = Placements([], [], [], [])
     for i, shot in enumerate(shots):
         progress(i / len(shots), f"finding the board's corners in {shot.name}")
         check_image_size(shot.image, camera, shot.name)
@@ -127,11 +127,11 @@ def _placements(shots: Sequence[SweepShot], board: BoardSpec, camera: CameraIntr
 
 def solve_corners(shots: Sequence[SweepShot], board: BoardSpec, camera: CameraIntrinsics, geometry: SweepGeometry,
                   T_init: np.ndarray, *, camera_frame: str = "camera", lidar_frame: str = "lidar",
-                  progress: ProgressCallback = no_progress) -> tuple[TransformResult, list[SweepShot]]:
-    """``T_camera_lidar`` by the corners method from ``shots`` taken at one pan reading, judged, and the shots it
-    used. ``T_init`` (4x4, m), the mounting guess at reading 0, turned to that reading, chooses how a
-    half-turn-symmetric board's corners pair. The result's diagnostics hold ``pan_deg``; away from reading 0 it is
-    the camera turned there, which its warnings say."""
+                  progress: ProgressCallback = no_progress) -> tuple[TransformResult, Placements]:
+    """``T_camera_lidar`` by the corners method from ``shots`` taken at one pan reading, judged, and the placements
+    it used (their shots and assembled sweeps). ``T_init`` (4x4, m), the mounting guess at reading 0, turned to
+    that reading, chooses how a half-turn-symmetric board's corners pair. The result's diagnostics hold
+    ``pan_deg``; away from reading 0 it is the camera turned there, which its warnings say."""
     readings = {shot.pan_deg for shot in shots}
     if len(readings) > 1:
         listed = ", ".join(f"{reading:+g}" for reading in sorted(readings))
@@ -147,7 +147,7 @@ def solve_corners(shots: Sequence[SweepShot], board: BoardSpec, camera: CameraIn
     if pan_deg != 0.0:
         result.warnings.append(f"the camera turned to pan {pan_deg:+g} deg: accepting this puts {camera_frame} where "
                                "it was then; the pan axis places it at reading 0")
-    return result, kept.shots
+    return result, kept
 
 
 def solve_pan(shots: Sequence[SweepShot], board: BoardSpec, camera: CameraIntrinsics, geometry: SweepGeometry,
@@ -246,9 +246,11 @@ def solve_corners_session(session: Session, camera: str, lidar: str, *, pan_deg:
     result, used = solve_corners(shots, board, intrinsics, geometry, T_init, camera_frame=camera, lidar_frame=lidar,
                                  progress=lambda f, m: progress(0.9 * f, m))
     progress(0.9, "drawing the before/after overlays")
-    scenes = [PairData(shot.name, shot.name, shot.image, geometry.assemble(shot.scans)[0], None) for shot in used]
+    scenes = [PairData(shot.name, shot.name, shot.image, cloud, None)
+              for shot, cloud in zip(used.shots, used.clouds, strict=True)]
     files = overlay_files(scenes, intrinsics, guess_at_reading(T_init, math.radians(pan_deg)), result.T_parent_child)
-    return session.add_result(lidar, result.to_record(), inputs=[shot.name for shot in used], files=files), result
+    return session.add_result(lidar, result.to_record(), inputs=[shot.name for shot in used.shots],
+                              files=files), result
 
 
 def solve_pan_session(session: Session, camera: str, lidar: str, *, T_init: np.ndarray | None = None,
