@@ -20,6 +20,7 @@ from starlette.websockets import WebSocket
 
 from backend.api import auth, origin
 from backend.api.client_watch import ClientWatch
+from backend.api.routes import camera_imu as camera_imu_routes
 from backend.api.routes import depth_network as depth_network_routes
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, rig, sessions, sweep
 from backend.api.routes import jobs as job_routes
@@ -131,6 +132,6 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
 
     for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, multicam.router,
                    sweep.router, recordings.router, job_routes.router, exports.router, rig.router, targets_router,
-                   test_field_router, report_routes.router, depth_network_routes.router):
+                   test_field_router, report_routes.router, depth_network_routes.router, camera_imu_routes.router):
         app.include_router(router, prefix="/api")
     return app

@@ -18,6 +18,7 @@ import traceback
 from collections.abc import Callable, Sequence
 
 from backend.cli import (
+    camera_imu,
     depth,
     intrinsics,
     lidar_camera,
@@ -46,7 +47,8 @@ AddParser = Callable[[argparse._SubParsersAction], None]
 
 GROUPS: tuple[AddParser, ...] = (intrinsics.add_parser, test_field.add_parser, lidar_lidar.add_parser,
                                  lidar_camera.add_parser, multicam.add_parser, targets.add_parser, sensors.add_parser,
-                                 rig.add_parser, depth.add_parser, sweep_corners.add_parser)
+                                 rig.add_parser, depth.add_parser, sweep_corners.add_parser,
+                                 camera_imu.add_parser)
 """The backend's command groups, in the order ``--help`` lists their commands."""
 
 

@@ -58,3 +58,6 @@ MAX_TEXT_UPLOAD_MB = Limit("CALIB_MAX_TEXT_UPLOAD_MB", 2, "MB", "a text upload")
 BYTES_PER_MB = 1_000_000
 MAX_NODE_FRAME_MB = Limit("CALIB_MAX_NODE_FRAME_MB", 256, "MB", "a node's frame")
 """Largest frame a node agent's stream or capture may send; Zenoh drops a bigger message before it is taken in."""
+
+MAX_TABLE_MB = Limit("CALIB_MAX_TABLE_MB", 500, "MB", "a recording table (IMU samples, detected corners)")
+"""Bounds a CSV of IMU samples or of detected board corners before it is parsed."""

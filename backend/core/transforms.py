@@ -82,13 +82,18 @@ def from_quaternion_xyzw(q_xyzw: np.ndarray, t_m: np.ndarray) -> np.ndarray:
 
 def right_jacobian(omega: np.ndarray) -> np.ndarray:
     """SO(3) right Jacobian ``J_r`` of a rotation vector (rad): ``Exp(w + dw) ~ Exp(w) Exp(J_r(w) dw)``."""
-    theta = float(np.linalg.norm(omega))
-    W = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
-    if theta < 1e-6:
-        a, b = 0.5, 1.0 / 6.0
-    else:
-        a, b = (1 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
-    return np.eye(3) - a * W + b * W @ W
+    return right_jacobians(np.asarray(omega, float)[None])[0]
+
+
+def right_jacobians(omegas: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) :func:`right_jacobian` of each of (N, 3) rotation vectors (rad)."""
+    theta = np.linalg.norm(omegas, axis=1)
+    W = skew(omegas)
+    small = theta < 1e-6
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
+    b = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
+    return np.eye(3) - a[:, None, None] * W + b[:, None, None] * W @ W
 
 
 def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:

@@ -1,0 +1,54 @@
+"""``calib-studio camera-imu``: the rotation, translation and time offset between a camera and an IMU, from a board
+waved in front of the camera (Kalibr's ``kalibr_calibrate_imu_camera``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from backend.cli._common import prints_summary, progress_to_stderr
+from backend.core.errors import InputError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    ci = sub.add_parser("camera-imu", help="camera-IMU extrinsics and time offset (t_imu = t_cam + offset) from a "
+                                           "board waved in front of the camera")
+    ci.add_argument("--camera", type=Path, required=True, help="the camera's intrinsics (ROS camera_info YAML)")
+    source = ci.add_mutually_exclusive_group(required=True)
+    source.add_argument("--detections", type=Path,
+                        help="detected corners: CSV t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner (one corner a row)")
+    source.add_argument("--images", type=Path, help="a folder of images named by their time stamp in ns")
+    ci.add_argument("--imu", type=Path, required=True, help="IMU samples: CSV t_ns,wx,wy,wz,ax,ay,az (rad/s, m/s²)")
+    ci.add_argument("--board", required=True, help="the board, e.g. aprilgrid:6x6:0.088:0.3")
+    ci.add_argument("--knots-per-second", type=float, default=50.0, metavar="HZ",
+                    help="knots of the trajectory spline per second (default 50)")
+    ci.add_argument("--gravity", type=float, default=9.80665, metavar="M_S2", help="gravity's magnitude (m/s²)")
+    ci.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    ci.set_defaults(handler=prints_summary(run_camera_imu))
+
+
+def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.camera_imu.service import solve_files, summary
+    from backend.calib.camera_imu.solver import CameraImuSettings
+
+    if args.images is not None:
+        raise InputError("--images: detecting the board in images is not available for camera-imu yet; detect the "
+                         "corners and give them with --detections", "--images")
+    if not 5 <= args.knots_per_second <= 400:
+        raise InputError(f"expected 5 to 400 knots per second, got {args.knots_per_second}", "--knots-per-second")
+    if not 9.7 <= args.gravity <= 9.9:
+        raise InputError(f"expected gravity's magnitude on Earth, 9.7 to 9.9 m/s², got {args.gravity}", "--gravity")
+    settings = CameraImuSettings(knots_per_s=args.knots_per_second, gravity_m_s2=args.gravity)
+    result = solve_files(args.camera, args.detections, args.imu, args.board, settings, progress_to_stderr(False))
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)
+    out = summary(result)
+    if not args.json:
+        std = out["std"]
+        print(f"T_cam_imu:\n{result.T_parent_child.round(6)}\ntime offset {1e3 * out['time_offset_s']:.3f} ms "
+              f"(t_imu = t_cam + offset), sigma {1e3 * std['time_s']:.3f} ms\nsigma translation (mm) "
+              f"{[round(1e3 * s, 2) for s in std['trans_m']]}, rotation (deg) {[round(s, 4) for s in std['rot_deg']]}")
+    return out
