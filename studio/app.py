@@ -9,6 +9,7 @@ from backend.store.session import Session, SessionStore
 from studio.context import StudioContext
 from studio.layers import Layers
 from studio.scene import RigScene
+from studio.wizard.camera_imu_step import CameraImuStep
 from studio.wizard.depth_network_step import DepthNetworkStep
 from studio.wizard.intrinsics_step import IntrinsicsStep
 from studio.wizard.lidar_camera_step import LidarCameraStep
@@ -44,6 +45,7 @@ class StudioApp:
         self.multicam_step = MulticamStep(self.ctx)
         self.rig_step = RigStep(self.ctx)
         self.depth_network_step = DepthNetworkStep(self.ctx)
+        self.camera_imu_step = CameraImuStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

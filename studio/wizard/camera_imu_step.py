@@ -1,0 +1,111 @@
+"""Step 10, *Camera to IMU*: the extrinsic and time offset between a camera and an IMU from a recording.
+
+The user picks the camera (its intrinsics in the rig) and the IMU, names the board, uploads the recording's two files
+(the IMU's samples and the board's detected corners, as CSV) and clicks *Solve*; the fit runs as a job with progress
+and Cancel (:mod:`backend.calib.camera_imu.service`). The result shows the time offset with its sigma, the motion's
+excitation per axis against what the fit needs, and the IMU's measured signals with the fitted ones; it is kept in
+the session's history and accepted as the rig's camera-IMU edge on the shared result card.
+"""
+
+from __future__ import annotations
+
+from backend.calib.camera_imu import service as camera_imu_service
+from backend.core.errors import InputError
+from backend.core.rig import edge_slot
+from backend.plots.camera_imu import excitation_bars, fitted_signals
+from backend.plots.render import to_rgb
+from backend.store.session import Session
+from studio.context import StudioContext
+from studio.job_panel import JobPanel
+from studio.result_card import ResultCard
+from studio.result_history import ResultHistory
+
+NONE = "(none)"
+DEFAULT_BOARD = "aprilgrid:6x6:0.088:0.3"
+HELP = ("Wave the rig in front of the board, turning it about every axis and moving it along each, while the camera "
+        "and the IMU record. Upload the IMU's samples (CSV `t_ns,wx,wy,wz,ax,ay,az`, rad/s and m/s²) and the board's "
+        "corners the camera detected (CSV `t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner`), then solve. The time offset "
+        "follows Kalibr: `t_imu = t_cam + offset`.")
+
+
+class CameraImuStep:
+    def __init__(self, ctx: StudioContext):
+        self.ctx = ctx
+        self._files: dict[str, tuple[str, bytes]] = {}
+        gui = ctx.server.gui
+        with gui.add_folder("10 · Camera to IMU", expand_by_default=False):
+            gui.add_markdown(HELP)
+            self.camera = gui.add_dropdown("Camera", options=[NONE])
+            self.imu = gui.add_dropdown("IMU", options=[NONE])
+            self.board = gui.add_text("Board", initial_value=DEFAULT_BOARD)
+            self.imu_upload = gui.add_upload_button("IMU samples (CSV)", mime_type="text/csv")
+            self.detections_upload = gui.add_upload_button("Board corners (CSV)", mime_type="text/csv")
+            self.files_text = gui.add_markdown("No recording uploaded yet.")
+            self.solve_button = gui.add_button("Solve camera to IMU", color="blue")
+            self.jobs = JobPanel(ctx, [self.solve_button])
+            self.history = ResultHistory(gui, lambda _: self._show_result(), label="Camera-IMU result")
+            self.offset_text = gui.add_markdown("")
+            self.excitation_image = gui.add_image(to_rgb(excitation_bars(None)), label="Excitation")
+            self.signals_image = gui.add_image(to_rgb(fitted_signals(None)), label="IMU signals and the fit")
+            self.card = ResultCard(ctx)
+        self.imu_upload.on_upload(lambda _: self._keep("imu", self.imu_upload.value))
+        self.detections_upload.on_upload(lambda _: self._keep("detections", self.detections_upload.value))
+        self.solve_button.on_click(lambda _: self._solve())
+        self.imu.on_update(lambda _: self._fill_history(None))
+        ctx.on_session_changed(self._session_changed)
+        ctx.on_rig_changed(lambda _: self._list_sensors())
+
+    def _session_changed(self, session: Session) -> None:
+        self._files = {}
+        self.files_text.content = "No recording uploaded yet."
+        self._list_sensors()
+
+    def _list_sensors(self) -> None:
+        rig = self.ctx.session.rig
+        for dropdown, kind in ((self.camera, "camera"), (self.imu, "imu")):
+            names = [frame.name for frame in rig.sensors(kind)] or [NONE]
+            dropdown.options = names
+            if dropdown.value not in names:
+                dropdown.value = names[0]
+        self._fill_history(None)
+
+    def _keep(self, role: str, upload) -> None:
+        self._files[role] = (upload.name, upload.content)
+        self.files_text.content = " · ".join(f"{role}: `{name}` ({len(data) / 1e6:.1f} MB)"
+                                             for role, (name, data) in sorted(self._files.items()))
+
+    def _solve(self) -> None:
+        session, camera, imu = self.ctx.session, self.camera.value, self.imu.value
+        if set(self._files) != {"imu", "detections"}:
+            self.ctx.notify("Recording missing", "Upload both files: the IMU's samples and the board's corners.",
+                            error=True)
+            return
+        imu_csv, detections_csv, board = self._files["imu"], self._files["detections"], self.board.value.strip()
+        try:
+            camera_imu_service.read_recording(session, imu, camera, imu_csv, detections_csv, board)
+        except InputError as exc:
+            self.ctx.notify("Cannot solve camera to IMU", exc.message, error=True)
+            return
+        self.jobs.run(f"camera-IMU of {camera} and {imu}", lambda progress: camera_imu_service.solve_session(
+            session, imu, camera, imu_csv, detections_csv, board, progress=progress), self._fill_history)
+
+    def _fill_history(self, result_id: str | None) -> None:
+        session, imu = self.ctx.session, self.imu.value
+        records = [] if session is None or imu == NONE else session.results(imu, camera_imu_service.KIND)
+        self.history.fill([r["id"] for r in reversed(records)], result_id)
+        self._show_result()
+
+    def _show_result(self) -> None:
+        result_id = self.history.selected
+        record = None if result_id is None else self.ctx.session.result(result_id)
+        slot_holder = None if record is None else self.ctx.session.accepted(edge_slot(record["parent"],
+                                                                                       record["child"]))
+        self.card.show(record, slot_holder)
+        diagnostics = {} if record is None else record["diagnostics"]
+        offset_ms, offset_std_ms = (1e3 * diagnostics.get(key, 0.0) for key in ("time_offset_s", "time_offset_std_s"))
+        self.offset_text.content = "" if record is None else (
+            f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_cam + offset) · "
+            f"{diagnostics['frames_used']} of {diagnostics['frames_total']} frames, "
+            f"{diagnostics['corners_dropped']} corners dropped as outliers")
+        self.excitation_image.image = to_rgb(excitation_bars(diagnostics.get("excitation")))
+        self.signals_image.image = to_rgb(fitted_signals(diagnostics.get("signals")))
