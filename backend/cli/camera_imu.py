@@ -19,7 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     source = ci.add_mutually_exclusive_group(required=True)
     source.add_argument("--detections", type=Path,
                         help="detected corners: CSV t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner (one corner a row)")
-    source.add_argument("--images", type=Path, help="a folder of images named by their time stamp in ns")
+    source.add_argument("--images", type=Path,
+                        help="a folder of images named by their time stamp in ns (the board is detected in each)")
     ci.add_argument("--imu", type=Path, required=True, help="IMU samples: CSV t_ns,wx,wy,wz,ax,ay,az (rad/s, m/s²)")
     ci.add_argument("--board", required=True, help="the board, e.g. aprilgrid:6x6:0.088:0.3")
     ci.add_argument("--knots-per-second", type=float, default=50.0, metavar="HZ",
@@ -33,15 +34,13 @@ def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.camera_imu.service import solve_files, summary
     from backend.calib.camera_imu.solver import CameraImuSettings
 
-    if args.images is not None:
-        raise InputError("--images: detecting the board in images is not available for camera-imu yet; detect the "
-                         "corners and give them with --detections", "--images")
     if not 5 <= args.knots_per_second <= 400:
         raise InputError(f"expected 5 to 400 knots per second, got {args.knots_per_second}", "--knots-per-second")
     if not 9.7 <= args.gravity <= 9.9:
         raise InputError(f"expected gravity's magnitude on Earth, 9.7 to 9.9 m/s², got {args.gravity}", "--gravity")
     settings = CameraImuSettings(knots_per_s=args.knots_per_second, gravity_m_s2=args.gravity)
-    result = solve_files(args.camera, args.detections, args.imu, args.board, settings, progress_to_stderr(False))
+    result = solve_files(args.camera, args.images or args.detections, args.imu, args.board, settings,
+                         progress_to_stderr(False))
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)

@@ -86,12 +86,18 @@ def diagonal_crossings(corners: np.ndarray) -> np.ndarray:
     return p0 + s[:, None] * d02
 
 
-def detect_markers(image: np.ndarray, dictionary: str) -> MarkerDetections:
-    """Every marker of ``dictionary`` in ``image`` (grayscale or BGR), corners refined to sub-pixel."""
+def detect_markers(image: np.ndarray, dictionary: str, *, refine: bool = True,
+                   min_distance_rate: float | None = None) -> MarkerDetections:
+    """Every marker of ``dictionary`` in ``image`` (grayscale or BGR), corners refined to sub-pixel unless not
+    ``refine`` (the caller refines them); ``min_distance_rate`` overrides OpenCV's least distance between markers
+    (as a fraction of their perimeter: 0 keeps markers whose corners touch, and may list one twice)."""
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     parameters = cv2.aruco.DetectorParameters()
-    parameters.cornerRefinementMethod = (cv2.aruco.CORNER_REFINE_APRILTAG if "APRILTAG" in dictionary
+    parameters.cornerRefinementMethod = (cv2.aruco.CORNER_REFINE_NONE if not refine else
+                                         cv2.aruco.CORNER_REFINE_APRILTAG if "APRILTAG" in dictionary
                                          else cv2.aruco.CORNER_REFINE_SUBPIX)
+    if min_distance_rate is not None:
+        parameters.minMarkerDistanceRate = min_distance_rate
     detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)),
                                        parameters)
     corners, ids, _ = detector.detectMarkers(gray)

@@ -178,6 +178,9 @@ def board_sheet(spec: str, paper: str = "auto", margin_mm: float = DEFAULT_MARGI
     if board.kind == "checkerboard":
         sizes = (f"{board.cols} x {board.rows} inner corners, {board.cols + 1} x {board.rows + 1} squares of "
                  f"{_mm(board.square_m)} mm")
+    elif board.kind == "aprilgrid":
+        sizes = (f"{board.cols} x {board.rows} tags (tag36h11, ids 0 to {board.cols * board.rows - 1} from the bottom "
+                 f"left) of {_mm(board.square_m)} mm, gaps of {_mm(board.gap_m)} mm (spacing {board.spacing:g})")
     else:
         sizes = (f"{board.cols} x {board.rows} squares of {_mm(board.square_m)} mm, ArUco markers of "
                  f"{_mm(board.marker_m)} mm ({board.dictionary})")
@@ -239,6 +242,8 @@ def board_filename(board: BoardSpec) -> str:
     size = f"{board.cols}x{board.rows}_{_mm(board.square_m)}mm"
     if board.kind == "checkerboard":
         return f"checkerboard_{size}.pdf"
+    if board.kind == "aprilgrid":
+        return f"aprilgrid_{size}_{board.spacing:g}.pdf"
     return f"charuco_{size}_{_mm(board.marker_m)}mm_{board.dictionary}.pdf"
 
 

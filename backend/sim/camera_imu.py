@@ -9,14 +9,18 @@ carry white noise and the IMU constant biases.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from backend.calib.camera_imu.observations import BoardObservations, board_corner_grid
+from backend.calib.camera_imu.observations import BoardObservations
+from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.imu import ImuSamples
 from backend.core.transforms import invert, make_T, right_jacobians
+from backend.sim.board_renderer import render_board_image
 
 BOARD = "aprilgrid:6x6:0.088:0.3"
 CAMERA = CameraIntrinsics("pinhole-radtan", 752, 480, np.array([[458.654, 0, 367.215], [0, 457.296, 248.375],
@@ -38,6 +42,8 @@ class CameraImuRecording:
     offset_s: float
     gyro_bias_rad_s: np.ndarray
     accel_bias_m_s2: np.ndarray
+    T_cam_board: np.ndarray
+    """(K, 4, 4) the board's true pose in each frame of ``observations``."""
 
 
 def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: int = 0, pixel_sigma: float = 0.3,
@@ -68,8 +74,8 @@ def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: 
     t_cam = np.arange(0.0, duration_s, 1.0 / camera_hz)
     R_board_imu, p_board_imu = poses(t_cam)  # motion time is the camera's clock less the epoch
     T_imu_cam = invert(T_CAM_IMU)
-    grid = board_corner_grid(BOARD)
-    times, frames, pixels, points = [], [], [], []
+    grid = BoardSpec.parse(BOARD).object_points.astype(np.float64)
+    times, frames, pixels, points, T_cam_boards = [], [], [], [], []
     for k, (R, p) in enumerate(zip(R_board_imu, p_board_imu, strict=True)):
         T_board_cam = make_T(R, p) @ T_imu_cam
         in_camera = (grid - T_board_cam[:3, 3]) @ T_board_cam[:3, :3]
@@ -79,6 +85,7 @@ def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: 
         if seen.sum() < 12:
             continue
         times.append(epoch + t_cam[k])
+        T_cam_boards.append(invert(T_board_cam))
         frames.append(np.full(int(seen.sum()), len(times) - 1))
         pixels.append(uv[seen] + rng.normal(0, pixel_sigma, size=(int(seen.sum()), 2)))
         points.append(grid[seen])
@@ -97,7 +104,17 @@ def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: 
     imu = ImuSamples(epoch + offset_s + t_imu,  # the IMU's clock reads offset_s more at the same instant
                      rates + gyro_bias + rng.normal(0, gyro_sigma, rates.shape),
                      force + accel_bias + rng.normal(0, accel_sigma, force.shape))
-    return CameraImuRecording(CAMERA, observations, imu, T_CAM_IMU, offset_s, gyro_bias, accel_bias)
+    return CameraImuRecording(CAMERA, observations, imu, T_CAM_IMU, offset_s, gyro_bias, accel_bias,
+                              np.array(T_cam_boards))
+
+
+def write_images(recording: CameraImuRecording, folder: Path, frames: range) -> None:
+    """Render ``frames`` of the recording as the camera saw them into ``folder``, each named by its time in ns."""
+    board = BoardSpec.parse(BOARD)
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in frames:
+        image = render_board_image(recording.camera, board, recording.T_cam_board[k], np.random.default_rng(k))
+        cv2.imwrite(str(folder / f"{round(recording.observations.t_s[k] * 1e9)}.png"), image)
 
 
 def recording_files(recording: CameraImuRecording) -> tuple[bytes, bytes]:

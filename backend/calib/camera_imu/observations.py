@@ -8,10 +8,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from backend.calib.board.detection import detect_board
+from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, no_progress
 from backend.core.tables import parse_table, read_table
 from backend.core.transforms import from_rvec_tvec
+from backend.devices.image_io import read_image
 
 DETECTION_COLUMNS = ("t_ns", "u_px", "v_px", "x_m", "y_m", "z_m", "tag_id", "corner")
 """The columns of a detections file, in order (``../shared/conventions.md``)."""
@@ -82,41 +86,11 @@ def board_poses(camera: CameraIntrinsics, observations: BoardObservations) -> tu
     return poses, rms
 
 
-def board_corner_grid(spec: str) -> np.ndarray:
-    """(N, 3) every corner (m, board frame, z = 0) a board spec can show: an AprilGrid's tag corners
-    (``aprilgrid:COLSxROWS:TAG_SIZE:SPACING``, Kalibr's layout: tag (i, j) from ``(i, j) * size * (1 + spacing)``)
-    or a checkerboard's inner corners; :class:`InputError` naming ``--board`` for anything else."""
-    parts = spec.split(":")
-    if parts[0] == "aprilgrid":
-        try:
-            cols, rows = (int(v) for v in parts[1].lower().split("x"))
-            size_m, spacing = float(parts[2]), float(parts[3])
-        except (IndexError, ValueError):
-            raise InputError(f"board spec {spec!r}: expected aprilgrid:COLSxROWS:TAG_SIZE:SPACING, e.g. "
-                             "aprilgrid:6x6:0.088:0.3", "--board") from None
-        if len(parts) != 4 or min(cols, rows) < 1 or not size_m > 0 or not spacing >= 0:
-            raise InputError(f"board spec {spec!r}: expected aprilgrid:COLSxROWS:TAG_SIZE:SPACING with positive "
-                             "sizes", "--board")
-        pitch = size_m * (1 + spacing)
-        i, j = np.meshgrid(np.arange(cols), np.arange(rows))
-        starts = np.column_stack([i.ravel(), j.ravel()]) * pitch
-        offsets = np.array([[0, 0], [size_m, 0], [size_m, size_m], [0, size_m]])
-        corners = (starts[:, None, :] + offsets[None]).reshape(-1, 2)
-        return np.column_stack([corners, np.zeros(len(corners))])
-    from backend.core.boards import BoardSpec
-
-    board = BoardSpec.parse(spec)
-    if board.kind != "checkerboard":
-        raise InputError(f"board spec {spec!r}: camera-imu takes an aprilgrid or a checkerboard", "--board")
-    cols, rows = board.corner_grid
-    i, j = np.meshgrid(np.arange(cols), np.arange(rows))
-    return np.column_stack([i.ravel() * board.square_m, j.ravel() * board.square_m, np.zeros(cols * rows)])
-
-
 def check_board_points(observations: BoardObservations, spec: str, name: str, tolerance_m: float = 1e-3) -> None:
     """:class:`InputError` naming the detections file when its board points are not corners of the board ``spec``
-    (the wrong board given, or its sizes in other units)."""
-    grid = board_corner_grid(spec)
+    (the wrong board given, or its sizes in other units). Only where the points lie counts, not which corner each
+    is: a file in Kalibr's frame (an AprilGrid's y up from tag 0) holds the same positions as the studio's."""
+    grid = BoardSpec.parse(spec).object_points.astype(np.float64)
     points = np.unique(observations.board_m, axis=0)
     distance = np.array([np.min(np.linalg.norm(grid - point, axis=1)) for point in points])
     off = distance > tolerance_m
@@ -126,3 +100,37 @@ def check_board_points(observations: BoardObservations, spec: str, name: str, to
                          f"the board {spec} (the first at "
                          f"({first[0]:.4f}, {first[1]:.4f}, {first[2]:.4f}) m, {1e3 * distance[off].min():.1f} mm or "
                          "more from its nearest corner): give the board the detections were made with", name)
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".bmp", ".tif", ".tiff")
+
+
+def detect_image_folder(folder: Path, spec: str, progress: ProgressCallback = no_progress) -> BoardObservations:
+    """The board ``spec`` detected in every image of ``folder``, each named by its time stamp in ns (as EuRoC and
+    Kalibr's bag extraction name them, ``1403715273262142976.png``); frames without the board are left out.
+    :class:`InputError` naming the folder or the file for a name that is not a time stamp or an unreadable image."""
+    board = BoardSpec.parse(spec)
+    if not folder.is_dir():
+        raise InputError(f"{folder} is not a folder of images", "--images")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InputError(f"{folder} holds no images ({', '.join(IMAGE_SUFFIXES)})", "--images")
+    stamped = []
+    for path in files:
+        if not path.stem.isdigit():
+            raise InputError(f"{path.name}: expected the image's time stamp in ns as its name, e.g. "
+                             "1403715273262142976.png", str(path))
+        stamped.append((int(path.stem), path))
+    times, frames, pixels, points = [], [], [], []
+    for index, (stamp_ns, path) in enumerate(sorted(stamped)):
+        progress(index / len(stamped), f"detecting the board in {path.name}")
+        detection = detect_board(read_image(path), board)
+        if detection is None:
+            continue
+        times.append(stamp_ns * 1e-9)
+        frames.append(np.full(len(detection.ids), len(times) - 1))
+        pixels.append(detection.corners_px)
+        points.append(board.object_points[detection.ids].astype(np.float64))
+    if not times:
+        raise InputError(f"the board {spec} was found in none of the {len(files)} images of {folder}", "--images")
+    return BoardObservations(np.array(times), np.concatenate(frames), np.concatenate(pixels), np.concatenate(points))

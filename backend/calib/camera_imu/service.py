@@ -21,6 +21,7 @@ from backend.calib.camera_imu.checks import (
 from backend.calib.camera_imu.observations import (
     BoardObservations,
     check_board_points,
+    detect_image_folder,
     parse_detections_csv,
     read_detections_csv,
 )
@@ -60,16 +61,25 @@ def solve_recording(camera: CameraIntrinsics, observations: BoardObservations, i
                    time.perf_counter() - started, settings)
 
 
-def solve_files(camera_path: Path, detections_path: Path, imu_path: Path, board: str,
+def solve_files(camera_path: Path, corners: Path, imu_path: Path, board: str,
                 settings: CameraImuSettings = DEFAULT_SETTINGS,
                 progress: ProgressCallback = no_progress) -> TransformResult:
-    """:func:`solve_recording` on a camera_info YAML, a detections CSV and an IMU CSV (``../shared/conventions.md``);
+    """:func:`solve_recording` on a camera_info YAML, the board's corners (a detections CSV, or a folder of images
+    named by their time stamps in ns, in which the board is detected) and an IMU CSV (``../shared/conventions.md``);
     :class:`InputError` naming the file at fault."""
     camera, _ = load_camera_info(camera_path)
     imu, warnings = read_imu_csv(imu_path)
-    observations = read_detections_csv(detections_path)
-    check_board_points(observations, board, str(detections_path))
-    return solve_recording(camera, observations, imu, settings, warnings, progress)
+    detecting = corners.is_dir()
+
+    def solving(fraction: float, message: str) -> None:  # after the detection's first fifth, if images were given
+        progress(0.2 + 0.8 * fraction if detecting else fraction, message)
+
+    if detecting:
+        observations = detect_image_folder(corners, board, lambda f, m: progress(0.2 * f, m))
+    else:
+        observations = read_detections_csv(corners)
+        check_board_points(observations, board, str(corners))
+    return solve_recording(camera, observations, imu, settings, warnings, solving)
 
 
 def check_imu(session: Session, sensor: str) -> None:
