@@ -16,6 +16,7 @@ from backend.devices import (  # noqa: F401
     realsense,
     rosbag_source,
     uvc_camera,
+    vectornav,
     velodyne,
     ydlidar,
 )

@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from backend.core.errors import InputError
+from backend.core.imu import ImuSamples
 
 
 class DeviceError(RuntimeError):
@@ -45,6 +46,8 @@ class Sample:
     """(N, 3) float64 points in the sensor's frame (m), for range sensors; z = 0 for a 2D scanner."""
     intensity: np.ndarray | None = None
     """(N,) float32 return intensity of each point, in the sensor's own units, when it reports one."""
+    imu: ImuSamples | None = None
+    """The IMU samples of this read (an IMU's driver returns a batch at a time)."""
     depth: np.ndarray | None = None
     """(H, W) float32 depth along the optical axis (m, 0 = no return), for depth cameras; ``points`` and
     ``intensity`` then hold its valid pixels (node frame) and their IR amplitude."""

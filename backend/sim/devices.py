@@ -35,6 +35,7 @@ from backend.sim.dynamixel_sim import DynamixelSimulator
 from backend.sim.hokuyo_sim import HokuyoSimulator
 from backend.sim.lidar_device import SimulatedLidar
 from backend.sim.swept_head import SimSweptScannerHead
+from backend.sim.vectornav_sim import VN100Simulator
 from backend.sim.velodyne_udp import Vlp16UdpSimulator
 from backend.sim.ydlidar_sim import YdlidarSimulator
 
@@ -56,6 +57,11 @@ def demo_lidar3d_pose(sensor: str) -> np.ndarray:
 def start_ydlidar(**settings: Any) -> YdlidarSimulator:
     """A TG30 scanning the yard from the demo rig's ``scanner_2d`` mounting, on a pty (its ``port``)."""
     return YdlidarSimulator(**settings).start()
+
+
+def start_vn100(**settings: Any) -> VN100Simulator:
+    """A VN-100 streaming binary output 1 at 200 Hz on a pty (its ``port``)."""
+    return VN100Simulator(**settings).start()
 
 
 def start_velodyne(port: int, sensor: str = "lidar_top", **settings: Any) -> Vlp16UdpSimulator:
@@ -113,6 +119,7 @@ def start_hokuyo(servo: DynamixelSimulator | None = None, **settings: Any) -> Ho
 for _driver in SIMULATED_DRIVERS:
     register_driver(_driver)
 register_simulator("ydlidar", start_ydlidar)
+register_simulator("vn100", start_vn100)
 register_simulator("velodyne", start_velodyne)
 register_simulator("dynamixel", start_dynamixel)
 register_simulator("swept_head", start_swept_head)

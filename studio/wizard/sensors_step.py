@@ -32,6 +32,7 @@ from studio.marks import WARNING
 CAMERA_KINDS = ("camera",)
 RANGE_KINDS = ("lidar3d", "lidar2d", "depth")
 DEPTH_KINDS = ("depth",)
+IMU_KINDS = ("imu",)
 KINDS = ("camera", "lidar3d", "lidar2d", "depth", "imu", "frame")
 NEW_SENSOR = "(new sensor)"
 """*Sensor*'s choice for adding one."""
@@ -57,6 +58,8 @@ DRIVERS: dict[str, DriverChoice] = {
                              RANGE_KINDS, "sim"),
     "velodyne_pcap": DriverChoice("Velodyne pcap recording: its path", RANGE_KINDS, ""),
     "ydlidar": DriverChoice("YDLiDAR TG30 at 512000 baud: serial port (/dev/ttyUSB0), or sim", RANGE_KINDS, "sim"),
+    "vn100": DriverChoice("VectorNav VN-100, binary output 1 at 115200 baud: serial port (/dev/ttyUSB0), or sim",
+                          IMU_KINDS, "sim"),
     "hokuyo": DriverChoice("Hokuyo over SCIP 2.0: the UTM-30LX-EW's address (192.168.0.10 or HOST:PORT), a USB "
                            "model's serial port (/dev/ttyACM0), or sim", RANGE_KINDS, "sim"),
     "swept_scanner": DriverChoice("2D scanner on a Dynamixel servo: the servo's serial port, or sim",
@@ -133,8 +136,8 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
         return {"driver": "simulated_lidar", "sensor": text or "lidar_top", "seed": 0}
     if driver == "velodyne":
         return _velodyne(text)
-    if driver == "ydlidar":
-        return {"driver": "ydlidar", "port": text or "sim"}
+    if driver in ("ydlidar", "vn100"):
+        return {"driver": driver, "port": text or "sim"}
     if driver == "hokuyo":
         return _hokuyo(text)
     if driver in ("kinect2", "realsense"):
@@ -189,8 +192,8 @@ def device_form(device: dict[str, Any]) -> DeviceForm | None:
     driver, text = device.get("driver"), lambda key: "" if device.get(key) is None else str(device[key])
     if driver == "uvc":
         return DeviceForm("uvc", text("device"), device.get("width") or 0, device.get("height") or 0)
-    if driver in ("simulated", "simulated_lidar", "ydlidar", "node", "sim_depth", "kinect2", "realsense"):
-        key = {"simulated": "camera", "simulated_lidar": "sensor", "ydlidar": "port", "node": "node",
+    if driver in ("simulated", "simulated_lidar", "ydlidar", "vn100", "node", "sim_depth", "kinect2", "realsense"):
+        key = {"simulated": "camera", "simulated_lidar": "sensor", "ydlidar": "port", "vn100": "port", "node": "node",
                "sim_depth": "node"}.get(driver, "serial")
         return DeviceForm(driver, text(key))
     if driver == "hokuyo":

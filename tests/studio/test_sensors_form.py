@@ -35,7 +35,7 @@ def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
     for kind in RANGE_KINDS:
         depth_drivers = {"kinect2", "realsense", "depth_files", "sim_depth"} if kind == "depth" else set()
         assert set(drivers_for(kind)) == range_drivers | depth_drivers
-    assert drivers_for("imu") == [] and drivers_for("frame") == []
+    assert drivers_for("imu") == ["vn100"] and drivers_for("frame") == []
 
 
 def test_settings_from_the_form(tmp_path):
@@ -75,7 +75,8 @@ def test_a_sensors_device_reads_back_into_the_form(tmp_path):
     forms = [DeviceForm("uvc", "/dev/video2", 1280, 720), DeviceForm("simulated", "cam_wide"),
              DeviceForm("simulated_lidar", "scanner_2d"), DeviceForm("velodyne", "sim"),
              DeviceForm("velodyne", "2368"), DeviceForm("velodyne", "192.168.1.77:2369"),
-             DeviceForm("ydlidar", "/dev/ttyUSB0"), DeviceForm("hokuyo", "sim"), DeviceForm("hokuyo", "192.168.0.10"),
+             DeviceForm("ydlidar", "/dev/ttyUSB0"), DeviceForm("vn100", "/dev/ttyUSB3"),
+             DeviceForm("hokuyo", "sim"), DeviceForm("hokuyo", "192.168.0.10"),
              DeviceForm("hokuyo", "10.0.0.7:10941"), DeviceForm("hokuyo", "/dev/ttyACM0"),
              DeviceForm("kinect2", "0123"), DeviceForm("realsense", ""),
              DeviceForm("sim_depth", "sn4"), DeviceForm("node", "sn2"), DeviceForm("swept_scanner", "sim"),
@@ -113,6 +114,12 @@ def test_the_simulated_range_sensors_open_from_the_form(driver):
     with create_device(device_settings(driver, DRIVERS[driver].default_source)) as device:
         sample = device.read()
     assert sample.points is not None and len(sample.points) > 1000 and np.isfinite(sample.points).all()
+
+
+def test_the_simulated_imu_opens_from_the_form():
+    with create_device(device_settings("vn100", DRIVERS["vn100"].default_source)) as device:
+        sample = device.read()
+    assert sample.imu is not None and len(sample.imu.t_s) >= 15 and np.isfinite(sample.imu.gyro_rad_s).all()
 
 
 def test_a_typed_source_outlives_the_device_choice(tmp_path, free_port):
