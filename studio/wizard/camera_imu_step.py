@@ -35,7 +35,7 @@ class CameraImuStep:
         gui = ctx.server.gui
         with gui.add_folder("10 · Camera to IMU", expand_by_default=False):
             gui.add_markdown(HELP)
-            self.camera = gui.add_dropdown("Camera", options=[NONE])
+            self.camera = gui.add_dropdown("Camera seeing the board", options=[NONE])
             self.imu = gui.add_dropdown("IMU", options=[NONE])
             self.board = gui.add_text("Board", initial_value=DEFAULT_BOARD)
             self.imu_upload = gui.add_upload_button("IMU samples (CSV)", mime_type="text/csv")
@@ -47,7 +47,7 @@ class CameraImuStep:
             self.offset_text = gui.add_markdown("")
             self.excitation_image = gui.add_image(to_rgb(excitation_bars(None)), label="Excitation")
             self.signals_image = gui.add_image(to_rgb(fitted_signals(None)), label="IMU signals and the fit")
-            self.card = ResultCard(ctx)
+            self.card = ResultCard(ctx, empty_text="No camera-IMU result yet.")
         self.imu_upload.on_upload(lambda _: self._keep("imu", self.imu_upload.value))
         self.detections_upload.on_upload(lambda _: self._keep("detections", self.detections_upload.value))
         self.solve_button.on_click(lambda _: self._solve())
