@@ -11,6 +11,7 @@ import numpy as np
 
 from backend.calib._session import check_camera
 from backend.calib.camera_imu.checks import (
+    Excitation,
     HalvesCheck,
     excitation,
     halves_check,
@@ -30,6 +31,7 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.imu import ImuSamples
 from backend.core.result import ProgressCallback, TransformResult, no_progress
+from backend.core.verdict import Verdict
 from backend.devices.imu_csv import parse_imu_csv, read_imu_csv
 from backend.exports.ros_camera_info import load_camera_info
 from backend.store.session import Session
@@ -126,10 +128,11 @@ def camera_imu_results(session: Session, imu_sensor: str) -> list[dict]:
             for record in session.results(imu_sensor, KIND)]
 
 
-def _result(fit: CameraImuFit, raw: CameraImuFit, motion, halves: HalvesCheck | None, verdict, warnings: list[str],
-            seconds: float, settings: CameraImuSettings) -> TransformResult:
-    """The fit as a transform result: covariance in :data:`~backend.core.result.TRANSFORM_PARAMETERS` order
-    (translation along the camera's axes, rotation about the IMU's)."""
+def _result(fit: CameraImuFit, raw: CameraImuFit, motion: Excitation, halves: HalvesCheck | None, verdict: Verdict,
+            warnings: list[str], seconds: float, settings: CameraImuSettings) -> TransformResult:
+    """The fit (``fit``: its sigmas widened by the halves; ``raw``: as solved) as a transform result: covariance in
+    :data:`~backend.core.result.TRANSFORM_PARAMETERS` order (translation along the camera's axes, rotation about the
+    IMU's)."""
     R_cam_imu = fit.T_cam_imu[:3, :3]
     to_child = np.zeros((6, 7))
     to_child[:3, 3:6] = np.eye(3)
