@@ -140,12 +140,18 @@ class IntrinsicsStep:
     def _select_camera(self) -> None:
         self.stop_live()
         session, sensor = self.ctx.session, self.sensor
-        board = None if sensor is None else session_board(session)
-        coverage = None if sensor is None else coverage_from_captures(session, sensor, board)
+        board, no_board = None, ""
+        try:
+            board = None if sensor is None else session_board(session)
+        except InputError as exc:  # a session made without a board (the API allows it): step 1 sets one
+            no_board = f"\n\n{WARNING} {exc.message} in step 1."
+        coverage = None if board is None else coverage_from_captures(session, sensor, board)
         self._show_coverage(coverage)
+        self.coverage_text.content += no_board
         last = None if sensor is None else last_capture(session, sensor)
         if last is not None:
             image, detection = last
+            detection = detection if board is not None else None
             self.preview.image = live_view(image, board, detection, coverage.heatmap if coverage else None)
             self.ctx.scene.show_camera_image(sensor, image)
         else:  # not the previous camera's (or session's) last frame
