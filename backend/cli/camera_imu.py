@@ -1,5 +1,6 @@
 """``calib-studio camera-imu``: the rotation, translation and time offset between a camera and an IMU, from a board
-waved in front of the camera (Kalibr's ``kalibr_calibrate_imu_camera``)."""
+waved in front of the camera (Kalibr's ``kalibr_calibrate_imu_camera``); ``calib-studio lidar-imu``: the rotation and
+time offset between a LiDAR and an IMU, from the rig turned in a static scene."""
 
 from __future__ import annotations
 
@@ -28,6 +29,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ci.add_argument("--gravity", type=float, default=9.80665, metavar="M_S2", help="gravity's magnitude (m/s²)")
     ci.add_argument("--json", action="store_true", help="print the result as one JSON object")
     ci.set_defaults(handler=prints_summary(run_camera_imu))
+
+    li = sub.add_parser("lidar-imu", help="LiDAR-IMU rotation and time offset (t_imu = t_lidar + offset) from the rig "
+                                          "turned in a static scene (the translation is not estimated)")
+    li.add_argument("--scans", type=Path, required=True,
+                    help="a folder of clouds (.pcd .ply .las .laz .npy) named by their time stamp in ns")
+    li.add_argument("--imu", type=Path, required=True, help="IMU samples: CSV t_ns,wx,wy,wz,ax,ay,az (rad/s, m/s²)")
+    li.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    li.set_defaults(handler=prints_summary(run_lidar_imu))
+
+
+def run_lidar_imu(args: argparse.Namespace) -> dict[str, Any]:
+    from backend.calib.lidar_imu.service import solve_files, summary
+
+    result = solve_files(args.scans, args.imu, progress_to_stderr(False))
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)
+    out = summary(result)
+    if not args.json:
+        print(f"R_lidar_imu:\n{result.T_parent_child[:3, :3].round(6)}\ntime offset {1e3 * out['time_offset_s']:.3f} "
+              f"ms (t_imu = t_lidar + offset), sigma {1e3 * out['std']['time_s']:.3f} ms; rotation sigma (deg) "
+              f"{[round(s, 4) for s in out['std']['rot_deg']]}; translation not estimated")
+    return out
 
 
 def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:

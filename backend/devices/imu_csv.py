@@ -23,3 +23,11 @@ def parse_imu_csv(data: bytes, name: str) -> tuple[ImuSamples, list[str]]:
     """:func:`read_imu_csv` on a file's bytes (an upload named ``name``)."""
     rows = parse_table(data, IMU_COLUMNS, name)
     return checked_imu(rows[:, 0] * 1e-9, rows[:, 1:4], rows[:, 4:7], name)
+
+
+def format_imu_csv(samples: ImuSamples) -> bytes:
+    """``samples`` as an IMU CSV file (:data:`IMU_COLUMNS`, a ``#`` header as EuRoC writes it; times in ns)."""
+    lines = ["#" + ",".join(IMU_COLUMNS)] + [
+        f"{round(t * 1e9)},{','.join(f'{v:.9f}' for v in (*w, *a))}"
+        for t, w, a in zip(samples.t_s, samples.gyro_rad_s, samples.accel_m_s2, strict=True)]
+    return "\n".join(lines).encode() + b"\n"

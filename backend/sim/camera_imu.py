@@ -20,6 +20,7 @@ from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.imu import ImuSamples
 from backend.core.transforms import invert, make_T, right_jacobians
+from backend.devices.imu_csv import format_imu_csv
 from backend.sim.board_renderer import render_board_image
 
 BOARD = "aprilgrid:6x6:0.088:0.3"
@@ -119,12 +120,8 @@ def write_images(recording: CameraImuRecording, folder: Path, frames: range) -> 
 
 def recording_files(recording: CameraImuRecording) -> tuple[bytes, bytes]:
     """The recording as the two CSV files a user uploads: IMU samples and detected corners (``t_ns`` columns)."""
-    imu = recording.imu
-    imu_lines = ["#ts,wx,wy,wz,ax,ay,az"] + [
-        f"{round(t * 1e9)},{','.join(f'{v:.9f}' for v in (*w, *a))}"
-        for t, w, a in zip(imu.t_s, imu.gyro_rad_s, imu.accel_m_s2, strict=True)]
     seen = recording.observations
     detection_lines = ["t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner"] + [
         f"{round(seen.t_s[f] * 1e9)},{u:.4f},{v:.4f},{x:.6f},{y:.6f},{z:.6f},0,{i}"
         for i, (f, (u, v), (x, y, z)) in enumerate(zip(seen.frame, seen.pixels_px, seen.board_m, strict=True))]
-    return "\n".join(imu_lines).encode() + b"\n", "\n".join(detection_lines).encode() + b"\n"
+    return format_imu_csv(recording.imu), "\n".join(detection_lines).encode() + b"\n"

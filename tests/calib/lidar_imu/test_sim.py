@@ -3,13 +3,18 @@ upside down under it with a 15 ms clock offset."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from backend.calib.lidar_imu.solver import solve_lidar_imu
 from backend.core.errors import InputError
+from backend.core.imu import ImuSamples
+from backend.devices.imu_csv import format_imu_csv
 from backend.sim.lidar_imu import simulate_lidar_imu
+from tests.conftest import cli_in_process
 
 pytestmark = pytest.mark.slow
 
@@ -34,3 +39,23 @@ def test_a_rig_turned_about_one_axis_is_refused() -> None:
     still = simulate_lidar_imu(duration_s=3.0, amplitude_rad=0.01)
     with pytest.raises(InputError, match="needs the rig turned through at least 20|turned about its"):
         solve_lidar_imu(still.scan_times_s, still.scans, still.imu)
+
+
+def test_the_command_reads_a_folder_of_scans(tmp_path) -> None:
+    """``calib-studio lidar-imu --scans DIR --imu imu.csv --json`` on the simulated recording's files."""
+    recording = simulate_lidar_imu(duration_s=8.0, offset_s=-0.02, seed=2)
+    (tmp_path / "scans").mkdir()
+    for t_s, points in zip(recording.scan_times_s, recording.scans, strict=True):
+        np.save(tmp_path / "scans" / f"{round((1000 + t_s) * 1e9)}.npy", points)
+    imu = ImuSamples(recording.imu.t_s + 1000, recording.imu.gyro_rad_s, recording.imu.accel_m_s2)
+    (tmp_path / "imu.csv").write_bytes(format_imu_csv(imu))
+    run = cli_in_process("lidar-imu", "--scans", tmp_path / "scans", "--imu", tmp_path / "imu.csv", "--json")
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout)
+    assert abs(summary["time_offset_s"] + 0.02) < 2e-3, summary["time_offset_s"]
+    rotation_deg = np.degrees(Rotation.from_matrix(np.array(summary["T_lidar_imu"])[:3, :3].T
+                                                   @ recording.R_lidar_imu).magnitude())
+    assert rotation_deg < 0.2 and summary["std"]["trans_m"] == [None, None, None]
+    (tmp_path / "scans" / "first.npy").write_bytes(b"")
+    named = cli_in_process("lidar-imu", "--scans", tmp_path / "scans", "--imu", tmp_path / "imu.csv", "--json")
+    assert named.returncode != 0 and "first.npy: expected the scan's time stamp in ns" in named.stderr
