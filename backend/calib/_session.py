@@ -89,6 +89,15 @@ def check_lidar(session: Session, sensor: str) -> None:
         raise InputError(f"sensor {sensor!r} is a {kind}, not a LiDAR or depth sensor", "sensor")
 
 
+def check_imu(session: Session, sensor: str) -> None:
+    """:class:`InputError` (404) unless ``sensor`` is an IMU of the session's rig (its IMUs named)."""
+    frame = session.rig.frames.get(sensor)
+    if frame is None or frame.kind != "imu":
+        imus = [f.name for f in session.rig.sensors("imu")]
+        raise InputError(f"{sensor!r} is not an IMU of the rig; IMUs: {', '.join(imus) or 'none (add one)'}",
+                         "sensor", 404)
+
+
 def store_cloud(session: Session, sensor: str, sample: Sample, *, device: str, source: str | None = None
                 ) -> CaptureRecord:
     """Keep one cloud (live or imported) in the sensor's frame."""

@@ -7,10 +7,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from backend.cli._common import prints_summary, progress_to_stderr
+from backend.cli._common import prints_summary, progress_to_stderr, warn
 from backend.core.errors import InputError
+
+if TYPE_CHECKING:
+    from backend.core.result import TransformResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,9 +46,7 @@ def run_lidar_imu(args: argparse.Namespace) -> dict[str, Any]:
     from backend.calib.lidar_imu.service import solve_files, summary
 
     result = solve_files(args.scans, args.imu, progress_to_stderr(False))
-    for warning in result.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
-    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)
+    _report(result)
     out = summary(result)
     if not args.json:
         print(f"R_lidar_imu:\n{result.T_parent_child[:3, :3].round(6)}\ntime offset {1e3 * out['time_offset_s']:.3f} "
@@ -65,9 +66,7 @@ def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:
     settings = CameraImuSettings(knots_per_s=args.knots_per_second, gravity_m_s2=args.gravity)
     result = solve_files(args.camera, args.images or args.detections, args.imu, args.board, settings,
                          progress_to_stderr(False))
-    for warning in result.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
-    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)
+    _report(result)
     out = summary(result)
     if not args.json:
         std = out["std"]
@@ -75,3 +74,10 @@ def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:
               f"(t_imu = t_cam + offset), sigma {1e3 * std['time_s']:.3f} ms\nsigma translation (mm) "
               f"{[round(1e3 * s, 2) for s in std['trans_m']]}, rotation (deg) {[round(s, 4) for s in std['rot_deg']]}")
     return out
+
+
+def _report(result: TransformResult) -> None:
+    """The result's warnings and verdict on stderr."""
+    for warning in result.warnings:
+        warn(warning)
+    print(f"verdict: {result.verdict.level}: {'; '.join(result.verdict.reasons)}", file=sys.stderr)

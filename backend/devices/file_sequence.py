@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 from typing import ClassVar
 
+from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample
 
 
@@ -16,6 +17,26 @@ def natural_key(name: str) -> list[tuple[int, int | str]]:
     Each part is tagged (0 for numbers, 1 for text) so numbers and text never compare directly.
     """
     return [(0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"(\d+)", name.lower()) if part]
+
+
+def stamped_files(folder: Path, extensions: tuple[str, ...], item: str, plural: str, input_name: str,
+                  limit: int | None = None) -> list[tuple[int, Path]]:
+    """``(stamp_ns, path)`` of the files in ``folder`` with one of ``extensions``, each named by its time stamp in
+    ns (as EuRoC and Kalibr's bag extraction name them, ``1403715273262142976.png``), in time order.
+    :class:`InputError` naming ``input_name`` for a missing or empty folder or more than ``limit`` files, or naming
+    the file (an ``item``) whose name is not a time stamp."""
+    if not folder.is_dir():
+        raise InputError(f"{folder} is not a folder of {plural}", input_name)
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in extensions)
+    if not files:
+        raise InputError(f"{folder} holds no {plural} ({', '.join(extensions)})", input_name)
+    if limit is not None and len(files) > limit:
+        raise InputError(f"{folder} holds {len(files)} {plural}; one solve takes at most {limit}", input_name)
+    bad = next((p for p in files if not p.stem.isdigit()), None)
+    if bad is not None:
+        raise InputError(f"{bad.name}: expected the {item}'s time stamp in ns as its name, e.g. "
+                         f"1403715273262142976{extensions[0]}", str(bad))
+    return sorted((int(p.stem), p) for p in files)
 
 
 class FileSequence(CaptureDevice):

@@ -23,6 +23,11 @@ def nominal_camera(width: int, height: int) -> CameraIntrinsics:
 
 def board_pose(camera: CameraIntrinsics, board: BoardSpec, detection: Detection) -> np.ndarray | None:
     """``T_camera_board`` (m) by PnP on undistorted corners, so fisheye and pinhole alike; None if PnP fails."""
-    normalised = camera.undistort_points(detection.corners_px)
-    ok, rvec, tvec = cv2.solvePnP(detection.object_points(board), normalised, np.eye(3), None)
+    return pnp_pose(camera, detection.object_points(board), detection.corners_px)
+
+
+def pnp_pose(camera: CameraIntrinsics, points: np.ndarray, pixels_px: np.ndarray) -> np.ndarray | None:
+    """``T_camera_points`` (m): the pose of (N, 3) ``points`` (m, their own frame) seen at (N, 2) ``pixels_px``, by
+    PnP on the undistorted pixels, so fisheye and pinhole alike; None if PnP fails."""
+    ok, rvec, tvec = cv2.solvePnP(np.ascontiguousarray(points), camera.undistort_points(pixels_px), np.eye(3), None)
     return from_rvec_tvec(rvec, tvec) if ok else None

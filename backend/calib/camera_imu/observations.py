@@ -5,16 +5,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from backend.calib.board.detection import detect_board
+from backend.calib.board.pose import pnp_pose
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.tables import parse_table, read_table
-from backend.core.transforms import from_rvec_tvec
+from backend.core.transforms import transform_points
+from backend.devices.file_sequence import stamped_files
 from backend.devices.image_io import read_image
 
 DETECTION_COLUMNS = ("t_ns", "u_px", "v_px", "x_m", "y_m", "z_m", "tag_id", "corner")
@@ -67,9 +68,9 @@ def _observations(rows: np.ndarray, name: str) -> BoardObservations:
 
 
 def board_poses(camera: CameraIntrinsics, observations: BoardObservations) -> tuple[np.ndarray, np.ndarray]:
-    """``T_camera_board`` (K, 4, 4; m) of every frame by PnP on undistorted corners, and each frame's RMS
-    reprojection (px; NaN where a frame has fewer than :data:`MIN_FRAME_CORNERS` corners or PnP failed)."""
-    normalised = camera.undistort_points(observations.pixels_px)
+    """``T_camera_board`` (K, 4, 4; m) of every frame by PnP (:func:`~backend.calib.board.pose.pnp_pose`), and each
+    frame's RMS reprojection (px; NaN where a frame has fewer than :data:`MIN_FRAME_CORNERS` corners or PnP
+    failed)."""
     poses = np.tile(np.eye(4), (len(observations.t_s), 1, 1))
     rms = np.full(len(observations.t_s), np.nan)
     starts = np.searchsorted(observations.frame, np.arange(len(observations.t_s) + 1))
@@ -77,14 +78,13 @@ def board_poses(camera: CameraIntrinsics, observations: BoardObservations) -> tu
         rows = slice(starts[k], starts[k + 1])
         if starts[k + 1] - starts[k] < MIN_FRAME_CORNERS:
             continue
-        ok, rvec, tvec = cv2.solvePnP(observations.board_m[rows], normalised[rows], np.eye(3), None)
-        if not ok:
+        pose = pnp_pose(camera, observations.board_m[rows], observations.pixels_px[rows])
+        if pose is None:
             continue
-        poses[k] = from_rvec_tvec(rvec, tvec)
-        projected = camera.project((observations.board_m[rows] @ poses[k][:3, :3].T) + poses[k][:3, 3])
+        poses[k] = pose
+        projected = camera.project(transform_points(pose, observations.board_m[rows]))
         rms[k] = float(np.sqrt(np.mean(np.sum((projected - observations.pixels_px[rows]) ** 2, axis=1))))
     return poses, rms
-
 
 def check_board_points(observations: BoardObservations, spec: str, name: str, tolerance_m: float = 1e-3) -> None:
     """:class:`InputError` naming the detections file when its board points are not corners of the board ``spec``
@@ -110,19 +110,9 @@ def detect_image_folder(folder: Path, spec: str, progress: ProgressCallback = no
     Kalibr's bag extraction name them, ``1403715273262142976.png``); frames without the board are left out.
     :class:`InputError` naming the folder or the file for a name that is not a time stamp or an unreadable image."""
     board = BoardSpec.parse(spec)
-    if not folder.is_dir():
-        raise InputError(f"{folder} is not a folder of images", "--images")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InputError(f"{folder} holds no images ({', '.join(IMAGE_SUFFIXES)})", "--images")
-    stamped = []
-    for path in files:
-        if not path.stem.isdigit():
-            raise InputError(f"{path.name}: expected the image's time stamp in ns as its name, e.g. "
-                             "1403715273262142976.png", str(path))
-        stamped.append((int(path.stem), path))
+    stamped = stamped_files(folder, IMAGE_SUFFIXES, "image", "images", "--images")
     times, frames, pixels, points = [], [], [], []
-    for index, (stamp_ns, path) in enumerate(sorted(stamped)):
+    for index, (stamp_ns, path) in enumerate(stamped):
         progress(index / len(stamped), f"detecting the board in {path.name}")
         detection = detect_board(read_image(path), board)
         if detection is None:
@@ -132,5 +122,5 @@ def detect_image_folder(folder: Path, spec: str, progress: ProgressCallback = no
         pixels.append(detection.corners_px)
         points.append(board.object_points[detection.ids].astype(np.float64))
     if not times:
-        raise InputError(f"the board {spec} was found in none of the {len(files)} images of {folder}", "--images")
+        raise InputError(f"the board {spec} was found in none of the {len(stamped)} images of {folder}", "--images")
     return BoardObservations(np.array(times), np.concatenate(frames), np.concatenate(pixels), np.concatenate(points))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.calib._session import check_camera
+from backend.calib._session import check_camera, check_imu
 from backend.calib.camera_imu.checks import (
     Excitation,
     HalvesCheck,
@@ -82,15 +82,6 @@ def solve_files(camera_path: Path, corners: Path, imu_path: Path, board: str,
         observations = read_detections_csv(corners)
         check_board_points(observations, board, str(corners))
     return solve_recording(camera, observations, imu, settings, warnings, solving)
-
-
-def check_imu(session: Session, sensor: str) -> None:
-    """:class:`InputError` (404) unless ``sensor`` is an IMU of the session's rig."""
-    frame = session.rig.frames.get(sensor)
-    if frame is None or frame.kind != "imu":
-        imus = [f.name for f in session.rig.sensors("imu")]
-        raise InputError(f"{sensor!r} is not an IMU of the rig; IMUs: {', '.join(imus) or 'none (add one)'}",
-                         "sensor", 404)
 
 
 def solve_session(session: Session, imu_sensor: str, camera: str, imu_csv: tuple[str, bytes],

@@ -149,13 +149,11 @@ def solve_camera_imu(camera: CameraIntrinsics, observations: BoardObservations, 
                  f"{settings.rounds})")
         state, converged, steps = _levenberg_marquardt(state, camera, kept, imu_used, sigmas, settings, progress)
         iterations += steps
-        camera_part = camera_residuals(state, camera, kept, sigmas["reprojection_px"], with_jacobian=False)
-        gyro_part, accel_part = imu_residuals(state, imu_used, sigmas["gyro_rad_s"], sigmas["accel_m_s2"], False)
-        for kind, part in zip(NOISE_KINDS, (camera_part, gyro_part, accel_part), strict=True):
+        parts = _linearise(state, camera, kept, imu_used, sigmas, with_jacobian=False)
+        error_px = np.hypot(*parts[0].residuals.reshape(-1, 2).T) * sigmas["reprojection_px"]  # whitened by the old
+        for kind, part in zip(NOISE_KINDS, parts, strict=True):
             sigmas[kind] *= float(np.sqrt(np.mean(part.residuals**2)))
         if round_index < settings.rounds - 1:
-            error_px = np.hypot(*(camera_part.residuals.reshape(-1, 2).T)) * (
-                sigmas["reprojection_px"] / float(np.sqrt(np.mean(camera_part.residuals**2))))
             outliers = error_px > settings.outlier_sigmas * sigmas["reprojection_px"] * np.sqrt(2)
             if outliers.any():
                 dropped += int(outliers.sum())
@@ -178,7 +176,7 @@ def _initial_state(spline: UniformSpline, imu_times: np.ndarray, T_cam_board: np
                    imu: ImuSamples, settings: CameraImuSettings) -> TrajectoryState:
     """The spline fitted to the IMU's poses implied by the board poses and the aligned rotation (translation 0)."""
     T_cam_imu = make_T(alignment.R_a_b.T, np.zeros(3))
-    T_board_imu = invert_many(T_cam_board) @ T_cam_imu
+    T_board_imu = invert(T_cam_board) @ T_cam_imu
     rotations = Rotation.from_matrix(T_board_imu[:, :3, :3])
     R0 = rotations.mean().as_matrix()
     phi = (Rotation.from_matrix(R0.T) * rotations).as_rotvec()
@@ -191,22 +189,17 @@ def _initial_state(spline: UniformSpline, imu_times: np.ndarray, T_cam_board: np
     return replace(state, gravity_board_m_s2=settings.gravity_m_s2 * gravity / np.linalg.norm(gravity))
 
 
-def invert_many(T: np.ndarray) -> np.ndarray:
-    """The inverse of each of (N, 4, 4) rigid transforms."""
-    return np.stack([invert(t) for t in T])
-
-
 def _linearise(state: TrajectoryState, camera: CameraIntrinsics, frames: BoardObservations, imu: ImuSamples,
-               sigmas: dict[str, float]) -> list[Linearised]:
-    return [camera_residuals(state, camera, frames, sigmas["reprojection_px"]),
-            *imu_residuals(state, imu, sigmas["gyro_rad_s"], sigmas["accel_m_s2"])]
+               sigmas: dict[str, float], with_jacobian: bool = True) -> list[Linearised]:
+    """The camera's, the gyro's and the accelerometer's whitened residuals (:data:`NOISE_KINDS`' order)."""
+    return [camera_residuals(state, camera, frames, sigmas["reprojection_px"], with_jacobian),
+            *imu_residuals(state, imu, sigmas["gyro_rad_s"], sigmas["accel_m_s2"], with_jacobian)]
 
 
 def _cost(state: TrajectoryState, camera: CameraIntrinsics, frames: BoardObservations, imu: ImuSamples,
           sigmas: dict[str, float]) -> float:
-    parts = [camera_residuals(state, camera, frames, sigmas["reprojection_px"], with_jacobian=False),
-             *imu_residuals(state, imu, sigmas["gyro_rad_s"], sigmas["accel_m_s2"], with_jacobian=False)]
-    return float(sum(part.residuals @ part.residuals for part in parts))
+    return float(sum(part.residuals @ part.residuals
+                     for part in _linearise(state, camera, frames, imu, sigmas, with_jacobian=False)))
 
 
 def _levenberg_marquardt(state: TrajectoryState, camera: CameraIntrinsics, frames: BoardObservations,

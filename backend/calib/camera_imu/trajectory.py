@@ -79,7 +79,11 @@ class TrajectoryState:
     def poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (N, 3; m) and orientations ``R_board_imu`` (N, 3, 3) at IMU times ``times_s``."""
         values = self.spline.basis(times_s) @ self.coefficients
-        return values[:, POSITION], self.R0 @ Rotation.from_rotvec(values[:, ROTATION]).as_matrix()
+        return values[:, POSITION], self.orientations(values[:, ROTATION])
+
+    def orientations(self, phi: np.ndarray) -> np.ndarray:
+        """``R_board_imu = R0 @ Exp(phi)`` (N, 3, 3) of the spline's rotation vectors ``phi`` (N, 3; rad)."""
+        return self.R0 @ Rotation.from_rotvec(phi).as_matrix()
 
 
 def gravity_basis(gravity: np.ndarray) -> np.ndarray:
@@ -112,7 +116,7 @@ def camera_residuals(state: TrajectoryState, camera: CameraIntrinsics, observati
     basis = state.spline.basis(times)
     values = basis @ state.coefficients
     position, phi = values[:, POSITION], values[:, ROTATION]
-    R_board_imu = state.R0 @ Rotation.from_rotvec(phi).as_matrix()
+    R_board_imu = state.orientations(phi)
     frame = observations.frame
     points_imu = np.einsum("mji,mj->mi", R_board_imu[frame], observations.board_m - position[frame])
     R_ci, t_ci = state.T_cam_imu[:3, :3], state.T_cam_imu[:3, 3]
@@ -151,7 +155,7 @@ def imu_residuals(state: TrajectoryState, imu: ImuSamples, sigma_gyro: float, si
     J_r = right_jacobians(phi)
     omega = np.einsum("nij,nj->ni", J_r, phi_rate)
     gyro = ((omega + state.gyro_bias_rad_s - imu.gyro_rad_s) / sigma_gyro).ravel()
-    R_board_imu = state.R0 @ Rotation.from_rotvec(phi).as_matrix()
+    R_board_imu = state.orientations(phi)
     R_imu_board = np.transpose(R_board_imu, (0, 2, 1))
     force = np.einsum("nij,nj->ni", R_imu_board, accelerations[:, POSITION] - state.gravity_board_m_s2)
     accel = ((force + state.accel_bias_m_s2 - imu.accel_m_s2) / sigma_accel).ravel()

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from backend.calib.board.detection import Detection, detect_board, detect_checkerboard_classic
-from backend.calib.board.pose import board_pose
+from backend.calib.board.pose import board_pose, pnp_pose
 from backend.calib.lidar_camera.checks import CrossCheck, compare_methods, judge
 from backend.calib.lidar_camera.target import LidarCameraTargetSettings, TargetObservation, solve_target
 from backend.core.boards import BoardSpec
@@ -235,11 +235,9 @@ def matched_pairs(placement: CornerPlacement, board: BoardSpec, camera: CameraIn
         if len(pairs) < 6:
             continue
         points, image = (np.array(part) for part in zip(*pairs, strict=True))
-        normalised = camera.undistort_points(image)
-        ok, rvec, tvec = cv2.solvePnP(points, normalised, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
-        if not ok:
+        T = pnp_pose(camera, points, image)
+        if T is None:
             continue
-        T = from_rvec_tvec(rvec, tvec)
         error = float(np.sqrt(np.mean(np.sum((camera.project(transform_points(T, points)) - image) ** 2, axis=1))))
         fits.append((error, T, points, image))
     if not fits:

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from backend.calib.lidar_imu.solver import solve_lidar_imu
-from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, TransformResult, no_progress
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
+from backend.devices.file_sequence import stamped_files
 from backend.devices.imu_csv import read_imu_csv
 
 MAX_SCANS = 3000
@@ -20,20 +20,8 @@ MAX_SCANS = 3000
 def read_scan_folder(folder: Path) -> tuple[np.ndarray, list[np.ndarray]]:
     """Scan times (s) and points (N, 3; m, the LiDAR's frame) of every cloud file in ``folder``, each named by its
     time stamp in ns (``1403715273262142976.pcd``), in time order; :class:`InputError` naming the folder or file."""
-    if not folder.is_dir():
-        raise InputError(f"{folder} is not a folder of clouds", "--scans")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in CLOUD_EXTENSIONS)
-    if not files:
-        raise InputError(f"{folder} holds no clouds ({', '.join(CLOUD_EXTENSIONS)})", "--scans")
-    if len(files) > MAX_SCANS:
-        raise InputError(f"{folder} holds {len(files)} clouds; one solve takes at most {MAX_SCANS}", "--scans")
-    bad = next((p for p in files if not p.stem.isdigit()), None)
-    if bad is not None:
-        raise InputError(f"{bad.name}: expected the scan's time stamp in ns as its name, e.g. 1403715273262142976.pcd",
-                         str(bad))
-    files.sort(key=lambda p: int(p.stem))
-    return np.array([int(p.stem) * 1e-9 for p in files]), [read_cloud(p).points for p in files]
-
+    stamped = stamped_files(folder, CLOUD_EXTENSIONS, "scan", "clouds", "--scans", MAX_SCANS)
+    return np.array([stamp_ns * 1e-9 for stamp_ns, _ in stamped]), [read_cloud(path).points for _, path in stamped]
 
 def solve_files(scans: Path, imu_path: Path, progress: ProgressCallback = no_progress) -> TransformResult:
     """:func:`~backend.calib.lidar_imu.solver.solve_lidar_imu` on a folder of scans and an IMU CSV."""
