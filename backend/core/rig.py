@@ -62,6 +62,12 @@ class Frame:
     not_connected: bool = False
     """Added as not connected (the rig defined before the hardware is plugged in): its device has not answered
     since; the first time it does, this goes back to False."""
+    clock_offset_s: float = 0.0
+    """How much the sensor's clock reads more than the rig's reference clock at the same instant (s): the rig's time
+    of a sample is its stamp less this. Set by accepting a time offset (:mod:`backend.calib.time_offset`) or a
+    camera-IMU result; applied where samples of several sensors are matched by time."""
+    clock_offset_std_s: float | None = None
+    """1-sigma of :attr:`clock_offset_s` (s); None while the offset is the default 0, not measured."""
 
     def __post_init__(self) -> None:
         """Shape the arrays; a NaN or infinity in the transform or covariance raises :class:`InputError`."""
@@ -71,7 +77,8 @@ class Frame:
         if self.covariance is not None:
             self.covariance = np.asarray(self.covariance, dtype=float).reshape(6, 6)
         require_finite({"T_parent_child": self.T_parent_child, "covariance": self.covariance, "T_mount": self.T_mount,
-                        "mount_sigma": self.mount_sigma}, f"frame {self.name!r}", self.name)
+                        "mount_sigma": self.mount_sigma, "clock_offset_s": self.clock_offset_s,
+                        "clock_offset_std_s": self.clock_offset_std_s}, f"frame {self.name!r}", self.name)
         if self.mount_sigma is not None and not all(s > 0 for s in self.mount_sigma):
             raise InputError(f"frame {self.name!r}: mounting sigma must be above 0 m and 0 deg, got "
                              f"{list(self.mount_sigma)}", "mount_sigma")
@@ -83,6 +90,10 @@ class Frame:
             return None
         sigma_m, sigma_deg = self.mount_sigma
         return np.diag([sigma_m**2] * 3 + [np.radians(sigma_deg) ** 2] * 3)
+
+    def rig_time(self, stamp_s: float) -> float:
+        """The rig's reference time (s) of a sample this sensor stamped ``stamp_s`` (s)."""
+        return stamp_s - self.clock_offset_s
 
     @property
     def sigmas(self) -> tuple[np.ndarray, np.ndarray] | None:

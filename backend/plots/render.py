@@ -34,12 +34,17 @@ def new_figure(width_in: float, height_in: float) -> Figure:
         return Figure(figsize=(width_in, height_in), layout="constrained")
 
 
-def to_data_uri(figure: Figure) -> str:
-    """The figure as an SVG ``data:`` URI (self-contained: fonts drawn as paths)."""
+def to_svg(figure: Figure) -> bytes:
+    """The figure as a self-contained SVG document (fonts drawn as paths)."""
     buffer = io.BytesIO()
     with styled():
         figure.savefig(buffer, format="svg", bbox_inches="tight")
-    return "data:image/svg+xml;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+    return buffer.getvalue()
+
+
+def to_data_uri(figure: Figure) -> str:
+    """The figure as an SVG ``data:`` URI (:func:`to_svg`)."""
+    return "data:image/svg+xml;base64," + base64.b64encode(to_svg(figure)).decode("ascii")
 
 
 def to_rgb(figure: Figure, width_px: int = PANEL_WIDTH_PX) -> np.ndarray:

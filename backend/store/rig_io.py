@@ -23,6 +23,8 @@ def _frame_fields(f: Frame) -> dict[str, Any]:
         "T_mount": f.T_mount.tolist(),
         "mount_sigma": f.mount_sigma,
         "not_connected": f.not_connected,
+        "clock_offset_s": f.clock_offset_s,
+        "clock_offset_std_s": f.clock_offset_std_s,
     }
 
 
@@ -44,6 +46,8 @@ def frame_from_model(f: FrameModel) -> Frame:
         T_mount=None if f.T_mount is None else np.array(f.T_mount),
         mount_sigma=f.mount_sigma,
         not_connected=f.not_connected,
+        clock_offset_s=f.clock_offset_s,
+        clock_offset_std_s=f.clock_offset_std_s,
     )
 
 

@@ -67,6 +67,10 @@ class FrameModel(FiniteModel):
     mount_sigma: tuple[float, float] | None = Field(DEFAULT_MOUNT_SIGMA, description="1-sigma of the mounting "
                                                      "guess: m, deg; null when the mounting is unknown")
     not_connected: bool = Field(False, description="added as not connected; its device has not answered since")
+    clock_offset_s: float = Field(0.0, description="how much the sensor's clock reads more than the rig's reference "
+                                  "clock at the same instant (s)")
+    clock_offset_std_s: float | None = Field(None, ge=0, description="1-sigma of clock_offset_s (s); null: not "
+                                             "measured")
 
     @field_validator("T_parent_child", "T_mount")
     @classmethod

@@ -62,6 +62,8 @@ def test_a_recording_is_solved_kept_and_accepted(client: TestClient, recording) 
     assert accepted.status_code == 200, accepted.text
     session = client.get("/api/sessions/rig").json()
     assert session["accepted"]["imu0/T_cam0_imu0"] == result_id, session["accepted"]
+    frames = {f["name"]: f for f in client.get("/api/sessions/rig/rig").json()["frames"]}
+    assert frames["imu0"]["clock_offset_s"] == pytest.approx(listed[0]["time_offset_s"], abs=1e-12)  # t_imu = t_cam + o
 
 
 def test_bad_files_and_sensors_are_refused_naming_them(client: TestClient, recording) -> None:

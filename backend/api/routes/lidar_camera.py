@@ -37,7 +37,8 @@ VIEW_PAGE = Path(__file__).resolve().parents[3] / "frontend_assets" / "overlay_v
 def _pair_dict(pair: pairs_service.CapturePair) -> dict[str, Any]:
     return {"name": pair.name, "camera": pair.camera, "image": pair.image.id, "lidar": pair.lidar,
             "cloud": pair.cloud.id, "board_found": pair.image.detection is not None,
-            "n_points": pair.cloud.n_points, "timestamp_s": pair.image.timestamp_s}
+            "n_points": pair.cloud.n_points, "timestamp_s": pair.image.timestamp_s,
+            "clock_offsets_s": pair.clock_offsets_s}
 
 
 @router.get("/lidar-camera/pairs")

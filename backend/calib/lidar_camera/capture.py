@@ -2,8 +2,9 @@
 
 A pair is one moment seen by both sensors: the camera's image and the LiDAR's cloud,
 each stored as an ordinary capture of its sensor, the image carrying the link
-(``meta["paired_cloud"] = "<lidar>:<capture id>"``). A pair is all or nothing: both are
-checked (the image's size against the intrinsics and the camera's earlier captures, the
+(``meta["paired_cloud"] = "<lidar>:<capture id>"``) and the two sensors' clock offsets the pair assumed
+(``meta["clock_offsets_s"]``, s: the rig's accepted time offsets, 0 until one is accepted). A pair is all or
+nothing: both are checked (the image's size against the intrinsics and the camera's earlier captures, the
 cloud's points) before either is written, under the session's lock.
 
 Capturing from live devices waits for a still board: the camera is read before and
@@ -55,6 +56,11 @@ class CapturePair:
         """How results and errors name the pair: ``cam_front:00003+lidar_top:00007``."""
         return f"{self.camera}:{self.image.id}+{self.lidar}:{self.cloud.id}"
 
+    @property
+    def clock_offsets_s(self) -> dict[str, float]:
+        """The camera's and the LiDAR's clock offsets (s) when the pair was stored (empty for older pairs)."""
+        return dict(self.image.meta.get("clock_offsets_s", {}))
+
 
 def stored_pairs(session: Session, camera: str, lidar: str, image_ids: list[str] | None = None) -> list[CapturePair]:
     """The stored pairs of ``camera`` and ``lidar``, oldest first (only those whose image is in ``image_ids``)."""
@@ -87,7 +93,8 @@ def store_pair(session: Session, camera: str, lidar: str, image: Sample, cloud: 
         image_record = intrinsics_service.store_capture(
             session, camera, image.image, detection, device=device, timestamp_s=image.timestamp_s,
             source=source[0] if source else None,
-            meta={**image.storable_meta(), "paired_cloud": f"{lidar}:{cloud_record.id}"})
+            meta={**image.storable_meta(), "paired_cloud": f"{lidar}:{cloud_record.id}",
+                  "clock_offsets_s": {sensor: session.rig.get(sensor).clock_offset_s for sensor in (camera, lidar)}})
     return CapturePair(camera, image_record, lidar, cloud_record)
 
 

@@ -10,7 +10,9 @@ set carries in ``meta``:
 * ``multicam_set``: the set's name, ``"set00007"``; unique in the session and increasing in
   the order sets are stored (a refused or failed set may leave a gap);
 * ``multicam_cameras``: the names of every camera of the set, in the order they were given;
-* ``multicam_stamp_s``: the frame's capture time (header stamp for a bag), seconds since the epoch.
+* ``multicam_stamp_s``: the frame's capture time on the rig's clock (s): its stamp (the header stamp for a bag) less
+  the camera's ``clock_offset_s`` (:meth:`~backend.core.rig.Frame.rig_time`);
+* ``clock_offset_s``: the camera's clock offset this set assumed (s; 0 until a time offset is accepted).
 
 Captures are written one after the other, so a set is *stored* only when every camera in
 ``multicam_cameras`` holds a capture with its name; :func:`stored_sets` ignores the
@@ -19,11 +21,13 @@ image sizes, board views, the bag and its topics) is checked before the first ca
 a set is written, so only a failing disk can leave such a remnant. A set is useful to a
 solver when at least two of its cameras see the board.
 
-Matching by time (:func:`match_by_timestamp`) is greedy over the sorted union of all
-stamps: the earliest frame not yet used anchors a set, and every other camera joins with
-its earliest unused frame no later than ``tolerance_s`` after the anchor, so all frames of
-a set lie within ``tolerance_s`` of each other. An anchor no other camera joins is left
-unmatched. This is unambiguous when ``tolerance_s`` is well under half the frame period.
+Matching by time (:func:`match_by_timestamp`), live and from a bag, works on the rig's
+clock (each camera's stamps less its accepted clock offset) and is greedy over the
+sorted union of all stamps: the earliest frame not yet used anchors a set, and every
+other camera joins with its earliest unused frame no later than ``tolerance_s`` after
+the anchor, so all frames of a set lie within ``tolerance_s`` of each other. An anchor
+no other camera joins is left unmatched. This is unambiguous when ``tolerance_s`` is
+well under half the frame period.
 """
 
 from __future__ import annotations
@@ -131,10 +135,13 @@ class BagImportReport:
     """Sets not stored because fewer than two of their cameras saw the board."""
     ended: str = ""
     """Why the import stopped: the bag's end or the limit."""
+    clock_offsets_s: dict[str, float] = field(default_factory=dict)
+    """The cameras' clock offsets (s) the matching took off their stamps (the rig's accepted time offsets)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"bag": self.bag, "cameras": {name: c.to_dict() for name, c in self.cameras.items()},
-                "matched_sets": self.matched_sets, "sets": self.sets, "no_board": self.no_board, "ended": self.ended}
+                "matched_sets": self.matched_sets, "sets": self.sets, "no_board": self.no_board, "ended": self.ended,
+                "clock_offsets_s": self.clock_offsets_s}
 
 
 # --------------------------------------------------------------------------------------------
@@ -276,8 +283,9 @@ def _store_set(session: Session, samples: Mapping[str, Sample], detections: Mapp
         cameras = list(samples)
         captures = {}
         for camera, sample in samples.items():
+            frame = session.rig.get(camera)
             meta = {**sample.storable_meta(), "multicam_set": name, "multicam_cameras": cameras,
-                    "multicam_stamp_s": sample.timestamp_s}
+                    "multicam_stamp_s": frame.rig_time(sample.timestamp_s), "clock_offset_s": frame.clock_offset_s}
             captures[camera] = intrinsics_service.store_capture(
                 session, camera, sample.image, detections[camera], device=device, timestamp_s=sample.timestamp_s,
                 source=sources[camera] if sources else None, meta=meta)
@@ -329,13 +337,14 @@ def _read_together(cameras: Sequence[str], read: Mapping[str, Callable[[], Sampl
         return {camera: future.result() for camera, future in futures.items()}
 
 
-def _read_in_step(cameras: Sequence[str], read: Mapping[str, Callable[[], Sample]], tolerance_s: float
-                  ) -> dict[str, Sample]:
-    """:func:`_read_together` until the frame stamps lie within ``tolerance_s`` (s), at most :data:`READ_ATTEMPTS`
-    times (free-running cameras drift in and out of step); the last attempt's refusal names the late camera."""
+def _read_in_step(session: Session, cameras: Sequence[str], read: Mapping[str, Callable[[], Sample]],
+                  tolerance_s: float) -> dict[str, Sample]:
+    """:func:`_read_together` until the frame times (on the rig's clock) lie within ``tolerance_s`` (s), at most
+    :data:`READ_ATTEMPTS` times (free-running cameras drift in and out of step); the last attempt's refusal names
+    the late camera."""
     for attempt in range(1, READ_ATTEMPTS + 1):
         samples = _read_together(cameras, read)
-        stamps = {camera: sample.timestamp_s for camera, sample in samples.items()}
+        stamps = {camera: session.rig.get(camera).rig_time(sample.timestamp_s) for camera, sample in samples.items()}
         if attempt == READ_ATTEMPTS or max(stamps.values()) - min(stamps.values()) <= tolerance_s:
             _check_spread(stamps, tolerance_s)
             return samples
@@ -360,7 +369,7 @@ def capture_set(session: Session, cameras: list[str], read: Mapping[str, Callabl
         raise InputError(f"no way to read {', '.join(missing)}", missing[0])
     board = _set_board(session, require_board)
     progress(0.0, f"reading {', '.join(cameras)}")
-    samples = _read_in_step(cameras, read, tolerance_s)
+    samples = _read_in_step(session, cameras, read, tolerance_s)
     for camera, sample in samples.items():
         _check_image(session, camera, sample.image)
     progress(0.3, "detecting the board")
@@ -593,7 +602,9 @@ def import_bag_sets(session: Session, bag_path: str | Path, topics: Mapping[str,
 
     job = _BagImport(session, bag, topics, (start_s, end_s), check, report)
     scans = job.scan()
-    match = match_by_timestamp({camera: scan.stamps for camera, scan in scans.items()}, tolerance_s)
+    report.clock_offsets_s = {camera: session.rig.get(camera).clock_offset_s for camera in cameras}
+    match = match_by_timestamp({camera: np.asarray(scan.stamps) - report.clock_offsets_s[camera]
+                                for camera, scan in scans.items()}, tolerance_s)
     report.matched_sets = len(match.sets)
     for camera, scan in scans.items():
         report.cameras[camera].unmatched = [scan.positions[i] for i in match.unmatched[camera]]

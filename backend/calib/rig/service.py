@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from backend.calib.camera_imu import service as camera_imu_service
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.multicam import service as multicam_service
 from backend.calib.rig.graph import FLAG_SIGMA as FLAG_SIGMA  # re-exported: the studio names the limit
@@ -32,6 +33,7 @@ from backend.calib.rig.sensor_edits import KEEP as KEEP  # re-exported: the API 
 from backend.calib.rig.sensor_edits import SensorEdit as SensorEdit
 from backend.calib.rig.sensor_edits import apply_edit, frames_missing, slots_involving
 from backend.calib.sweep import service as sweep_service
+from backend.calib.time_offset import service as time_offset_service
 from backend.core.errors import InputError
 from backend.core.result import EDGE_KINDS, StoredResult, TransformResult
 from backend.core.rig import Frame, Rig, edge_slot
@@ -51,8 +53,12 @@ EFFECTS: dict[str, Effect] = {
     "intrinsics": lambda rig, record: intrinsics_service.apply_intrinsics(rig, record),
     "sweep": lambda rig, record: sweep_service.apply_sweep_geometry(rig, record),
     "multicam": lambda rig, record: multicam_service.apply_refined_intrinsics(rig, record),
+    "time_offset": lambda rig, record: time_offset_service.apply_clock_offset(rig, record),
+    "camera_imu": lambda rig, record: time_offset_service.apply_clock_offset(rig, camera_imu_service.clock_record(
+        record)),
 }
-"""What accepting a result does to the rig beside its edges (the camera's intrinsics, a scanner's geometry)."""
+"""What accepting a result does to the rig beside its edges (the camera's intrinsics, a scanner's geometry, a sensor's
+clock offset)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -69,6 +75,8 @@ def slot_of(record: dict[str, Any]) -> str:
         return f"{record['sensor']}/sweep"
     if kind == "multicam":
         return multicam_service.slot(record["camera_order"])
+    if kind == "time_offset":
+        return time_offset_service.slot(record["sensor_b"])
     if kind in EDGE_KINDS:
         transform = StoredResult(record).edges[0]
         return edge_slot(transform.parent, transform.child)

@@ -1,0 +1,153 @@
+"""The clock offset that best lines two sensors' motion signals up, with its sigma.
+
+Convention (Kalibr's, as the camera-IMU solve): ``t_b = t_a + offset_s``, sensor b's clock reads ``offset_s`` more
+than a's at the same instant.
+
+- Two ``rates`` signals go through the camera-IMU solve's rate alignment
+  (:func:`~backend.calib.camera_imu.time_offset.align_rates`: the angular speeds' correlation finds the offset
+  before any rotation is known, then Kabsch gives the rotation and a's bias).
+- Two ``directions`` signals (a board's normal) are lined up by scanning the offset: at each candidate the denser
+  signal is interpolated at the sparser one's times (a cubic spline: a straight line between 15 Hz samples of a
+  board swinging at 0.7 Hz cuts its arcs by 0.3 deg, which the rotation takes up) and the rotation that best maps
+  one onto the other is solved in closed form (Wahba's problem, a 3x3 SVD per offset, all offsets at once); the
+  cost is the mean squared difference of the unit vectors left over. The minimum is refined by a parabola through
+  its neighbours.
+
+The offset's sigma is Gauss-Newton's: the residual's spread over the rate at which the aligned signal changes,
+summed over the samples (``sigma^2 = s^2 / sum |d(R v)/dt|^2``), and at least the search step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+
+from backend.calib.camera_imu.time_offset import align_rates
+from backend.calib.time_offset.signals import MIN_SAMPLES, MotionSignal
+from backend.core.errors import InputError
+
+MIN_TURN_DEG = 10.0
+"""Least spread (deg) of a board's normal over the recording for its timing to be readable."""
+
+
+@dataclass(frozen=True)
+class OffsetAlignment:
+    """How sensor b's motion lines up with sensor a's."""
+
+    offset_s: float
+    """``t_b = t_a + offset_s`` (s)."""
+    offset_std_s: float
+    """1-sigma of ``offset_s`` (s)."""
+    R_a_b: np.ndarray
+    """3x3 rotation taking b's vectors into a's axes (the two sensors' relative mounting)."""
+    rotation_std_deg: float
+    """1-sigma (deg) of the rotation about its least determined axis (for normals that stayed within a cone, the
+    cone's axis)."""
+    residual: float
+    """RMS of a's vectors less the rotated, shifted b's (unit-vector lengths, or rad/s for rates)."""
+    samples: int
+    """Samples of the sparser signal that entered the fit."""
+    curve: dict[str, list[float]]
+    """The alignment's score against the offset, for a plot: ``offset_s`` and ``score`` (the cost, or the angular
+    speeds' correlation for rates) with ``score_name``."""
+
+    def to_dict(self) -> dict:
+        return {"offset_s": self.offset_s, "offset_std_s": self.offset_std_s, "R_a_b": self.R_a_b.tolist(),
+                "rotation_std_deg": self.rotation_std_deg, "residual": self.residual, "samples": self.samples,
+                "curve": self.curve}
+
+
+def align_signals(a: MotionSignal, b: MotionSignal, *, max_offset_s: float = 0.5,
+                  step_s: float = 1e-3) -> OffsetAlignment:
+    """The offset (``t_b = t_a + offset``) within ``±max_offset_s`` and the rotation lining ``b`` up with ``a``;
+    :class:`InputError` naming the sensors when the signals are of different kinds, do not overlap or show too
+    little motion."""
+    if a.kind != b.kind:
+        raise InputError(f"{a.sensor} gives {a.kind} and {b.sensor} gives {b.kind}: their motions cannot be compared",
+                         b.sensor)
+    if a.kind == "rates":
+        rates = align_rates(b.t_s, b.vectors, a.t_s, a.vectors, max_offset_s=max_offset_s, step_s=step_s,
+                            name=f"{a.sensor}+{b.sensor}")
+        return OffsetAlignment(rates.offset_s, rates.offset_std_s, rates.R_a_b.T,
+                               float(np.degrees(rates.rotation_std_rad)), rates.residual_rad_s, len(a.t_s),
+                               {"offset_s": rates.curve["offset_s"], "score": rates.curve["correlation"],
+                                "score_name": "angular speeds' correlation"})
+    for signal in (a, b):
+        turn = np.degrees(np.arccos(np.clip(signal.vectors @ _mean_direction(signal.vectors), -1, 1)).max())
+        if turn < MIN_TURN_DEG:
+            raise InputError(f"{signal.sensor}: the board's normal turned at most {turn:.1f} deg; tilt and turn the "
+                             f"board through at least {MIN_TURN_DEG:g} deg while both sensors watch", signal.sensor)
+    if len(a.t_s) <= len(b.t_s):  # interpolate the denser signal at the sparser one's times
+        return _align_directions(a, b, max_offset_s, step_s)
+    flipped = _align_directions(b, a, max_offset_s, step_s)
+    return OffsetAlignment(-flipped.offset_s, flipped.offset_std_s, flipped.R_a_b.T, flipped.rotation_std_deg,
+                           flipped.residual, flipped.samples, flipped.curve | {
+                               "offset_s": [-o for o in flipped.curve["offset_s"]]})
+
+
+def _mean_direction(vectors: np.ndarray) -> np.ndarray:
+    mean = vectors.mean(axis=0)
+    return mean / max(np.linalg.norm(mean), 1e-12)
+
+
+def _sample(signal: MotionSignal, t_s: np.ndarray, derivative: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``signal`` interpolated at ``t_s`` by a cubic spline (renormalised; or its ``derivative``-th derivative) and a
+    mask of the times inside it and not across a gap of more than 2.5 median steps."""
+    step = float(np.median(np.diff(signal.t_s)))
+    after = np.clip(np.searchsorted(signal.t_s, t_s), 1, len(signal.t_s) - 1)
+    inside = (t_s >= signal.t_s[0]) & (t_s <= signal.t_s[-1]) & (
+        signal.t_s[after] - signal.t_s[after - 1] <= 2.5 * step)
+    values = make_interp_spline(signal.t_s, signal.vectors, k=3)(np.clip(t_s, signal.t_s[0], signal.t_s[-1]),
+                                                                 nu=derivative)
+    return (values if derivative else values / np.linalg.norm(values, axis=1, keepdims=True)), inside
+
+
+def _wahba(sparse: np.ndarray, dense: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per offset (O, N, 3 vectors, O x N weights of 0 or 1): the rotations R (O, 3, 3) minimising the weighted
+    ``sum |sparse - R dense|^2`` and that minimum over the weights' sum (mean squared residual)."""
+    H = np.einsum("on,oni,onj->oij", weights, sparse, dense)
+    U, S, Vt = np.linalg.svd(H)
+    sign = np.sign(np.linalg.det(U @ Vt))
+    S[:, 2] *= sign
+    U[:, :, 2] *= sign[:, None]
+    count = np.maximum(weights.sum(axis=1), 1)
+    return U @ Vt, np.maximum((2 * count - 2 * S.sum(axis=1)) / count, 0.0)
+
+
+def _align_directions(sparse: MotionSignal, dense: MotionSignal, max_offset_s: float,
+                      step_s: float) -> OffsetAlignment:
+    """:func:`align_signals` for unit vectors with ``sparse`` the signal of fewer samples (it is ``a``)."""
+    offsets = np.arange(-max_offset_s, max_offset_s + step_s / 2, step_s)
+    times = sparse.t_s[None, :] + offsets[:, None]
+    moved, inside = _sample(dense, times.ravel())
+    moved, inside = moved.reshape(*times.shape, 3), inside.reshape(times.shape)
+    counts = inside.sum(axis=1)
+    usable = counts >= max(MIN_SAMPLES, 0.5 * counts.max())
+    if not usable.any():
+        raise InputError(f"{sparse.sensor} and {dense.sensor} do not overlap in time within ±{max_offset_s} s",
+                         dense.sensor)
+    _, cost = _wahba(np.broadcast_to(sparse.vectors, moved.shape), moved, inside.astype(float))
+    cost[~usable] = np.nan
+    best = int(np.nanargmin(cost))
+    offset_s = float(offsets[best])
+    if 0 < best < len(offsets) - 1 and np.isfinite(cost[best - 1: best + 2]).all():
+        left, middle, right = cost[best - 1: best + 2]
+        curvature = left - 2 * middle + right
+        if curvature > 0:
+            offset_s += float(0.5 * (left - right) / curvature * step_s)
+    at, keep = _sample(dense, sparse.t_s + offset_s)
+    R, final = _wahba(sparse.vectors[None, keep], at[None, keep], np.ones((1, int(keep.sum()))))
+    R_a_b = R[0]
+    n = int(keep.sum())
+    variance = float(final[0]) * n / max(3 * n - 4, 1)  # per component, less the rotation's 3 and the offset
+    slope_at, _ = _sample(dense, sparse.t_s[keep] + offset_s, derivative=1)
+    information = float(np.sum(slope_at**2)) / max(variance, 1e-18)
+    offset_std = float(np.hypot(1 / np.sqrt(information), step_s / np.sqrt(12))) if information > 0 else float("inf")
+    mapped = at[keep] @ R_a_b.T
+    information = (n * np.eye(3) - mapped.T @ mapped) / max(variance, 1e-18)  # sum of (I - m m^T) / s^2
+    rotation_std = float(np.degrees(np.sqrt(np.linalg.eigvalsh(np.linalg.inv(information)).max())))
+    return OffsetAlignment(offset_s, offset_std, R_a_b, rotation_std, float(np.sqrt(final[0])), n,
+                           {"offset_s": offsets.tolist(), "score": np.nan_to_num(cost, nan=-1.0).tolist(),
+                            "score_name": "mean squared normal difference"})

@@ -1,0 +1,108 @@
+"""Time offsets as the CLI, the API and the studio call them: the session's captures of two sensors watching one
+moving board, lined up, kept as a result, and accepted as the second sensor's clock offset in the rig.
+
+Pairs of sensors and the signal each gives (:mod:`.signals`):
+
+- camera + 3D LiDAR: the board's normal (the camera's from PnP, the LiDAR's from the board plane placed by the
+  rig's current ``T_camera_lidar``);
+- camera + camera: the cameras' angular rates relative to the board (its pose, frame to frame).
+
+Every capture of each sensor with its time stamp enters (the camera's with a board detection); a recording is
+captured live while the board is carried through both views, or imported. Accepting the result sets
+``clock_offset_s`` of sensor b to a's plus the offset (``t_b = t_a + offset``), and the matching of pairs and sets
+then works on the rig's time (:meth:`~backend.core.rig.Frame.rig_time`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from backend.calib._session import session_plane_board
+from backend.calib.board.detection import Detection
+from backend.calib.time_offset.board_signals import camera_board_poses, lidar_signal
+from backend.calib.time_offset.signals import MotionSignal, board_normal_signal, orientation_rate_signal
+from backend.calib.time_offset.solver import KIND, TimeOffsetSettings, solve_time_offset
+from backend.core.errors import InputError
+from backend.core.result import ProgressCallback, no_progress
+from backend.core.rig import Rig
+from backend.store.session import Session
+
+SUPPORTED = "camera + 3D LiDAR (a board carried through both views) or camera + camera"
+
+
+def settings(max_offset_s: float) -> TimeOffsetSettings:
+    """The search's settings for offsets within ``±max_offset_s`` (s; 1 ms steps)."""
+    return TimeOffsetSettings(max_offset_s=max_offset_s, step_s=min(1e-3, max_offset_s))
+
+
+def slot(sensor: str) -> str:
+    """The acceptance slot of a sensor's clock offset."""
+    return f"{sensor}/clock_offset"
+
+
+def apply_clock_offset(rig: Rig, record: dict[str, Any]) -> None:
+    """Accepting a time-offset result: sensor b's clock offset becomes a's plus the offset, with its sigma."""
+    reference, sensor = rig.get(record["sensor_a"]), rig.get(record["sensor_b"])
+    sensor.clock_offset_s = reference.clock_offset_s + float(record["time_offset_s"])
+    sensor.clock_offset_std_s = float(np.hypot(record["std"]["time_s"], reference.clock_offset_std_s or 0.0))
+
+
+def _camera_poses(session: Session, camera: str) -> tuple[np.ndarray, np.ndarray]:
+    """A camera's capture times (s) and board poses ``T_camera_board`` (K, 4, 4) where it saw the board."""
+    intrinsics = session.rig.get(camera).intrinsics
+    if intrinsics is None:
+        raise InputError(f"{camera} has no intrinsics yet: solve and accept them first", camera)
+    board = session_plane_board(session, "a time offset")
+    captures = [c for c in session.captures(camera) if c.detection is not None]
+    detections = [Detection.from_dict(c.detection) for c in captures]
+    times, poses = camera_board_poses(intrinsics, board, np.array([c.timestamp_s for c in captures]), detections)
+    if len(times) < 2:
+        raise InputError(f"{camera} has {len(times)} capture(s) with the board; capture the board carried through "
+                         "both views first", camera)
+    return times, poses
+
+
+def check_pair(session: Session, sensor_a: str, sensor_b: str) -> None:
+    """:class:`InputError` (404 for a sensor the rig lacks) unless the two sensors are a pair this measures."""
+    kinds = (session.rig.get(sensor_a).kind, session.rig.get(sensor_b).kind)
+    if sensor_a == sensor_b or kinds not in (("camera", "lidar3d"), ("camera", "camera")):
+        raise InputError(f"{sensor_a} ({kinds[0]}) and {sensor_b} ({kinds[1]}): time offsets are measured between "
+                         f"{SUPPORTED}; name the camera first. A camera or LiDAR against an IMU is the camera-IMU or "
+                         "LiDAR-IMU calibration", "reference")
+    if session.rig.get(sensor_a).intrinsics is None:
+        raise InputError(f"{sensor_a} has no intrinsics yet: solve and accept them first", sensor_a)
+
+
+def signals(session: Session, sensor_a: str, sensor_b: str,
+            progress: ProgressCallback = no_progress) -> tuple[MotionSignal, MotionSignal]:
+    """The two sensors' motion signals from their captures (:func:`check_pair` first)."""
+    check_pair(session, sensor_a, sensor_b)
+    t_a, T_a_board = _camera_poses(session, sensor_a)
+    if session.rig.get(sensor_b).kind == "camera":
+        t_b, T_b_board = _camera_poses(session, sensor_b)
+        # each camera's rotation relative to the board (R_board_camera), so the rates are in the camera's axes
+        return (orientation_rate_signal(sensor_a, t_a, np.transpose(T_a_board[:, :3, :3], (0, 2, 1))),
+                orientation_rate_signal(sensor_b, t_b, np.transpose(T_b_board[:, :3, :3], (0, 2, 1))))
+    captures = session.captures(sensor_b)
+    scans = [session.capture_cloud(sensor_b, c.id)[0] for c in captures]
+    T_camera_lidar = session.rig.T_a_b(sensor_a, sensor_b)
+    lidar = lidar_signal(sensor_b, session_plane_board(session, "a time offset"),
+                         np.array([c.timestamp_s for c in captures]), scans, t_a, T_a_board, T_camera_lidar, progress)
+    return board_normal_signal(sensor_a, t_a, T_a_board), lidar
+
+
+def solve_session(session: Session, sensor_a: str, sensor_b: str, search: TimeOffsetSettings | None = None,
+                  progress: ProgressCallback = no_progress) -> str:
+    """Measure ``t_b = t_a + offset`` from the session's captures and keep the result under ``sensor_b``; its id."""
+    a, b = signals(session, sensor_a, sensor_b, lambda f, m: progress(0.7 * f, m))
+    result = solve_time_offset(a, b, search, lambda f, m: progress(0.7 + 0.3 * f, m))
+    return session.add_result(sensor_b, result.to_record(), inputs=[f"{sensor_a} captures", f"{sensor_b} captures"])
+
+
+def time_offset_results(session: Session, sensor: str) -> list[dict[str, Any]]:
+    """The sensor's stored time-offset results, oldest first (the command's JSON with the id)."""
+    session.rig.get(sensor)
+    keys = ("sensor_a", "sensor_b", "time_offset_s", "std", "R_a_b", "samples", "verdict", "seconds", "halves")
+    return [{"result_id": record["id"]} | {k: record.get(k) for k in keys} for record in session.results(sensor, KIND)]

@@ -1,0 +1,106 @@
+"""A board carried through a camera's and a LiDAR's views, each on its own clock: the time offset's test case.
+
+The board's pose in the LiDAR's frame moves along sums of sines (turning up to about 30 deg about every axis, its
+centre 2-3 m ahead), so the truth is known at any instant. The camera, rigidly beside the LiDAR by
+``T_camera_lidar``, sees the board's corners at ``camera_hz`` (pixel noise ``pixel_sigma``), stamped by its own
+clock. The LiDAR is a 16-beam spinner (VLP-16 elevations, 0.2 deg steps, 10 Hz) that fires each shot at its own
+instant: the board's pose is taken at every shot's time (so a moving board smears as in a real scan), and a scan is
+stamped when its beam passes straight ahead (azimuth 0, where the board is carried), on a clock that reads
+``offset_s`` more than the camera's (``t_lidar = t_camera + offset_s``). Only the sector ahead is cast, against the
+plate alone (analytic ray-plane hits, range noise ``range_sigma_m``): the solver only looks there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from backend.calib.board.detection import Detection
+from backend.core.boards import BoardSpec
+from backend.core.camera import CameraIntrinsics
+from backend.core.transforms import make_T, transform_points
+from backend.sim.board_renderer import plate_corners_m
+
+BOARD = "checkerboard:7x5:0.1"
+CAMERA = CameraIntrinsics("pinhole-radtan", 1280, 720, np.array([[900.0, 0, 640], [0, 900, 360], [0, 0, 1]]),
+                          np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
+T_CAMERA_LIDAR = make_T(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+                        @ Rotation.from_euler("zyx", [1.5, -2.0, 0.8], degrees=True).as_matrix(), [0.02, -0.12, -0.06])
+"""The camera 12 cm below the LiDAR, looking along its x axis, turned by a degree or two."""
+ELEVATIONS_DEG = np.arange(-15.0, 16.0, 2.0)
+SECTOR_DEG = 45.0
+"""Half-width (deg) of the sector ahead that is cast."""
+AZIMUTH_STEP_DEG = 0.2
+
+
+@dataclass(frozen=True)
+class MovingBoardRecording:
+    board: BoardSpec
+    camera: CameraIntrinsics
+    T_camera_lidar: np.ndarray
+    offset_s: float
+    """``t_lidar = t_camera + offset_s`` (s)."""
+    camera_t_s: np.ndarray
+    """(K,) frame stamps on the camera's clock (s)."""
+    detections: list[Detection]
+    scan_t_s: np.ndarray
+    """(S,) scan stamps on the LiDAR's clock (s)."""
+    scans: list[np.ndarray]
+    """(N, 3) points of each scan (m, LiDAR frame)."""
+
+
+def board_pose_lidar(t_s: np.ndarray, seed: int = 0) -> np.ndarray:
+    """``T_lidar_board`` (N, 4, 4) at true times ``t_s`` (s): the print facing the sensors (board z along the
+    LiDAR's x, board x to its right, y down), swinging about every axis."""
+    rng = np.random.default_rng([seed, 4242])
+    frequencies = rng.uniform(0.2, 0.7, size=(2, 3, 2))
+    phases = rng.uniform(0, 2 * np.pi, size=(2, 3, 2))
+    angle = 2 * np.pi * frequencies[None] * np.asarray(t_s)[:, None, None, None] + phases[None]
+    waves = np.sin(angle).sum(axis=3)
+    R_facing = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # columns: board x, y, z in LiDAR axes
+    R = Rotation.from_rotvec(np.radians(14.0) * waves[:, 0]).as_matrix() @ R_facing
+    board = BoardSpec.parse(BOARD)
+    centre_board = np.r_[board.outer_origin_m[:2] + np.asarray(board.size_m) / 2, 0.0]
+    centre = np.array([2.5, 0.0, -0.1]) + np.array([0.25, 0.2, 0.1]) * waves[:, 1]
+    T = np.tile(np.eye(4), (len(t_s), 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = centre - np.einsum("nij,j->ni", R, centre_board)
+    return T
+
+
+def simulate_moving_board(duration_s: float = 20.0, offset_s: float = 0.037, seed: int = 0, camera_hz: float = 15.0,
+                          scan_hz: float = 10.0, pixel_sigma: float = 0.3,
+                          range_sigma_m: float = 0.01) -> MovingBoardRecording:
+    """A recording of ``duration_s`` (camera clock from 500 s)."""
+    rng = np.random.default_rng(seed)
+    board = BoardSpec.parse(BOARD)
+    epoch = 500.0
+    t_camera = np.arange(0.0, duration_s, 1.0 / camera_hz)
+    grid = board.object_points.astype(float)
+    detections = []
+    for T_lidar_board in board_pose_lidar(t_camera, seed):
+        pixels = CAMERA.project(transform_points(T_CAMERA_LIDAR @ T_lidar_board, grid))
+        pixels += rng.normal(0, pixel_sigma, pixels.shape)
+        detections.append(Detection(pixels, np.arange(len(grid)), (CAMERA.width, CAMERA.height)))
+
+    corners = plate_corners_m(board)
+    lo, hi = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
+    azimuth = np.radians(np.arange(-SECTOR_DEG, SECTOR_DEG + 1e-9, AZIMUTH_STEP_DEG))  # clockwise from x
+    elevation = np.radians(ELEVATIONS_DEG)
+    az, el = (a.ravel() for a in np.meshgrid(azimuth, elevation))
+    rays = np.column_stack([np.cos(el) * np.cos(az), -np.cos(el) * np.sin(az), np.sin(el)])
+    t_scan = np.arange(0.3, duration_s - 0.3, 1.0 / scan_hz)
+    scans = []
+    for t in t_scan:
+        T = board_pose_lidar(t + az / (2 * np.pi) / scan_hz, seed)  # each shot sees the board of its instant
+        normal, origin = T[:, :3, 2], T[:, :3, 3]
+        distance = np.sum(normal * origin, axis=1) / np.sum(normal * rays, axis=1)
+        hits = rays * distance[:, None]
+        local = np.einsum("nji,nj->ni", T[:, :3, :3], hits - origin)[:, :2]
+        on_plate = (distance > 0) & np.all((local >= lo) & (local <= hi), axis=1)
+        measured = distance[on_plate] + rng.normal(0, range_sigma_m, int(on_plate.sum()))
+        scans.append(rays[on_plate] * measured[:, None])
+    return MovingBoardRecording(board, CAMERA, T_CAMERA_LIDAR, offset_s, epoch + t_camera, detections,
+                                epoch + offset_s + t_scan, scans)
