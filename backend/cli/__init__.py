@@ -29,6 +29,7 @@ from backend.cli import (
     sweep_corners,
     targets,
     test_field,
+    time_offset,
 )
 from backend.cli._common import (
     EXIT_CANCELLED,
@@ -48,7 +49,7 @@ AddParser = Callable[[argparse._SubParsersAction], None]
 GROUPS: tuple[AddParser, ...] = (intrinsics.add_parser, test_field.add_parser, lidar_lidar.add_parser,
                                  lidar_camera.add_parser, multicam.add_parser, targets.add_parser, sensors.add_parser,
                                  rig.add_parser, depth.add_parser, sweep_corners.add_parser,
-                                 camera_imu.add_parser)
+                                 camera_imu.add_parser, time_offset.add_parser)
 """The backend's command groups, in the order ``--help`` lists their commands."""
 
 

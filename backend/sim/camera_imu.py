@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from backend.calib.camera_imu.observations import BoardObservations
+from backend.calib.camera_imu.observations import BoardObservations, format_detections_csv
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.imu import ImuSamples
@@ -120,8 +120,4 @@ def write_images(recording: CameraImuRecording, folder: Path, frames: range) -> 
 
 def recording_files(recording: CameraImuRecording) -> tuple[bytes, bytes]:
     """The recording as the two CSV files a user uploads: IMU samples and detected corners (``t_ns`` columns)."""
-    seen = recording.observations
-    detection_lines = ["t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner"] + [
-        f"{round(seen.t_s[f] * 1e9)},{u:.4f},{v:.4f},{x:.6f},{y:.6f},{z:.6f},0,{i}"
-        for i, (f, (u, v), (x, y, z)) in enumerate(zip(seen.frame, seen.pixels_px, seen.board_m, strict=True))]
-    return format_imu_csv(recording.imu), "\n".join(detection_lines).encode() + b"\n"
+    return format_imu_csv(recording.imu), format_detections_csv(recording.observations)

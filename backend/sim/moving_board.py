@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from backend.calib.board.detection import Detection
+from backend.calib.camera_imu.observations import BoardObservations
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.transforms import make_T, transform_points
@@ -49,6 +50,13 @@ class MovingBoardRecording:
     """(S,) scan stamps on the LiDAR's clock (s)."""
     scans: list[np.ndarray]
     """(N, 3) points of each scan (m, LiDAR frame)."""
+
+    def observations(self) -> BoardObservations:
+        """The camera's detections as the camera-IMU solve's observations (its detections CSV's rows)."""
+        return BoardObservations(self.camera_t_s, np.repeat(np.arange(len(self.detections)),
+                                                            [len(d.ids) for d in self.detections]),
+                                 np.vstack([d.corners_px for d in self.detections]),
+                                 np.vstack([d.object_points(self.board) for d in self.detections]).astype(float))
 
 
 def board_pose_lidar(t_s: np.ndarray, seed: int = 0) -> np.ndarray:

@@ -58,6 +58,16 @@ def parse_detections_csv(data: bytes, name: str) -> BoardObservations:
     return _observations(parse_table(data, DETECTION_COLUMNS, name), name)
 
 
+def format_detections_csv(observations: BoardObservations) -> bytes:
+    """The observations as a detections file (:func:`read_detections_csv` reads it back; ``tag_id`` 0, ``corner``
+    the row's number)."""
+    lines = [",".join(DETECTION_COLUMNS)] + [
+        f"{round(observations.t_s[f] * 1e9)},{u:.4f},{v:.4f},{x:.6f},{y:.6f},{z:.6f},0,{i}"
+        for i, (f, (u, v), (x, y, z)) in enumerate(zip(observations.frame, observations.pixels_px,
+                                                       observations.board_m, strict=True))]
+    return "\n".join(lines).encode() + b"\n"
+
+
 def _observations(rows: np.ndarray, name: str) -> BoardObservations:
     rows = rows[np.argsort(rows[:, 0], kind="stable")]
     if not np.isfinite(rows[:, :6]).all():

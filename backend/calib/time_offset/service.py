@@ -15,18 +15,28 @@ then works on the rig's time (:meth:`~backend.core.rig.Frame.rig_time`).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from backend.calib._session import session_plane_board
 from backend.calib.board.detection import Detection
+from backend.calib.camera_imu.observations import (
+    board_poses,
+    check_board_points,
+    detect_image_folder,
+    read_detections_csv,
+)
+from backend.calib.lidar_imu.service import read_scan_folder
 from backend.calib.time_offset.board_signals import camera_board_poses, lidar_signal
 from backend.calib.time_offset.signals import MotionSignal, board_normal_signal, orientation_rate_signal
-from backend.calib.time_offset.solver import KIND, TimeOffsetSettings, solve_time_offset
+from backend.calib.time_offset.solver import KIND, TimeOffsetResult, TimeOffsetSettings, solve_time_offset
+from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Rig
+from backend.exports.ros_camera_info import load_camera_info
 from backend.store.session import Session
 
 SUPPORTED = "camera + 3D LiDAR (a board carried through both views) or camera + camera"
@@ -91,6 +101,32 @@ def signals(session: Session, sensor_a: str, sensor_b: str,
     lidar = lidar_signal(sensor_b, session_plane_board(session, "a time offset"),
                          np.array([c.timestamp_s for c in captures]), scans, t_a, T_a_board, T_camera_lidar, progress)
     return board_normal_signal(sensor_a, t_a, T_a_board), lidar
+
+
+def solve_files(camera_path: Path, corners: Path, scans: Path, board: str, T_camera_lidar: np.ndarray,
+                search: TimeOffsetSettings | None = None,
+                progress: ProgressCallback = no_progress) -> TimeOffsetResult:
+    """``t_lidar = t_camera + offset`` from files: a camera_info YAML, the board's corners (a detections CSV, or a
+    folder of images named by their time stamps in ns), a folder of clouds named by their time stamps in ns, and
+    the initial ``T_camera_lidar`` (4x4, m) that places the board in the clouds; :class:`InputError` naming the
+    file at fault."""
+    camera, _ = load_camera_info(camera_path)
+    spec = BoardSpec.parse(board)
+    if corners.is_dir():
+        observations = detect_image_folder(corners, board, lambda f, m: progress(0.3 * f, m))
+    else:
+        observations = read_detections_csv(corners)
+        check_board_points(observations, board, str(corners))
+    poses, rms = board_poses(camera, observations)
+    found = np.isfinite(rms)
+    times, poses = observations.t_s[found], poses[found]
+    if len(times) < 2:
+        raise InputError(f"the board's pose was found in {len(times)} frame(s)", str(corners))
+    scan_times, clouds = read_scan_folder(scans)
+    lidar = lidar_signal("lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
+                         lambda f, m: progress(0.3 + 0.5 * f, m))
+    return solve_time_offset(board_normal_signal("camera", times, poses), lidar, search,
+                             lambda f, m: progress(0.8 + 0.2 * f, m))
 
 
 def solve_session(session: Session, sensor_a: str, sensor_b: str, search: TimeOffsetSettings | None = None,
