@@ -19,6 +19,7 @@ from studio.wizard.rig_step import RigStep
 from studio.wizard.sensors_step import SensorsStep
 from studio.wizard.session_step import SessionStep
 from studio.wizard.sweep_step import SweepStep
+from studio.wizard.time_offset_step import TimeOffsetStep
 
 PANEL_WIDTH_PX = 560
 """The control panel's width (px); the page's user can drag its edge."""
@@ -46,6 +47,7 @@ class StudioApp:
         self.rig_step = RigStep(self.ctx)
         self.depth_network_step = DepthNetworkStep(self.ctx)
         self.camera_imu_step = CameraImuStep(self.ctx)
+        self.time_offset_step = TimeOffsetStep(self.ctx)
         if session is not None:
             self.ctx.open_session(session)
 

@@ -9,14 +9,16 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from backend.plots.render import new_figure, styled
+from backend.plots.render import empty_note, new_figure, styled
 
 AXIS_COLOURS = ("#c92a2a", "#2b8a3e", "#1864ab")
 
 
-def aligned_signals(record: dict[str, Any]) -> Figure:
+def aligned_signals(record: dict[str, Any] | None) -> Figure:
     """A time-offset result's signals per axis (a thin, b thick and shifted) and its score curve."""
     figure = new_figure(4.8, 3.6)
+    if record is None:
+        return empty_note(figure, "no time offset measured yet")
     a, b = record["sensor_a"], record["sensor_b"]
     signal_a, signal_b = record["signals"][a], record["signals"][b]
     offset_s = float(record["time_offset_s"])

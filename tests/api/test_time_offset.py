@@ -12,11 +12,11 @@ from backend.api.app import create_app
 from backend.calib.lidar_camera.capture import store_pair
 from backend.calib.multicam.capture import capture_set
 from backend.core.errors import InputError
-from backend.core.rig import Frame, Rig
 from backend.devices.base import Sample
-from backend.sim.moving_board import BOARD, CAMERA, simulate_moving_board
+from backend.sim.moving_board import CAMERA, simulate_moving_board
 from backend.store.session import SessionStore
 from tests.conftest import wait_job
+from tests.time_offset_session import moving_board_session
 
 SOLVE = "/api/sessions/rig/sensors/lidar/time-offset"
 
@@ -28,20 +28,8 @@ def recording():
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, recording):
-    """A session whose camera and LiDAR captured the carried board (the camera's captures hold the simulated
-    detections; their images are blank, as nothing here reads them)."""
     store = SessionStore(tmp_path_factory.mktemp("time_offset") / "sessions")
-    rig = Rig()
-    rig.add(Frame("cam", "base_link", kind="camera", intrinsics=CAMERA))
-    rig.add(Frame("lidar", "cam", recording.T_camera_lidar, kind="lidar3d"))
-    rig.add(Frame("cam2", "base_link", kind="camera", intrinsics=CAMERA))
-    session = store.create("rig", rig=rig, board=BOARD)
-    blank = np.full((CAMERA.height, CAMERA.width), 128, np.uint8)
-    for t_s, detection in zip(recording.camera_t_s, recording.detections, strict=True):
-        session.add_capture("cam", blank, {"timestamp_s": float(t_s), "device": "sim", "board": BOARD,
-                                           "detection": detection.to_dict()})
-    for t_s, points in zip(recording.scan_t_s, recording.scans, strict=True):
-        session.add_cloud_capture("lidar", points, None, {"timestamp_s": float(t_s), "device": "sim"})
+    moving_board_session(store, recording)
     return store
 
 

@@ -1,0 +1,57 @@
+"""Step 11, *Clocks*, in an in-process studio: a camera's and a LiDAR's captures of a simulated carried board
+(37 ms apart) measured as a job, the result shown (the offset, the plot, the card) and accepted, after which the
+clocks table shows the LiDAR's clock offset; a pair that cannot be measured is refused with a toast."""
+
+from __future__ import annotations
+
+import cv2
+import pytest
+import viser
+
+from backend.plots.render import to_rgb
+from backend.plots.time_offset import aligned_signals
+from backend.services.jobs import JobRunner
+from backend.sim.moving_board import simulate_moving_board
+from backend.store.session import SessionStore
+from studio.app import StudioApp
+from tests.conftest import ARTIFACTS, poll
+from tests.time_offset_session import moving_board_session
+
+
+def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> None:
+    store = SessionStore(tmp_path / "sessions")
+    recording = simulate_moving_board(duration_s=12.0, offset_s=0.037, seed=4, camera_hz=10.0)
+    session = moving_board_session(store, recording)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    notes: list[tuple[str, str]] = []
+    try:
+        app = StudioApp(server, store, JobRunner(), session=session)
+        app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
+        step = app.time_offset_step
+        assert step.reference.options == ("cam", "cam2") and step.sensor.options == ("lidar", "cam", "cam2")
+        assert "| lidar | lidar3d | 0.00 | not measured |" in step.clocks_text.content
+
+        step.sensor.value = "cam"
+        step._measure()
+        assert notes[-1][0] == "Cannot measure the time offset" and "name the camera first" in notes[-1][1], notes
+
+        step.sensor.value = "lidar"
+        empty = to_rgb(aligned_signals(None))
+        step._measure()
+        poll(lambda: step.plot.image.shape != empty.shape or (step.plot.image != empty).mean() > 0.05,
+             lambda: f"no result drawn: {step.jobs.text.content}", 120)
+        record = session.result(step.history.selected)
+        assert abs(record["time_offset_s"] - recording.offset_s) < 2e-3, record["time_offset_s"]
+        assert "Time offset **" in step.offset_text.content and "t_lidar = t_cam + offset" in step.offset_text.content
+        assert "not accepted" in step.card.text.content and record["verdict"]["level"] in step.card.text.content
+        ARTIFACTS.mkdir(exist_ok=True)
+        assert cv2.imwrite(str(ARTIFACTS / "time_offset_plot.png"), step.plot.image[..., ::-1])
+
+        step.card.confirm.checkbox.value = True  # needed if the verdict is check
+        step.card.preview()
+        assert "would" in step.card.preview_text.content, step.card.preview_text.content
+        step.card.accept()
+        assert session.rig.get("lidar").clock_offset_s == pytest.approx(record["time_offset_s"])
+        assert f"| lidar | lidar3d | {1e3 * record['time_offset_s']:.2f} |" in step.clocks_text.content
+    finally:
+        server.stop()
