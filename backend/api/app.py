@@ -24,6 +24,7 @@ from backend.api.routes import camera_imu as camera_imu_routes
 from backend.api.routes import depth_network as depth_network_routes
 from backend.api.routes import exports, intrinsics, lidar, lidar_camera, multicam, recordings, rig, sessions, sweep
 from backend.api.routes import jobs as job_routes
+from backend.api.routes import lidar_imu as lidar_imu_routes
 from backend.api.routes import report as report_routes
 from backend.api.routes import time_offset as time_offset_routes
 from backend.api.routes.targets import router as targets_router
@@ -134,6 +135,6 @@ def create_app(store: SessionStore | Path, jobs: JobRunner | None = None, token:
     for router in (sessions.router, intrinsics.router, lidar.router, lidar_camera.router, multicam.router,
                    sweep.router, recordings.router, job_routes.router, exports.router, rig.router, targets_router,
                    test_field_router, report_routes.router, depth_network_routes.router, camera_imu_routes.router,
-                   time_offset_routes.router):
+                   time_offset_routes.router, lidar_imu_routes.router):
         app.include_router(router, prefix="/api")
     return app

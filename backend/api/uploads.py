@@ -120,6 +120,16 @@ def read_image_upload(upload: UploadFile, field: str, default: str = "upload") -
     return name, upload.file.read()
 
 
+def read_csv_upload(upload: UploadFile, field: str) -> tuple[str, bytes]:
+    """(file name, bytes) of an uploaded CSV table (its size bounded by the route's :func:`upload_limit`); an empty
+    file is refused naming it."""
+    name = file_name(upload, field, f"{field}.csv")
+    data = upload.file.read()
+    if not data:
+        raise InputError(f"{name} is empty; expected a CSV file", field)
+    return name, data
+
+
 @contextlib.contextmanager
 def upload_folder(session: Session) -> Iterator[Path]:
     """A temporary folder inside the session's folder (same disk as the captures), removed afterwards."""

@@ -181,7 +181,7 @@ def widen_covariance(cov_hessian: np.ndarray, std_spread: np.ndarray | None) -> 
     return np.outer(std, std) * corr
 
 
-EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node", "camera_imu")
+EDGE_KINDS = ("lidar_lidar", "lidar_camera", "multicam", "depth_node", "camera_imu", "lidar_imu")
 """Result kinds whose transforms are edges between rig frames (a sweep's geometry is inside its sensor)."""
 
 

@@ -1,15 +1,19 @@
-"""Step 10, *Camera to IMU*: the extrinsic and time offset between a camera and an IMU from a recording.
+"""Step 10, *Camera or LiDAR to IMU*: the extrinsic and time offset between a camera or a LiDAR and an IMU.
 
-The user picks the camera (its intrinsics in the rig) and the IMU, names the board, uploads the recording's two files
-(the IMU's samples and the board's detected corners, as CSV) and clicks *Solve*; the fit runs as a job with progress
-and Cancel (:mod:`backend.calib.camera_imu.service`). The result shows the time offset with its sigma, the motion's
-excitation per axis against what the fit needs, and the IMU's measured signals with the fitted ones; it is kept in
-the session's history and accepted as the rig's camera-IMU edge on the shared result card.
+For a camera the user picks it (its intrinsics in the rig) and the IMU, names the board, uploads the recording's two
+files (the IMU's samples and the board's detected corners, as CSV) and clicks *Solve*; the fit runs as a job with
+progress and Cancel (:mod:`backend.calib.camera_imu.service`). For a 3D LiDAR the scans are its captures (taken while
+the rig turned in a static scene) and only the IMU's samples are uploaded (:mod:`backend.calib.lidar_imu.service`:
+the rotation and the time offset; the translation stays the mounting guess). The result shows the time offset with
+its sigma, the motion's excitation per axis against what the fit needs, and (camera-IMU) the IMU's measured signals
+with the fitted ones; it is kept in the session's history and accepted as the rig's edge on the shared result card,
+which also sets the IMU's clock offset.
 """
 
 from __future__ import annotations
 
 from backend.calib.camera_imu import service as camera_imu_service
+from backend.calib.lidar_imu import service as lidar_imu_service
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot
 from backend.plots.camera_imu import excitation_bars, fitted_signals
@@ -25,7 +29,8 @@ DEFAULT_BOARD = "aprilgrid:6x6:0.088:0.3"
 HELP = ("Wave the rig in front of the board, turning it about every axis and moving it along each, while the camera "
         "and the IMU record. Upload the IMU's samples (CSV `t_ns,wx,wy,wz,ax,ay,az`, rad/s and m/s²) and the board's "
         "corners the camera detected (CSV `t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner`), then solve. The time offset "
-        "follows Kalibr: `t_imu = t_cam + offset`.")
+        "follows Kalibr: `t_imu = t_cam + offset`. For a LiDAR, capture its scans in step 4 while turning the rig "
+        "about every axis in a static scene, and upload the IMU's samples only.")
 
 
 class CameraImuStep:
@@ -33,21 +38,22 @@ class CameraImuStep:
         self.ctx = ctx
         self._files: dict[str, tuple[str, bytes]] = {}
         gui = ctx.server.gui
-        with gui.add_folder("10 · Camera to IMU", expand_by_default=False):
+        with gui.add_folder("10 · Camera or LiDAR to IMU", expand_by_default=False):
             gui.add_markdown(HELP)
-            self.camera = gui.add_dropdown("Camera seeing the board", options=[NONE])
+            self.camera = gui.add_dropdown("Camera or LiDAR", options=[NONE],
+                                           hint="a camera seeing the board, or a 3D LiDAR in a static scene")
             self.imu = gui.add_dropdown("IMU", options=[NONE])
             self.board = gui.add_text("Board", initial_value=DEFAULT_BOARD)
             self.imu_upload = gui.add_upload_button("IMU samples (CSV)", mime_type="text/csv")
             self.detections_upload = gui.add_upload_button("Board corners (CSV)", mime_type="text/csv")
             self.files_text = gui.add_markdown("No recording uploaded yet.")
-            self.solve_button = gui.add_button("Solve camera to IMU", color="blue")
+            self.solve_button = gui.add_button("Solve to IMU", color="blue")
             self.jobs = JobPanel(ctx, [self.solve_button])
-            self.history = ResultHistory(gui, lambda _: self._show_result(), label="Camera-IMU result")
+            self.history = ResultHistory(gui, lambda _: self._show_result(), label="IMU result")
             self.offset_text = gui.add_markdown("")
             self.excitation_image = gui.add_image(to_rgb(excitation_bars(None)), label="Excitation")
             self.signals_image = gui.add_image(to_rgb(fitted_signals(None)), label="IMU signals and the fit")
-            self.card = ResultCard(ctx, empty_text="No camera-IMU result yet.")
+            self.card = ResultCard(ctx, empty_text="No camera-IMU or LiDAR-IMU result yet.")
         self.imu_upload.on_upload(lambda _: self._keep("imu", self.imu_upload.value))
         self.detections_upload.on_upload(lambda _: self._keep("detections", self.detections_upload.value))
         self.solve_button.on_click(lambda _: self._solve())
@@ -62,8 +68,8 @@ class CameraImuStep:
 
     def _list_sensors(self) -> None:
         rig = self.ctx.session.rig
-        for dropdown, kind in ((self.camera, "camera"), (self.imu, "imu")):
-            names = [frame.name for frame in rig.sensors(kind)] or [NONE]
+        for dropdown, kinds in ((self.camera, ("camera", "lidar3d")), (self.imu, ("imu",))):
+            names = [frame.name for kind in kinds for frame in rig.sensors(kind)] or [NONE]
             dropdown.options = names
             if dropdown.value not in names:
                 dropdown.value = names[0]
@@ -76,6 +82,9 @@ class CameraImuStep:
 
     def _solve(self) -> None:
         session, camera, imu = self.ctx.session, self.camera.value, self.imu.value
+        if camera != NONE and session.rig.get(camera).kind == "lidar3d":
+            self._solve_lidar(session, camera, imu)
+            return
         if set(self._files) != {"imu", "detections"}:
             self.ctx.notify("Recording missing", "Upload both files: the IMU's samples and the board's corners.",
                             error=True)
@@ -89,9 +98,24 @@ class CameraImuStep:
         self.jobs.run(f"camera-IMU of {camera} and {imu}", lambda progress: camera_imu_service.solve_session(
             session, imu, camera, imu_csv, detections_csv, board, progress=progress), self._fill_history)
 
+    def _solve_lidar(self, session: Session, lidar: str, imu: str) -> None:
+        if "imu" not in self._files:
+            self.ctx.notify("Recording missing", "Upload the IMU's samples; the LiDAR's scans are its captures.",
+                            error=True)
+            return
+        imu_csv = self._files["imu"]
+        try:
+            lidar_imu_service.read_session_inputs(session, imu, lidar, imu_csv)
+        except InputError as exc:
+            self.ctx.notify("Cannot solve LiDAR to IMU", exc.message, error=True)
+            return
+        self.jobs.run(f"LiDAR-IMU of {lidar} and {imu}", lambda progress: lidar_imu_service.solve_session(
+            session, imu, lidar, imu_csv, progress), self._fill_history)
+
     def _fill_history(self, result_id: str | None) -> None:
         session, imu = self.ctx.session, self.imu.value
-        records = [] if session is None or imu == NONE else session.results(imu, camera_imu_service.KIND)
+        records = [] if session is None or imu == NONE else [
+            r for r in session.results(imu) if r.get("kind") in (camera_imu_service.KIND, lidar_imu_service.KIND)]
         self.history.fill([r["id"] for r in reversed(records)], result_id)
         self._show_result()
 
@@ -103,9 +127,9 @@ class CameraImuStep:
         self.card.show(record, slot_holder)
         diagnostics = {} if record is None else record["diagnostics"]
         offset_ms, offset_std_ms = (1e3 * diagnostics.get(key, 0.0) for key in ("time_offset_s", "time_offset_std_s"))
+        used = ("" if "frames_used" not in diagnostics else f" · {diagnostics['frames_used']} of "
+                f"{diagnostics['frames_total']} frames, {diagnostics['corners_dropped']} corners dropped as outliers")
         self.offset_text.content = "" if record is None else (
-            f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_cam + offset) · "
-            f"{diagnostics['frames_used']} of {diagnostics['frames_total']} frames, "
-            f"{diagnostics['corners_dropped']} corners dropped as outliers")
+            f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_{record['parent']} + offset){used}")
         self.excitation_image.image = to_rgb(excitation_bars(diagnostics.get("excitation")))
         self.signals_image.image = to_rgb(fitted_signals(diagnostics.get("signals")))

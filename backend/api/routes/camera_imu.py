@@ -9,21 +9,12 @@ from fastapi import APIRouter, File, Form, UploadFile
 
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus
-from backend.api.uploads import UploadRoute, file_name, upload_limit
+from backend.api.uploads import UploadRoute, read_csv_upload, upload_limit
 from backend.calib.camera_imu import service
-from backend.core.errors import InputError
 from backend.core.limits import MAX_TABLE_MB
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}/camera-imu", tags=["camera-imu"],
                    route_class=UploadRoute)
-
-
-def _read(upload: UploadFile, field: str) -> tuple[str, bytes]:
-    name = file_name(upload, field, f"{field}.csv")
-    data = upload.file.read()
-    if not data:
-        raise InputError(f"{name} is empty; expected a CSV file", field)
-    return name, data
 
 
 @router.post("", status_code=202, response_model=JobStatus)
@@ -37,7 +28,7 @@ def solve(sensor: str, session: deps.SessionDep, jobs: deps.JobsDep,
     """Solve ``T_camera_imu`` and the time offset (``t_imu = t_cam + offset``) in the background, through the
     camera's intrinsics in the rig; the files are checked first (a 422 names the one at fault), then kept with the
     result. Poll ``/api/jobs/{id}`` for ``result_id``; accept it with ``POST /api/sessions/{name}/accept``."""
-    imu_csv, detections_csv = _read(imu, "imu"), _read(detections, "detections")
+    imu_csv, detections_csv = read_csv_upload(imu, "imu"), read_csv_upload(detections, "detections")
     service.read_recording(session, sensor, camera, imu_csv, detections_csv, board)  # fail fast, before queueing
     job = jobs.submit(f"camera-IMU of {camera} and {sensor}", lambda progress: service.solve_session(
         session, sensor, camera, imu_csv, detections_csv, board, progress=progress))

@@ -159,10 +159,3 @@ def summary(result: TransformResult) -> dict:
             "excitation": diagnostics["excitation"], "verdict": result.verdict.to_dict(),
             "converged": result.converged, "warnings": list(result.warnings), "seconds": result.seconds}
 
-
-def clock_record(record: dict) -> dict:
-    """A stored camera-IMU result's time offset as a time-offset result gives it (``t_imu = t_cam + offset``), for
-    the accept that sets the IMU's clock offset."""
-    diagnostics = record["diagnostics"]
-    return {"sensor_a": record["parent"], "sensor_b": record["child"], "time_offset_s": diagnostics["time_offset_s"],
-            "std": {"time_s": diagnostics["time_offset_std_s"]}}

@@ -18,7 +18,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from backend.calib.camera_imu.checks import MIN_RATE_RMS_RAD_S
+from backend.calib.camera_imu.checks import MIN_RATE_RMS_RAD_S, excitation
 from backend.calib.camera_imu.time_offset import RateAlignment, align_rates, rates_from_rotations
 from backend.calib.lidar_imu.odometry import scan_orientations
 from backend.core.errors import InputError
@@ -75,7 +75,8 @@ def solve_lidar_imu(scan_times_s: np.ndarray, scans: list[np.ndarray], imu: ImuS
         verdict=judge.verdict(), seconds=time.perf_counter() - started,
         diagnostics={"time_offset_s": whole.offset_s, "time_offset_std_s": offset_std,
                      "gyro_bias_rad_s": whole.bias_a_rad_s.tolist(), "correlation": whole.correlation,
-                     "rate_rms_rad_s": rms.tolist(), "curve": whole.curve, "halves": [
+                     "rate_rms_rad_s": rms.tolist(), "curve": whole.curve,
+                     "excitation": excitation(imu.between(times[0] - 0.5, times[-1] + 0.5)).to_dict(), "halves": [
                          _alignment_summary(h) for h in halves]})
 
 

@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from backend.calib.camera_imu import service as camera_imu_service
 from backend.calib.intrinsics import service as intrinsics_service
 from backend.calib.multicam import service as multicam_service
 from backend.calib.rig.graph import FLAG_SIGMA as FLAG_SIGMA  # re-exported: the studio names the limit
@@ -49,13 +48,20 @@ MOVE_THRESHOLD = (1e-6, 1e-5)
 """A frame moving less than this (m, deg) does not count as moved."""
 
 Effect = Callable[[Rig, dict[str, Any]], None]
+
+
+def _imu_clock(rig: Rig, record: dict[str, Any]) -> None:
+    """A camera-IMU or LiDAR-IMU result's time offset becomes the IMU's clock offset."""
+    time_offset_service.apply_clock_offset(rig, time_offset_service.transform_clock_record(record))
+
+
 EFFECTS: dict[str, Effect] = {
     "intrinsics": lambda rig, record: intrinsics_service.apply_intrinsics(rig, record),
     "sweep": lambda rig, record: sweep_service.apply_sweep_geometry(rig, record),
     "multicam": lambda rig, record: multicam_service.apply_refined_intrinsics(rig, record),
     "time_offset": lambda rig, record: time_offset_service.apply_clock_offset(rig, record),
-    "camera_imu": lambda rig, record: time_offset_service.apply_clock_offset(rig, camera_imu_service.clock_record(
-        record)),
+    "camera_imu": lambda rig, record: _imu_clock(rig, record),
+    "lidar_imu": lambda rig, record: _imu_clock(rig, record),
 }
 """What accepting a result does to the rig beside its edges (the camera's intrinsics, a scanner's geometry, a sensor's
 clock offset)."""

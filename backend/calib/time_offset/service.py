@@ -59,6 +59,14 @@ def apply_clock_offset(rig: Rig, record: dict[str, Any]) -> None:
     sensor.clock_offset_std_s = float(np.hypot(record["std"]["time_s"], reference.clock_offset_std_s or 0.0))
 
 
+def transform_clock_record(record: dict[str, Any]) -> dict[str, Any]:
+    """A stored camera-IMU or LiDAR-IMU result's time offset (``t_imu = t_parent + offset``, in its diagnostics) as
+    a time-offset result gives it, for the accept that sets the IMU's clock offset."""
+    diagnostics = record["diagnostics"]
+    return {"sensor_a": record["parent"], "sensor_b": record["child"], "time_offset_s": diagnostics["time_offset_s"],
+            "std": {"time_s": diagnostics["time_offset_std_s"]}}
+
+
 def _camera_poses(session: Session, camera: str) -> tuple[np.ndarray, np.ndarray]:
     """A camera's capture times (s) and board poses ``T_camera_board`` (K, 4, 4) where it saw the board."""
     intrinsics = session.rig.get(camera).intrinsics
