@@ -55,6 +55,10 @@ class SensorStream(abc.ABC):
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout)
 
+    def wait_stopped(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` (s) for :meth:`stop`; True once stopped (a paced loop's sleep that a stop ends)."""
+        return self._stop.wait(timeout_s)
+
     @property
     def rate_hz(self) -> float:
         """Samples handled per second (smoothed); 0 before the first."""

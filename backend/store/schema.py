@@ -144,6 +144,7 @@ class CaptureRecord(BaseModel):
     source: str | None = Field(None, description="original file name of an upload or import")
     image_size: tuple[int, int] | None = Field(None, description="(width, height) px")
     n_points: int | None = Field(None, description="points in a cloud capture")
+    n_imu_samples: int | None = Field(None, description="samples in an IMU capture (a stretch of an IMU's stream)")
     board: str | None = None
     detection: dict[str, Any] | None = None
     meta: dict[str, Any] = Field(default_factory=dict)

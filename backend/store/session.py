@@ -51,6 +51,7 @@ from pydantic import ValidationError
 
 from backend.core.depth import stored_intrinsics
 from backend.core.errors import InputError, NotFoundError
+from backend.core.imu import ImuSamples
 from backend.core.limits import MAX_IMAGE_PIXELS
 from backend.core.rig import Frame, Rig
 from backend.core.test_field import SESSION_SURVEY, parse_survey
@@ -77,6 +78,8 @@ DEPTH_ARRAYS = ("depth", "amplitude")
 QUARANTINE = "quarantine"
 REMOVED = "removed"
 _NOTE_SUFFIX = ".why.json"
+IMU_SUFFIX = ".imu.npy"
+"""An IMU capture's data file: an N x 7 float64 table (t, wx, wy, wz, ax, ay, az)."""
 
 
 def _field_problem(error: ValidationError) -> str:
@@ -532,6 +535,28 @@ class Session:
         np.save(buffer, np.hstack(columns), allow_pickle=False)
         return self._add_capture_file(sensor, ".npy", buffer.getvalue(), {**record, "n_points": len(points)})
 
+    def add_imu_capture(self, sensor: str, imu: ImuSamples, record: dict[str, Any]) -> CaptureRecord:
+        """Store a stretch of an IMU's stream as an N x 7 float64 ``.imu.npy`` (t s, rates rad/s, forces m/s²)."""
+        buffer = io.BytesIO()
+        np.save(buffer, np.column_stack([imu.t_s, imu.gyro_rad_s, imu.accel_m_s2]), allow_pickle=False)
+        return self._add_capture_file(sensor, IMU_SUFFIX, buffer.getvalue(), {**record, "n_imu_samples": len(imu.t_s)})
+
+    def imu_capture(self, sensor: str, capture_id: str) -> ImuSamples:
+        """The samples of an IMU capture (:meth:`add_imu_capture`)."""
+        check_name(capture_id, "capture")
+        path = self._capture_dir(sensor) / f"{capture_id}{IMU_SUFFIX}"
+        if not path.exists():
+            raise (self._quarantined_error(path)
+                   or NotFoundError(f"no IMU capture {capture_id!r} for sensor {sensor!r}", "capture"))
+        try:
+            data = np.load(path, allow_pickle=False)
+            if data.ndim != 2 or data.shape[1] != 7 or data.dtype.kind != "f":
+                raise ValueError(f"it holds a {data.dtype} array of shape {data.shape}")
+        except (ValueError, OSError, EOFError) as exc:
+            raise self._quarantine(path, f"not a readable N x 7 IMU table ({exc}); it may be truncated",
+                                   path.with_suffix("").with_suffix(".json")) from None
+        return ImuSamples(data[:, 0], data[:, 1:4], data[:, 4:7])
+
     def captures(self, sensor: str, limit: int | None = None) -> list[CaptureRecord]:
         """The sensor's capture records, oldest first (only the first ``limit`` good ones, if given).
 
@@ -554,9 +579,10 @@ class Session:
         return records
 
     @staticmethod
-    def _capture_data(meta: Path) -> tuple[Path, Path, Path]:
-        """The data files a capture's metadata file may sit beside (an image, a cloud or a depth image)."""
-        return meta.with_suffix(".png"), meta.with_suffix(".npy"), meta.with_suffix(".npz")
+    def _capture_data(meta: Path) -> tuple[Path, Path, Path, Path]:
+        """The data files a capture's metadata file may sit beside (an image, a cloud, a depth image or IMU
+        samples)."""
+        return tuple(meta.with_suffix(suffix) for suffix in (".png", ".npy", ".npz", IMU_SUFFIX))
 
     def add_depth_capture(self, sensor: str, depth_m: np.ndarray, amplitude: np.ndarray,
                           record: dict[str, Any]) -> CaptureRecord:

@@ -1,30 +1,40 @@
 """Step 10, *Camera or LiDAR to IMU*: the extrinsic and time offset between a camera or a LiDAR and an IMU.
 
-For a camera the user picks it (its intrinsics in the rig) and the IMU, names the board, uploads the recording's two
-files (the IMU's samples and the board's detected corners, as CSV) and clicks *Solve*; the fit runs as a job with
-progress and Cancel (:mod:`backend.calib.camera_imu.service`). For a 3D LiDAR the scans are its captures (taken while
-the rig turned in a static scene) and only the IMU's samples are uploaded (:mod:`backend.calib.lidar_imu.service`:
-the rotation and the time offset; the translation stays the mounting guess). The result shows the time offset with
-its sigma, the motion's excitation per axis against what the fit needs, and (camera-IMU) the IMU's measured signals
-with the fitted ones; it is kept in the session's history and accepted as the rig's edge on the shared result card,
-which also sets the IMU's clock offset.
+The IMU's samples are an uploaded CSV or recorded live from the IMU's device (*Record the IMU*): while it records,
+the excitation bars grow with the motion, and on *Stop* the run becomes the step's IMU file (its samples are stored
+as captures as they come, :mod:`backend.services.imu_recording`). For a camera the user picks it (its intrinsics in
+the rig) and the IMU, names the board, uploads the recording's two files (the IMU's samples and the board's detected
+corners, as CSV) and clicks *Solve*; the fit runs as a job with progress and Cancel
+(:mod:`backend.calib.camera_imu.service`). For a 3D LiDAR the scans are its captures (taken while the rig turned in
+a static scene) and only the IMU's samples are uploaded (:mod:`backend.calib.lidar_imu.service`: the rotation and
+the time offset; the translation stays the mounting guess). The result shows the time offset with its sigma, the
+motion's excitation per axis against what the fit needs, and (camera-IMU) the IMU's measured signals with the fitted
+ones; it is kept in the session's history and accepted as the rig's edge on the shared result card, which also sets
+the IMU's clock offset.
 """
 
 from __future__ import annotations
+
+import threading
 
 from backend.calib.camera_imu import service as camera_imu_service
 from backend.calib.lidar_imu import service as lidar_imu_service
 from backend.core.errors import InputError
 from backend.core.rig import edge_slot
+from backend.devices.imu_csv import format_imu_csv
 from backend.plots.camera_imu import excitation_bars, fitted_signals
 from backend.plots.render import to_rgb
+from backend.services.imu_recording import ImuRecorder
 from backend.store.session import Session
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
+from studio.live_toggle import LiveToggle
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 
 NONE = "(none)"
+EXCITATION_PERIOD_S = 0.5
+"""How often the live excitation bars are redrawn while the IMU records (s)."""
 DEFAULT_BOARD = "aprilgrid:6x6:0.088:0.3"
 HELP = ("Wave the rig in front of the board, turning it about every axis and moving it along each, while the camera "
         "and the IMU record. Upload the IMU's samples (CSV `t_ns,wx,wy,wz,ax,ay,az`, rad/s and m/s²) and the board's "
@@ -45,6 +55,11 @@ class CameraImuStep:
             self.imu = gui.add_dropdown("IMU", options=[NONE])
             self.board = gui.add_text("Board", initial_value=DEFAULT_BOARD)
             self.imu_upload = gui.add_upload_button("IMU samples (CSV)", mime_type="text/csv")
+            self.record_button = gui.add_button("Record the IMU", color="green",
+                                                hint="read the IMU's device live; its samples become the IMU file")
+            self.stop_button = gui.add_button("Stop recording", color="red", visible=False)
+            self.toggle = LiveToggle(self.record_button, self.stop_button, on_ended=lambda _: self._recorded())
+            self.live_text = gui.add_markdown("")
             self.detections_upload = gui.add_upload_button("Board corners (CSV)", mime_type="text/csv")
             self.files_text = gui.add_markdown("No recording uploaded yet.")
             self.solve_button = gui.add_button("Solve to IMU", color="blue")
@@ -57,11 +72,15 @@ class CameraImuStep:
         self.imu_upload.on_upload(lambda _: self._keep("imu", self.imu_upload.value))
         self.detections_upload.on_upload(lambda _: self._keep("detections", self.detections_upload.value))
         self.solve_button.on_click(lambda _: self._solve())
+        self.record_button.on_click(lambda _: self._record())
+        self.stop_button.on_click(lambda _: self._stop_recording())
+        self.recorder: ImuRecorder | None = None
         self.imu.on_update(lambda _: self._fill_history(None))
         ctx.on_session_changed(self._session_changed)
         ctx.on_rig_changed(lambda _: self._list_sensors())
 
     def _session_changed(self, session: Session) -> None:
+        self._stop_recording()
         self._files = {}
         self.files_text.content = "No recording uploaded yet."
         self._list_sensors()
@@ -75,8 +94,61 @@ class CameraImuStep:
                 dropdown.value = names[0]
         self._fill_history(None)
 
+    def _record(self) -> None:
+        """*Record the IMU*: stream the chosen IMU's device, redrawing the excitation bars as the run grows."""
+        session, imu = self.ctx.session, self.imu.value
+        if session is None or imu == NONE:
+            self.ctx.notify("No IMU", "Add an IMU with its device in the Sensors step first.", error=True)
+            return
+        self._stop_recording()
+        recorder = ImuRecorder(session, imu, self._on_status)
+        self.recorder = recorder
+        recorder.start()
+        self.toggle.started([recorder])
+        threading.Thread(target=self._show_excitation, args=(recorder,), name="imu-excitation", daemon=True).start()
+
+    def _on_status(self, message: str, error: bool) -> None:
+        if error:
+            self.ctx.notify("IMU", message, error=True)
+        self.live_text.content = message
+
+    def _show_excitation(self, recorder: ImuRecorder) -> None:
+        while self.recorder is recorder and recorder.running:
+            motion = recorder.excitation()
+            samples = recorder.samples()
+            if motion is not None:
+                self.excitation_image.image = to_rgb(excitation_bars(motion.to_dict()))
+                self.live_text.content = (f"Recording {recorder.device_name}: {samples.t_s[-1] - samples.t_s[0]:.1f} s,"
+                                          f" {len(samples.t_s)} samples")
+            recorder.wait_stopped(EXCITATION_PERIOD_S)
+
+    def _stop_recording(self) -> None:
+        """*Stop recording*: the run's last samples are stored and the run becomes the step's IMU file."""
+        if self.recorder is None:
+            return
+        self.recorder.stop()
+        self.toggle.stopped()
+        self._recorded()
+
+    def _recorded(self) -> None:
+        recorder, self.recorder = self.recorder, None
+        if recorder is None:
+            return
+        recorder.flush()
+        samples = recorder.samples()
+        if samples is None:
+            self.live_text.content = "The IMU gave no samples."
+            return
+        self._files["imu"] = (f"{recorder.sensor} {recorder.run}.csv", format_imu_csv(samples))
+        self._show_files()
+        self.live_text.content = (f"Recorded {samples.t_s[-1] - samples.t_s[0]:.1f} s ({len(samples.t_s)} samples) "
+                                  f"as {recorder.run}; it is the IMU file now.")
+
     def _keep(self, role: str, upload) -> None:
         self._files[role] = (upload.name, upload.content)
+        self._show_files()
+
+    def _show_files(self) -> None:
         self.files_text.content = " · ".join(f"{role}: `{name}` ({len(data) / 1e6:.1f} MB)"
                                              for role, (name, data) in sorted(self._files.items()))
 
