@@ -1,8 +1,10 @@
 """A simulated LiDAR + IMU recording: the demo rig's top LiDAR turned about every axis in the yard, scanning at
-10 Hz, with an IMU rigidly attached whose clock runs ``offset_s`` ahead (``t_imu = t_lidar + offset``)."""
+10 Hz, with an IMU rigidly attached whose clock runs ``offset_s`` ahead (``t_imu = t_lidar + offset``). The turning
+rig's scans serve two LiDARs on their own clocks too (:func:`turning_scans`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +28,9 @@ class LidarImuRecording:
     offset_s: float
 
 
-def simulate_lidar_imu(duration_s: float = 12.0, offset_s: float = 0.015, seed: int = 0, scan_hz: float = 10.0,
-                       imu_hz: float = 200.0, amplitude_rad: float = 0.3, gyro_sigma: float = 0.002
-                       ) -> LidarImuRecording:
-    """The recording: scans (points in the LiDAR frame, m) at ``scan_hz`` on the LiDAR's clock and the IMU's
-    samples (rates with a constant bias and white noise) on its own."""
+def turning(seed: int, amplitude_rad: float) -> Callable[[np.ndarray, int], np.ndarray]:
+    """The rig's turn as a rotation vector (rad) over time (s), or its time derivative (``derivative`` 1): a sum of
+    two sines of 0.25-0.7 Hz about each axis."""
     rng = np.random.default_rng(seed)
     frequencies = rng.uniform(0.25, 0.7, size=(3, 2))
     phases = rng.uniform(0, 2 * np.pi, size=(3, 2))
@@ -41,13 +41,31 @@ def simulate_lidar_imu(duration_s: float = 12.0, offset_s: float = 0.015, seed: 
         wave = (np.sin(angle) if derivative == 0 else np.cos(angle) * omega[None])
         return amplitude_rad / 2 * wave.sum(axis=2)
 
-    T_base_lidar0 = demo_rig().T_root_frame("lidar_top")
-    scene = LidarScene(include_board=False)
-    scan_times = np.arange(0.0, duration_s, 1.0 / scan_hz)
+    return rotation_vector
+
+
+def turning_scans(sensor: str, times_s: np.ndarray, rotation_vector: Callable[[np.ndarray, int], np.ndarray],
+                  scene: LidarScene, pivot: str = "lidar_top") -> list[np.ndarray]:
+    """Scans (points in ``sensor``'s frame, m) of the demo rig's 3D LiDAR ``sensor`` at true times ``times_s`` while
+    the rig turns about ``pivot``'s origin by ``rotation_vector``."""
+    rig = demo_rig()
+    T_base_pivot0, T_pivot_sensor = rig.T_root_frame(pivot), rig.T_a_b(pivot, sensor)
     scans = []
-    for k, phi in enumerate(rotation_vector(scan_times, 0)):
-        T_base_lidar = T_base_lidar0 @ make_T(Rotation.from_rotvec(phi).as_matrix(), np.zeros(3))
-        scans.append(scene.scan_3d(T_base_lidar, azimuth_step_deg=0.4, range_noise_m=0.01, rng=k).points)
+    for k, phi in enumerate(rotation_vector(np.asarray(times_s, float), 0)):
+        T_base_sensor = T_base_pivot0 @ make_T(Rotation.from_rotvec(phi).as_matrix(), np.zeros(3)) @ T_pivot_sensor
+        scans.append(scene.scan_3d(T_base_sensor, azimuth_step_deg=0.4, range_noise_m=0.01, rng=k).points)
+    return scans
+
+
+def simulate_lidar_imu(duration_s: float = 12.0, offset_s: float = 0.015, seed: int = 0, scan_hz: float = 10.0,
+                       imu_hz: float = 200.0, amplitude_rad: float = 0.3, gyro_sigma: float = 0.002
+                       ) -> LidarImuRecording:
+    """The recording: scans (points in the LiDAR frame, m) at ``scan_hz`` on the LiDAR's clock and the IMU's
+    samples (rates with a constant bias and white noise) on its own."""
+    rng = np.random.default_rng(seed)
+    rotation_vector = turning(seed, amplitude_rad)
+    scan_times = np.arange(0.0, duration_s, 1.0 / scan_hz)
+    scans = turning_scans("lidar_top", scan_times, rotation_vector, LidarScene(include_board=False))
     t_imu = np.arange(-0.3, duration_s + 0.3, 1.0 / imu_hz)
     lidar_rates = np.einsum("nij,nj->ni", right_jacobians(rotation_vector(t_imu, 0)), rotation_vector(t_imu, 1))
     gyro = lidar_rates @ R_LIDAR_IMU + np.array([0.004, -0.006, 0.003]) + rng.normal(0, gyro_sigma, lidar_rates.shape)

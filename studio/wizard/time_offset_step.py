@@ -1,7 +1,8 @@
 """Step 11, *Clocks*: the time offset between two sensors' clocks, and each sensor's clock offset in the rig.
 
 The user picks the reference (a camera) and the sensor (a 3D LiDAR or another camera) whose captures watched a
-board carried through both views, and clicks *Measure*; the alignment runs as a job with progress and Cancel
+board carried through both views (or two 3D LiDARs whose captures were taken while the rig turned in a static
+scene), and clicks *Measure*; the alignment runs as a job with progress and Cancel
 (:mod:`backend.calib.time_offset.service`). The result shows the offset with its sigma, both signals on the
 reference's clock (where the offset is right they lie on each other) and the score over the offsets searched; it is
 kept in the session's history, and accepting it on the shared result card sets the sensor's clock offset, which the
@@ -23,9 +24,9 @@ from studio.result_history import ResultHistory
 
 NONE = "(none)"
 HELP = ("Carry the board through both sensors' views, tilting and turning it, while both capture continuously (or "
-        "import both recordings); then measure. The offset follows Kalibr: `t_sensor = t_reference + offset`. "
-        "Accepting it sets the sensor's clock offset; pairs and multi-camera sets are then matched on the rig's "
-        "clock.")
+        "import both recordings); for two 3D LiDARs, turn the rig about every axis in a static scene. Then measure. "
+        "The offset follows Kalibr: `t_sensor = t_reference + offset`. Accepting it sets the sensor's clock offset; "
+        "pairs and multi-camera sets are then matched on the rig's clock.")
 
 
 def clocks_markdown(rig: Rig) -> str:
@@ -45,7 +46,8 @@ class TimeOffsetStep:
         gui = ctx.server.gui
         with gui.add_folder("11 · Clocks", expand_by_default=False):
             gui.add_markdown(HELP)
-            self.reference = gui.add_dropdown("Reference camera", options=[NONE])
+            self.reference = gui.add_dropdown("Reference", options=[NONE], hint="a camera, or a 3D LiDAR against "
+                                              "another 3D LiDAR")
             self.sensor = gui.add_dropdown("Sensor to line up", options=[NONE])
             self.measure_button = gui.add_button("Measure the time offset", color="blue")
             self.jobs = JobPanel(ctx, [self.measure_button])
@@ -65,7 +67,7 @@ class TimeOffsetStep:
 
     def _list_sensors(self) -> None:
         rig = self.ctx.session.rig
-        for dropdown, kinds in ((self.reference, ("camera",)), (self.sensor, ("lidar3d", "camera"))):
+        for dropdown, kinds in ((self.reference, ("camera", "lidar3d")), (self.sensor, ("lidar3d", "camera"))):
             names = [frame.name for kind in kinds for frame in rig.sensors(kind)] or [NONE]
             dropdown.options = names
             if dropdown.value not in names:

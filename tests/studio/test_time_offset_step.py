@@ -28,7 +28,7 @@ def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> N
         app = StudioApp(server, store, JobRunner(), session=session)
         app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
         step = app.time_offset_step
-        assert step.reference.options == ("cam", "cam2") and step.sensor.options == ("lidar", "cam", "cam2")
+        assert step.reference.options == ("cam", "cam2", "lidar") and step.sensor.options == ("lidar", "cam", "cam2")
         assert "| lidar | lidar3d | 0.00 | not measured |" in step.clocks_text.content
 
         step.sensor.value = "cam"

@@ -5,7 +5,9 @@ Pairs of sensors and the signal each gives (:mod:`.signals`):
 
 - camera + 3D LiDAR: the board's normal (the camera's from PnP, the LiDAR's from the board plane placed by the
   rig's current ``T_camera_lidar``);
-- camera + camera: the cameras' angular rates relative to the board (its pose, frame to frame).
+- camera + camera: the cameras' angular rates relative to the board (its pose, frame to frame);
+- 3D LiDAR + 3D LiDAR: each LiDAR's angular rates from its own odometry (scan-to-scan GICP,
+  :func:`~backend.calib.lidar_imu.odometry.scan_orientations`) while the rig turns in a static scene.
 
 Every capture of each sensor with its time stamp enters (the camera's with a board detection); a recording is
 captured live while the board is carried through both views, or imported. Accepting the result sets
@@ -28,7 +30,8 @@ from backend.calib.camera_imu.observations import (
     detect_image_folder,
     read_detections_csv,
 )
-from backend.calib.lidar_imu.service import read_scan_folder
+from backend.calib.lidar_imu.odometry import scan_orientations
+from backend.calib.lidar_imu.service import MAX_SCANS, read_scan_folder
 from backend.calib.time_offset.board_signals import camera_board_poses, lidar_signal
 from backend.calib.time_offset.signals import MotionSignal, board_normal_signal, orientation_rate_signal
 from backend.calib.time_offset.solver import KIND, TimeOffsetResult, TimeOffsetSettings, solve_time_offset
@@ -39,7 +42,9 @@ from backend.core.rig import Rig
 from backend.exports.ros_camera_info import load_camera_info
 from backend.store.session import Session
 
-SUPPORTED = "camera + 3D LiDAR (a board carried through both views) or camera + camera"
+SUPPORTED = ("camera + 3D LiDAR or camera + camera (a board carried through both views), or 3D LiDAR + 3D LiDAR (the "
+             "rig turned in a static scene)")
+PAIRS = (("camera", "lidar3d"), ("camera", "camera"), ("lidar3d", "lidar3d"))
 
 
 def settings(max_offset_s: float) -> TimeOffsetSettings:
@@ -85,18 +90,31 @@ def _camera_poses(session: Session, camera: str) -> tuple[np.ndarray, np.ndarray
 def check_pair(session: Session, sensor_a: str, sensor_b: str) -> None:
     """:class:`InputError` (404 for a sensor the rig lacks) unless the two sensors are a pair this measures."""
     kinds = (session.rig.get(sensor_a).kind, session.rig.get(sensor_b).kind)
-    if sensor_a == sensor_b or kinds not in (("camera", "lidar3d"), ("camera", "camera")):
+    if sensor_a == sensor_b or kinds not in PAIRS:
         raise InputError(f"{sensor_a} ({kinds[0]}) and {sensor_b} ({kinds[1]}): time offsets are measured between "
                          f"{SUPPORTED}; name the camera first. A camera or LiDAR against an IMU is the camera-IMU or "
                          "LiDAR-IMU calibration", "reference")
-    if session.rig.get(sensor_a).intrinsics is None:
+    if kinds[0] == "camera" and session.rig.get(sensor_a).intrinsics is None:
         raise InputError(f"{sensor_a} has no intrinsics yet: solve and accept them first", sensor_a)
+
+
+def _odometry_signal(session: Session, lidar: str, progress: ProgressCallback) -> MotionSignal:
+    """A LiDAR's angular rates from its captures' odometry (the rig turned in a static scene)."""
+    captures = sorted(session.captures(lidar), key=lambda c: c.timestamp_s)
+    if not 20 <= len(captures) <= MAX_SCANS:
+        raise InputError(f"{lidar} holds {len(captures)} scans; lining its clock up by its odometry needs 20 to "
+                         f"{MAX_SCANS}, taken while the rig turns in a static scene", lidar)
+    orientations, _ = scan_orientations([session.capture_cloud(lidar, c.id)[0] for c in captures], progress)
+    return orientation_rate_signal(lidar, np.array([c.timestamp_s for c in captures]), orientations)
 
 
 def signals(session: Session, sensor_a: str, sensor_b: str,
             progress: ProgressCallback = no_progress) -> tuple[MotionSignal, MotionSignal]:
     """The two sensors' motion signals from their captures (:func:`check_pair` first)."""
     check_pair(session, sensor_a, sensor_b)
+    if session.rig.get(sensor_a).kind == "lidar3d":
+        return (_odometry_signal(session, sensor_a, lambda f, m: progress(0.5 * f, m)),
+                _odometry_signal(session, sensor_b, lambda f, m: progress(0.5 + 0.5 * f, m)))
     t_a, T_a_board = _camera_poses(session, sensor_a)
     if session.rig.get(sensor_b).kind == "camera":
         t_b, T_b_board = _camera_poses(session, sensor_b)
