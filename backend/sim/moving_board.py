@@ -59,9 +59,9 @@ class MovingBoardRecording:
                                  np.vstack([d.object_points(self.board) for d in self.detections]).astype(float))
 
 
-def board_pose_lidar(t_s: np.ndarray, seed: int = 0) -> np.ndarray:
-    """``T_lidar_board`` (N, 4, 4) at true times ``t_s`` (s): the print facing the sensors (board z along the
-    LiDAR's x, board x to its right, y down), swinging about every axis."""
+def board_pose_lidar(t_s: np.ndarray, seed: int = 0, board: str = BOARD) -> np.ndarray:
+    """``T_lidar_board`` (N, 4, 4) of ``board`` at true times ``t_s`` (s): the print facing the sensors (board z
+    along the LiDAR's x, board x to its right, y down), swinging about every axis."""
     rng = np.random.default_rng([seed, 4242])
     frequencies = rng.uniform(0.2, 0.7, size=(2, 3, 2))
     phases = rng.uniform(0, 2 * np.pi, size=(2, 3, 2))
@@ -69,13 +69,39 @@ def board_pose_lidar(t_s: np.ndarray, seed: int = 0) -> np.ndarray:
     waves = np.sin(angle).sum(axis=3)
     R_facing = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # columns: board x, y, z in LiDAR axes
     R = Rotation.from_rotvec(np.radians(14.0) * waves[:, 0]).as_matrix() @ R_facing
-    board = BoardSpec.parse(BOARD)
-    centre_board = np.r_[board.outer_origin_m[:2] + np.asarray(board.size_m) / 2, 0.0]
+    spec = BoardSpec.parse(board)
+    centre_board = np.r_[spec.outer_origin_m[:2] + np.asarray(spec.size_m) / 2, 0.0]
     centre = np.array([2.5, 0.0, -0.1]) + np.array([0.25, 0.2, 0.1]) * waves[:, 1]
     T = np.tile(np.eye(4), (len(t_s), 1, 1))
     T[:, :3, :3] = R
     T[:, :3, 3] = centre - np.einsum("nij,j->ni", R, centre_board)
     return T
+
+
+def sector_rays() -> tuple[np.ndarray, np.ndarray]:
+    """The spinner's unit rays (N, 3) in the sector ahead (LiDAR frame) and each one's azimuth (N,) (rad, clockwise
+    from x, as the beam turns)."""
+    azimuth = np.radians(np.arange(-SECTOR_DEG, SECTOR_DEG + 1e-9, AZIMUTH_STEP_DEG))
+    az, el = (a.ravel() for a in np.meshgrid(azimuth, np.radians(ELEVATIONS_DEG)))
+    return np.column_stack([np.cos(el) * np.cos(az), -np.cos(el) * np.sin(az), np.sin(el)]), az
+
+
+def scan_plate(board: BoardSpec, T_lidar_board: np.ndarray, rays: np.ndarray, rng: np.random.Generator,
+               range_sigma_m: float) -> np.ndarray:
+    """The returns (M, 3) (m, LiDAR frame) of ``rays`` (N, 3) from the origin on the board's plate (print and white
+    margin, :func:`~backend.sim.board_renderer.plate_corners_m`), the board at ``T_lidar_board`` (4x4, or (N, 4, 4)
+    one per ray), with range noise ``range_sigma_m``."""
+    T = np.broadcast_to(T_lidar_board, (len(rays), 4, 4))
+    corners = plate_corners_m(board)
+    lo, hi = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
+    normal, origin = T[:, :3, 2], T[:, :3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        distance = np.sum(normal * origin, axis=1) / np.sum(normal * rays, axis=1)
+    hits = rays * distance[:, None]
+    local = np.einsum("nji,nj->ni", T[:, :3, :3], hits - origin)[:, :2]
+    on_plate = (distance > 0) & np.all((local >= lo) & (local <= hi), axis=1)
+    measured = distance[on_plate] + rng.normal(0, range_sigma_m, int(on_plate.sum()))
+    return rays[on_plate] * measured[:, None]
 
 
 def simulate_moving_board(duration_s: float = 20.0, offset_s: float = 0.037, seed: int = 0, camera_hz: float = 15.0,
@@ -93,22 +119,10 @@ def simulate_moving_board(duration_s: float = 20.0, offset_s: float = 0.037, see
         pixels += rng.normal(0, pixel_sigma, pixels.shape)
         detections.append(Detection(pixels, np.arange(len(grid)), (CAMERA.width, CAMERA.height)))
 
-    corners = plate_corners_m(board)
-    lo, hi = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
-    azimuth = np.radians(np.arange(-SECTOR_DEG, SECTOR_DEG + 1e-9, AZIMUTH_STEP_DEG))  # clockwise from x
-    elevation = np.radians(ELEVATIONS_DEG)
-    az, el = (a.ravel() for a in np.meshgrid(azimuth, elevation))
-    rays = np.column_stack([np.cos(el) * np.cos(az), -np.cos(el) * np.sin(az), np.sin(el)])
+    rays, azimuth = sector_rays()
     t_scan = np.arange(0.3, duration_s - 0.3, 1.0 / scan_hz)
-    scans = []
-    for t in t_scan:
-        T = board_pose_lidar(t + az / (2 * np.pi) / scan_hz, seed)  # each shot sees the board of its instant
-        normal, origin = T[:, :3, 2], T[:, :3, 3]
-        distance = np.sum(normal * origin, axis=1) / np.sum(normal * rays, axis=1)
-        hits = rays * distance[:, None]
-        local = np.einsum("nji,nj->ni", T[:, :3, :3], hits - origin)[:, :2]
-        on_plate = (distance > 0) & np.all((local >= lo) & (local <= hi), axis=1)
-        measured = distance[on_plate] + rng.normal(0, range_sigma_m, int(on_plate.sum()))
-        scans.append(rays[on_plate] * measured[:, None])
+    scans = [scan_plate(board, board_pose_lidar(t + azimuth / (2 * np.pi) / scan_hz, seed), rays, rng,
+                        range_sigma_m)  # each shot sees the board of its instant
+             for t in t_scan]
     return MovingBoardRecording(board, CAMERA, T_CAMERA_LIDAR, offset_s, epoch + t_camera, detections,
                                 epoch + offset_s + t_scan, scans)
