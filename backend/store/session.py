@@ -543,18 +543,7 @@ class Session:
 
     def imu_capture(self, sensor: str, capture_id: str) -> ImuSamples:
         """The samples of an IMU capture (:meth:`add_imu_capture`)."""
-        check_name(capture_id, "capture")
-        path = self._capture_dir(sensor) / f"{capture_id}{IMU_SUFFIX}"
-        if not path.exists():
-            raise (self._quarantined_error(path)
-                   or NotFoundError(f"no IMU capture {capture_id!r} for sensor {sensor!r}", "capture"))
-        try:
-            data = np.load(path, allow_pickle=False)
-            if data.ndim != 2 or data.shape[1] != 7 or data.dtype.kind != "f":
-                raise ValueError(f"it holds a {data.dtype} array of shape {data.shape}")
-        except (ValueError, OSError, EOFError) as exc:
-            raise self._quarantine(path, f"not a readable N x 7 IMU table ({exc}); it may be truncated",
-                                   path.with_suffix("").with_suffix(".json")) from None
+        data = self._capture_table(sensor, capture_id, IMU_SUFFIX, 7, "IMU capture", "N x 7 IMU table")
         return ImuSamples(data[:, 0], data[:, 1:4], data[:, 4:7])
 
     def captures(self, sensor: str, limit: int | None = None) -> list[CaptureRecord]:
@@ -674,18 +663,27 @@ class Session:
             depth, amplitude = self.depth_capture(sensor, capture_id)
             points, index = stored_intrinsics(record.meta).unproject(depth)
             return points, amplitude.ravel()[index]
-        if not path.exists():
-            raise (self._quarantined_error(path)
-                   or NotFoundError(f"no cloud capture {capture_id!r} for sensor {sensor!r}", "capture"))
-        try:
-            data = np.load(path, allow_pickle=False)
-            if data.ndim != 2 or data.shape[1] != 4 or data.dtype.kind != "f":
-                raise ValueError(f"it holds a {data.dtype} array of shape {data.shape}")
-        except (ValueError, OSError, EOFError) as exc:
-            raise self._quarantine(path, f"not a readable N x 4 float cloud ({exc}); it may be truncated",
-                                   path.with_suffix(".json")) from None
+        data = self._capture_table(sensor, capture_id, ".npy", 4, "cloud capture", "N x 4 float cloud")
         intensity = data[:, 3]
         return data[:, :3].astype(np.float64), None if np.all(np.isnan(intensity)) else intensity
+
+    def _capture_table(self, sensor: str, capture_id: str, suffix: str, columns: int, what: str, shape: str
+                       ) -> np.ndarray:
+        """A capture's float table (N x ``columns``) from its ``suffix`` file; a missing one is a 404 naming it, a
+        broken one is quarantined with its metadata and named."""
+        check_name(capture_id, "capture")
+        path = self._capture_dir(sensor) / f"{capture_id}{suffix}"
+        if not path.exists():
+            raise (self._quarantined_error(path)
+                   or NotFoundError(f"no {what} {capture_id!r} for sensor {sensor!r}", "capture"))
+        try:
+            data = np.load(path, allow_pickle=False)
+            if data.ndim != 2 or data.shape[1] != columns or data.dtype.kind != "f":
+                raise ValueError(f"it holds a {data.dtype} array of shape {data.shape}")
+        except (ValueError, OSError, EOFError) as exc:
+            raise self._quarantine(path, f"not a readable {shape} ({exc}); it may be truncated",
+                                   self._capture_dir(sensor) / f"{capture_id}.json") from None
+        return data
 
     def capture_image(self, sensor: str, capture_id: str) -> np.ndarray:
         check_name(capture_id, "capture")

@@ -19,6 +19,7 @@ from fastapi.testclient import TestClient
 from backend.api.app import create_app
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.imu import ImuSamples
 from backend.core.rig import Frame, Rig
 from backend.exports.opencv_yaml import dump_opencv_yaml, read_opencv_yaml
 from backend.exports.rig_transforms import dump_rig_transforms, load_rig_transforms, static_transform_publisher
@@ -250,6 +251,25 @@ def test_truncated_cloud_is_quarantined_and_reported_by_name(tmp_path: Path, cli
     assert err.value.status_code == 422 and "00001.npy" in err.value.message
     added = session.add_cloud_capture("front", np.zeros((10, 3)), None, {"timestamp_s": 3.0, "device": "test"})
     assert added.id not in ("00001", "00002")
+
+
+def test_a_truncated_imu_capture_is_quarantined_and_named(tmp_path: Path):
+    rig = Rig()
+    rig.add(Frame("imu", "base_link", kind="imu"))
+    session = SessionStore(tmp_path).create("rig", rig=rig)
+    t_s = np.arange(0.0, 2.0, 0.005)
+    imu = ImuSamples(t_s, np.column_stack([np.sin(t_s)] * 3), np.tile([0.0, 0.0, 9.81], (len(t_s), 1)))
+    kept, broken = (session.add_imu_capture("imu", imu, {"timestamp_s": float(k), "device": "test"}) for k in (0, 2))
+    read = session.imu_capture("imu", kept.id)
+    assert kept.n_imu_samples == len(t_s) and np.array_equal(read.t_s, t_s) and np.array_equal(read.gyro_rad_s,
+                                                                                               imu.gyro_rad_s)
+    table = session.path / "captures" / "imu" / f"{broken.id}.imu.npy"
+    table.write_bytes(table.read_bytes()[:100])
+    with pytest.raises(InputError, match=f"{broken.id}.imu.npy.*N x 7 IMU table"):
+        session.imu_capture("imu", broken.id)
+    quarantined = session.path / "quarantine" / "captures" / "imu"
+    assert (quarantined / f"{broken.id}.imu.npy").is_file() and (quarantined / f"{broken.id}.json").is_file()
+    assert [c.id for c in session.captures("imu")] == [kept.id]
 
 
 def test_corrupt_capture_metadata_and_image_are_quarantined(tmp_path: Path):

@@ -10,16 +10,14 @@ from types import SimpleNamespace
 
 import cv2
 import pytest
-import viser
 
 from backend.core.rig import Frame, Rig
 from backend.plots.camera_imu import excitation_bars, fitted_signals
 from backend.plots.render import to_rgb
-from backend.services.jobs import JobRunner
 from backend.sim.camera_imu import CAMERA, recording_files, simulate_recording
 from backend.store.session import SessionStore
-from studio.app import StudioApp
 from tests.conftest import ARTIFACTS, poll
+from tests.studio.in_process import in_process_studio
 
 pytestmark = pytest.mark.slow
 
@@ -30,11 +28,7 @@ def test_the_step_solves_an_uploaded_recording(tmp_path, free_port) -> None:
     rig.add(Frame("imu0", "base_link", kind="imu"))
     store = SessionStore(tmp_path / "sessions")
     session = store.create("rig", rig=rig)  # no board: the camera-IMU step names its own
-    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    notes: list[tuple[str, str]] = []
-    try:
-        app = StudioApp(server, store, JobRunner(), session=session)
-        app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
+    with in_process_studio(store, session, free_port) as (app, notes):
         # a session made without a board (the API allows it) opens, and step 3 says where to set one
         assert "has no board spec yet" in app.intrinsics_step.coverage_text.content
         step = app.camera_imu_step
@@ -69,5 +63,3 @@ def test_the_step_solves_an_uploaded_recording(tmp_path, free_port) -> None:
         cv2.imwrite(str(ARTIFACTS / "camera_imu_excitation.png"), step.excitation_image.image[..., ::-1])
         cv2.imwrite(str(ARTIFACTS / "camera_imu_signals.png"), step.signals_image.image[..., ::-1])
         assert [r["id"] for r in session.results("imu0", "camera_imu")] == [result_id]
-    finally:
-        server.stop()

@@ -5,16 +5,14 @@ step's IMU file, equal to what the captures hold."""
 from __future__ import annotations
 
 import numpy as np
-import viser
 
 from backend.core.rig import Frame, Rig
 from backend.devices.imu_csv import parse_imu_csv
 from backend.plots.camera_imu import excitation_bars
 from backend.plots.render import to_rgb
-from backend.services.jobs import JobRunner
 from backend.store.session import SessionStore
-from studio.app import StudioApp
 from tests.conftest import poll
+from tests.studio.in_process import in_process_studio
 
 
 def test_a_live_run_is_shown_stored_and_becomes_the_imu_file(tmp_path, free_port) -> None:
@@ -23,11 +21,7 @@ def test_a_live_run_is_shown_stored_and_becomes_the_imu_file(tmp_path, free_port
     rig.add(Frame("imu0", "base_link", kind="imu", device={"driver": "vn100", "port": "sim"}))
     store = SessionStore(tmp_path / "sessions")
     session = store.create("rig", rig=rig)
-    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    notes: list[tuple[str, str]] = []
-    try:
-        app = StudioApp(server, store, JobRunner(), session=session)
-        app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
+    with in_process_studio(store, session, free_port) as (app, notes):
         step = app.camera_imu_step
         empty = to_rgb(excitation_bars(None))
         step._record()
@@ -52,5 +46,3 @@ def test_a_live_run_is_shown_stored_and_becomes_the_imu_file(tmp_path, free_port
         stored_t = np.concatenate([s.t_s for s in stored])
         assert len(stored_t) == len(recorded.t_s) and np.allclose(stored_t, recorded.t_s, atol=1e-9)
         assert np.allclose(np.vstack([s.gyro_rad_s for s in stored]), recorded.gyro_rad_s, atol=1e-6)
-    finally:
-        server.stop()

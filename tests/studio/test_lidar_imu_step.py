@@ -8,7 +8,6 @@ import re
 from types import SimpleNamespace
 
 import pytest
-import viser
 from scipy.spatial.transform import Rotation
 
 from backend.core.rig import Frame, Rig
@@ -16,11 +15,10 @@ from backend.core.transforms import make_T
 from backend.devices.imu_csv import format_imu_csv
 from backend.plots.camera_imu import excitation_bars
 from backend.plots.render import to_rgb
-from backend.services.jobs import JobRunner
 from backend.sim.lidar_imu import R_LIDAR_IMU, simulate_lidar_imu
 from backend.store.session import SessionStore
-from studio.app import StudioApp
 from tests.conftest import poll
+from tests.studio.in_process import in_process_studio
 
 
 def test_the_step_solves_a_lidar_against_an_imu(tmp_path, free_port) -> None:
@@ -34,11 +32,7 @@ def test_the_step_solves_a_lidar_against_an_imu(tmp_path, free_port) -> None:
     session = store.create("rig", rig=rig)
     for t_s, points in zip(recording.scan_times_s, recording.scans, strict=True):
         session.add_cloud_capture("lidar", points, None, {"timestamp_s": float(t_s), "device": "sim"})
-    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    notes: list[tuple[str, str]] = []
-    try:
-        app = StudioApp(server, store, JobRunner(), session=session)
-        app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
+    with in_process_studio(store, session, free_port) as (app, notes):
         step = app.camera_imu_step
         assert step.camera.options == ("cam0", "lidar") and step.imu.value == "imu"
         step.camera.value = "lidar"
@@ -60,5 +54,3 @@ def test_the_step_solves_a_lidar_against_an_imu(tmp_path, free_port) -> None:
         step.card.preview()
         step.card.accept()
         assert session.rig.get("imu").clock_offset_s == pytest.approx(float(offset.group(1)) / 1e3, abs=1e-5)
-    finally:
-        server.stop()

@@ -6,15 +6,13 @@ from __future__ import annotations
 
 import cv2
 import pytest
-import viser
 
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
-from backend.services.jobs import JobRunner
 from backend.sim.moving_board import simulate_moving_board
 from backend.store.session import SessionStore
-from studio.app import StudioApp
 from tests.conftest import ARTIFACTS, poll
+from tests.studio.in_process import in_process_studio
 from tests.time_offset_session import moving_board_session
 
 
@@ -22,11 +20,7 @@ def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> N
     store = SessionStore(tmp_path / "sessions")
     recording = simulate_moving_board(duration_s=12.0, offset_s=0.037, seed=4, camera_hz=10.0)
     session = moving_board_session(store, recording)
-    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    notes: list[tuple[str, str]] = []
-    try:
-        app = StudioApp(server, store, JobRunner(), session=session)
-        app.ctx.notify = lambda title, body, error=False: notes.append((title, body))
+    with in_process_studio(store, session, free_port) as (app, notes):
         step = app.time_offset_step
         assert step.reference.options == ("cam", "cam2", "lidar") and step.sensor.options == ("lidar", "cam", "cam2")
         assert "| lidar | lidar3d | 0.00 | not measured |" in step.clocks_text.content
@@ -53,5 +47,3 @@ def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> N
         step.card.accept()
         assert session.rig.get("lidar").clock_offset_s == pytest.approx(record["time_offset_s"])
         assert f"| lidar | lidar3d | {1e3 * record['time_offset_s']:.2f} |" in step.clocks_text.content
-    finally:
-        server.stop()
