@@ -5,11 +5,14 @@ clocks table shows the LiDAR's clock offset; a pair that cannot be measured is r
 from __future__ import annotations
 
 import cv2
+import numpy as np
 import pytest
 
+from backend.calib.lidar_camera.capture import store_pair
+from backend.devices.base import Sample
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
-from backend.sim.moving_board import simulate_moving_board
+from backend.sim.moving_board import CAMERA, simulate_moving_board
 from backend.store.session import SessionStore
 from tests.conftest import ARTIFACTS, poll
 from tests.studio.in_process import in_process_studio
@@ -47,3 +50,14 @@ def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> N
         step.card.accept()
         assert session.rig.get("lidar").clock_offset_s == pytest.approx(record["time_offset_s"])
         assert f"| lidar | lidar3d | {1e3 * record['time_offset_s']:.2f} |" in step.clocks_text.content
+
+        # a pair captured now says, in step 5, which clock offset it assumed
+        image = Sample(600.0, image=np.zeros((CAMERA.height, CAMERA.width), np.uint8))
+        store_pair(session, "cam", "lidar", image, Sample(600.0, points=recording.scans[0]), device="test",
+                   detection=None)
+        lidar_camera = app.lidar_camera_step
+        lidar_camera.camera.value, lidar_camera.lidar.value = "cam", "lidar"
+        lidar_camera._list_scenes()
+        lidar_camera._load_scenes()
+        assert f"clock offsets assumed: lidar {1e3 * record['time_offset_s']:.2f} ms" in \
+            lidar_camera.data_text.content, lidar_camera.data_text.content
