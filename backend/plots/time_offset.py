@@ -36,7 +36,8 @@ def aligned_signals(record: dict[str, Any] | None) -> Figure:
         top.set_xlabel(f"{a}'s time since its first sample (s)")
         top.set_ylabel(unit)
         curve = record["alignment"]["curve"]
-        bottom.plot(1e3 * np.asarray(curve["offset_s"]), curve["score"], color="#333333", lw=0.8)
+        score = np.array([np.nan if v is None else v for v in curve["score"]], dtype=float)
+        bottom.plot(1e3 * np.asarray(curve["offset_s"]), score, color="#333333", lw=0.8)
         bottom.axvline(1e3 * offset_s, color="#e8590c", lw=1.0)
         bottom.set_xlabel(f"offset t_{b} - t_{a} (ms)")
         bottom.set_ylabel(curve.get("score_name", "score"), fontsize=7)

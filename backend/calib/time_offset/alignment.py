@@ -20,7 +20,7 @@ from sample to sample (:func:`persistence`), and at least the search step.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
@@ -28,6 +28,7 @@ from scipy.interpolate import make_interp_spline
 from backend.calib.camera_imu.time_offset import align_rates
 from backend.calib.time_offset.signals import MIN_SAMPLES, MotionSignal
 from backend.core.errors import InputError
+from backend.core.result import finite_or_none
 
 MIN_TURN_DEG = 10.0
 """Least spread (deg) of a board's normal over the recording for its timing to be readable."""
@@ -37,6 +38,8 @@ MIN_TURN_DEG = 10.0
 class OffsetAlignment:
     """How sensor b's motion lines up with sensor a's."""
 
+    kind: str
+    """What was lined up: ``directions`` (board normals) or ``rates`` (angular rates)."""
     offset_s: float
     """``t_b = t_a + offset_s`` (s)."""
     offset_std_s: float
@@ -51,13 +54,13 @@ class OffsetAlignment:
     samples: int
     """Samples of the sparser signal that entered the fit."""
     curve: dict[str, list[float]]
-    """The alignment's score against the offset, for a plot: ``offset_s`` and ``score`` (the cost, or the angular
-    speeds' correlation for rates) with ``score_name``."""
+    """The alignment's score against the offset, for a plot: ``offset_s`` and ``score`` (the cost, None where too
+    few samples overlap; or the angular speeds' correlation for rates) with ``score_name``."""
 
     def to_dict(self) -> dict:
-        return {"offset_s": self.offset_s, "offset_std_s": self.offset_std_s, "R_a_b": self.R_a_b.tolist(),
-                "rotation_std_deg": self.rotation_std_deg, "residual": self.residual, "samples": self.samples,
-                "curve": self.curve}
+        return {"kind": self.kind, "offset_s": self.offset_s, "offset_std_s": self.offset_std_s,
+                "R_a_b": self.R_a_b.tolist(), "rotation_std_deg": self.rotation_std_deg, "residual": self.residual,
+                "samples": self.samples, "curve": self.curve}
 
 
 def align_signals(a: MotionSignal, b: MotionSignal, *, max_offset_s: float = 0.5,
@@ -71,7 +74,7 @@ def align_signals(a: MotionSignal, b: MotionSignal, *, max_offset_s: float = 0.5
     if a.kind == "rates":
         rates = align_rates(b.t_s, b.vectors, a.t_s, a.vectors, max_offset_s=max_offset_s, step_s=step_s,
                             name=f"{a.sensor}+{b.sensor}")
-        return OffsetAlignment(rates.offset_s, rates.offset_std_s, rates.R_a_b.T,
+        return OffsetAlignment("rates", rates.offset_s, rates.offset_std_s, rates.R_a_b.T,
                                float(np.degrees(rates.rotation_std_rad)), rates.residual_rad_s, len(a.t_s),
                                {"offset_s": rates.curve["offset_s"], "score": rates.curve["correlation"],
                                 "score_name": "angular speeds' correlation"})
@@ -83,9 +86,8 @@ def align_signals(a: MotionSignal, b: MotionSignal, *, max_offset_s: float = 0.5
     if len(a.t_s) <= len(b.t_s):  # interpolate the denser signal at the sparser one's times
         return _align_directions(a, b, max_offset_s, step_s)
     flipped = _align_directions(b, a, max_offset_s, step_s)
-    return OffsetAlignment(-flipped.offset_s, flipped.offset_std_s, flipped.R_a_b.T, flipped.rotation_std_deg,
-                           flipped.residual, flipped.samples, flipped.curve | {
-                               "offset_s": [-o for o in flipped.curve["offset_s"]]})
+    return replace(flipped, offset_s=-flipped.offset_s, R_a_b=flipped.R_a_b.T,
+                   curve=flipped.curve | {"offset_s": [-o for o in flipped.curve["offset_s"]]})
 
 
 def _mean_direction(vectors: np.ndarray) -> np.ndarray:
@@ -163,6 +165,6 @@ def _align_directions(sparse: MotionSignal, dense: MotionSignal, max_offset_s: f
     offset_std = float(np.hypot(1 / np.sqrt(information), step_s / np.sqrt(12))) if information > 0 else float("inf")
     information = (n * np.eye(3) - mapped.T @ mapped) / max(variance, 1e-18)  # sum of (I - m m^T) / s^2
     rotation_std = float(np.degrees(np.sqrt(np.linalg.eigvalsh(np.linalg.inv(information)).max())))
-    return OffsetAlignment(offset_s, offset_std, R_a_b, rotation_std, float(np.sqrt(final[0])), n,
-                           {"offset_s": offsets.tolist(), "score": np.nan_to_num(cost, nan=-1.0).tolist(),
+    return OffsetAlignment("directions", offset_s, offset_std, R_a_b, rotation_std, float(np.sqrt(final[0])), n,
+                           {"offset_s": offsets.tolist(), "score": finite_or_none(cost),
                             "score_name": "mean squared normal difference"})
