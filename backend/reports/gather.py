@@ -125,7 +125,8 @@ class ReportData:
     generated_at: float
     """s since the epoch."""
     frames: list[dict[str, Any]]
-    """Every non-root frame of the rig: ``name``, ``kind``, ``parent``, ``captures`` (how many it holds)."""
+    """Every non-root frame of the rig: ``name``, ``kind``, ``parent``, ``captures`` (how many it holds),
+    ``clock_offset_s`` and ``clock_offset_std_s`` (its clock against the rig's, s; the sigma None if not measured)."""
     tree: RigTree
     cameras: list[CameraReport]
     cameras_without_intrinsics: dict[str, str]
@@ -147,7 +148,8 @@ def gather(session: Session) -> ReportData:
         info, acceptance_log = session.info(), session.acceptance_log
         info["depth_network"] = depth_network_summary(session) if rig.sensors("depth") else None
     frames = [{"name": f.name, "kind": f.kind, "parent": f.parent,
-               "captures": len(session.captures(f.name)) if f.kind != "frame" else 0}
+               "captures": len(session.captures(f.name)) if f.kind != "frame" else 0,
+               "clock_offset_s": f.clock_offset_s, "clock_offset_std_s": f.clock_offset_std_s}
               for f in rig.frames.values() if f.parent is not None]
     cameras, missing = [], {}
     intrinsics = {r["sensor"]: r for r in accepted if StoredResult(r).kind == "intrinsics"}

@@ -251,14 +251,18 @@ TEMPLATE = """<!DOCTYPE html>
 <section id="sensors">
 <h2>Sensors</h2>
 <p class="note">Each frame's fused pose in its parent (m; ROS yaw, pitch, roll in deg) and its 1-sigma from the rig
-solve (translation in mm along the parent's axes, rotation in deg about the frame's own axes).</p>
+solve (translation in mm along the parent's axes, rotation in deg about the frame's own axes); each sensor's clock
+offset against the rig's clock (ms, 1-sigma), where one was measured and accepted.</p>
 <table>
 <tr><th>frame</th><th>kind</th><th>parent</th><th>x</th><th>y</th><th>z</th><th>yaw</th><th>pitch</th><th>roll</th>
-<th>sigma</th><th>captures</th><th>edges</th><th>intrinsics</th></tr>
+<th>sigma</th><th>clock (ms)</th><th>captures</th><th>edges</th><th>intrinsics</th></tr>
 {% for f in frames %}{% set est = tree.frames.get(f.name) %}
 <tr><td><b>{{ f.name }}</b></td><td>{{ f.kind }}</td><td>{{ est.parent if est else f.parent }}</td>
 {% if est %}{{ posecells(est.T_parent_child) }}<td>{{ sigma(est.std) }}</td>
 {% else %}<td colspan="7" class="flag">not connected to {{ tree.root }}</td>{% endif %}
+<td class="n">{% if f.clock_offset_std_s is none %}{% if f.kind != "frame" %}not measured{% else %}—{% endif %}
+{% else %}{{ "%.2f" | format(1000 * f.clock_offset_s) }} ± {{ "%.2f" | format(1000 * f.clock_offset_std_s) }}
+{% endif %}</td>
 <td class="n">{{ f.captures }}</td><td class="n">{{ edge_counts.get(f.name, 0) }}</td>
 <td>{% if f.kind == "camera" %}{% if f.name in camera_rms %}{{ camera_rms[f.name] }}{% else %}<span class="warn">
   {{ cameras_without_intrinsics.get(f.name, "none") }}</span>{% endif %}{% else %}—{% endif %}</td></tr>

@@ -59,6 +59,10 @@ def test_measured_accepted_and_kept_as_the_lidars_clock_offset(client: TestClien
     assert frames["lidar"]["clock_offset_s"] == pytest.approx(found["time_offset_s"], abs=1e-12)
     assert frames["lidar"]["clock_offset_std_s"] == pytest.approx(found["std"]["time_s"], abs=1e-12)
     assert frames["cam"]["clock_offset_s"] == 0.0
+    report = client.get("/api/sessions/rig/report")
+    assert report.status_code == 200, report.text[:300]
+    clock = f"{1e3 * found['time_offset_s']:.2f} ± {1e3 * found['std']['time_s']:.2f}"
+    assert clock in report.text and "clock (ms)" in report.text, clock
 
     plot = client.get(f"{SOLVE}/{found['result_id']}/plot.svg")
     assert plot.status_code == 200 and plot.headers["content-type"] == "image/svg+xml", plot.text[:200]
