@@ -2,8 +2,10 @@
 
 :func:`read_cloud` reads ``.pcd`` (ascii, binary, binary_compressed; via pypcd4),
 ``.ply`` (ascii and binary; vertex x, y, z and an optional intensity property),
-``.las``/``.laz`` (via laspy; scaled x, y, z and intensity) and ``.npy`` (N×3, or
+``.las``/``.laz`` (via laspy; scaled x, y, z and intensity), ``.npy`` (N×3, or
 N×4 with intensity as the 4th column, or a structured array with x, y, z fields)
+and ``.lvx`` (a Livox recording of one LiDAR, every frame accumulated, reflectivity
+as intensity: :func:`~backend.devices.lvx_file.read_lvx_cloud`)
 into a :class:`CloudFile`: (N, 3) float64 points in metres in the file's own frame.
 
 Bad input never escapes as a library exception: unknown extensions, missing,
@@ -39,8 +41,9 @@ from backend.core.errors import InputError
 from backend.core.limits import MAX_CLOUD_POINTS
 from backend.devices.base import Sample, register_driver
 from backend.devices.file_sequence import FileSequence
+from backend.devices.lvx_file import read_lvx_cloud
 
-CLOUD_EXTENSIONS = (".pcd", ".ply", ".las", ".laz", ".npy")
+CLOUD_EXTENSIONS = (".pcd", ".ply", ".las", ".laz", ".npy", ".lvx")
 """File extensions read as point clouds (compared case-insensitively)."""
 
 INTENSITY_FIELDS = ("intensity", "i", "scalar_intensity")
@@ -73,7 +76,8 @@ def read_cloud(path: Path | str) -> CloudFile:
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    readers = {".pcd": _read_pcd, ".ply": _read_ply, ".las": _read_las, ".laz": _read_las, ".npy": _read_npy}
+    readers = {".pcd": _read_pcd, ".ply": _read_ply, ".las": _read_las, ".laz": _read_las, ".npy": _read_npy,
+               ".lvx": _read_lvx}
     if suffix not in readers:
         raise InputError(
             f"{path.name}: unknown point-cloud file type {path.suffix or '(no extension)'!r}; "
@@ -389,6 +393,14 @@ def _as_float(path: Path, array: np.ndarray) -> np.ndarray:
     if kind not in "iuf":
         raise InputError(f"{path.name}: array of dtype {array.dtype}; expected numbers (float or int)", input=str(path))
     return array.astype(np.float64, copy=False)
+
+
+# --- LVX ------------------------------------------------------------------------------------------
+
+
+def _read_lvx(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+    cloud = read_lvx_cloud(path)
+    return cloud.points, cloud.reflectivity, ["x", "y", "z", "reflectivity"]
 
 
 # --- the capture driver --------------------------------------------------------------------------

@@ -1,9 +1,11 @@
-"""ROS 2 bags (sqlite3 or MCAP storage) replayed as a sensor (driver ``"rosbag"``).
+"""ROS bags (ROS 2 sqlite3 or MCAP storage, ROS 1 ``.bag``) replayed as a sensor (driver ``"rosbag"``).
 
 A bag is a ROS 2 bag folder (``metadata.yaml`` beside ``.db3`` or ``.mcap`` files),
-a single ``.mcap`` file or a single ``.db3`` file; it is read with rosbags'
-:class:`~rosbags.highlevel.AnyReader` (pure Python, no ROS install). ROS 1
-``.bag`` files are not supported.
+a single ``.mcap`` or ``.db3`` file, or a ROS 1 ``.bag`` file (most Livox recordings:
+livox_ros_driver is a ROS 1 package); it is read with rosbags'
+:class:`~rosbags.highlevel.AnyReader` (pure Python, no ROS install), which reads both
+generations behind one interface: ROS 1 messages deserialise to the same types, with
+``header.stamp`` as ``sec``/``nanosec``.
 
 One :class:`RosbagSource` replays one topic, optionally within a time window,
 one message per :meth:`RosbagSource.read`:
@@ -17,12 +19,29 @@ message type                              :class:`~backend.devices.base.Sample` 
 ``sensor_msgs/msg/PointCloud2``           ``points`` (N, 3) m, ``intensity`` when present
 ``sensor_msgs/msg/LaserScan``             ``points`` (N, 3) m with z = 0, ``intensity``
 ``sensor_msgs/msg/CameraInfo``            ``meta["intrinsics"]`` (CameraIntrinsics.to_dict())
+``sensor_msgs/msg/Imu``                   ``imu``: :class:`~backend.core.imu.ImuSamples` of one sample
+Livox ``CustomMsg`` (below)               ``points`` (N, 3) m, ``intensity`` (reflectivity 0-255),
+                                          ``meta["point_time_s"]``
 ========================================  ==================================================
+
+An IMU topic replays one message per read, as every other topic does (so ``index``, ``bag_time_s`` and the time
+window mean the same for it, and a message that cannot be used fails alone); a solve wants the whole stream at once:
+:func:`read_imu_topic` reads a topic into one checked :class:`~backend.core.imu.ImuSamples`
+(:func:`~backend.core.imu.checked_imu`), as :func:`~backend.devices.imu_csv.read_imu_csv` reads a CSV file.
+
+Livox ``CustomMsg`` (livox_ros_driver, livox_ros_driver2 and livox_ros2_driver's ``livox_interfaces``: one layout,
+``header, uint64 timebase (ns), uint32 point_num, uint8 lidar_id, uint8[3] rsvd, CustomPoint[] points`` with
+``CustomPoint: uint32 offset_time (ns after timebase), float32 x, y, z (m), uint8 reflectivity, tag, line``) replays
+as its points in the LiDAR's frame, ``timestamp_s`` the time base (the first point's time; the header stamp when the
+time base is 0) and ``meta["point_time_s"]`` each point's time in s after ``timestamp_s``. These types are not in
+rosbags' type store: :func:`typestore` adds them, for bags that carry no message definitions (ROS 1 bags and MCAP
+files carry their own) and for writing such bags.
 
 The message conversions are public, vectorised numpy functions usable on any
 deserialised message (:func:`pointcloud2_to_points`, :func:`laserscan_to_points`,
 :func:`image_to_array`, :func:`compressed_image_to_array`,
-:func:`camera_info_to_intrinsics`, :func:`depth_image_to_metres`); :func:`list_topics` lists what a bag holds.
+:func:`camera_info_to_intrinsics`, :func:`depth_image_to_metres`, :func:`imu_to_arrays`,
+:func:`custom_msg_to_points`); :func:`list_topics` lists what a bag holds.
 
 Depth images (REP 118: ``16UC1`` in millimetres, ``32FC1`` in metres, 0 or NaN = no return) replay as depth
 samples (:func:`~backend.devices.depth_files.depth_sample`: ``depth``, ``points`` in the camera's optical frame,
@@ -44,8 +63,9 @@ is changed anywhere by a failed open.
 from __future__ import annotations
 
 import contextlib
+import functools
 import posixpath
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -56,6 +76,7 @@ import numpy as np
 from backend.core.camera import CameraIntrinsics
 from backend.core.depth import DepthIntrinsics
 from backend.core.errors import InputError
+from backend.core.imu import ImuSamples, checked_imu
 from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
 from backend.devices.depth_files import MM_PER_M, check_ranges, depth_sample, pinhole_of, undistort_depth
 from backend.devices.image_io import check_pixels, image_size
@@ -65,11 +86,36 @@ COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 LASERSCAN = "sensor_msgs/msg/LaserScan"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-SUPPORTED_TYPES = (IMAGE, COMPRESSED_IMAGE, POINTCLOUD2, LASERSCAN, CAMERA_INFO)
+IMU = "sensor_msgs/msg/Imu"
+LIVOX_CUSTOM_MSGS = ("livox_ros_driver/msg/CustomMsg", "livox_ros_driver2/msg/CustomMsg",
+                     "livox_interfaces/msg/CustomMsg")
+"""Livox's point-cloud message in its three packages (ROS 1 driver, SDK 2 driver, ROS 2 driver for SDK 1)."""
+SUPPORTED_TYPES = (IMAGE, COMPRESSED_IMAGE, POINTCLOUD2, LASERSCAN, CAMERA_INFO, IMU, *LIVOX_CUSTOM_MSGS)
 """Message types :class:`RosbagSource` can replay."""
 
-BAG_FILE_SUFFIXES = (".mcap", ".db3")
-"""Single-file bags accepted besides ROS 2 bag folders."""
+BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
+"""Single-file bags accepted besides ROS 2 bag folders (``.bag``: ROS 1)."""
+
+LIVOX_CUSTOM_MSG = """std_msgs/Header header
+uint64 timebase
+uint32 point_num
+uint8 lidar_id
+uint8[3] rsvd
+CustomPoint[] points
+"""
+"""``CustomMsg.msg`` as Livox-SDK/livox_ros_driver2 (and livox_ros_driver, livox_interfaces) define it."""
+LIVOX_CUSTOM_POINT = """uint32 offset_time
+float32 x
+float32 y
+float32 z
+uint8 reflectivity
+uint8 tag
+uint8 line
+"""
+"""``CustomPoint.msg``: ``offset_time`` in ns after the message's ``timebase``, x, y, z in m."""
+
+MAX_IMU_MESSAGES = 5_000_000
+"""Most messages :func:`read_imu_topic` reads from one topic (7 h at 200 Hz), checked on the bag's count first."""
 
 _POINTFIELD_DTYPES: dict[int, str] = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 """sensor_msgs/PointField datatype constants (INT8 … FLOAT64) to numpy type codes (no byte order)."""
@@ -102,7 +148,7 @@ class TopicInfo:
 
     name: str
     msgtype: str
-    """ROS 2 type name, e.g. ``"sensor_msgs/msg/PointCloud2"``."""
+    """ROS 2 type name (ROS 1 types are named the same way), e.g. ``"sensor_msgs/msg/PointCloud2"``."""
     count: int
     """Number of messages on the topic."""
     start_s: float | None
@@ -126,7 +172,8 @@ def _storage_path(bag_path: Path) -> Path:
     """The path to hand to rosbags: the bag folder, or its single storage file when it lacks metadata."""
     name = str(bag_path)
     if not bag_path.exists():
-        raise RosbagError(f"bag {name} does not exist; expected a ROS 2 bag folder, a .mcap or a .db3 file", name)
+        raise RosbagError(f"bag {name} does not exist; expected a ROS 2 bag folder, a .mcap, a .db3 or a ROS 1 "
+                          ".bag file", name)
     if bag_path.is_dir():
         if (bag_path / "metadata.yaml").is_file():
             return bag_path
@@ -135,21 +182,21 @@ def _storage_path(bag_path: Path) -> Path:
             return files[0]
         raise RosbagError(
             f"folder {name} is not a ROS 2 bag: it has no metadata.yaml"
-            + (f" and {len(files)} storage files" if files else " and no .mcap or .db3 file"),
+            + (f" and {len(files)} storage files" if files else " and no .mcap, .db3 or .bag file"),
             name,
         )
-    if bag_path.suffix.lower() == ".bag":
-        raise RosbagError(f"{name} is a ROS 1 bag; only ROS 2 bags (folder, .mcap or .db3) are supported", name)
     if bag_path.suffix not in BAG_FILE_SUFFIXES:
         raise RosbagError(
-            f"unknown file {name}: expected a ROS 2 bag folder (with metadata.yaml), a .mcap or a .db3 file", name
+            f"unknown file {name}: expected a ROS 2 bag folder (with metadata.yaml), a .mcap, a .db3 or a ROS 1 "
+            ".bag file", name
         )
     return bag_path
 
 
 def _corrupt(bag_path: Path, exc: BaseException) -> RosbagError:
     detail = str(exc).strip() or type(exc).__name__
-    return RosbagError(f"bag {bag_path} is truncated or corrupt, or not a ROS 2 bag ({detail})", str(bag_path))
+    return RosbagError(f"bag {bag_path} is truncated or corrupt, or not a ROS 2 bag or ROS 1 bag ({detail})",
+                       str(bag_path))
 
 
 @contextlib.contextmanager
@@ -163,14 +210,36 @@ def _bag_errors(bag_path: Path) -> Iterator[None]:
         raise _corrupt(bag_path, exc) from exc
 
 
+@functools.cache
+def _livox_types() -> dict[str, Any]:
+    """The Livox CustomMsg and CustomPoint definitions of every package in :data:`LIVOX_CUSTOM_MSGS`."""
+    from rosbags.typesys import get_types_from_msg
+
+    types: dict[str, Any] = {}
+    for msgtype in LIVOX_CUSTOM_MSGS:
+        package = msgtype.split("/")[0]
+        types |= get_types_from_msg(LIVOX_CUSTOM_POINT, f"{package}/msg/CustomPoint")
+        types |= get_types_from_msg(LIVOX_CUSTOM_MSG, msgtype)
+    return types
+
+
+def typestore(ros1: bool = False) -> Any:
+    """rosbags' type store of ROS 2 Humble (or of ROS 1 Noetic, to write ROS 1 bags) with the Livox CustomMsg types
+    added: what bags without their own message definitions are read with."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store.register(_livox_types())
+    return store
+
+
 def _open_reader(bag_path: Path) -> Any:
     """An opened AnyReader on the bag; :class:`RosbagError` naming the file if it cannot be read."""
     from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
 
     storage = _storage_path(bag_path)
     with _bag_errors(bag_path):
-        reader = AnyReader([storage], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader = AnyReader([storage], default_typestore=typestore())
         reader.open()
     return reader
 
@@ -191,7 +260,7 @@ def list_topics(bag_path: Path | str) -> list[TopicInfo]:
     """The topics of a bag, sorted by name, with type, message count and first/last receive time.
 
     ``bag_path`` is a ROS 2 bag folder (sqlite3 or MCAP storage), a single ``.mcap``
-    or a single ``.db3`` file. The per-topic times need one pass over the messages
+    or ``.db3`` file, or a ROS 1 ``.bag`` file. The per-topic times need one pass over the messages
     (their payloads are read but not deserialised). Raises :class:`RosbagError`
     naming the file if it is missing, unknown, truncated or corrupt.
     """
@@ -224,6 +293,55 @@ def list_topics(bag_path: Path | str) -> list[TopicInfo]:
     finally:
         with contextlib.suppress(Exception):
             reader.close()
+
+
+def _imu_topics_text(reader: Any) -> str:
+    imu_topics = sorted(name for name, info in reader.topics.items() if info.msgtype == IMU)
+    if not imu_topics:
+        return f"it holds no {IMU} topic; {_topics_text(reader)}"
+    return f"its {IMU} topics: {', '.join(imu_topics)}"
+
+
+def read_imu_topic(bag_path: Path | str, topic: str) -> tuple[ImuSamples, list[str]]:
+    """The sensor_msgs/Imu messages of ``topic`` as one :class:`~backend.core.imu.ImuSamples` (times: header stamps,
+    s since the epoch, or the receive time where a stamp is 0; in receive order) and the warnings they earn, checked by
+    :func:`~backend.core.imu.checked_imu` as an IMU CSV file is.
+
+    Raises :class:`RosbagError` naming the bag (and the topic, and the time where it applies) for a bad bag, a topic
+    it lacks or of another type (the message lists the bag's IMU topics), more than :data:`MAX_IMU_MESSAGES`
+    messages, and a stream no solve can use (too few samples, time stamps that run backwards or repeat, a quantity
+    not measured); gaps are warned, naming the bag, the topic and where.
+    """
+    bag_path = Path(bag_path)
+    name = str(bag_path)
+    reader = _open_reader(bag_path)
+    try:
+        with _bag_errors(bag_path):
+            connections = [c for c in reader.connections if c.topic == topic]
+            if not connections:
+                raise RosbagError(f"bag {name} has no IMU topic {topic!r}; {_imu_topics_text(reader)}", name)
+            other = sorted({c.msgtype for c in connections} - {IMU})
+            if other:
+                raise RosbagError(f"topic {topic!r} in bag {name} has message type {', '.join(other)}, not {IMU}; "
+                                  f"{_imu_topics_text(reader)}", name)
+            count = sum(int(c.msgcount) for c in connections)
+            if count > MAX_IMU_MESSAGES:
+                raise RosbagError(f"topic {topic!r} in bag {name} holds {count:,} IMU messages, more than the "
+                                  f"{MAX_IMU_MESSAGES:,} one solve reads; cut the bag to the calibration run", name)
+            received_ns, msgs = [], []
+            for connection, timestamp, raw in reader.messages(connections=connections):
+                received_ns.append(timestamp)
+                msgs.append(reader.deserialize(raw, connection.msgtype))
+    finally:
+        with contextlib.suppress(Exception):
+            reader.close()
+    shown = f"bag {name} topic {topic}"
+    try:
+        stamps_s, gyro, accel = imu_to_arrays(msgs, shown)
+        t_s = np.where(stamps_s > 0, stamps_s, np.array(received_ns, np.float64) * 1e-9)  # as a replay times them
+        return checked_imu(t_s, gyro, accel, shown)
+    except InputError as exc:
+        raise RosbagError(exc.message, name) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -464,15 +582,52 @@ def camera_info_to_intrinsics(msg: Any, source: str | None = None) -> CameraIntr
     return CameraIntrinsics(model, int(msg.width), int(msg.height), k, dist)  # type: ignore[arg-type]
 
 
+def imu_to_arrays(msgs: Sequence[Any], source: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Header stamps (N,) s, angular rates (N, 3) rad/s and specific forces (N, 3) m/s² of sensor_msgs/Imu
+    messages, in the order given (the orientation is not used).
+
+    REP 145 marks a quantity the IMU does not measure with ``-1`` as the first element of its covariance: such a
+    message raises :class:`~backend.core.errors.InputError` naming ``source`` and the stamp, as no solve can use it.
+    """
+    for msg in msgs:
+        for quantity in ("angular_velocity", "linear_acceleration"):
+            if float(np.asarray(getattr(msg, f"{quantity}_covariance")).ravel()[0]) == -1.0:
+                raise InputError(f"{_where(msg, source, 'Imu')}: the IMU does not report its {quantity} (its "
+                                 "covariance starts with -1); expected angular rates and accelerations",
+                                 source or "Imu")
+    t_s = np.array([stamp_to_s(msg.header.stamp) for msg in msgs], dtype=np.float64)
+    vectors = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z, m.linear_acceleration.x,
+                         m.linear_acceleration.y, m.linear_acceleration.z) for m in msgs], np.float64).reshape(-1, 6)
+    return t_s, vectors[:, :3], vectors[:, 3:]
+
+
+def custom_msg_to_points(msg: Any, source: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (N, 3) float64 (m, the LiDAR's frame), reflectivity (N,) float32 (0-255) and each point's time
+    after the message's ``timebase`` (N,) float64 s of a Livox CustomMsg (any of :data:`LIVOX_CUSTOM_MSGS`).
+
+    Points at the origin (Livox's "no return") or with a non-finite coordinate are dropped with their reflectivity
+    and time. ``source`` names the input in errors: :class:`~backend.core.errors.InputError` for a message whose
+    ``point_num`` disagrees with the points it holds.
+    """
+    points = msg.points
+    if int(msg.point_num) != len(points):
+        raise InputError(f"{_where(msg, source, 'CustomMsg')}: CustomMsg point_num is {msg.point_num} but the "
+                         f"message holds {len(points)} points", source or "CustomMsg")
+    records = np.array([(p.offset_time, p.x, p.y, p.z, p.reflectivity) for p in points], np.float64).reshape(-1, 5)
+    xyz = records[:, 1:4]
+    keep = np.isfinite(xyz).all(axis=1) & xyz.any(axis=1)
+    return xyz[keep], records[keep, 4].astype(np.float32), records[keep, 0] * 1e-9
+
+
 # --------------------------------------------------------------------------------------------
 # The driver
 
 
 @register_driver
 class RosbagSource(CaptureDevice):
-    """Replays one topic of a ROS 2 bag, one message per :meth:`read`, in receive order.
+    """Replays one topic of a ROS bag, one message per :meth:`read`, in receive order.
 
-    ``path`` is a bag folder, a ``.mcap`` or a ``.db3`` file; ``topic`` one of its
+    ``path`` is a bag folder, a ``.mcap``, ``.db3`` or ROS 1 ``.bag`` file; ``topic`` one of its
     topics of a :data:`SUPPORTED_TYPES` type. ``start_s``/``end_s`` (seconds after the
     bag start, i.e. the receive time of its first message; both ends inclusive) limit
     the replay to a window of receive times; None means from the start / to the end.
@@ -482,7 +637,10 @@ class RosbagSource(CaptureDevice):
     ``frame_id``, ``stamp_s`` (header stamp), ``bag_time_s`` (receive time),
     ``bag`` (the path), ``index`` (0-based position in the replay) and ``msgtype``;
     CameraInfo samples carry no image or points but ``meta["intrinsics"]``, the
-    camera as :meth:`CameraIntrinsics.to_dict`.
+    camera as :meth:`CameraIntrinsics.to_dict`. An Imu sample's ``imu`` holds its
+    one sample at ``timestamp_s``. A Livox CustomMsg sample's ``timestamp_s`` is
+    its ``timebase`` (when not 0), ``meta["point_time_s"]`` (N,) each point's time
+    after it (s) and ``meta["lidar_id"]`` the LiDAR's number.
 
     Depth image topics (see the module docs) take ``camera_info_topic`` (default: the
     ``camera_info`` beside the topic) and ``min_range_m``/``max_range_m`` (m), the depth
@@ -595,6 +753,14 @@ class RosbagSource(CaptureDevice):
             sample.points, sample.intensity = laserscan_to_points(msg, source)
         elif connection.msgtype == CAMERA_INFO:
             meta["intrinsics"] = camera_info_to_intrinsics(msg, source).to_dict()
+        elif connection.msgtype == IMU:
+            _, gyro, accel = imu_to_arrays([msg], source)
+            sample.imu = ImuSamples(np.array([sample.timestamp_s]), gyro, accel)
+        elif connection.msgtype in LIVOX_CUSTOM_MSGS:
+            sample.points, sample.intensity, meta["point_time_s"] = custom_msg_to_points(msg, source)
+            meta["lidar_id"] = int(msg.lidar_id)
+            if int(msg.timebase) > 0:
+                sample.timestamp_s = int(msg.timebase) * 1e-9
         return sample
 
     def _depth_camera(self, reader: Any, info_topic: str) -> CameraIntrinsics | None:

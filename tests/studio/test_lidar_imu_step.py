@@ -50,7 +50,7 @@ def test_the_step_solves_a_lidar_against_an_imu(tmp_path, free_port) -> None:
         assert offset and abs(float(offset.group(1)) - 15.0) < 2.0, step.offset_text.content
         assert "lidar_imu · rates" in step.card.text.content and "**lidar → imu**" in step.card.text.content
 
-        step.card.confirm.checkbox.value = True  # the verdict is check: the translation is not estimated
+        step.card.confirm.checkbox.value = True  # needed if the verdict is check
         step.card.preview()
         step.card.accept()
         assert session.rig.get("imu").clock_offset_s == pytest.approx(float(offset.group(1)) / 1e3, abs=1e-5)

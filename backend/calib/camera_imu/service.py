@@ -32,7 +32,8 @@ from backend.core.errors import InputError
 from backend.core.imu import ImuSamples
 from backend.core.result import ProgressCallback, TransformResult, no_progress
 from backend.core.verdict import Verdict
-from backend.devices.imu_csv import parse_imu_csv, read_imu_csv
+from backend.devices.imu_csv import parse_imu_csv
+from backend.devices.imu_files import read_imu
 from backend.exports.ros_camera_info import load_camera_info
 from backend.store.session import Session
 
@@ -64,13 +65,14 @@ def solve_recording(camera: CameraIntrinsics, observations: BoardObservations, i
 
 
 def solve_files(camera_path: Path, corners: Path, imu_path: Path, board: str,
-                settings: CameraImuSettings = DEFAULT_SETTINGS,
-                progress: ProgressCallback = no_progress) -> TransformResult:
+                settings: CameraImuSettings = DEFAULT_SETTINGS, progress: ProgressCallback = no_progress,
+                imu_topic: str | None = None) -> TransformResult:
     """:func:`solve_recording` on a camera_info YAML, the board's corners (a detections CSV, or a folder of images
-    named by their time stamps in ns, in which the board is detected) and an IMU CSV (``../shared/conventions.md``);
-    :class:`InputError` naming the file at fault."""
+    named by their time stamps in ns, in which the board is detected) and the IMU's samples (a CSV as
+    ``../shared/conventions.md`` says, a ``.lvx`` recording, or a bag's ``imu_topic``:
+    :func:`~backend.devices.imu_files.read_imu`); :class:`InputError` naming the file at fault."""
+    imu, warnings = read_imu(imu_path, imu_topic)
     camera, _ = load_camera_info(camera_path)
-    imu, warnings = read_imu_csv(imu_path)
     detecting = corners.is_dir()
 
     def solving(fraction: float, message: str) -> None:  # after the detection's first fifth, if images were given

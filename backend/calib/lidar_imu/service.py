@@ -16,7 +16,8 @@ from backend.core.imu import ImuSamples
 from backend.core.result import ProgressCallback, TransformResult, no_progress
 from backend.devices.cloud_files import CLOUD_EXTENSIONS, read_cloud
 from backend.devices.file_sequence import stamped_files
-from backend.devices.imu_csv import parse_imu_csv, read_imu_csv
+from backend.devices.imu_csv import parse_imu_csv
+from backend.devices.imu_files import read_imu
 from backend.store.session import Session
 
 MAX_SCANS = 3000
@@ -30,9 +31,11 @@ def read_scan_folder(folder: Path) -> tuple[np.ndarray, list[np.ndarray]]:
     return np.array([stamp_ns * 1e-9 for stamp_ns, _ in stamped]), [read_cloud(path).points for _, path in stamped]
 
 
-def solve_files(scans: Path, imu_path: Path, progress: ProgressCallback = no_progress) -> TransformResult:
-    """:func:`~backend.calib.lidar_imu.solver.solve_lidar_imu` on a folder of scans and an IMU CSV."""
-    imu, warnings = read_imu_csv(imu_path)
+def solve_files(scans: Path, imu_path: Path, progress: ProgressCallback = no_progress,
+                imu_topic: str | None = None) -> TransformResult:
+    """:func:`~backend.calib.lidar_imu.solver.solve_lidar_imu` on a folder of scans and the IMU's samples (a CSV, a
+    ``.lvx`` recording, or a bag's ``imu_topic``: :func:`~backend.devices.imu_files.read_imu`)."""
+    imu, warnings = read_imu(imu_path, imu_topic)
     times, points = read_scan_folder(scans)
     result = solve_lidar_imu(times, points, imu, progress)
     result.warnings.extend(warnings)
@@ -40,8 +43,8 @@ def solve_files(scans: Path, imu_path: Path, progress: ProgressCallback = no_pro
 
 
 def summary(result: TransformResult) -> dict:
-    """The ``lidar-imu`` command's JSON: ``T_lidar_imu`` (translation not estimated: zero, its sigma null), the time
-    offset (``t_imu = t_lidar + offset``) and their sigmas, the residuals, the verdict."""
+    """The ``lidar-imu`` command's JSON: ``T_lidar_imu`` (where the motion does not determine the translation: zero,
+    its sigma null), the time offset (``t_imu = t_lidar + offset``) and their sigmas, the residuals, the verdict."""
     diagnostics = result.diagnostics
     return {"T_lidar_imu": result.T_parent_child.tolist(), "time_offset_s": diagnostics["time_offset_s"],
             "std": result.std | {"time_s": diagnostics["time_offset_std_s"]}, "residuals": dict(result.residuals),

@@ -7,7 +7,7 @@ Pairs of sensors and the signal each gives (:mod:`.signals`):
   rig's current ``T_camera_lidar``);
 - camera + camera: the cameras' angular rates relative to the board (its pose, frame to frame);
 - 3D LiDAR + 3D LiDAR: each LiDAR's angular rates from its own odometry (scan-to-scan GICP,
-  :func:`~backend.calib.lidar_imu.odometry.scan_orientations`) while the rig turns in a static scene.
+  :func:`~backend.calib.lidar_imu.odometry.scan_poses`) while the rig turns in a static scene.
 
 Every capture of each sensor with its time stamp enters (the camera's with a board detection); a recording is
 captured live while the board is carried through both views, or imported. Accepting the result sets
@@ -30,7 +30,7 @@ from backend.calib.camera_imu.observations import (
     detect_image_folder,
     read_detections_csv,
 )
-from backend.calib.lidar_imu.odometry import scan_orientations
+from backend.calib.lidar_imu.odometry import scan_poses
 from backend.calib.lidar_imu.service import MAX_SCANS, read_scan_folder
 from backend.calib.time_offset.board_signals import camera_board_poses, lidar_signal
 from backend.calib.time_offset.signals import MotionSignal, board_normal_signal, orientation_rate_signal
@@ -104,8 +104,8 @@ def _odometry_signal(session: Session, lidar: str, progress: ProgressCallback) -
     if not 20 <= len(captures) <= MAX_SCANS:
         raise InputError(f"{lidar} holds {len(captures)} scans; lining its clock up by its odometry needs 20 to "
                          f"{MAX_SCANS}, taken while the rig turns in a static scene", lidar)
-    orientations, _ = scan_orientations([session.capture_cloud(lidar, c.id)[0] for c in captures], progress)
-    return orientation_rate_signal(lidar, np.array([c.timestamp_s for c in captures]), orientations)
+    poses, _ = scan_poses([session.capture_cloud(lidar, c.id)[0] for c in captures], progress)
+    return orientation_rate_signal(lidar, np.array([c.timestamp_s for c in captures]), poses[:, :3, :3])
 
 
 def signals(session: Session, sensor_a: str, sensor_b: str,
