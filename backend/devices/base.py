@@ -34,6 +34,18 @@ class DeviceDisconnected(DeviceError):
     """The device went away mid-capture (unplugged, stream ended, read failed)."""
 
 
+class RecordingError(InputError, DeviceError):
+    """A recording (a bag, an .lvx file) that cannot be used as asked; ``input`` and ``device`` name the file.
+
+    Caught as :class:`~backend.core.errors.InputError` by the API and CLI (a 4xx, a one-line error) and as
+    :class:`DeviceError` by code that opens devices; ``str(exc)`` is the message, which itself names the file.
+    """
+
+    def __init__(self, message: str, path: str):
+        InputError.__init__(self, message, path)
+        self.device = path
+
+
 @dataclass
 class Sample:
     """One reading from a sensor."""

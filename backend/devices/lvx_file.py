@@ -48,7 +48,14 @@ import numpy as np
 from backend.core.errors import InputError
 from backend.core.imu import ImuSamples, checked_imu
 from backend.core.limits import MAX_CLOUD_POINTS
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.base import (
+    CaptureDevice,
+    DeviceDisconnected,
+    DeviceError,
+    RecordingError,
+    Sample,
+    register_driver,
+)
 from backend.devices.livox_packets import (
     DATA_TYPE_IMU,
     ETH_HEADER,
@@ -73,12 +80,8 @@ DEVICE_INDEX_BYTES = 1
 """Before each package's data packet: the index of the device that sent it."""
 
 
-class LvxError(InputError, DeviceError):
+class LvxError(RecordingError):
     """An .lvx file that cannot be used as asked; ``input`` (and ``device``) name the file."""
-
-    def __init__(self, message: str, path: str):
-        InputError.__init__(self, message, path)
-        self.device = path
 
 
 @dataclass(frozen=True)

@@ -77,7 +77,14 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.depth import DepthIntrinsics
 from backend.core.errors import InputError
 from backend.core.imu import ImuSamples, checked_imu
-from backend.devices.base import CaptureDevice, DeviceDisconnected, DeviceError, Sample, register_driver
+from backend.devices.base import (
+    CaptureDevice,
+    DeviceDisconnected,
+    DeviceError,
+    RecordingError,
+    Sample,
+    register_driver,
+)
 from backend.devices.depth_files import MM_PER_M, check_ranges, depth_sample, pinhole_of, undistort_depth
 from backend.devices.image_io import check_pixels, image_size
 
@@ -129,17 +136,8 @@ DEPTH_ENCODINGS = {"16UC1": 1.0 / MM_PER_M, "32FC1": 1.0}
 """Depth image encodings (REP 118) and the metres per stored unit of each."""
 
 
-class RosbagError(InputError, DeviceError):
-    """A bag that cannot be used as asked; ``input`` (and ``device``) name the bag.
-
-    Caught as :class:`~backend.core.errors.InputError` by the API and CLI and as
-    :class:`~backend.devices.base.DeviceError` by code that opens devices.
-    ``str(exc)`` is the message, which itself names the bag.
-    """
-
-    def __init__(self, message: str, bag: str):
-        InputError.__init__(self, message, bag)
-        self.device = bag
+class RosbagError(RecordingError):
+    """A bag that cannot be used as asked; ``input`` (and ``device``) name the bag."""
 
 
 @dataclass
