@@ -23,7 +23,7 @@ from backend.core.errors import InputError
 def add_parser(sub: argparse._SubParsersAction) -> None:
     ll = sub.add_parser("lidar-lidar", help="register two LiDARs' clouds: T_target_source with its uncertainty")
     ll.add_argument("source_cloud", type=Path, nargs="?",
-                    help="cloud of the source (child) LiDAR: .pcd .ply .las .laz .npy (or give --pair)")
+                    help="cloud of the source (child) LiDAR: .pcd .ply .las .laz .npy .lvx (or give --pair)")
     ll.add_argument("target_cloud", type=Path, nargs="?", help="cloud of the target (parent) LiDAR")
     ll.add_argument("--pair", action="append", metavar="SRC:TGT",
                     help="a source cloud and the target cloud taken with it; repeat for every scene (the rig in "

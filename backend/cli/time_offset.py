@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     source.add_argument("--images", type=Path,
                         help="a folder of images named by their time stamp in ns (the board is detected in each)")
     to.add_argument("--scans", type=Path, required=True,
-                    help="a folder of clouds (.pcd .ply .las .laz .npy) named by their time stamp in ns")
+                    help="a folder of clouds (.pcd .ply .las .laz .npy .lvx) named by their time stamp in ns")
     to.add_argument("--board", required=True, help="the board, e.g. checkerboard:7x5:0.1")
     add_init_arguments(to, "T_camera_lidar placing the board in the clouds")
     to.add_argument("--max-offset", type=float, default=0.5, metavar="S",

@@ -23,7 +23,7 @@ router = APIRouter(prefix="/sessions/{name}", tags=["lidar"], route_class=Upload
 @upload_limit(MAX_CLOUD_UPLOAD_MB, "files")
 def upload_clouds(sensor: str, files: Annotated[list[UploadFile], File()],
                   session: deps.SessionDep, progress: ClientProgressDep) -> dict[str, Any]:
-    """Add cloud files (.pcd, .ply, .las, .laz, .npy); an unreadable file rejects the batch, naming it, and
+    """Add cloud files (.pcd, .ply, .las, .laz, .npy, .lvx); an unreadable file rejects the batch, naming it, and
     nothing of it is stored. The files are copied in chunks to the session's folder and read from there, in
     the threadpool; a client that leaves stops it at the next file, and nothing is stored."""
     with upload_folder(session) as folder:
