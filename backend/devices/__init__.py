@@ -12,6 +12,7 @@ from backend.devices import (  # noqa: F401
     hokuyo,
     image_folder,
     kinect2,
+    livox,
     lvx_file,
     node_network,
     realsense,

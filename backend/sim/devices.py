@@ -9,7 +9,9 @@ Drivers never import simulators (the dependency runs sim -> devices -> core). Im
 - registers the simulated endpoints real drivers talk to with :func:`~backend.devices.base.start_simulator`:
   ``"ydlidar"`` (``ydlidar`` with ``port="sim"``: a :class:`~backend.sim.ydlidar_sim.YdlidarSimulator` on a pty),
   ``"velodyne"`` (``velodyne`` with ``host="sim"``: a :class:`~backend.sim.velodyne_udp.Vlp16UdpSimulator`
-  sending to the driver's port), ``"dynamixel"`` (``swept_scanner`` with ``servo_port="sim"``: a
+  sending to the driver's port), ``"livox"`` (``livox`` with ``host="sim"``: a
+  :class:`~backend.sim.livox_sim.LivoxSimulator` broadcasting to the driver's discovery port), ``"dynamixel"``
+  (``swept_scanner`` with ``servo_port="sim"``: a
   :class:`~backend.sim.dynamixel_sim.DynamixelSimulator` on a pty) and ``"swept_head"`` (its
   ``scanner={"driver": "sim"}``: a :class:`~backend.sim.swept_head.SimSweptScannerHead` on that servo's horn) and
   ``"hokuyo"`` (``hokuyo`` with ``host="sim"``: a :class:`~backend.sim.hokuyo_sim.HokuyoSimulator` on 127.0.0.1,
@@ -34,6 +36,7 @@ from backend.sim.depth_device import SimulatedDepthCamera
 from backend.sim.dynamixel_sim import DynamixelSimulator
 from backend.sim.hokuyo_sim import HokuyoSimulator
 from backend.sim.lidar_device import SimulatedLidar
+from backend.sim.livox_sim import LivoxSimulator
 from backend.sim.swept_head import SimSweptScannerHead
 from backend.sim.vectornav_sim import VN100Simulator
 from backend.sim.velodyne_udp import Vlp16UdpSimulator
@@ -67,6 +70,12 @@ def start_vn100(**settings: Any) -> VN100Simulator:
 def start_velodyne(port: int, sensor: str = "lidar_top", **settings: Any) -> Vlp16UdpSimulator:
     """A VLP-16 at the demo rig's ground-truth pose of ``sensor`` sending to 127.0.0.1:``port``."""
     return Vlp16UdpSimulator(port, T_base_lidar=demo_lidar3d_pose(sensor), **settings).start()
+
+
+def start_livox(discovery_port: int, sensor: str = "lidar_front", **settings: Any) -> LivoxSimulator:
+    """A Livox SDK 1 LiDAR (an Avia unless ``model`` says otherwise) at the demo rig's ground-truth pose of ``sensor``,
+    broadcasting to 127.0.0.1:``discovery_port``."""
+    return LivoxSimulator(discovery_port, T_base_lidar=demo_lidar3d_pose(sensor), **settings).start()
 
 
 def start_dynamixel(**settings: Any) -> DynamixelSimulator:
@@ -121,6 +130,7 @@ for _driver in SIMULATED_DRIVERS:
 register_simulator("ydlidar", start_ydlidar)
 register_simulator("vn100", start_vn100)
 register_simulator("velodyne", start_velodyne)
+register_simulator("livox", start_livox)
 register_simulator("dynamixel", start_dynamixel)
 register_simulator("swept_head", start_swept_head)
 register_simulator("hokuyo", start_hokuyo)

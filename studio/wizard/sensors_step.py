@@ -13,6 +13,7 @@ sensor keeps its captures and results aside and can be restored.
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,8 @@ DRIVERS: dict[str, DriverChoice] = {
     "velodyne": DriverChoice("Velodyne VLP-16 over UDP: PORT or HOST:PORT to listen on (2368), or sim",
                              RANGE_KINDS, "sim"),
     "velodyne_pcap": DriverChoice("Velodyne pcap recording: its path", RANGE_KINDS, ""),
+    "livox": DriverChoice("Livox SDK 1 LiDAR (Avia, Horizon) over UDP: its IP, its broadcast code, empty for the first "
+                          "one broadcasting, or sim", RANGE_KINDS, "sim"),
     "ydlidar": DriverChoice("YDLiDAR TG30 at 512000 baud: serial port (/dev/ttyUSB0), or sim", RANGE_KINDS, "sim"),
     "vn100": DriverChoice("VectorNav VN-100, binary output 1 at 115200 baud: serial port (/dev/ttyUSB0), or sim",
                           IMU_KINDS, "sim"),
@@ -64,10 +67,12 @@ DRIVERS: dict[str, DriverChoice] = {
                            "model's serial port (/dev/ttyACM0), or sim", RANGE_KINDS, "sim"),
     "swept_scanner": DriverChoice("2D scanner on a Dynamixel servo: the servo's serial port, or sim",
                                   RANGE_KINDS, "sim"),
-    "cloud_files": DriverChoice("point-cloud files (.pcd .ply .las .laz .npy): a folder or one file",
+    "cloud_files": DriverChoice("point-cloud files (.pcd .ply .las .laz .npy .lvx): a folder or one file",
                                 RANGE_KINDS, ""),
-    "rosbag": DriverChoice("ROS 2 bag (folder, .mcap or .db3): its path; the topic below",
-                           CAMERA_KINDS + RANGE_KINDS, ""),
+    "lvx": DriverChoice("Livox .lvx recording (its frames, or its built-in IMU): its path", RANGE_KINDS + IMU_KINDS,
+                        ""),
+    "rosbag": DriverChoice("ROS 1 or ROS 2 bag (.bag, a folder, .mcap or .db3): its path; the topic below",
+                           CAMERA_KINDS + RANGE_KINDS + IMU_KINDS, ""),
     "kinect2": DriverChoice("Kinect v2 through pylibfreenect2 (pip extra kinect2): its serial, or empty for the "
                             "first found", DEPTH_KINDS, ""),
     "realsense": DriverChoice("RealSense through pyrealsense2 (pip extra realsense): its serial, or empty for the "
@@ -78,7 +83,7 @@ DRIVERS: dict[str, DriverChoice] = {
     "node": DriverChoice("a sensor on another computer, served there by `calib-studio node --name NAME`: its name",
                          CAMERA_KINDS + RANGE_KINDS, ""),
 }
-PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "rosbag", "depth_files")
+PATH_DRIVERS = ("folder", "velodyne_pcap", "cloud_files", "lvx", "rosbag", "depth_files")
 VELODYNE_LISTEN_HOST = "0.0.0.0"
 """Where a Velodyne given only a port is listened for: the sensor sends to the broadcast or the host's address."""
 
@@ -105,6 +110,22 @@ def _velodyne(source: str) -> dict:
     if not port.isdigit() or not 0 < int(port) < 65536:
         raise InputError(f"Velodyne source {text!r} must be a UDP port, HOST:PORT or sim", "source")
     return {"driver": "velodyne", "host": host or VELODYNE_LISTEN_HOST, "port": int(port)}
+
+
+def _livox(source: str) -> dict:
+    """A Livox LiDAR's settings from *Source*: ``sim``, its IPv4 address, its broadcast code, or empty (the first
+    broadcasting)."""
+    text = source.strip()
+    if text == "sim":
+        return {"driver": "livox", "host": "sim"}
+    try:
+        return {"driver": "livox", "host": str(ipaddress.IPv4Address(text))}
+    except ValueError:
+        pass
+    if not text or (text.isalnum() and text.isascii() and len(text) <= 15):
+        return {"driver": "livox", "broadcast_code": text}
+    raise InputError(f"Livox source {text!r} must be the LiDAR's IPv4 address, its broadcast code (15 letters and "
+                     "digits), empty for the first one broadcasting, or sim", "source")
 
 
 def _hokuyo(source: str) -> dict:
@@ -140,6 +161,8 @@ def device_settings(driver: str, source: str, *, width: int = 0, height: int = 0
         return {"driver": driver, "port": text or "sim"}
     if driver == "hokuyo":
         return _hokuyo(text)
+    if driver == "livox":
+        return _livox(text)
     if driver in ("kinect2", "realsense"):
         return {"driver": driver, "serial": text or None}
     if driver == "node":
@@ -205,6 +228,8 @@ def device_form(device: dict[str, Any]) -> DeviceForm | None:
         host, port = device.get("host"), device.get("port")
         return DeviceForm(driver, "sim" if host == "sim" else f"{'' if host == VELODYNE_LISTEN_HOST else host + ':'}"
                           f"{port}")
+    if driver == "livox":
+        return DeviceForm(driver, text("host") or text("broadcast_code"))
     if driver == "swept_scanner":
         return DeviceForm(driver, text("servo_port"), scanner_port=str(device.get("scanner", {}).get("port", "")))
     if driver in PATH_DRIVERS:

@@ -30,12 +30,12 @@ from studio.wizard.sensors_step import (
 def test_every_registered_driver_is_offered_for_the_kinds_it_captures():
     assert sorted(DRIVERS) == driver_names()
     assert drivers_for("camera") == ["uvc", "folder", "simulated", "rosbag", "node"]
-    range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "ydlidar", "hokuyo", "swept_scanner",
-                     "cloud_files", "rosbag", "node"}
+    range_drivers = {"simulated_lidar", "velodyne", "velodyne_pcap", "livox", "ydlidar", "hokuyo", "swept_scanner",
+                     "cloud_files", "lvx", "rosbag", "node"}
     for kind in RANGE_KINDS:
         depth_drivers = {"kinect2", "realsense", "depth_files", "sim_depth"} if kind == "depth" else set()
         assert set(drivers_for(kind)) == range_drivers | depth_drivers
-    assert drivers_for("imu") == ["vn100"] and drivers_for("frame") == []
+    assert drivers_for("imu") == ["vn100", "lvx", "rosbag"] and drivers_for("frame") == []
 
 
 def test_settings_from_the_form(tmp_path):
@@ -82,7 +82,8 @@ def test_a_sensors_device_reads_back_into_the_form(tmp_path):
              DeviceForm("sim_depth", "sn4"), DeviceForm("node", "sn2"), DeviceForm("swept_scanner", "sim"),
              DeviceForm("swept_scanner", "/dev/ttyUSB1", scanner_port="/dev/ttyUSB0"),
              DeviceForm("rosbag", str(bag), topic="/points", time_window_s=(1.0, 2.5)),
-             DeviceForm("cloud_files", str(tmp_path))]
+             DeviceForm("cloud_files", str(tmp_path)), DeviceForm("lvx", str(bag)), DeviceForm("livox", "sim"),
+             DeviceForm("livox", "192.168.1.12"), DeviceForm("livox", "1PQDH5B00100041"), DeviceForm("livox", "")]
     assert {form.driver for form in forms} >= set(DRIVERS) - {"folder", "velodyne_pcap", "depth_files"}
     for form in forms:
         settings = form.settings()
