@@ -52,6 +52,7 @@ from studio.result_card import ResultCard, rotation_vector_deg
 from studio.result_history import ResultHistory
 from studio.scene import viser_pose
 from studio.transform_sliders import TransformSliders
+from studio.wizard.accumulate_panel import AccumulatePanel
 from studio.wizard.cloud_import_panel import CloudImportPanel
 
 NONE = "(no LiDAR)"
@@ -144,6 +145,7 @@ class LidarStep:
             self.capture_button = gui.add_button("Capture clouds")
             self.captures_text = gui.add_markdown("")
             self.imports = CloudImportPanel(ctx, on_imported=self._on_captures)
+            self.accumulation = AccumulatePanel(ctx, on_captured=self._on_captures, is_live=lambda: self.toggle.live)
             with gui.add_folder("LiDAR to LiDAR"):
                 self.source = gui.add_dropdown("Source LiDAR", options=[NONE])
                 self.target = gui.add_dropdown("Target LiDAR", options=[NONE])
@@ -217,6 +219,7 @@ class LidarStep:
         for box in old.values():
             box.remove()
         self.imports.set_lidars(lidars)
+        self.accumulation.set_lidars([name for name in lidars if session.rig.get(name).kind == "lidar3d"])
         options = lidars or [NONE]
         self.source.options, self.target.options = options, options
         if self.target.value not in options:

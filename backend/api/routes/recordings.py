@@ -1,13 +1,16 @@
-"""Recordings (ROS 2 bags, Velodyne pcaps, cloud folders): list a bag's topics, import a recording as captures."""
+"""Recordings (ROS bags, Velodyne pcaps, Livox .lvx, cloud folders): list a bag's topics, import a recording as
+captures; a static LiDAR's frames accumulated over an integration time as one capture."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from fastapi import APIRouter, Query
+from pydantic import BaseModel, Field
 
 from backend.api.routes import deps
 from backend.api.schemas import JobStatus, RecordingImportRequest
+from backend.services import accumulated_capture as accumulated
 from backend.services import recordings as service
 
 router = APIRouter(tags=["recordings"])
@@ -27,4 +30,19 @@ def import_recording(sensor: str, body: RecordingImportRequest, session: deps.Se
     settings = service.recording_settings(session, sensor, body.device)  # fail fast, before queueing
     job = jobs.submit(f"import into {sensor}", lambda progress: service.import_recording(
         session, sensor, settings, every=body.every, limit=body.limit, progress=progress).to_dict())
+    return job.status() | {"result_id": None, "summary": None}
+
+
+class AccumulateRequest(BaseModel):
+    integration_s: float = Field(gt=0, le=60, description="seconds of the sensor's own time to add up (a static "
+                                                          "sensor: a Livox fills its field of view in about 0.5 s)")
+
+
+@router.post("/sessions/{name}/sensors/{sensor}/accumulate", status_code=202, response_model=JobStatus)
+def accumulate(sensor: str, body: AccumulateRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
+    """Read the LiDAR's device for ``integration_s`` and keep the accumulated cloud as one capture, in the
+    background; the job's ``summary`` has the capture, its coverage of the field of view (0..1) and its frames."""
+    accumulated.check_device(session, sensor)  # fail fast, before queueing
+    job = jobs.submit(f"accumulate {sensor}", lambda progress: accumulated.capture_accumulated(
+        session, sensor, body.integration_s, progress).to_dict())
     return job.status() | {"result_id": None, "summary": None}

@@ -61,9 +61,10 @@ class Pairing:
 
 def pairing(session: Session, source: str, target: str, window_s: float = PAIR_WINDOW_S) -> Pairing:
     """Pair ``source``'s and ``target``'s clouds by time stamp: the closest stamps first, each capture used once,
-    within ``window_s`` (s). No sensor has a known time offset yet, so stamps are compared as they are (the
-    studio's clock for live captures). Uploaded clouds carry no stamp (0): they pair with each other in upload
-    order, as a user uploads matching files, and never with a stamped capture."""
+    within ``window_s`` (s). Stamps are compared on the rig's clock (each less its sensor's accepted clock offset,
+    :meth:`~backend.core.rig.Frame.rig_time`; 0 until a time offset is accepted). Uploaded clouds carry no stamp
+    (0): they pair with each other in upload order, as a user uploads matching files, and never with a stamped
+    capture."""
     check_lidar(session, source)
     check_lidar(session, target)
     sources = [c for c in session.captures(source) if c.n_points]
@@ -75,7 +76,9 @@ def pairing(session: Session, source: str, target: str, window_s: float = PAIR_W
                      strict=False))
     stamped_s = [c for c in sources if c.timestamp_s]
     stamped_t = [c for c in targets if c.timestamp_s]
-    gaps = np.abs(np.subtract.outer([c.timestamp_s for c in stamped_s], [c.timestamp_s for c in stamped_t]))
+    rig_s, rig_t = session.rig.get(source), session.rig.get(target)
+    gaps = np.abs(np.subtract.outer([rig_s.rig_time(c.timestamp_s) for c in stamped_s],
+                                    [rig_t.rig_time(c.timestamp_s) for c in stamped_t]))
     taken_s, taken_t = set(), set()
     for i, j in zip(*np.unravel_index(np.argsort(gaps, axis=None), gaps.shape), strict=True):
         if gaps[i, j] > window_s:
