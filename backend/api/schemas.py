@@ -177,6 +177,8 @@ class LidarCameraPairCapture(FiniteModel):
     lidar: str = Field(examples=["lidar_top"])
     require_board: bool = Field(True, description="refuse a pair whose image shows no board (off for the "
                                                   "targetless method), and wait for the board to hold still")
+    integration_s: float | None = Field(None, gt=0, le=60, description="add the LiDAR's frames up over this many "
+                                        "seconds of its time (a non-repetitive Livox); null: one scan")
 
 
 class LidarCameraSolveRequest(FiniteModel):

@@ -141,6 +141,9 @@ class LidarCameraStep:
             self.capture_jobs = JobPanel(ctx, [self.capture_button])
             self.need_board = gui.add_checkbox("Board in view", initial_value=True,
                                                hint="refuse a pair without the board, and wait for it to hold still")
+            self.integration = gui.add_number("LiDAR integration (s)", initial_value=0.0, min=0.0, max=60.0, step=0.1,
+                                              hint="0: one scan; more: the LiDAR's frames over that time added up "
+                                                   "(a Livox fills its field of view in about 0.5 s), the board still")
             self.editor = TransformSliders(gui, lambda _: self._wake.set(), max_translation_m=MAX_SLIDER_TRANSLATION_M)
             self.editor.bind_keys(gui, "LiDAR to camera")
             self.reset_button = gui.add_button("Reset to rig")
@@ -289,12 +292,13 @@ class LidarCameraStep:
     # -- capture and solve (jobs) ----------------------------------------------------------------
     def _capture(self) -> None:
         session, pair, need_board = self.ctx.session, self.pair, bool(self.need_board.value)
+        integration_s = float(self.integration.value) or None
         if pair is None:
             self.ctx.notify("Pick a camera and a LiDAR", "Both are needed for a pair.", error=True)
             return
         self.ctx.show_step(STEP)
         self.capture_jobs.run(f"pair {pair[0]}+{pair[1]}", lambda progress: pairs_service.capture_pair_from_devices(
-            session, *pair, require_board=need_board, progress=progress).name,
+            session, *pair, require_board=need_board, integration_s=integration_s, progress=progress).name,
             lambda name: self._list_scenes(select=name), done_message="Pair captured in {seconds:.1f} s.")
 
     def _solve(self) -> None:

@@ -1,6 +1,6 @@
 """A static Livox (the byte-level simulator, an Avia in the yard) accumulated into one capture: through the service,
-the API (a job) and the LiDAR step's panel in an in-process studio; the coverage grows with the integration time,
-and what cannot be accumulated is refused naming it."""
+the API (a job; also as the cloud of a LiDAR-camera pair) and the LiDAR step's panel in an in-process studio; the
+coverage grows with the integration time, and what cannot be accumulated is refused naming it."""
 
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ def store(tmp_path_factory):
     rig.add(Frame("livox", "base_link", demo_rig().T_root_frame("lidar_front"), kind="lidar3d",
                   device={"driver": "livox", "host": "sim"}))
     rig.add(Frame("bare", "base_link", kind="lidar3d"))
+    rig.add(Frame("cam", "base_link", kind="camera", device={"driver": "simulated", "camera": "cam_front"}))
     store.create("rig", rig=rig)
     return store
 
@@ -58,6 +59,15 @@ def test_the_api_accumulates_as_a_job(store) -> None:
         assert refused.status_code == 422 and "no capture device" in refused.json()["error"]["message"]
         assert client.post("/api/sessions/rig/sensors/livox/accumulate",
                            json={"integration_s": 0}).status_code == 422
+
+        # a LiDAR-camera pair whose cloud is 0.3 s of the Livox added up (the targetless methods' input)
+        started = client.post("/api/sessions/rig/lidar-camera/capture", json={
+            "camera": "cam", "lidar": "livox", "require_board": False, "integration_s": 0.3})
+        assert started.status_code == 202, started.text
+        job = wait_job(client, started.json()["id"])
+        assert job["state"] == "done", job
+        cloud = next(c for c in store.get("rig").captures("livox") if c.id == job["summary"]["cloud"])
+        assert cloud.meta["integration_s"] == 0.3 and cloud.meta["coverage"] > 0.3 and cloud.meta["frames"] >= 2
 
 
 def test_the_lidar_step_accumulates_and_draws_the_coverage(store, free_port) -> None:

@@ -68,7 +68,7 @@ def capture(body: LidarCameraPairCapture, session: deps.SessionDep, jobs: deps.J
     check_lidar(session, body.lidar)
     job = jobs.submit(f"pair {body.camera}+{body.lidar}", lambda progress: _pair_dict(
         pairs_service.capture_pair_from_devices(session, body.camera, body.lidar, require_board=body.require_board,
-                                                progress=progress)))
+                                                integration_s=body.integration_s, progress=progress)))
     return job.status() | {"result_id": None, "summary": None}
 
 

@@ -28,9 +28,11 @@ from backend.calib._session import check_camera, check_lidar, pair_board, read_u
 from backend.calib.board.detection import Detection, common_corners, detect_board
 from backend.calib.board.live_detection import detect_board_live
 from backend.calib.intrinsics import service as intrinsics_service
+from backend.core.accumulation import check_integration_s
 from backend.core.camera import check_image_size
 from backend.core.errors import InputError, NotFoundError
 from backend.core.result import ProgressCallback, no_progress
+from backend.devices.accumulate import read_accumulated
 from backend.devices.base import DeviceError, Sample, create_device
 from backend.devices.image_io import decode_image_bytes
 from backend.store.schema import CaptureRecord
@@ -176,15 +178,30 @@ def capture_pair(session: Session, camera: str, lidar: str, read_image: Callable
 
 
 def capture_pair_from_devices(session: Session, camera: str, lidar: str, *, require_board: bool = True,
+                              integration_s: float | None = None,
                               progress: ProgressCallback = no_progress) -> CapturePair:
-    """:func:`capture_pair` from the two sensors' devices as set in the rig (opened for this capture)."""
+    """:func:`capture_pair` from the two sensors' devices as set in the rig (opened for this capture). With
+    ``integration_s`` (s) the cloud is the LiDAR's frames over that much of its time added up
+    (:func:`~backend.devices.accumulate.read_accumulated`: a non-repetitive Livox fills its field of view), and the
+    board must hold still for all of it; ``meta`` keeps ``integration_s`` and the ``coverage`` reached."""
     for sensor in (camera, lidar):
         if not session.rig.get(sensor).device:
             raise InputError("no capture device configured for this sensor; set one in the sensors step", sensor)
+    if integration_s is not None:
+        check_integration_s(integration_s)
     try:
         with create_device(session.rig.get(camera).device) as camera_device, \
                 create_device(session.rig.get(lidar).device) as lidar_device:
-            return capture_pair(session, camera, lidar, camera_device.read, lidar_device.read,
+
+            def read_cloud() -> Sample:
+                if integration_s is None:
+                    return lidar_device.read()
+                started_s = time.time()
+                cloud = read_accumulated(lidar_device, integration_s)
+                return Sample(started_s, points=cloud.points, intensity=cloud.intensity, meta={
+                    "integration_s": integration_s, "frames": cloud.frames, "coverage": cloud.coverage.share})
+
+            return capture_pair(session, camera, lidar, camera_device.read, read_cloud,
                                 device=f"{camera_device.describe()} + {lidar_device.describe()}",
                                 require_board=require_board, progress=progress)
     except DeviceError as exc:  # unplugged or unreachable: nothing was stored; say which device and why
