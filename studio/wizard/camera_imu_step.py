@@ -75,6 +75,7 @@ class CameraImuStep:
         self.record_button.on_click(lambda _: self._record())
         self.stop_button.on_click(lambda _: self._stop_recording())
         self.recorder: ImuRecorder | None = None
+        self._recorded_lock = threading.Lock()
         self.imu.on_update(lambda _: self._fill_history(None))
         ctx.on_session_changed(self._session_changed)
         ctx.on_rig_changed(lambda _: self._list_sensors())
@@ -131,18 +132,22 @@ class CameraImuStep:
         self._recorded()
 
     def _recorded(self) -> None:
-        recorder, self.recorder = self.recorder, None
-        if recorder is None:
-            return
-        recorder.flush()
-        samples = recorder.samples()
-        if samples is None:
-            self.live_text.content = "The IMU gave no samples."
-            return
-        self._files["imu"] = (f"{recorder.sensor} {recorder.run}.csv", format_imu_csv(samples))
-        self._show_files()
-        self.live_text.content = (f"Recorded {samples.t_s[-1] - samples.t_s[0]:.1f} s ({len(samples.t_s)} samples) "
-                                  f"as {recorder.run}; it is the IMU file now.")
+        """The run ended (stopped, or by itself): its last samples are stored and it becomes the IMU file; the
+        recorder is let go only then, so whoever sees it gone finds the file in place."""
+        with self._recorded_lock:
+            recorder = self.recorder
+            if recorder is None:
+                return
+            recorder.flush()
+            samples = recorder.samples()
+            if samples is None:
+                self.live_text.content = "The IMU gave no samples."
+            else:
+                self._files["imu"] = (f"{recorder.sensor} {recorder.run}.csv", format_imu_csv(samples))
+                self._show_files()
+                self.live_text.content = (f"Recorded {samples.t_s[-1] - samples.t_s[0]:.1f} s ({len(samples.t_s)} "
+                                          f"samples) as {recorder.run}; it is the IMU file now.")
+            self.recorder = None
 
     def _keep(self, role: str, upload) -> None:
         self._files[role] = (upload.name, upload.content)
