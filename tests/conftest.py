@@ -114,17 +114,38 @@ def left_images(stereo_chessboard: Path) -> list[Path]:
     return sorted(stereo_chessboard.glob("left*.jpg"))
 
 
+STEREO_BOARD = "checkerboard:9x6:0.025"
+"""The stereo set's board: 9x6 inner corners, 25 mm squares."""
+
+
+@pytest.fixture(scope="session")
+def stereo_detections(stereo_chessboard: Path) -> dict[str, dict[str, Any]]:
+    """The board found (:func:`~backend.calib.board.detection.detect_board`) in every image of the stereo set, by
+    side (``left``, ``right``) and file name in name order: detected once per test process (0.2 s an image) for the
+    tests whose input they are. Not to be changed."""
+    from backend.calib.board.detection import detect_board
+    from backend.core.boards import BoardSpec
+    from backend.devices.image_io import read_image
+
+    board = BoardSpec.parse(STEREO_BOARD)
+    return {side: {path.name: detect_board(read_image(path, grayscale=True), board)
+                   for path in sorted(stereo_chessboard.glob(f"{side}*.jpg"))} for side in ("left", "right")}
+
+
 ARTIFACTS = Path(__file__).parent / "artifacts"
 """Screenshots the browser tests leave for a person to look at."""
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--use-gl=angle", "--use-angle=gl-egl",
-                 "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run"]
+                 "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--disable-gpu-compositing",
+                 "--disable-background-networking", "--disable-component-update", "--no-first-run"]
 """Debian's chromium (Playwright cannot fetch its own) with software WebGL: Mesa's llvmpipe through ANGLE's EGL back
 end where Mesa's drivers are installed (chromium recommends ``libgl1-mesa-dri``), else chromium's own SwiftShader,
 which it falls back to by itself. llvmpipe first because the studio's point clouds are drawn from their vertices, and
 SwiftShader's GPU process spent 611 of the browser tests' 1,085 busy core-seconds on them (3 workers, 2 cores), where
-llvmpipe's spends 168 of 750 (``../shared/stack-notes.md`` names SwiftShader only)."""
+llvmpipe's spends 168 of 750 (``../shared/stack-notes.md`` names SwiftShader only). The page itself is composited in
+software (``--disable-gpu-compositing``; the 3D view still draws through WebGL): compositing every frame of a
+1600x2000 page through llvmpipe kept the GPU process busier than the 3D view did, and without it the browser tests
+(one process, one after another) took 376 core-seconds instead of 462, the pages and screenshots alike."""
 
 
 def _free_port() -> int:

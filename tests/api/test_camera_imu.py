@@ -21,7 +21,9 @@ SOLVE = "/api/sessions/rig/sensors/imu0/camera-imu"
 
 @pytest.fixture(scope="module")
 def recording():
-    return simulate_recording(duration_s=24.0, offset_s=0.023, seed=3)
+    """19 s: one fit. Under 20 s a recording is too short for the two-halves cross-check (two more fits, 5 s of
+    CPU), which ``tests/calib/camera_imu/test_sim.py`` holds to its numbers on 24 s; the route is what this tests."""
+    return simulate_recording(duration_s=19.0, offset_s=0.023, seed=3)
 
 
 @pytest.fixture(scope="module")

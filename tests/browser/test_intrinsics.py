@@ -1,6 +1,6 @@
 """The real studio (``calib-studio demo`` in a subprocess) driven through Debian chromium.
 
-One studio process serves the module: the demo session is built from the
+One studio process and one page serve the module, its tests in their order: the demo session is built from the
 simulator in a temporary folder, the page is opened at the URL the CLI prints
 first on stdout, and the intrinsics wizard is run end to end on the simulated
 ``cam_wide``: live capture with auto-capture (part of the board's wave), a manual capture, solve, accept;
@@ -29,6 +29,7 @@ from tests.conftest import (
     Studio,
     button,
     choose,
+    close_toast,
     poll,
     steady,
     studio_page,
@@ -40,6 +41,7 @@ from tests.conftest import (
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 VIEWPORT = {"width": 1600, "height": 1000}
+TALL_VIEWPORT = {"width": 1600, "height": 2000}
 PANEL_LEFT_PX = 1150
 """The wizard panel floats over the right of the page; the 3D view is checked left of this."""
 CAM_WIDE_TRUTH = {"fx": 520.0, "fy": 519.2, "cx": 637.6, "cy": 362.9}
@@ -56,8 +58,10 @@ RESULT_RE = re.compile(r"(r\d{4}) \((not accepted|accepted)\) · intrinsics[\s\S
                        r"(pinhole-radtan|fisheye-equidistant) 1280×720")
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def page(browser: Browser, studio: Studio) -> Iterator[Page]:
+    """One page for the module's tests, in their order: opening one costs chromium about 5 s of CPU, and the GUI's
+    state is the server's whichever page shows it."""
     with studio_page(browser, studio.url, VIEWPORT) as page:
         yield page
 
@@ -119,10 +123,13 @@ def test_demo_page_renders_rig(page: Page) -> None:
         assert text in body, f"{text!r} missing from the page"
 
 
-def test_intrinsics_step_with_simulated_camera(browser: Browser, studio: Studio) -> None:
+def test_intrinsics_step_with_simulated_camera(page: Page, studio: Studio) -> None:
     # A tall page so the live image, the coverage bars and the result all fit in one screenshot.
-    with studio_page(browser, studio.url, {"width": 1600, "height": 2000}) as page:
+    page.set_viewport_size(TALL_VIEWPORT)
+    try:
         _run_intrinsics_wizard(page, studio)
+    finally:
+        page.set_viewport_size(VIEWPORT)
 
 
 def _run_intrinsics_wizard(page: Page, studio: Studio) -> None:
@@ -220,21 +227,21 @@ def test_corrupt_upload_is_reported_by_name(page: Page, studio: Studio, stereo_c
     expect(notice).to_contain_text("not a readable image")
     wait_still(notice)  # the toast has finished sliding in before the picture
     page.screenshot(path=ARTIFACTS / "studio_bad_upload.png")
+    close_toast(page, "Image not added")  # the next test's clicks go where it floats
     assert httpx.get(captures_url).json() == before
 
 
-def test_session_step_downloads_the_sessions_board(browser: Browser, studio: Studio) -> None:
+def test_session_step_downloads_the_sessions_board(page: Page, studio: Studio) -> None:
     board = studio.get("/api/sessions/demo")["board"]
     sheet = board_sheet(board)
-    with studio_page(browser, studio.url, {"width": 1600, "height": 1000}) as page:
-        choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
-        button(page, "Print the target").click()
-        expect(page.get_by_text("Cannot print the target")).to_be_visible()
-        expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
-        choose(page, "Paper", "auto")
-        button(page, "Print the target").click()
-        with page.expect_download() as download:
-            page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
-        saved = Path(download.value.path()).read_bytes()
-        assert download.value.suggested_filename == sheet.filename
+    choose(page, "Paper", "a4")  # the demo's board of 40 mm squares is larger than a4: refused, naming a paper
+    button(page, "Print the target").click()
+    expect(page.get_by_text("Cannot print the target")).to_be_visible()
+    expect(page.get_by_text(f"print it on {sheet.layout.paper}", exact=False)).to_be_visible()
+    choose(page, "Paper", "auto")
+    button(page, "Print the target").click()
+    with page.expect_download() as download:
+        page.get_by_role("link", name=re.compile(re.escape(sheet.filename))).click()
+    saved = Path(download.value.path()).read_bytes()
+    assert download.value.suggested_filename == sheet.filename
     assert saved == sheet.pdf  # the sheet test_target_pdf.py measures

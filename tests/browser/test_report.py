@@ -9,20 +9,15 @@ import pytest
 from playwright.sync_api import Browser, expect
 
 from backend.reports.template import SECTIONS
-from backend.services.report import render_report
 from tests.conftest import ARTIFACTS
-from tests.services.test_report import build_report_session
+from tests.services.test_report import report_template
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
 
 @pytest.fixture(scope="module")
 def report_file(demo_template: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    tmp = tmp_path_factory.mktemp("report_browser")
-    session = build_report_session(demo_template, tmp / "sessions")
-    path = tmp / "report.html"
-    path.write_text(render_report(session))
-    return path
+    return report_template(demo_template, tmp_path_factory) / "report.html"
 
 
 def test_report_opens_offline_with_every_section_and_prints(browser: Browser, report_file: Path,

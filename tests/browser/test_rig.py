@@ -7,7 +7,8 @@ from one simulated scan of each at the rig's truth). The rig step then lists eve
 fused tree, each accepted edge within 3 sigma of the rest ("fits") and none flagged, as the API's tree says;
 picking another step in *Step in view* hides the rig tree's layer; *Revert slot* takes the LiDAR-LiDAR
 edge out again. In-process, a studio on a copy of that session draws an ellipsoid per fused frame and a
-line per edge under ``/rig_tree``, shows one step's layer group at a time, and redraws after a revert.
+line per edge under ``/rig_tree``, shows one step's layer group at a time, and redraws after a revert. One studio
+process and one page serve the module, its tests in their order.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import io
 import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -79,6 +80,14 @@ def accepted(studio: Studio) -> dict[str, str]:
     return {slot: result_id for slot, result_id in slots.items() if result_id in (lidar_camera, lidar_lidar)}
 
 
+@pytest.fixture(scope="module")
+def page(browser: Browser, studio: Studio) -> Iterator[Page]:
+    """One page for the module's browser tests: opening one costs chromium about 5 s of CPU, and the GUI's state is
+    the server's whichever page shows it."""
+    with studio_page(browser, studio.url, VIEWPORT) as page:
+        yield page
+
+
 def _edge_rows(page: Page) -> list[list[str]]:
     """The cells of every row of the rig step's edge table."""
     table = page.locator("table", has_text="disagreement (σ)").filter(visible=True)
@@ -100,49 +109,48 @@ def _off_truth(page: Page) -> dict[str, tuple[float, float]]:
     return off
 
 
-def test_rig_step_in_the_browser(browser: Browser, studio: Studio, accepted: dict[str, str]) -> None:
+def test_rig_step_in_the_browser(studio: Studio, accepted: dict[str, str], page: Page) -> None:
     tree = httpx.get(f"{studio.api}{API}/rig/tree", timeout=30).json()
     measured = [e for e in tree["edges"] if e["kind"] != "prior"]
     assert {e["result_id"] for e in measured} == set(accepted.values()), measured
     assert not [e for e in tree["edges"] if e["flagged"]], tree["problems"]
-    with studio_page(browser, studio.url, VIEWPORT) as page:
-        unfold(page, "8 · Rig", button(page, "Re-solve the tree"))
-        button(page, "Re-solve the tree").click()  # the accepts came through the API, not the studio
-        wait_body(page, re.compile(r"cam_front → lidar_top\s+lidar_camera.*lidar_top → lidar_front\s+lidar_lidar",
-                                   re.S), 60)
-        rows = _edge_rows(page)
-        assert len(rows) == len(tree["edges"]), rows
-        shown = {row[3]: row for row in rows if row[3] != "–"}
-        assert set(shown) == set(accepted.values()), rows
-        assert all(row[0] == "fits" for row in shown.values()), rows
-        assert not [row for row in rows if row[0] == "flagged"], rows
-        assert {row[0] for row in rows if row[3] == "–"} <= {"fits", "unverified"}, rows
-        for frame in tree["frames"]:
-            expect(page.locator("table", has_text="rotation vector (°)").locator("td", has_text=re.compile(
-                f"^{frame}$"))).to_have_count(1)
-        off = _off_truth(page)  # the demo's tape guesses were 2-5 cm off; the accepts bring them to the truth
-        assert off["lidar_top"] == (0.0, 0.0) and off["cam_front"][0] < 10 and off["lidar_front"][0] < 10, off
-        assert off["cam_wide"][0] > 20, off  # no calibration reaches it: still its tape guess
-        expect(page.get_by_text(re.compile(r"drawn ×\d+ to be visible"))).to_be_visible()
-        expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
-        page.screenshot(path=ARTIFACTS / "studio_rig.png")
+    unfold(page, "8 · Rig", button(page, "Re-solve the tree"))
+    button(page, "Re-solve the tree").click()  # the accepts came through the API, not the studio
+    wait_body(page, re.compile(r"cam_front → lidar_top\s+lidar_camera.*lidar_top → lidar_front\s+lidar_lidar",
+                               re.S), 60)
+    rows = _edge_rows(page)
+    assert len(rows) == len(tree["edges"]), rows
+    shown = {row[3]: row for row in rows if row[3] != "–"}
+    assert set(shown) == set(accepted.values()), rows
+    assert all(row[0] == "fits" for row in shown.values()), rows
+    assert not [row for row in rows if row[0] == "flagged"], rows
+    assert {row[0] for row in rows if row[3] == "–"} <= {"fits", "unverified"}, rows
+    for frame in tree["frames"]:
+        expect(page.locator("table", has_text="rotation vector (°)").locator("td", has_text=re.compile(
+            f"^{frame}$"))).to_have_count(1)
+    off = _off_truth(page)  # the demo's tape guesses were 2-5 cm off; the accepts bring them to the truth
+    assert off["lidar_top"] == (0.0, 0.0) and off["cam_front"][0] < 10 and off["lidar_front"][0] < 10, off
+    assert off["cam_wide"][0] > 20, off  # no calibration reaches it: still its tape guess
+    expect(page.get_by_text(re.compile(r"drawn ×\d+ to be visible"))).to_be_visible()
+    expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
+    page.screenshot(path=ARTIFACTS / "studio_rig.png")
 
-        choose(page, "Step in view", STEPS["lidar"])  # the checkboxes follow within seconds on a loaded machine
-        expect(page.get_by_label("Rig tree (step 8)")).not_to_be_checked()
-        expect(page.get_by_label("LiDAR clouds (step 4)")).to_be_checked()
-        page.screenshot(path=ARTIFACTS / "studio_rig_layers_lidar.png")
-        choose(page, "Step in view", STEPS["rig"])
-        expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
-        expect(page.get_by_label("LiDAR clouds (step 4)")).not_to_be_checked()
+    choose(page, "Step in view", STEPS["lidar"])  # the checkboxes follow within seconds on a loaded machine
+    expect(page.get_by_label("Rig tree (step 8)")).not_to_be_checked()
+    expect(page.get_by_label("LiDAR clouds (step 4)")).to_be_checked()
+    page.screenshot(path=ARTIFACTS / "studio_rig_layers_lidar.png")
+    choose(page, "Step in view", STEPS["rig"])
+    expect(page.get_by_label("Rig tree (step 8)")).to_be_checked()
+    expect(page.get_by_label("LiDAR clouds (step 4)")).not_to_be_checked()
 
-        slot = next(s for s, r in accepted.items() if s.startswith(SECOND_LIDAR))
-        unfold(page, "Revert an edge", button(page, "Revert slot"))
-        choose(page, "Accepted slot", slot)
-        button(page, "Revert slot").click()
-        expect(page.get_by_text(f"{slot} reverted.", exact=True)).to_be_visible()
-        expect(page.locator("table", has_text="disagreement (σ)").locator("td", has_text="lidar_lidar")
-               ).to_have_count(0)
-        page.screenshot(path=ARTIFACTS / "studio_rig_reverted.png")
+    slot = next(s for s, r in accepted.items() if s.startswith(SECOND_LIDAR))
+    unfold(page, "Revert an edge", button(page, "Revert slot"))
+    choose(page, "Accepted slot", slot)
+    button(page, "Revert slot").click()
+    expect(page.get_by_text(f"{slot} reverted.", exact=True)).to_be_visible()
+    expect(page.locator("table", has_text="disagreement (σ)").locator("td", has_text="lidar_lidar")
+           ).to_have_count(0)
+    page.screenshot(path=ARTIFACTS / "studio_rig_reverted.png")
     after = httpx.get(f"{studio.api}{API}/rig/tree", timeout=30).json()
     assert [e["kind"] for e in after["edges"] if e["kind"] != "prior"] == ["lidar_camera"], after["edges"]
 
@@ -191,33 +199,32 @@ def test_rig_tree_drawing_in_process(studio: Studio, accepted: dict[str, str], t
         server.stop()
 
 
-def test_clocks_and_imu_steps_in_the_browser(browser: Browser, studio: Studio) -> None:
+def test_clocks_and_imu_steps_in_the_browser(page: Page) -> None:
     """Step 11 lists every sensor's clock, and a time offset asked of the demo's still pairs (a board held still
     between jumps, no smooth motion) is refused or rejected with the reason on the page; step 10 offers the demo's
     cameras and LiDARs against an IMU (the demo has none yet)."""
-    with studio_page(browser, studio.url, VIEWPORT) as page:
-        unfold(page, "11 · Clocks", button(page, "Measure the time offset"))
-        clocks = page.locator("table", has_text="clock offset (ms)").filter(visible=True)
-        for sensor in ("cam_front", "lidar_top", "scanner_2d"):
-            expect(clocks.locator("td", has_text=re.compile(f"^{sensor}$"))).to_have_count(1)
-        choose(page, "Reference", DEMO_CAMERA)
-        choose(page, "Sensor to line up", DEMO_LIDAR)
-        button(page, "Measure the time offset").click()
-        outcome = page.get_by_text(re.compile(rf"time offset of {DEMO_LIDAR} from {DEMO_CAMERA}(: done in| failed: )"))
-        expect(outcome.first).to_be_visible(timeout=300_000)  # the demo's clouds are read and searched for the board
-        if " failed: " in outcome.first.inner_text():  # what the module captured first can leave no overlap at all
-            expect(page.get_by_text(re.compile(r"failed: .*(do not overlap in time|usable sample)"))).to_be_visible()
-            expect(page.get_by_text("No time-offset result yet.")).to_be_visible()
-        else:
-            expect(page.get_by_text(re.compile(r"board normals still differ by [\d.]+ deg RMS once lined up")).first
-                   ).to_be_visible()
-            expect(page.get_by_text("It cannot be accepted.").first).to_be_visible()
-        page.screenshot(path=ARTIFACTS / "studio_clocks.png")
+    unfold(page, "11 · Clocks", button(page, "Measure the time offset"))
+    clocks = page.locator("table", has_text="clock offset (ms)").filter(visible=True)
+    for sensor in ("cam_front", "lidar_top", "scanner_2d"):
+        expect(clocks.locator("td", has_text=re.compile(f"^{sensor}$"))).to_have_count(1)
+    choose(page, "Reference", DEMO_CAMERA)
+    choose(page, "Sensor to line up", DEMO_LIDAR)
+    button(page, "Measure the time offset").click()
+    outcome = page.get_by_text(re.compile(rf"time offset of {DEMO_LIDAR} from {DEMO_CAMERA}(: done in| failed: )"))
+    expect(outcome.first).to_be_visible(timeout=300_000)  # the demo's clouds are read and searched for the board
+    if " failed: " in outcome.first.inner_text():  # what the module captured first can leave no overlap at all
+        expect(page.get_by_text(re.compile(r"failed: .*(do not overlap in time|usable sample)"))).to_be_visible()
+        expect(page.get_by_text("No time-offset result yet.")).to_be_visible()
+    else:
+        expect(page.get_by_text(re.compile(r"board normals still differ by [\d.]+ deg RMS once lined up")).first
+               ).to_be_visible()
+        expect(page.get_by_text("It cannot be accepted.").first).to_be_visible()
+    page.screenshot(path=ARTIFACTS / "studio_clocks.png")
 
-        unfold(page, "10 · Camera or LiDAR to IMU", button(page, "Record the IMU"))
-        box = page.get_by_label("Camera or LiDAR", exact=True)
-        box.click()
-        for sensor in (DEMO_CAMERA, DEMO_LIDAR):
-            expect(page.get_by_role("option", name=sensor, exact=True)).to_be_visible()
-        page.keyboard.press("Escape")
-        page.screenshot(path=ARTIFACTS / "studio_imu_step.png")
+    unfold(page, "10 · Camera or LiDAR to IMU", button(page, "Record the IMU"))
+    box = page.get_by_label("Camera or LiDAR", exact=True)
+    box.click()
+    for sensor in (DEMO_CAMERA, DEMO_LIDAR):
+        expect(page.get_by_role("option", name=sensor, exact=True)).to_be_visible()
+    page.keyboard.press("Escape")
+    page.screenshot(path=ARTIFACTS / "studio_imu_step.png")

@@ -25,6 +25,7 @@ from backend.reports.template import SECTIONS, fixed, number
 from backend.services.report import render_report
 from backend.store.session import Session, SessionStore
 from studio.cli import main
+from tests.conftest import built_once, fresh_demo
 
 pytestmark = pytest.mark.slow
 
@@ -51,14 +52,30 @@ def build_report_session(template: Path, root: Path, *, lidar_camera: bool = Tru
     return session
 
 
-@pytest.fixture(scope="module")
-def session(demo_template: Path, tmp_path_factory: pytest.TempPathFactory) -> Session:
-    return build_report_session(demo_template, tmp_path_factory.mktemp("report") / "sessions")
+def report_template(demo_template: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding :func:`build_report_session`'s sessions folder (``sessions``) and its report
+    (``report.html``), built once per run (:func:`~tests.conftest.built_once`) for this module and the browser's."""
+    def build(folder: Path) -> None:
+        (folder / "report.html").write_text(render_report(build_report_session(demo_template, folder / "sessions")))
+
+    return built_once(tmp_path_factory, "report_template", build)
 
 
 @pytest.fixture(scope="module")
-def html(session: Session) -> str:
-    return render_report(session)
+def template(demo_template: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return report_template(demo_template, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def session(template: Path, tmp_path_factory: pytest.TempPathFactory) -> Session:
+    """A copy of the template's session, for the module to read and write."""
+    return SessionStore(fresh_demo(template / "sessions", tmp_path_factory.mktemp("report") / "sessions")).get("demo")
+
+
+@pytest.fixture(scope="module")
+def html(template: Path) -> str:
+    """:func:`~backend.services.report.render_report` of the template's session."""
+    return (template / "report.html").read_text()
 
 
 def accepted(session: Session, kind: str) -> dict:

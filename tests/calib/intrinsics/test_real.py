@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.calib.board.detection import detect_board
 from backend.calib.intrinsics.service import solve_files
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
@@ -29,9 +28,9 @@ SETTINGS = IntrinsicsSettings(estimate_k3=True, fix_aspect=True)
 
 
 @pytest.fixture(scope="module")
-def views(left_images) -> list[View]:
-    found = [View(p.name, detect_board(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), BOARD)) for p in left_images]
-    assert all(v.detection is not None for v in found), "every left image shows the board"
+def views(stereo_detections) -> list[View]:
+    found = [View(name, detection) for name, detection in stereo_detections["left"].items()]
+    assert len(found) == 13 and all(v.detection is not None for v in found), "every left image shows the board"
     return found
 
 
@@ -140,11 +139,11 @@ def opencv_rms(images: list[np.ndarray], pipeline: str) -> tuple[float, int]:
 
 @pytest.mark.parametrize("side", ["left", "right"])
 @pytest.mark.slow
-def test_rms_no_worse_than_opencvs_best_pipeline(stereo_chessboard, side):
+def test_rms_no_worse_than_opencvs_best_pipeline(stereo_chessboard, stereo_detections, side):
     """On both cameras, our corners fit better than SB-ACCURACY's and the classic detector's, with every view."""
     paths = sorted(stereo_chessboard.glob(f"{side}*.jpg"))
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
-    ours = calibrate_intrinsics([View(p.name, detect_board(g, BOARD)) for p, g in zip(paths, images, strict=True)],
+    ours = calibrate_intrinsics([View(p.name, stereo_detections[side][p.name]) for p in paths],
                                 BOARD, (640, 480), replace(SETTINGS, jackknife=False, cross_validate=False))
     sb, sb_views = opencv_rms(images, "sb")
     classic, classic_views = opencv_rms(images, "classic")

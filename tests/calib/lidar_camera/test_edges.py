@@ -32,7 +32,6 @@ from backend.sim.demo_rig import CAM_FRONT
 from backend.sim.lidar_scene import DEFAULT_BOARD, LidarScene, board_pose
 from backend.sim.scene_camera import render_scene_image
 from tests.calib.lidar_camera.conftest import (
-    ROBOT_POSES,
     T_BASE_CAMERA,
     T_BASE_LIDAR,
     TRUTH,
@@ -40,7 +39,6 @@ from tests.calib.lidar_camera.conftest import (
     edge_pairs_folder,
     errors_and_sigmas,
     initial_guess,
-    scan_and_image,
 )
 from tests.conftest import opencalib_frame
 
@@ -59,13 +57,14 @@ def sim_result(sim_pairs):
 
 
 @pytest.mark.slow
-def test_rendered_image_has_edges_where_the_lidar_sees_planes_meet():
-    scene, rng = LidarScene(include_board=False), np.random.default_rng(3)
-    scan, image = scan_and_image(scene, ROBOT_POSES[0], rng)
+def test_rendered_image_has_edges_where_the_lidar_sees_planes_meet(sim_pairs):
+    pair = sim_pairs[0]  # the robot at the yard's origin: the scan is lidar_front's at T_BASE_LIDAR
+    image = pair.image
     assert image.dtype == np.uint8 and image.shape == (CAM_FRONT.height, CAM_FRONT.width)
-    edges = find_plane_edges(scan.points)
+    edges = find_plane_edges(pair.points_lidar[:, :3])
     # Every plane-intersection point lies on the mesh: within 1.5 cm (range noise 1 cm, plane fits of 30+ points).
-    assert np.percentile(scene.distance_to_mesh(transform_points(scan.T_base_sensor, edges.points)), 95) < 0.015
+    distance_m = LidarScene(include_board=False).distance_to_mesh(transform_points(T_BASE_LIDAR, edges.points))
+    assert np.percentile(distance_m, 95) < 0.015
     distance = find_image_edges(image).distance_px
 
     def near_edge(T_camera_lidar: np.ndarray) -> float:

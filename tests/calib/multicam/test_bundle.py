@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from backend.calib.board.detection import detect_board
+from backend.calib.board.detection import Detection
 from backend.calib.multicam.bundle import MulticamResult, MulticamSettings, calibrate_multicam
 from backend.calib.multicam.graph import Observation, observation_graph, spanning_tree
 from backend.core.boards import BoardSpec
@@ -20,7 +20,6 @@ from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
 from backend.core.result import TransformResult
 from backend.core.transforms import invert
-from backend.devices.image_io import read_image
 
 STEREO_BOARD = BoardSpec.parse("checkerboard:9x6:0.025")
 
@@ -188,14 +187,10 @@ def test_a_camera_whose_intrinsics_do_not_fit_is_named(ring, ring_observations):
 
 
 @pytest.fixture(scope="module")
-def stereo_views(stereo_chessboard: Path) -> dict[str, dict[str, np.ndarray]]:
-    """Corners (54, 2) px of each side's images, by frame number."""
-    views: dict[str, dict[str, np.ndarray]] = {"left": {}, "right": {}}
-    for side in views:
-        for path in sorted(stereo_chessboard.glob(f"{side}*.jpg")):
-            detection = detect_board(read_image(path, grayscale=True), STEREO_BOARD)
-            views[side][path.stem[len(side):]] = detection
-    return views
+def stereo_views(stereo_detections: dict[str, dict[str, Detection]]) -> dict[str, dict[str, Detection]]:
+    """Each side's detections, by frame number."""
+    return {side: {Path(name).stem[len(side):]: detection for name, detection in detections.items()}
+            for side, detections in stereo_detections.items()}
 
 
 @pytest.mark.slow
