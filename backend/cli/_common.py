@@ -110,6 +110,17 @@ def keep_result(command: str, summary: dict[str, Any], unwritten: list[tuple[Pat
     return f"the result is kept in {folder} ({', '.join(files)})"
 
 
+def add_camera_corners_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--camera camera.yaml`` and the mutually exclusive ``--detections corners.csv | --images DIR`` of a command
+    that reads a board's corners over time (``camera-imu``, ``time-offset``)."""
+    parser.add_argument("--camera", type=Path, required=True, help="the camera's intrinsics (ROS camera_info YAML)")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--detections", type=Path,
+                        help="detected corners: CSV t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner (one corner a row)")
+    source.add_argument("--images", type=Path,
+                        help="a folder of images named by their time stamp in ns (the board is detected in each)")
+
+
 def add_init_arguments(parser: argparse.ArgumentParser, transform: str, default: str = "") -> None:
     """The mutually exclusive ``--init T.txt`` and ``--init-xyzypr x,y,z,yaw,pitch,roll`` of a solving command,
     both the starting ``transform`` (e.g. "initial T_camera_lidar"); ``default`` says what applies without them."""

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from backend.cli._common import prints_summary, progress_to_stderr, warn
+from backend.cli._common import add_camera_corners_arguments, prints_summary, progress_to_stderr, warn
 from backend.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -29,12 +29,7 @@ IMU_TOPIC_HELP = "the bag's sensor_msgs/Imu topic, e.g. /imu0 (with --imu BAG)"
 def add_parser(sub: argparse._SubParsersAction) -> None:
     ci = sub.add_parser("camera-imu", help="camera-IMU extrinsics and time offset (t_imu = t_cam + offset) from a "
                                            "board waved in front of the camera")
-    ci.add_argument("--camera", type=Path, required=True, help="the camera's intrinsics (ROS camera_info YAML)")
-    source = ci.add_mutually_exclusive_group(required=True)
-    source.add_argument("--detections", type=Path,
-                        help="detected corners: CSV t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner (one corner a row)")
-    source.add_argument("--images", type=Path,
-                        help="a folder of images named by their time stamp in ns (the board is detected in each)")
+    add_camera_corners_arguments(ci)
     ci.add_argument("--imu", type=Path, required=True, help=IMU_HELP)
     ci.add_argument("--imu-topic", metavar="TOPIC", help=IMU_TOPIC_HELP)
     ci.add_argument("--board", required=True, help="the board, e.g. aprilgrid:6x6:0.088:0.3")

@@ -8,19 +8,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from backend.cli._common import add_init_arguments, prints_summary, progress_to_stderr, read_init
+from backend.cli._common import (
+    add_camera_corners_arguments,
+    add_init_arguments,
+    prints_summary,
+    progress_to_stderr,
+    read_init,
+)
 from backend.core.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     to = sub.add_parser("time-offset", help="the time offset between a camera and a LiDAR (t_lidar = t_camera + "
                                             "offset) from a board carried through both views")
-    to.add_argument("--camera", type=Path, required=True, help="the camera's intrinsics (ROS camera_info YAML)")
-    source = to.add_mutually_exclusive_group(required=True)
-    source.add_argument("--detections", type=Path,
-                        help="detected corners: CSV t_ns,u_px,v_px,x_m,y_m,z_m,tag_id,corner (one corner a row)")
-    source.add_argument("--images", type=Path,
-                        help="a folder of images named by their time stamp in ns (the board is detected in each)")
+    add_camera_corners_arguments(to)
     to.add_argument("--scans", type=Path, required=True,
                     help="a folder of clouds (.pcd .ply .las .laz .npy .lvx) named by their time stamp in ns")
     to.add_argument("--board", required=True, help="the board, e.g. checkerboard:7x5:0.1")
