@@ -48,6 +48,7 @@ class LiveClouds(SensorStream):
         self.voxel_m = voxel_m
         self._frames: collections.deque[Sample] = collections.deque(maxlen=max(1, int(accumulate)))
         self._lock = threading.Lock()
+        self._new_scan = threading.Condition(self._lock)
 
     @property
     def accumulate(self) -> int:
@@ -63,6 +64,13 @@ class LiveClouds(SensorStream):
         """The newest scan (what a capture stores), or None before the first."""
         with self._lock:
             return self._frames[-1] if self._frames else None
+
+    def scan_after(self, seen: Sample | None, timeout_s: float) -> Sample | None:
+        """The first scan newer than ``seen`` (a scan read after it), waiting up to ``timeout_s`` (s) for one;
+        None if none came (the device is slow, reconnecting or stopped)."""
+        with self._new_scan:
+            self._new_scan.wait_for(lambda: bool(self._frames) and self._frames[-1] is not seen, timeout_s)
+            return self._frames[-1] if self._frames and self._frames[-1] is not seen else None
 
     def accumulated(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The last ``accumulate`` scans merged into a voxel map (the latest scan as it is when N = 1)."""
@@ -81,7 +89,8 @@ class LiveClouds(SensorStream):
     def handle(self, sample: Sample) -> None:
         if sample.points is None or len(sample.points) == 0:
             return
-        with self._lock:
+        with self._new_scan:
             self._frames.append(sample)
+            self._new_scan.notify_all()
         points, intensity = self.accumulated()
         self.callbacks.frame(self.sensor, points, intensity)

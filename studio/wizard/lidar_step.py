@@ -69,6 +69,8 @@ RATES_PERIOD_S = 0.5
 """How often the live line (rates, points, device status) is refreshed (s)."""
 LIVE_HZ = 12.0
 """Upper bound of each live thread's draw rate (Hz)."""
+CAPTURE_WAIT_S = 10.0
+"""How long *Capture clouds* waits for each live LiDAR's next scan (s): a guard, since scans come every 0.1 s."""
 POINT_SIZE_M = 0.02
 TARGET_COLOUR = (150, 150, 150)
 RECOLOUR_DELAY_S = 0.5
@@ -76,7 +78,7 @@ SCENES_HELP = ("Tick the capture pairs to solve from (source ↔ target). Captur
                "together), never by number; uploaded clouds, which have none, pair in upload order. Pairs from "
                "different places are scenes: one transform is solved for all of them, and each scene's own solve "
                "cross-checks the others.")
-LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the latest scan of each live "
+LIVE_HELP = ("Tick the LiDARs to show, then **Start live**. **Capture clouds** keeps the next scan of each live "
              "LiDAR for the LiDAR-to-LiDAR solve (capture a few with the rig still).")
 
 
@@ -389,23 +391,41 @@ class LidarStep:
             self.live_text.content = f"{WARNING} {message}"
 
     def _capture(self) -> None:
-        session = self.ctx.session
-        kept = []
-        for name, thread in self.live.items():
-            sample = thread.latest
-            if sample is None:
-                continue
-            try:
-                record = store_cloud(session, name, sample, device=thread.device_name)
-            except InputError as exc:
-                self.ctx.notify("Cloud not kept", exc.message, error=True)
-                continue
-            kept.append(f"{name} {record.id} ({len(sample.points):,} pts)")
-        if not kept:
+        """*Capture clouds*: keep each live LiDAR's next scan, waited for off the UI thread."""
+        live = dict(self.live)
+        if self.ctx.session is None or not live:
             self.ctx.notify("Nothing captured", "Start live on the LiDARs first and wait for a scan.", error=True)
             return
-        self.ctx.notify("Clouds captured", ", ".join(kept))
-        self._on_captures()
+        seen = {name: thread.latest for name, thread in live.items()}
+        self.capture_button.disabled = True
+        threading.Thread(target=self._keep_next_scans, args=(self.ctx.session, live, seen), name="lidar-capture",
+                         daemon=True).start()
+
+    def _keep_next_scans(self, session, live: dict[str, LiveClouds], seen: dict) -> None:
+        """Store each LiDAR's first scan read after the click. Scans read before it may be seconds apart on a
+        loaded machine, and captures pair by their time stamps (within the pairing window)."""
+        kept, missing = [], []
+        try:
+            for name, thread in live.items():
+                sample = thread.scan_after(seen[name], CAPTURE_WAIT_S)
+                if sample is None:
+                    missing.append(name)
+                    continue
+                try:
+                    record = store_cloud(session, name, sample, device=thread.device_name)
+                except InputError as exc:
+                    self.ctx.notify("Cloud not kept", exc.message, error=True)
+                    continue
+                kept.append(f"{name} {record.id} ({len(sample.points):,} pts)")
+        finally:
+            self.capture_button.disabled = False
+        if missing:
+            self.ctx.notify("No new scan", f"{', '.join(missing)} sent no scan within {CAPTURE_WAIT_S:g} s of the "
+                            "click: nothing kept from it. Is it still live?", error=True)
+        if kept:
+            self.ctx.notify("Clouds captured", ", ".join(kept))
+            if session is self.ctx.session:
+                self._on_captures()
 
     def _on_captures(self) -> None:
         """Clouds were captured or imported: recount them, list the pairs and redraw the pair's latest."""

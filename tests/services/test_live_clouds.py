@@ -92,13 +92,16 @@ def test_live_thread_streams_and_accumulation_is_bounded(tmp_path):
         assert len(np.unique(np.floor(points / 0.1), axis=0)) == len(points)
         assert not recorder.failed.is_set(), recorder.statuses
         assert live.rate_hz > 0  # it streams (rates are measured in benchmarks/live_clouds.py)
-        # What "Capture clouds" stores: the latest full scan, not the voxel map.
-        sample = live.latest
+        # What "Capture clouds" stores: the first full scan read after the click, not the voxel map.
+        seen = live.latest
+        sample = live.scan_after(seen, UI_WAIT_S)
+        assert sample is not None and sample is not seen and sample.timestamp_s > seen.timestamp_s
         record = store_cloud(session, "lidar_top", sample, device=live.device_name)
         assert record.n_points == len(sample.points)
     finally:
         live.stop()
     assert not live.running
+    assert live.scan_after(live.latest, 0.2) is None  # stopped: no newer scan comes, and the wait ends
 
 
 def test_disconnect_is_reported_and_captures_kept(tmp_path):
