@@ -4,9 +4,13 @@ camera's captures hold the simulated detections; their images are blank, as the 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from backend.calib.camera_imu.observations import format_detections_csv
 from backend.core.rig import Frame, Rig
+from backend.exports.ros_camera_info import write_camera_info
 from backend.sim.moving_board import BOARD, CAMERA, MovingBoardRecording
 from backend.store.session import Session, SessionStore
 
@@ -26,3 +30,27 @@ def moving_board_session(store: SessionStore, recording: MovingBoardRecording, n
     for t_s, points in zip(recording.scan_t_s, recording.scans, strict=True):
         session.add_cloud_capture("lidar", points, None, {"timestamp_s": float(t_s), "device": "sim"})
     return session
+
+
+def scanner_session(store: SessionStore, recording: MovingBoardRecording, name: str = "rig") -> Session:
+    """:func:`moving_board_session` with the recording's 2D scanner ``scanner`` too (kind ``lidar2d``), mounted on
+    ``cam`` by the true ``T_camera_scanner``, and its scans."""
+    session = moving_board_session(store, recording, name)
+    session.add_sensor(Frame("scanner", "cam", recording.T_camera_scanner, kind="lidar2d"))
+    for t_s, points in zip(recording.scanner_t_s, recording.scanner_scans, strict=True):
+        session.add_cloud_capture("scanner", points, None, {"timestamp_s": float(t_s), "device": "sim"})
+    return session
+
+
+def command_files(folder: Path, recording: MovingBoardRecording, scan_t_s: np.ndarray, scans: list[np.ndarray],
+                  T_camera_scans: np.ndarray) -> list:
+    """Write what ``calib-studio time-offset`` reads into ``folder`` (the camera's camera_info, its corners as CSV, the
+    clouds named by their stamps in ns, the initial transform as ``T.txt``); the command's arguments but ``--init``."""
+    write_camera_info(folder / "camera.yaml", recording.camera, "cam")
+    (folder / "corners.csv").write_bytes(format_detections_csv(recording.observations()))
+    (folder / "scans").mkdir()
+    for t_s, points in zip(scan_t_s, scans, strict=True):
+        np.save(folder / "scans" / f"{round(t_s * 1e9)}.npy", points)
+    np.savetxt(folder / "T.txt", T_camera_scans)
+    return ["time-offset", "--camera", folder / "camera.yaml", "--detections", folder / "corners.csv", "--scans",
+            folder / "scans", "--board", BOARD, "--json"]

@@ -1,5 +1,5 @@
-"""``calib-studio time-offset``: the offset between a camera's and a LiDAR's clocks, from a board carried through both
-views (``t_lidar = t_camera + offset``)."""
+"""``calib-studio time-offset``: the offset between a camera's and a LiDAR's (3D, or a 2D scanner's) clocks, from a
+board carried through both views (``t_lidar = t_camera + offset``)."""
 
 from __future__ import annotations
 
@@ -19,11 +19,14 @@ from backend.core.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    to = sub.add_parser("time-offset", help="the time offset between a camera and a LiDAR (t_lidar = t_camera + "
-                                            "offset) from a board carried through both views")
+    to = sub.add_parser("time-offset", help="the time offset between a camera and a 3D LiDAR or 2D scanner (t_lidar "
+                                            "= t_camera + offset) from a board carried through both views")
     add_camera_corners_arguments(to)
     to.add_argument("--scans", type=Path, required=True,
-                    help="a folder of clouds (.pcd .ply .las .laz .npy .lvx) named by their time stamp in ns")
+                    help="a folder of clouds (.pcd .ply .las .laz .npy .lvx) named by their time stamp in ns; "
+                         "clouds whose points all have z = 0 are a 2D scanner's: its line through the board is "
+                         "lined up with where the board cuts its scan plane (turn the board about a vertical axis "
+                         "while carrying it across)")
     to.add_argument("--board", required=True, help="the board, e.g. checkerboard:7x5:0.1")
     add_init_arguments(to, "T_camera_lidar placing the board in the clouds")
     to.add_argument("--max-offset", type=float, default=0.5, metavar="S",

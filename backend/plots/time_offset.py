@@ -24,7 +24,7 @@ def aligned_signals(record: dict[str, Any] | None) -> Figure:
     offset_s = float(record["time_offset_s"])
     R_a_b = np.asarray(record["R_a_b"])
     t0 = float(signal_a["t_s"][0])
-    unit = "rad/s" if signal_a["kind"] == "rates" else "unit normal"
+    unit = {"rates": "rad/s", "lines": "line direction"}.get(signal_a["kind"], "unit normal")
     with styled():
         top, bottom = figure.subplots(2, 1, height_ratios=(2, 1))
         b_in_a = np.asarray(signal_b["vectors"]) @ R_a_b.T

@@ -66,6 +66,9 @@ DEMO_LIDAR = "lidar_top"
 DEMO_PAIRS = 20
 PAIR_BOARD_POSES = 20
 PAIR_HOLD_S = 3.0
+CARRY_S = 2.0
+"""Seconds the simulated person takes to carry the board on from one of the demo's poses to the next when it is
+``carried`` (without stopping, for lining clocks up)."""
 DEMO_SET_CAMERAS = ["cam_front", "cam_right"]
 DEMO_SETS = 10
 DEMO_SET_TOLERANCE_S = 5.0
@@ -220,37 +223,70 @@ def _add_camera_sets(session: Session, progress: ProgressCallback) -> None:
 
 
 BOARD_MOTIONS = {"wave": "waved close in front of it, all over the image (for its lens)",
-                 "scene": "carried about the yard 2-3 m ahead, held still at each place (for the rig)"}
-"""What the simulated person does with the board for a simulated camera (its device's ``board_motion``)."""
+                 "scene": "carried about the yard 2-3 m ahead, held still at each place (for the rig)",
+                 "carried": f"carried about the yard 2-3 m ahead without stopping, {CARRY_S:g} s from each place to "
+                            "the next (for clocks)"}
+"""What the simulated person does with the board for a simulated camera (its device's ``board_motion``, and
+``board_carry_s`` above 0 when ``carried``)."""
+YARD_CLOCK_KEYS = ("board_hold_s", "board_carry_s")
+"""The settings of a simulated device that say when the yard's board is where."""
+
+
+def _yard_clock(motion: str) -> dict:
+    """The hold and carry settings of every simulated device seeing the yard's board for ``motion`` (``scene`` or
+    ``carried``)."""
+    return {"board_hold_s": 0.0, "board_carry_s": CARRY_S} if motion == "carried" else {"board_hold_s": PAIR_HOLD_S}
 
 
 def yard_board(device: dict, hold_s: float = PAIR_HOLD_S) -> dict:
     """A simulated camera's ``device`` with the board carried about the yard: the demo's :data:`PAIR_BOARD_POSES`
     poses (the ones a ``simulated_lidar`` with as many ``board_poses`` sees), each held ``hold_s`` (s) on the clock
     every simulated device shares (0: the pose advances every frame)."""
+    device = {key: value for key, value in device.items() if key not in YARD_CLOCK_KEYS}
     return {**device, "board_motion": "scene", "n_poses": PAIR_BOARD_POSES, "board_hold_s": hold_s}
 
 
 def simulated_board_motion(session: Session, camera: str) -> str | None:
-    """The ``board_motion`` of ``camera``'s device when it is a simulated camera, else None."""
+    """What the simulated person does with the board for ``camera`` (a key of :data:`BOARD_MOTIONS`) when it is a
+    simulated camera, else None."""
     device = session.rig.get(camera).device
-    return device.get("board_motion", "wave") if device.get("driver") == "simulated" else None
+    if device.get("driver") != "simulated":
+        return None
+    return "carried" if device.get("board_carry_s", 0) > 0 else device.get("board_motion", "wave")
 
 
 def move_simulated_board(session: Session, camera: str, motion: str) -> rig_service.SensorChange:
     """Have the simulated person handle the board as ``motion`` says for ``camera`` (a simulated camera's device
     edit, probed and saved like any): ``wave`` for step 3's lens calibration, ``scene`` (the demo's pair and set
-    poses, on the hold clock every simulated device shares) for steps 6 and 7. :class:`InputError` naming the
-    camera when it is not simulated."""
+    poses, on the hold clock every simulated device shares) for steps 6 and 7, ``carried`` (through the same poses
+    without stopping) for step 11's clocks. ``scene`` and ``carried`` concern the one board in the yard: every
+    simulated device seeing it (cameras with the ``scene`` motion, LiDARs with ``board_poses``) is put on the same
+    clock, in one saved change. :class:`InputError` naming the camera when it is not simulated."""
     if motion not in BOARD_MOTIONS:
         raise InputError(f"board motion {motion!r}: expected one of {', '.join(BOARD_MOTIONS)}", "motion")
     if simulated_board_motion(session, camera) is None:
         raise InputError(f"{camera} is not a simulated camera: its board is moved by a person, not the studio",
                          camera)
     device = {key: value for key, value in session.rig.get(camera).device.items()
-              if key not in ("board_motion", "n_poses", "board_hold_s")}
-    device = yard_board(device) if motion == "scene" else device | {"board_motion": "wave"}
-    return rig_service.edit_sensor(session, camera, SensorEdit(device=device))
+              if key not in ("board_motion", "n_poses", *YARD_CLOCK_KEYS)}
+    if motion == "wave":
+        return rig_service.edit_sensor(session, camera, SensorEdit(device=device | {"board_motion": "wave"}))
+    clock = _yard_clock(motion)
+    change = rig_service.edit_sensor(session, camera, SensorEdit(device=yard_board(device) | clock))
+
+    def same_clock(rig: Rig) -> None:
+        for frame in rig.sensors():
+            settings = frame.device
+            if frame.name == camera or not isinstance(settings, dict):
+                continue
+            if (settings.get("driver") == "simulated" and settings.get("board_motion") == "scene") or (
+                    settings.get("driver") == "simulated_lidar" and settings.get("board_poses", 0) > 0):
+                for key in YARD_CLOCK_KEYS:
+                    settings.pop(key, None)
+                settings.update(clock)
+
+    session.edit_rig(same_clock)
+    return change
 
 
 ROBOT_PLACE_NAMES = [f"x {x:+.1f} m, y {y:+.1f} m, heading {heading:+.0f}°" + (" (the yard's origin)" if not i else "")

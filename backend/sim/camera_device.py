@@ -26,6 +26,7 @@ from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.board_motion import covering_poses
 from backend.sim.board_renderer import render_board_image
+from backend.sim.carried_board import carried_board_pose
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import moving_board_poses, robot_place
 from backend.sim.scene_camera import clean_yard_image
@@ -60,6 +61,8 @@ class SimulatedCamera(CaptureDevice):
         disconnect_after: int | None = None,
         board_motion: str = "wave",
         board_hold_s: float = 0,
+        board_carry_s: float = 0,
+        clock_offset_s: float = 0,
         place: int = 0,
     ):
         """Settings as stored in the rig.
@@ -81,6 +84,10 @@ class SimulatedCamera(CaptureDevice):
                 (pose 0 is the yard's static board), for LiDAR-to-camera calibration.
             board_hold_s: if above 0, each pose is held for this many seconds of wall-clock
                 time, the clock all simulated devices share; else the pose advances every frame.
+            board_carry_s: in the ``scene`` motion, if above 0, the board is carried on from each pose to the next
+                in this many seconds of wall-clock time, without a jump (after ``board_hold_s`` there;
+                :func:`~backend.sim.carried_board.carried_board_pose`), as for lining clocks up.
+            clock_offset_s: the camera's clock runs this far (s) ahead of the wall clock: every stamp has it added.
             place: where the robot stands in the yard in the ``scene`` motion (an index of
                 :data:`~backend.sim.lidar_scene.ROBOT_PLACES`), as for a ``simulated_lidar``.
         """
@@ -90,6 +97,8 @@ class SimulatedCamera(CaptureDevice):
         self.n_poses = n_poses
         self.board_motion = board_motion
         self.board_hold_s = board_hold_s
+        self.board_carry_s = board_carry_s
+        self.clock_offset_s = clock_offset_s
         self.place = place
         self._T_yard_base = np.eye(4)
         self._timing = SimulatedTiming(fps, disconnect_after, "frames")
@@ -115,6 +124,9 @@ class SimulatedCamera(CaptureDevice):
         if self.board_motion not in BOARD_MOTIONS:
             raise DeviceError(f"board_motion must be one of {', '.join(BOARD_MOTIONS)}, not {self.board_motion!r}",
                               self.describe())
+        if self.board_carry_s < 0 or (self.board_carry_s > 0 and self.board_motion != "scene"):
+            raise DeviceError(f"board_carry_s must be 0, or above 0 with board_motion 'scene', not "
+                              f"{self.board_carry_s} with {self.board_motion!r}", self.describe())
         self._T_yard_base = robot_place(self.place, self.describe())
         self._intrinsics, self._board_spec = frame.intrinsics, board
         if self.board_motion == "wave":
@@ -124,7 +136,6 @@ class SimulatedCamera(CaptureDevice):
         else:
             self._T_base_camera = demo_rig().T_root_frame(self.camera)
             self._T_base_boards = moving_board_poses(self.n_poses, self.seed, board=self.board)
-            self._poses = [np.linalg.inv(self._T_base_camera) @ T_base_board for T_base_board in self._T_base_boards]
         self._timing.restart()
 
     def read(self) -> Sample:
@@ -133,25 +144,31 @@ class SimulatedCamera(CaptureDevice):
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
         exposed_s = time.time()  # the frame's stamp is its exposure, not the end of the render
-        pose_index = held_pose_index(index, self.n_poses, self.board_hold_s)
-        while len(self._poses) <= pose_index:
-            self._poses.append(next(self._planned))
-        T_camera_board = self._poses[pose_index]
         rng = np.random.default_rng([self.seed, index])
         if self._T_base_boards is None:
+            pose_index = held_pose_index(index, self.n_poses, self.board_hold_s)
+            while len(self._poses) <= pose_index:
+                self._poses.append(next(self._planned))
+            T_camera_board = self._poses[pose_index]
             image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
+            meta = {}
         else:
-            image = self._yard_image(pose_index, rng)
+            if self.board_carry_s > 0:
+                pose_index, T_base_board = carried_board_pose(self._T_base_boards, exposed_s, self.board_hold_s,
+                                                              self.board_carry_s)
+            else:
+                pose_index = held_pose_index(index, self.n_poses, self.board_hold_s)
+                T_base_board = self._T_base_boards[pose_index]
+            T_camera_board = np.linalg.inv(self._T_base_camera) @ T_base_board
+            image = self._yard_image(T_base_board, rng)
+            meta = {"T_base_board": T_base_board.tolist(), "place": self.place}
         meta = {"frame_index": index, "board_pose_index": pose_index, "T_camera_board": T_camera_board.tolist(),
-                "simulated": True}
-        if self._T_base_boards is not None:
-            meta["T_base_board"] = self._T_base_boards[pose_index].tolist()
-            meta["place"] = self.place
-        return Sample(exposed_s, image=image, meta=meta)
+                "simulated": True, **meta}
+        return Sample(exposed_s + self.clock_offset_s, image=image, meta=meta)
 
-    def _yard_image(self, pose_index: int, rng: np.random.Generator) -> np.ndarray:
-        """The yard with the board at pose ``pose_index``, with fresh sensor noise from ``rng``."""
-        clean = clean_yard_image(self._T_yard_base @ self._T_base_boards[pose_index], self.board, self._intrinsics,
+    def _yard_image(self, T_base_board: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The yard with the board at ``T_base_board``, with fresh sensor noise from ``rng``."""
+        clean = clean_yard_image(self._T_yard_base @ T_base_board, self.board, self._intrinsics,
                                  self._T_yard_base @ self._T_base_camera, self.seed)
         noisy = clean + SCENE_NOISE_SIGMA * rng.standard_normal(clean.shape, dtype=np.float32)
         return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)

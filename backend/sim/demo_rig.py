@@ -20,6 +20,9 @@ from backend.core.transforms import R_BODY_OPTICAL, from_xyz_ypr, make_T
 from backend.sim.tape_measure import tape_guess
 
 DEMO_BOARD = "checkerboard:9x6:0.04"
+DEMO_LIDAR_CLOCK_OFFSET_S = 0.035
+"""How far (s) ``lidar_top``'s clock runs ahead of the cameras': the offset step 11 measures (``t_lidar = t_camera +
+offset``)."""
 """The board spec the demo and the simulated cameras use by default."""
 
 
@@ -112,7 +115,8 @@ def demo_rig() -> Rig:
         )
     T_base_lidar = _mount((0.05, 0.0, 0.82), (2.5, -0.6, 0.4), optical=False)
     rig.add(Frame("lidar_top", "base_link", T_base_lidar, kind="lidar3d",
-                  device={"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0}))
+                  device={"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0,
+                          "clock_offset_s": DEMO_LIDAR_CLOCK_OFFSET_S}))
     T_base_front = _mount((0.42, -0.05, 0.55), (-3.0, 6.0, 1.2), optical=False)  # pitched down, like a Livox
     rig.add(Frame("lidar_front", "base_link", T_base_front, kind="lidar3d",
                   device={"driver": "simulated_lidar", "sensor": "lidar_front", "seed": 0}))

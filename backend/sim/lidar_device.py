@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from backend.devices.base import CaptureDevice, DeviceError, Sample
+from backend.sim.carried_board import carried_board_pose
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses, robot_place
 from backend.sim.timing import SimulatedTiming, held_pose_index
@@ -41,6 +42,8 @@ class SimulatedLidar(CaptureDevice):
         rate_hz: float = 0,
         board_poses: int = 0,
         board_hold_s: float = 0,
+        board_carry_s: float = 0,
+        clock_offset_s: float = 0,
         disconnect_after: int | None = None,
         place: int = 0,
     ):
@@ -56,6 +59,10 @@ class SimulatedLidar(CaptureDevice):
                 the clock every simulated device shares (a simulated camera with
                 ``board_motion="scene"`` and the same ``seed`` then sees the same board);
                 else the pose advances with every scan.
+            board_carry_s: if above 0 (with ``board_poses``), the board is carried on from each pose to the next in
+                this many seconds of wall-clock time, without a jump (after ``board_hold_s`` there;
+                :func:`~backend.sim.carried_board.carried_board_pose`), as a camera with the same setting sees it.
+            clock_offset_s: the LiDAR's clock runs this far (s) ahead of the wall clock: every stamp has it added.
             disconnect_after: if set, reads after this many samples raise
                 :class:`DeviceDisconnected`, to exercise capture robustness.
             place: where the robot stands in the yard (an index of
@@ -65,6 +72,8 @@ class SimulatedLidar(CaptureDevice):
         self.seed = seed
         self.board_poses = board_poses
         self.board_hold_s = board_hold_s
+        self.board_carry_s = board_carry_s
+        self.clock_offset_s = clock_offset_s
         self.place = place
         self._T_yard_base = np.eye(4)
         self._timing = SimulatedTiming(rate_hz, disconnect_after, "scans")
@@ -83,6 +92,9 @@ class SimulatedLidar(CaptureDevice):
         if self.board_poses < 0:
             raise DeviceError(f"board_poses must be 0 (static board) or more, not {self.board_poses}",
                               self.describe())
+        if self.board_carry_s < 0 or (self.board_carry_s > 0 and self.board_poses == 0):
+            raise DeviceError(f"board_carry_s must be 0, or above 0 with board_poses, not {self.board_carry_s} with "
+                              f"{self.board_poses} board poses", self.describe())
         if self._timing.rate_hz < 0:
             raise DeviceError(f"rate_hz must be 0 or more, not {self._timing.rate_hz}", self.describe())
         self._T_yard_base = robot_place(self.place, self.describe())
@@ -93,15 +105,19 @@ class SimulatedLidar(CaptureDevice):
         self._scenes = {}
         self._timing.restart()
 
-    def scan(self, index: int, pose_index: int | None = None) -> LidarScan:
+    def scan(self, index: int, pose_index: int | None = None, T_base_board: np.ndarray | None = None) -> LidarScan:
         """The full simulated scan of sample ``index`` (rings, labels and noise-free points included), seeing
-        board pose ``pose_index`` (default ``index`` modulo the poses)."""
+        board pose ``pose_index`` (default ``index`` modulo the poses), or the board at ``T_base_board`` (a carried
+        board's pose between them: its scene is built for this scan alone)."""
         if self._T_base_sensor is None:
             raise DeviceError("scan() before open()", self.describe())
-        pose_index = index % len(self._poses) if pose_index is None else pose_index
-        scene = self._scenes.get(pose_index)
-        if scene is None:
-            scene = self._scenes[pose_index] = LidarScene(self._T_yard_base @ self._poses[pose_index])
+        if T_base_board is not None:
+            scene = LidarScene(self._T_yard_base @ T_base_board)
+        else:
+            pose_index = index % len(self._poses) if pose_index is None else pose_index
+            scene = self._scenes.get(pose_index)
+            if scene is None:
+                scene = self._scenes[pose_index] = LidarScene(self._T_yard_base @ self._poses[pose_index])
         rng = np.random.default_rng([self.seed, index])
         T_yard_sensor = self._T_yard_base @ self._T_base_sensor
         if self._kind == "lidar3d":
@@ -113,8 +129,15 @@ class SimulatedLidar(CaptureDevice):
         if self._T_base_sensor is None:
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
-        pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
-        scan = self.scan(index, pose_index)
+        scanned_s = time.time()
+        if self.board_carry_s > 0:
+            pose_index, T_base_board = carried_board_pose(self._poses, scanned_s, self.board_hold_s,
+                                                          self.board_carry_s)
+            scan = self.scan(index, T_base_board=T_base_board)
+        else:
+            pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
+            T_base_board = self._poses[pose_index]
+            scan = self.scan(index, pose_index)
         meta = {
             "frame_index": index,
             "board_pose_index": pose_index,
@@ -122,10 +145,10 @@ class SimulatedLidar(CaptureDevice):
             "kind": self._kind,
             "simulated": True,
             "T_base_sensor": self._T_base_sensor.tolist(),
-            "T_base_board": self._poses[pose_index].tolist(),
+            "T_base_board": T_base_board.tolist(),
             "place": self.place,
         }
-        return Sample(time.time(), points=scan.points, intensity=scan.intensity, meta=meta)
+        return Sample(scanned_s + self.clock_offset_s, points=scan.points, intensity=scan.intensity, meta=meta)
 
     def close(self) -> None:
         """Forget the scene; safe to call twice."""

@@ -134,6 +134,11 @@ class SessionFile(FiniteModel):
     removals: list[Removal] = Field(default_factory=list, description="every sensor removal, oldest first")
 
 
+RECORDING_META_KEY = "recording"
+"""The capture ``meta`` key naming the live recording a capture belongs to (sensors recorded together, every frame,
+by :mod:`backend.services.motion_recording`)."""
+
+
 class CaptureRecord(BaseModel):
     """Metadata of one capture; its data sits beside it as ``<id>.png`` (image) or ``<id>.npy`` (cloud)."""
 

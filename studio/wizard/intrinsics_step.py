@@ -156,7 +156,8 @@ class IntrinsicsStep:
             self.ctx.scene.show_camera_image(sensor, image)
         else:  # not the previous camera's (or session's) last frame
             self.preview.image = np.full((270, 480, 3), 40, np.uint8)
-        self.wave_button.visible = sensor is not None and simulated_board_motion(session, sensor) == "scene"
+        self.wave_button.visible = sensor is not None and simulated_board_motion(session, sensor) in ("scene",
+                                                                                                     "carried")
         results = [] if sensor is None else session.results(sensor, "intrinsics")
         self.history.options = [r["id"] for r in reversed(results)] or ["(none)"]
         self.history.value = self._accepted(results) or self.history.options[0]

@@ -222,14 +222,15 @@ class MulticamStep:
             f"the rig solve would only estimate it, unchecked. Calibrate it first in step 3, *Camera intrinsics* "
             f"(pick {missing[0]}; in the simulation press *Wave the board in front of it* there), accept it, then "
             f"come back here and solve the rig.")
-        self.scene_button.visible = any(simulated_board_motion(session, name) == "wave" for name in cameras)
+        self.scene_button.visible = any(simulated_board_motion(session, name) in ("wave", "carried")
+                                        for name in cameras)
 
     def _carry_board(self) -> None:
         """Simulation only: every chosen simulated camera sees the board carried about the yard again."""
         session = self.ctx.session
         try:
             for name in self.cameras:
-                if simulated_board_motion(session, name) == "wave":
+                if simulated_board_motion(session, name) in ("wave", "carried"):
                     move_simulated_board(session, name, "scene")
         except InputError as exc:
             self.ctx.notify("Cannot move the simulated board", exc.message, error=True)

@@ -1,12 +1,13 @@
 """Step 11, *Clocks*: the time offset between two sensors' clocks, and each sensor's clock offset in the rig.
 
-The user picks the reference (a camera) and the sensor (a 3D LiDAR or another camera) whose captures watched a
-board carried through both views (or two 3D LiDARs whose captures were taken while the rig turned in a static
-scene), and clicks *Measure*; the alignment runs as a job with progress and Cancel
-(:mod:`backend.calib.time_offset.service`). The result shows the offset with its sigma, both signals on the
-reference's clock (where the offset is right they lie on each other) and the score over the offsets searched; it is
-kept in the session's history, and accepting it on the shared result card sets the sensor's clock offset, which the
-table of clocks shows and the matching of pairs and sets applies.
+The user picks the reference (a camera) and the sensor (a 3D LiDAR, a 2D scanner or another camera), records both
+while a board is carried through both views (or, for two 3D LiDARs, while the rig turns in a static scene): *Record
+both*, a job storing every frame of each (:mod:`backend.services.motion_recording`); in the simulation the person
+carries the board without stopping once asked to. *Measure* then lines up the chosen recording (or every capture,
+for imported ones) as a job with progress and Cancel (:mod:`backend.calib.time_offset.service`). The result shows
+the offset with its sigma, both signals on the reference's clock (where the offset is right they lie on each other)
+and the score over the offsets searched; it is kept in the session's history, and accepting it on the shared result
+card sets the sensor's clock offset, which the table of clocks shows and the matching of pairs and sets applies.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from backend.core.errors import InputError
 from backend.core.rig import Rig
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
+from backend.services import motion_recording
+from backend.services.demo import BOARD_MOTIONS, move_simulated_board, simulated_board_motion
 from backend.store.session import Session
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
@@ -23,10 +26,15 @@ from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 
 NONE = "(none)"
-HELP = ("Carry the board through both sensors' views, tilting and turning it, while both capture continuously (or "
-        "import both recordings); for two 3D LiDARs, turn the rig about every axis in a static scene. Then measure. "
-        "The offset follows Kalibr: `t_sensor = t_reference + offset`. Accepting it sets the sensor's clock offset; "
-        "pairs and multi-camera sets are then matched on the rig's clock.")
+DEFAULT_RECORD_S = 15.0
+"""Seconds *Record both* records by default: about 7 of the simulated board's carries, 200 frames at 15 Hz."""
+ALL_CAPTURES = "(every capture)"
+HELP = ("**Record both** while the board is carried through both sensors' views, tilting and turning it, without "
+        "stopping (or import both recordings in their steps, then measure *every capture*); for a 2D scanner, turn "
+        "the board about a vertical axis as it crosses the scan plane; for two 3D LiDARs, turn the rig about every "
+        "axis in a static scene. Then measure. The offset follows Kalibr: `t_sensor = "
+        "t_reference + offset`. Accepting it sets the sensor's clock offset; pairs and multi-camera sets are then "
+        "matched on the rig's clock.")
 
 
 def clocks_markdown(rig: Rig) -> str:
@@ -49,8 +57,20 @@ class TimeOffsetStep:
             self.reference = gui.add_dropdown("Reference", options=[NONE], hint="a camera, or a 3D LiDAR against "
                                               "another 3D LiDAR")
             self.sensor = gui.add_dropdown("Sensor to line up", options=[NONE])
+            self.carry_button = gui.add_button("Carry the board without stopping (simulation)", visible=False,
+                                               hint="the simulated person holds the board still at each place in "
+                                                    "the yard, which shows no motion to line up")
+            self.hold_button = gui.add_button("Hold the board still at each place (simulation)", visible=False,
+                                              hint="back to still poses, for the LiDAR-camera pairs and the "
+                                                   "multi-camera sets")
+            self.duration = gui.add_slider("Record for (s)", min=5.0, max=motion_recording.MAX_DURATION_S, step=1.0,
+                                           initial_value=DEFAULT_RECORD_S)
+            self.record_button = gui.add_button("Record both", color="green",
+                                                hint="every frame of both sensors, stored as one recording")
+            self.recording = gui.add_dropdown("Recording", options=[ALL_CAPTURES],
+                                              hint="the recording to line up; every capture for imported ones")
             self.measure_button = gui.add_button("Measure the time offset", color="blue")
-            self.jobs = JobPanel(ctx, [self.measure_button])
+            self.jobs = JobPanel(ctx, [self.record_button, self.measure_button])
             self.history = ResultHistory(gui, lambda _: self._show_result(), label="Time-offset result")
             self.offset_text = gui.add_markdown("")
             self.plot = gui.add_image(to_rgb(aligned_signals(None)), label="Both signals on the reference's clock")
@@ -58,7 +78,11 @@ class TimeOffsetStep:
                                    empty_text="No time-offset result yet.")
             self.clocks_text = gui.add_markdown("")
         self.measure_button.on_click(lambda _: self._measure())
-        self.sensor.on_update(lambda _: self._fill_history(None))
+        self.record_button.on_click(lambda _: self._record())
+        self.carry_button.on_click(lambda _: self._move_board("carried"))
+        self.hold_button.on_click(lambda _: self._move_board("scene"))
+        self.reference.on_update(lambda _: self._pair_changed())
+        self.sensor.on_update(lambda _: self._pair_changed())
         ctx.on_session_changed(self._session_changed)
         ctx.on_rig_changed(lambda _: self._list_sensors())
 
@@ -67,26 +91,73 @@ class TimeOffsetStep:
 
     def _list_sensors(self) -> None:
         rig = self.ctx.session.rig
-        for dropdown, kinds in ((self.reference, ("camera", "lidar3d")), (self.sensor, ("lidar3d", "camera"))):
+        for dropdown, kinds in ((self.reference, ("camera", "lidar3d")), (self.sensor, ("lidar3d", "lidar2d",
+                                                                                          "camera"))):
             names = [frame.name for kind in kinds for frame in rig.sensors(kind)] or [NONE]
             dropdown.options = names
             if dropdown.value not in names:
                 dropdown.value = names[0]
-        self._fill_history(None)
+        self._pair_changed()
         self._show_clocks()
+
+    def _pair_changed(self) -> None:
+        self._list_recordings()
+        self._show_board_buttons()
+        self._fill_history(None)
+
+    def _list_recordings(self, newest: str | None = None) -> None:
+        """The recordings holding captures of both sensors, newest first (the newest chosen)."""
+        session, pair = self.ctx.session, (self.reference.value, self.sensor.value)
+        names = [] if session is None or NONE in pair else [
+            name for name in motion_recording.recordings(session, pair[0])
+            if name in motion_recording.recordings(session, pair[1])]
+        self.recording.options = [*names, ALL_CAPTURES]
+        self.recording.value = newest if newest in names else self.recording.options[0]
+
+    def _show_board_buttons(self) -> None:
+        """Simulation only: offer to carry the yard's board without stopping, or to hold it still again."""
+        session, reference = self.ctx.session, self.reference.value
+        motion = None if session is None or reference == NONE else simulated_board_motion(session, reference)
+        self.carry_button.visible = motion in ("wave", "scene")
+        self.hold_button.visible = motion == "carried"
+
+    def _move_board(self, motion: str) -> None:
+        try:
+            move_simulated_board(self.ctx.session, self.reference.value, motion)
+        except InputError as exc:
+            self.ctx.notify("Cannot move the simulated board", exc.message, error=True)
+            return
+        self.ctx.notify("The simulated board", f"It is now {BOARD_MOTIONS[motion]}.")
+        self.ctx.rig_changed()
+
+    def _record(self) -> None:
+        session, pair = self.ctx.session, [self.reference.value, self.sensor.value]
+        if NONE in pair:
+            self.ctx.notify("Nothing to record", "Pick the reference and the sensor to line up first.", error=True)
+            return
+        seconds = float(self.duration.value)
+        self.jobs.run(f"recording {' and '.join(pair)} for {seconds:g} s", lambda progress: motion_recording.
+                      record_motion(session, pair, seconds, progress), self._recorded)
+
+    def _recorded(self, recording: motion_recording.Recording) -> None:
+        self._list_recordings(recording.name)
+        missed = "".join(f"; {camera}: {n} frame(s) without the board" for camera, n in recording.missed.items() if n)
+        self.ctx.notify("Recorded", f"{recording.name}: " + ", ".join(
+            f"{sensor} {n} capture(s)" for sensor, n in recording.stored.items()) + missed + ". Measure it now.")
 
     def _show_clocks(self) -> None:
         self.clocks_text.content = clocks_markdown(self.ctx.session.rig)
 
     def _measure(self) -> None:
         session, reference, sensor = self.ctx.session, self.reference.value, self.sensor.value
+        recording = None if self.recording.value == ALL_CAPTURES else self.recording.value
         try:
-            time_offset_service.check_pair(session, reference, sensor)
+            time_offset_service.check_pair(session, reference, sensor, recording)
         except InputError as exc:
             self.ctx.notify("Cannot measure the time offset", exc.message, error=True)
             return
         self.jobs.run(f"time offset of {sensor} from {reference}", lambda progress: time_offset_service.solve_session(
-            session, reference, sensor, progress=progress), self._fill_history)
+            session, reference, sensor, recording=recording, progress=progress), self._fill_history)
 
     def _fill_history(self, result_id: str | None) -> None:
         session, sensor = self.ctx.session, self.sensor.value

@@ -28,12 +28,25 @@ from playwright.sync_api import Browser, Page, expect
 from backend.calib.rig import service as rig_service
 from backend.services.demo import DEMO_CAMERA, DEMO_LIDAR, DEMO_NAME
 from backend.services.jobs import JobRunner
-from backend.sim.demo_rig import demo_rig
+from backend.sim.demo_rig import DEMO_LIDAR_CLOCK_OFFSET_S, demo_rig
 from backend.sim.lidar_scene import LidarScene
 from backend.store.session import SessionStore
 from studio.app import StudioApp
 from studio.layers import LAYER_GROUPS, STEPS
-from tests.conftest import ARTIFACTS, Studio, button, choose, studio_page, unfold, wait_body, wait_job
+from tests.conftest import (
+    ARTIFACTS,
+    UI_WAIT_S,
+    Studio,
+    button,
+    choose,
+    labelled_image,
+    studio_page,
+    text_input,
+    unfold,
+    wait_body,
+    wait_job,
+    wait_settled,
+)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -200,26 +213,44 @@ def test_rig_tree_drawing_in_process(studio: Studio, accepted: dict[str, str], t
 
 
 def test_clocks_and_imu_steps_in_the_browser(page: Page) -> None:
-    """Step 11 lists every sensor's clock, and a time offset asked of the demo's still pairs (a board held still
-    between jumps, no smooth motion) is refused or rejected with the reason on the page; step 10 offers the demo's
-    cameras and LiDARs against an IMU (the demo has none yet)."""
+    """Step 11 lists every sensor's clock; with the simulated board carried without stopping, *Record both* records
+    cam_front and lidar_top together and the time offset measured from that recording finds lidar_top's clock
+    (:data:`DEMO_LIDAR_CLOCK_OFFSET_S` ahead), shown with its plot and accepted into the table of clocks; the board is
+    held still again after. Step 10 offers the demo's cameras and LiDARs against an IMU (the demo has none yet)."""
     unfold(page, "11 · Clocks", button(page, "Measure the time offset"))
     clocks = page.locator("table", has_text="clock offset (ms)").filter(visible=True)
     for sensor in ("cam_front", "lidar_top", "scanner_2d"):
         expect(clocks.locator("td", has_text=re.compile(f"^{sensor}$"))).to_have_count(1)
     choose(page, "Reference", DEMO_CAMERA)
     choose(page, "Sensor to line up", DEMO_LIDAR)
+    button(page, "Carry the board without stopping (simulation)").click()
+    expect(button(page, "Hold the board still at each place (simulation)")).to_be_visible()
+    seconds = text_input(page, "Record for (s)")
+    seconds.fill("10")
+    seconds.press("Enter")
+    button(page, "Record both").click()
+    expect(page.get_by_text(f"recording {DEMO_CAMERA} and {DEMO_LIDAR} for 10 s: done in")).to_be_visible(
+        timeout=1000 * UI_WAIT_S)
+    expect(page.get_by_label("Recording", exact=True)).to_have_value(re.compile(r"^rec-\d{8}-\d{6}$"))
     button(page, "Measure the time offset").click()
-    outcome = page.get_by_text(re.compile(rf"time offset of {DEMO_LIDAR} from {DEMO_CAMERA}(: done in| failed: )"))
-    expect(outcome.first).to_be_visible(timeout=300_000)  # the demo's clouds are read and searched for the board
-    if " failed: " in outcome.first.inner_text():  # what the module captured first can leave no overlap at all
-        expect(page.get_by_text(re.compile(r"failed: .*(do not overlap in time|usable sample)"))).to_be_visible()
-        expect(page.get_by_text("No time-offset result yet.")).to_be_visible()
-    else:
-        expect(page.get_by_text(re.compile(r"board normals still differ by [\d.]+ deg RMS once lined up")).first
-               ).to_be_visible()
-        expect(page.get_by_text("It cannot be accepted.").first).to_be_visible()
+    expect(page.get_by_text(re.compile(rf"time offset of {DEMO_LIDAR} from {DEMO_CAMERA}: done in"))).to_be_visible(
+        timeout=300_000)  # the recording's clouds are searched for the board
+    shown = wait_body(page, re.compile(r"Time offset ([-\d.]+) ms ± ([\d.]+)"))
+    offset_ms, std_ms = float(shown.group(1)), float(shown.group(2))
+    error_ms = offset_ms - 1e3 * DEMO_LIDAR_CLOCK_OFFSET_S
+    assert abs(error_ms) < 3.0 and abs(error_ms) < 3 * std_ms + 1.0, shown.group(0)
+    wait_settled(labelled_image(page, "Both signals on the reference's clock"))
     page.screenshot(path=ARTIFACTS / "studio_clocks.png")
+
+    clocks.locator("xpath=preceding::button[normalize-space(.)='Accept'][1]").click()
+    expect(page.get_by_text(re.compile(r"Accepting r\d+ would:")).filter(visible=True).first).to_be_visible()
+    confirm_check = page.get_by_label("Confirm the check", exact=True).filter(visible=True)
+    if confirm_check.count():  # a 'check' verdict takes the user's tick
+        confirm_check.first.check()
+    button(page, "Confirm accept").filter(visible=True).first.click()
+    expect(clocks.locator("tr", has_text=DEMO_LIDAR)).to_contain_text(f"{offset_ms:.2f}")
+    button(page, "Hold the board still at each place (simulation)").click()  # as the module's other tests expect
+    expect(button(page, "Carry the board without stopping (simulation)")).to_be_visible()
 
     unfold(page, "10 · Camera or LiDAR to IMU", button(page, "Record the IMU"))
     box = page.get_by_label("Camera or LiDAR", exact=True)

@@ -10,7 +10,7 @@ from backend.core.boards import BoardSpec
 from backend.core.transforms import from_xyz_ypr, transform_points
 from backend.devices.base import DeviceDisconnected, DeviceError, create_device
 from backend.sim.board_motion import plate_in_view
-from backend.sim.demo_rig import DEMO_BOARD, demo_rig
+from backend.sim.demo_rig import DEMO_BOARD, DEMO_LIDAR_CLOCK_OFFSET_S, demo_rig
 from backend.sim.lidar_scene import (
     LABELS,
     ROOM_X_M,
@@ -164,7 +164,8 @@ def test_moving_board_poses_stay_in_view():
 
 def test_driver_reads_scans_with_ground_truth_and_disconnects():
     rig = demo_rig()
-    assert rig.get("lidar_top").device == {"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0}
+    assert rig.get("lidar_top").device == {"driver": "simulated_lidar", "sensor": "lidar_top", "seed": 0,
+                                           "clock_offset_s": DEMO_LIDAR_CLOCK_OFFSET_S}
     device = create_device(rig.get("scanner_2d").device | {"disconnect_after": 2})
     with device:
         first = device.read()

@@ -22,17 +22,20 @@ router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}/time-offset", tags=
 class TimeOffsetRequest(BaseModel):
     reference: str = Field(max_length=64, description="sensor a, whose clock the offset is measured from (the camera)")
     max_offset_s: float = Field(0.5, gt=0, le=5.0, description="the offset is searched within ±this (s)")
+    recording: str | None = Field(None, max_length=64, description="measure from this recording's captures alone "
+                                  "(POST /api/sessions/{name}/recordings); default: every capture of both sensors")
 
 
 @router.post("", status_code=202, response_model=JobStatus)
 def solve(sensor: str, body: TimeOffsetRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
-    """Measure ``t_sensor = t_reference + offset`` from both sensors' captures in the background (a camera and a 3D
-    LiDAR, or two cameras, that watched a board carried through both views). Poll ``/api/jobs/{id}`` for
-    ``result_id``; accepting it (``POST /api/sessions/{name}/accept``) sets the sensor's clock offset."""
+    """Measure ``t_sensor = t_reference + offset`` from both sensors' captures (of one ``recording``, or all) in the
+    background (a camera and a 3D LiDAR, or two cameras, that watched a board carried through both views). Poll
+    ``/api/jobs/{id}`` for ``result_id``; accepting it (``POST /api/sessions/{name}/accept``) sets the sensor's
+    clock offset."""
     settings = service.settings(body.max_offset_s)
-    service.check_pair(session, body.reference, sensor)  # fail fast, before queueing
+    service.check_pair(session, body.reference, sensor, body.recording)  # fail fast, before queueing
     job = jobs.submit(f"time offset of {sensor} from {body.reference}", lambda progress: service.solve_session(
-        session, body.reference, sensor, settings, progress))
+        session, body.reference, sensor, settings, recording=body.recording, progress=progress))
     return job.status() | {"result_id": None}
 
 

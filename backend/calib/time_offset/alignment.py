@@ -12,9 +12,19 @@ than a's at the same instant.
   one onto the other is solved in closed form (Wahba's problem, a 3x3 SVD per offset, all offsets at once); the
   cost is the mean squared difference of the unit vectors left over. The minimum is refined by a parabola through
   its neighbours.
+- Two ``lines`` signals (a board's cut through a 2D scanner's plane, both in the scanner's axes, z = 0) are scanned
+  the same way, but the rotation is a turn about the scan plane's normal alone, in closed form
+  (``angle = atan2(sum (b x a) . z, sum a . b)``): Wahba's 3x3 SVD on vectors that all lie in one plane has a
+  rank-2 matrix and so picks the best of the in-plane turns *and mirror images* (a mirror composed with z -> -z is
+  a proper rotation), under which a line swinging to and fro can match its own mirror image at a wrong offset. One
+  angle to solve and one residual component a sample (across the line; along it a unit vector barely errs), so the
+  residual's degrees of freedom and the rotation's sigma count one axis. A board turned only about a horizontal axis
+  or its own normal leaves the line still: at least :data:`MIN_TURN_DEG` of turn about the vertical (yaw) is asked
+  for.
 
 The offset's sigma is Gauss-Newton's: the residual's spread over the rate at which the aligned signal changes,
-summed over the samples (``sigma^2 = s^2 / sum |d(R v)/dt|^2``), the spread widened by how much the residuals persist
+summed over the samples (``sigma^2 = s^2 / sum |d(R v)/dt|^2``, ``s^2`` per residual component: three for normals,
+the one across the line for lines), the spread widened by how much the residuals persist
 from sample to sample (:func:`persistence`), and at least the search step.
 """
 
@@ -31,7 +41,8 @@ from backend.core.errors import InputError
 from backend.core.result import finite_or_none
 
 MIN_TURN_DEG = 10.0
-"""Least spread (deg) of a board's normal over the recording for its timing to be readable."""
+"""Least spread (deg) of a board's normal (or its line in a scan plane) over the recording for its timing to be
+readable."""
 
 
 @dataclass(frozen=True)
@@ -39,16 +50,18 @@ class OffsetAlignment:
     """How sensor b's motion lines up with sensor a's."""
 
     kind: str
-    """What was lined up: ``directions`` (board normals) or ``rates`` (angular rates)."""
+    """What was lined up: ``directions`` (board normals), ``rates`` (angular rates) or ``lines`` (a board's cut
+    through a 2D scanner's plane)."""
     offset_s: float
     """``t_b = t_a + offset_s`` (s)."""
     offset_std_s: float
     """1-sigma of ``offset_s`` (s)."""
     R_a_b: np.ndarray
-    """3x3 rotation taking b's vectors into a's axes (the two sensors' relative mounting)."""
+    """3x3 rotation taking b's vectors into a's axes (the two sensors' relative mounting; for ``lines``, both in the
+    scanner's axes, a turn about the scan plane's normal: what ``T_camera_lidar``'s yaw is off by)."""
     rotation_std_deg: float
     """1-sigma (deg) of the rotation about its least determined axis (for normals that stayed within a cone, the
-    cone's axis)."""
+    cone's axis; for lines, about the scan plane's normal)."""
     residual: float
     """RMS of a's vectors less the rotated, shifted b's (unit-vector lengths, or rad/s for rates)."""
     samples: int
@@ -78,11 +91,15 @@ def align_signals(a: MotionSignal, b: MotionSignal, *, max_offset_s: float = 0.5
                                float(np.degrees(rates.rotation_std_rad)), rates.residual_rad_s, len(a.t_s),
                                {"offset_s": rates.curve["offset_s"], "score": rates.curve["correlation"],
                                 "score_name": "angular speeds' correlation"})
+    what, advice = (("line in the 2D scanner's plane", "turn the board about a vertical axis (yaw) through at least "
+                     f"{MIN_TURN_DEG:g} deg while carrying it across the scan plane") if a.kind == "lines" else
+                    ("normal", f"tilt and turn the board through at least {MIN_TURN_DEG:g} deg while both sensors "
+                     "watch"))
     for signal in (a, b):
         turn = np.degrees(np.arccos(np.clip(signal.vectors @ _mean_direction(signal.vectors), -1, 1)).max())
         if turn < MIN_TURN_DEG:
-            raise InputError(f"{signal.sensor}: the board's normal turned at most {turn:.1f} deg; tilt and turn the "
-                             f"board through at least {MIN_TURN_DEG:g} deg while both sensors watch", signal.sensor)
+            raise InputError(f"{signal.sensor}: the board's {what} turned at most {turn:.1f} deg; {advice}",
+                             signal.sensor)
     if len(a.t_s) <= len(b.t_s):  # interpolate the denser signal at the sparser one's times
         return _align_directions(a, b, max_offset_s, step_s)
     flipped = _align_directions(b, a, max_offset_s, step_s)
@@ -95,7 +112,7 @@ def _mean_direction(vectors: np.ndarray) -> np.ndarray:
     return mean / max(np.linalg.norm(mean), 1e-12)
 
 
-def _sample(signal: MotionSignal, t_s: np.ndarray, derivative: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def sample_signal(signal: MotionSignal, t_s: np.ndarray, derivative: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``signal`` interpolated at ``t_s`` by a cubic spline (renormalised; or its ``derivative``-th derivative) and a
     mask of the times inside it and not across a gap of more than 2.5 median steps."""
     step = float(np.median(np.diff(signal.t_s)))
@@ -119,6 +136,21 @@ def _wahba(sparse: np.ndarray, dense: np.ndarray, weights: np.ndarray) -> tuple[
     return U @ Vt, np.maximum((2 * count - 2 * S.sum(axis=1)) / count, 0.0)
 
 
+def _turn_in_plane(sparse: np.ndarray, dense: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_wahba` for vectors in the plane z = 0: the rotations about z alone (O, 3, 3), at the angle
+    ``atan2(sum (dense x sparse) . z, sum dense . sparse)``, and the mean squared residual."""
+    dot = np.einsum("on,oni,oni->o", weights, sparse[..., :2], dense[..., :2])
+    cross = np.einsum("on,on->o", weights, dense[..., 0] * sparse[..., 1] - dense[..., 1] * sparse[..., 0])
+    angle = np.arctan2(cross, dot)
+    R = np.zeros((len(angle), 3, 3))
+    R[:, 0, 0] = R[:, 1, 1] = np.cos(angle)
+    R[:, 1, 0] = np.sin(angle)
+    R[:, 0, 1] = -R[:, 1, 0]
+    R[:, 2, 2] = 1.0
+    count = np.maximum(weights.sum(axis=1), 1)
+    return R, np.maximum((2 * count - 2 * np.hypot(dot, cross)) / count, 0.0)
+
+
 def persistence(residuals: np.ndarray) -> float:
     """How much residuals (N, 3) in time order that persist from sample to sample widen a white-noise variance:
     ``(1 + rho) / (1 - rho)`` for their lag-one autocorrelation ``rho`` (an AR(1) model's variance of a mean; rho
@@ -134,17 +166,20 @@ def persistence(residuals: np.ndarray) -> float:
 
 def _align_directions(sparse: MotionSignal, dense: MotionSignal, max_offset_s: float,
                       step_s: float) -> OffsetAlignment:
-    """:func:`align_signals` for unit vectors with ``sparse`` the signal of fewer samples (it is ``a``)."""
+    """:func:`align_signals` for unit vectors (normals, or lines in a scan plane) with ``sparse`` the signal of fewer
+    samples (it is ``a``)."""
+    planar = sparse.kind == "lines"
+    fit = _turn_in_plane if planar else _wahba
     offsets = np.arange(-max_offset_s, max_offset_s + step_s / 2, step_s)
     times = sparse.t_s[None, :] + offsets[:, None]
-    moved, inside = _sample(dense, times.ravel())
+    moved, inside = sample_signal(dense, times.ravel())
     moved, inside = moved.reshape(*times.shape, 3), inside.reshape(times.shape)
     counts = inside.sum(axis=1)
     usable = counts >= max(MIN_SAMPLES, 0.5 * counts.max())
     if not usable.any():
         raise InputError(f"{sparse.sensor} and {dense.sensor} do not overlap in time within ±{max_offset_s} s",
                          dense.sensor)
-    _, cost = _wahba(np.broadcast_to(sparse.vectors, moved.shape), moved, inside.astype(float))
+    _, cost = fit(np.broadcast_to(sparse.vectors, moved.shape), moved, inside.astype(float))
     cost[~usable] = np.nan
     best = int(np.nanargmin(cost))
     offset_s = float(offsets[best])
@@ -153,18 +188,23 @@ def _align_directions(sparse: MotionSignal, dense: MotionSignal, max_offset_s: f
         curvature = left - 2 * middle + right
         if curvature > 0:
             offset_s += float(0.5 * (left - right) / curvature * step_s)
-    at, keep = _sample(dense, sparse.t_s + offset_s)
-    R, final = _wahba(sparse.vectors[None, keep], at[None, keep], np.ones((1, int(keep.sum()))))
+    at, keep = sample_signal(dense, sparse.t_s + offset_s)
+    R, final = fit(sparse.vectors[None, keep], at[None, keep], np.ones((1, int(keep.sum()))))
     R_a_b = R[0]
     n = int(keep.sum())
     mapped = at[keep] @ R_a_b.T
-    # per component, less the rotation's 3 and the offset; widened for errors that persist from sample to sample
-    variance = float(final[0]) * n / max(3 * n - 4, 1) * persistence(sparse.vectors[keep] - mapped)
-    slope_at, _ = _sample(dense, sparse.t_s[keep] + offset_s, derivative=1)
+    # per component (lines: the one across the line), less the rotation's 3 (1) and the offset; widened for errors
+    # that persist from sample to sample
+    freedom = n - 2 if planar else 3 * n - 4
+    variance = float(final[0]) * n / max(freedom, 1) * persistence(sparse.vectors[keep] - mapped)
+    slope_at, _ = sample_signal(dense, sparse.t_s[keep] + offset_s, derivative=1)
     information = float(np.sum(slope_at**2)) / max(variance, 1e-18)
     offset_std = float(np.hypot(1 / np.sqrt(information), step_s / np.sqrt(12))) if information > 0 else float("inf")
-    information = (n * np.eye(3) - mapped.T @ mapped) / max(variance, 1e-18)  # sum of (I - m m^T) / s^2
-    rotation_std = float(np.degrees(np.sqrt(np.linalg.eigvalsh(np.linalg.inv(information)).max())))
-    return OffsetAlignment("directions", offset_s, offset_std, R_a_b, rotation_std, float(np.sqrt(final[0])), n,
+    if planar:  # each sample gives the turn's angle with the residual's variance
+        rotation_std = float(np.degrees(np.sqrt(variance / n)))
+    else:
+        information = (n * np.eye(3) - mapped.T @ mapped) / max(variance, 1e-18)  # sum of (I - m m^T) / s^2
+        rotation_std = float(np.degrees(np.sqrt(np.linalg.eigvalsh(np.linalg.inv(information)).max())))
+    return OffsetAlignment(sparse.kind, offset_s, offset_std, R_a_b, rotation_std, float(np.sqrt(final[0])), n,
                            {"offset_s": offsets.tolist(), "score": finite_or_none(cost),
-                            "score_name": "mean squared normal difference"})
+                            "score_name": f"mean squared {'line' if planar else 'normal'} difference"})

@@ -18,8 +18,9 @@ from backend.core.verdict import Verdict, VerdictBuilder
 OFFSET_TOLERANCE_S = 0.002
 """Largest acceptable 1-sigma of an offset (s): a board carried at 1 m/s moves 2 mm in it."""
 MAX_NORMAL_RMS = 0.05
-"""Largest RMS difference of two sensors' board normals once lined up (unit vectors, about 3 deg): beyond it they
-did not follow one board's smooth motion (another plane taken for the board, a board held still between jumps)."""
+"""Largest RMS difference of two sensors' board normals (or lines in a scan plane) once lined up (unit vectors, about
+3 deg): beyond it they did not follow one board's smooth motion (another plane taken for the board, a board held still
+between jumps)."""
 
 
 @dataclass(frozen=True)
@@ -51,8 +52,9 @@ def reported_std(whole: OffsetAlignment, halves: HalvesCheck | None) -> float:
 def judge(whole: OffsetAlignment, halves: HalvesCheck | None, std_s: float, halves_missing: str = "") -> Verdict:
     """The verdict: the reported sigma against :data:`OFFSET_TOLERANCE_S`, the halves as the cross-check."""
     builder = VerdictBuilder()
-    if whole.kind == "directions" and whole.residual > MAX_NORMAL_RMS:
-        builder.reject(f"the two sensors' board normals still differ by {np.degrees(whole.residual):.1f} deg RMS "
+    if whole.kind != "rates" and whole.residual > MAX_NORMAL_RMS:
+        what = "lines in the scan plane" if whole.kind == "lines" else "normals"
+        builder.reject(f"the two sensors' board {what} still differ by {np.degrees(whole.residual):.1f} deg RMS "
                        f"once lined up (at most {np.degrees(MAX_NORMAL_RMS):.0f} expected): they did not follow one "
                        "smoothly moving board; carry it through both views without stopping")
     builder.sigma("time offset", 1e3 * std_s, 1e3 * OFFSET_TOLERANCE_S, "ms")

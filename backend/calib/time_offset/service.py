@@ -5,6 +5,9 @@ Pairs of sensors and the signal each gives (:mod:`.signals`):
 
 - camera + 3D LiDAR: the board's normal (the camera's from PnP, the LiDAR's from the board plane placed by the
   rig's current ``T_camera_lidar``);
+- camera + 2D scanner: the board's line in the scan plane (the scanner's segment, and where the camera's board plane
+  cuts the scan plane through the rig's current camera-scanner transform, :mod:`.scan_line`); the board is turned
+  about a vertical axis while carried across the scan plane;
 - camera + camera: the cameras' angular rates relative to the board (its pose, frame to frame);
 - 3D LiDAR + 3D LiDAR: each LiDAR's angular rates from its own odometry (scan-to-scan GICP,
   :func:`~backend.calib.lidar_imu.odometry.scan_poses`) while the rig turns in a static scene.
@@ -33,6 +36,7 @@ from backend.calib.camera_imu.observations import (
 from backend.calib.lidar_imu.odometry import scan_poses
 from backend.calib.lidar_imu.service import MAX_SCANS, read_scan_folder
 from backend.calib.time_offset.board_signals import camera_board_poses, lidar_signal
+from backend.calib.time_offset.scan_line import planar_scans, scan_line_signals
 from backend.calib.time_offset.signals import MotionSignal, board_normal_signal, orientation_rate_signal
 from backend.calib.time_offset.solver import KIND, TimeOffsetResult, TimeOffsetSettings, solve_time_offset
 from backend.core.boards import BoardSpec
@@ -40,11 +44,12 @@ from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.core.rig import Rig
 from backend.exports.ros_camera_info import load_camera_info
+from backend.store.schema import RECORDING_META_KEY, CaptureRecord
 from backend.store.session import Session
 
-SUPPORTED = ("camera + 3D LiDAR or camera + camera (a board carried through both views), or 3D LiDAR + 3D LiDAR (the "
-             "rig turned in a static scene)")
-PAIRS = (("camera", "lidar3d"), ("camera", "camera"), ("lidar3d", "lidar3d"))
+SUPPORTED = ("camera + 3D LiDAR, camera + 2D scanner or camera + camera (a board carried through both views), or 3D "
+             "LiDAR + 3D LiDAR (the rig turned in a static scene)")
+PAIRS = (("camera", "lidar3d"), ("camera", "lidar2d"), ("camera", "camera"), ("lidar3d", "lidar3d"))
 
 
 def settings(max_offset_s: float) -> TimeOffsetSettings:
@@ -72,13 +77,26 @@ def transform_clock_record(record: dict[str, Any]) -> dict[str, Any]:
             "std": {"time_s": diagnostics["time_offset_std_s"]}}
 
 
-def _camera_poses(session: Session, camera: str) -> tuple[np.ndarray, np.ndarray]:
+def _captures(session: Session, sensor: str, recording: str | None) -> list[CaptureRecord]:
+    """The sensor's captures, or only those of ``recording`` (their ``meta["recording"]``); :class:`InputError`
+    naming the recording when it holds none of the sensor's."""
+    captures = session.captures(sensor)
+    if recording is None:
+        return captures
+    kept = [c for c in captures if c.meta.get(RECORDING_META_KEY) == recording]
+    if not kept:
+        raise InputError(f"recording {recording!r} holds no captures of {sensor}: record both sensors together "
+                         "first, or measure every capture", "recording")
+    return kept
+
+
+def _camera_poses(session: Session, camera: str, recording: str | None) -> tuple[np.ndarray, np.ndarray]:
     """A camera's capture times (s) and board poses ``T_camera_board`` (K, 4, 4) where it saw the board."""
     intrinsics = session.rig.get(camera).intrinsics
     if intrinsics is None:
         raise InputError(f"{camera} has no intrinsics yet: solve and accept them first", camera)
     board = session_plane_board(session, "a time offset")
-    captures = [c for c in session.captures(camera) if c.detection is not None]
+    captures = [c for c in _captures(session, camera, recording) if c.detection is not None]
     detections = [Detection.from_dict(c.detection) for c in captures]
     times, poses = camera_board_poses(intrinsics, board, np.array([c.timestamp_s for c in captures]), detections)
     if len(times) < 2:
@@ -87,8 +105,9 @@ def _camera_poses(session: Session, camera: str) -> tuple[np.ndarray, np.ndarray
     return times, poses
 
 
-def check_pair(session: Session, sensor_a: str, sensor_b: str) -> None:
-    """:class:`InputError` (404 for a sensor the rig lacks) unless the two sensors are a pair this measures."""
+def check_pair(session: Session, sensor_a: str, sensor_b: str, recording: str | None = None) -> None:
+    """:class:`InputError` (404 for a sensor the rig lacks) unless the two sensors are a pair this measures (and
+    ``recording``, when given, holds captures of both)."""
     kinds = (session.rig.get(sensor_a).kind, session.rig.get(sensor_b).kind)
     if sensor_a == sensor_b or kinds not in PAIRS:
         raise InputError(f"{sensor_a} ({kinds[0]}) and {sensor_b} ({kinds[1]}): time offsets are measured between "
@@ -96,11 +115,14 @@ def check_pair(session: Session, sensor_a: str, sensor_b: str) -> None:
                          "LiDAR-IMU calibration", "reference")
     if kinds[0] == "camera" and session.rig.get(sensor_a).intrinsics is None:
         raise InputError(f"{sensor_a} has no intrinsics yet: solve and accept them first", sensor_a)
+    for sensor in (sensor_a, sensor_b) if recording is not None else ():
+        _captures(session, sensor, recording)
 
 
-def _odometry_signal(session: Session, lidar: str, progress: ProgressCallback) -> MotionSignal:
+def _odometry_signal(session: Session, lidar: str, recording: str | None, progress: ProgressCallback
+                     ) -> MotionSignal:
     """A LiDAR's angular rates from its captures' odometry (the rig turned in a static scene)."""
-    captures = sorted(session.captures(lidar), key=lambda c: c.timestamp_s)
+    captures = sorted(_captures(session, lidar, recording), key=lambda c: c.timestamp_s)
     if not 20 <= len(captures) <= MAX_SCANS:
         raise InputError(f"{lidar} holds {len(captures)} scans; lining its clock up by its odometry needs 20 to "
                          f"{MAX_SCANS}, taken while the rig turns in a static scene", lidar)
@@ -108,24 +130,32 @@ def _odometry_signal(session: Session, lidar: str, progress: ProgressCallback) -
     return orientation_rate_signal(lidar, np.array([c.timestamp_s for c in captures]), poses[:, :3, :3])
 
 
-def signals(session: Session, sensor_a: str, sensor_b: str,
-            progress: ProgressCallback = no_progress) -> tuple[MotionSignal, MotionSignal]:
-    """The two sensors' motion signals from their captures (:func:`check_pair` first)."""
-    check_pair(session, sensor_a, sensor_b)
+def signals(session: Session, sensor_a: str, sensor_b: str, progress: ProgressCallback = no_progress, *,
+            max_offset_s: float = 0.5, recording: str | None = None) -> tuple[MotionSignal, MotionSignal]:
+    """The two sensors' motion signals from their captures, or from those of ``recording`` alone (:func:`check_pair`
+    first); a 2D scanner's sweep is fitted with offsets within ``±max_offset_s`` (s)."""
+    check_pair(session, sensor_a, sensor_b, recording)
     if session.rig.get(sensor_a).kind == "lidar3d":
-        return (_odometry_signal(session, sensor_a, lambda f, m: progress(0.5 * f, m)),
-                _odometry_signal(session, sensor_b, lambda f, m: progress(0.5 + 0.5 * f, m)))
-    t_a, T_a_board = _camera_poses(session, sensor_a)
+        return (_odometry_signal(session, sensor_a, recording, lambda f, m: progress(0.5 * f, m)),
+                _odometry_signal(session, sensor_b, recording, lambda f, m: progress(0.5 + 0.5 * f, m)))
+    t_a, T_a_board = _camera_poses(session, sensor_a, recording)
     if session.rig.get(sensor_b).kind == "camera":
-        t_b, T_b_board = _camera_poses(session, sensor_b)
+        t_b, T_b_board = _camera_poses(session, sensor_b, recording)
         # each camera's rotation relative to the board (R_board_camera), so the rates are in the camera's axes
         return (orientation_rate_signal(sensor_a, t_a, np.transpose(T_a_board[:, :3, :3], (0, 2, 1))),
                 orientation_rate_signal(sensor_b, t_b, np.transpose(T_b_board[:, :3, :3], (0, 2, 1))))
-    captures = session.captures(sensor_b)
+    captures = _captures(session, sensor_b, recording)
     scans = [session.capture_cloud(sensor_b, c.id)[0] for c in captures]
+    scan_t_s = np.array([c.timestamp_s for c in captures])
     T_camera_lidar = session.rig.T_a_b(sensor_a, sensor_b)
-    lidar = lidar_signal(sensor_b, session_plane_board(session, "a time offset"),
-                         np.array([c.timestamp_s for c in captures]), scans, t_a, T_a_board, T_camera_lidar, progress)
+    board = session_plane_board(session, "a time offset")
+    if session.rig.get(sensor_b).kind == "lidar2d":
+        if any(len(points) for points in scans) and not planar_scans(scans, sensor_b):
+            raise InputError(f"{sensor_b} is a 2D scanner (lidar2d) but its captures hold points off its scan plane "
+                             "(z != 0); if it is a 3D LiDAR, set its kind to lidar3d", sensor_b)
+        return scan_line_signals(sensor_a, sensor_b, board, scan_t_s, scans, t_a, T_a_board, T_camera_lidar,
+                                 max_offset_s, progress)
+    lidar = lidar_signal(sensor_b, board, scan_t_s, scans, t_a, T_a_board, T_camera_lidar, progress)
     return board_normal_signal(sensor_a, t_a, T_a_board), lidar
 
 
@@ -133,9 +163,10 @@ def solve_files(camera_path: Path, corners: Path, scans: Path, board: str, T_cam
                 search: TimeOffsetSettings | None = None,
                 progress: ProgressCallback = no_progress) -> TimeOffsetResult:
     """``t_lidar = t_camera + offset`` from files: a camera_info YAML, the board's corners (a detections CSV, or a
-    folder of images named by their time stamps in ns), a folder of clouds named by their time stamps in ns, and
-    the initial ``T_camera_lidar`` (4x4, m) that places the board in the clouds; :class:`InputError` naming the
-    file at fault."""
+    folder of images named by their time stamps in ns), a folder of clouds named by their time stamps in ns (a 3D
+    LiDAR's, or a 2D scanner's when every point is at z = 0: then the board's line in the scan plane is lined up,
+    :mod:`.scan_line`), and the initial ``T_camera_lidar`` (4x4, m) that places the board in the clouds;
+    :class:`InputError` naming the file at fault."""
     camera, _ = load_camera_info(camera_path)
     spec = BoardSpec.parse(board)
     if corners.is_dir():
@@ -149,18 +180,26 @@ def solve_files(camera_path: Path, corners: Path, scans: Path, board: str, T_cam
     if len(times) < 2:
         raise InputError(f"the board's pose was found in {len(times)} frame(s)", str(corners))
     scan_times, clouds = read_scan_folder(scans)
-    lidar = lidar_signal("lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
+    if planar_scans(clouds, str(scans)):
+        a, b = scan_line_signals("camera", "lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
+                                 (search or TimeOffsetSettings()).max_offset_s, lambda f, m: progress(0.3 + 0.5 * f, m))
+    else:
+        a = board_normal_signal("camera", times, poses)
+        b = lidar_signal("lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
                          lambda f, m: progress(0.3 + 0.5 * f, m))
-    return solve_time_offset(board_normal_signal("camera", times, poses), lidar, search,
-                             lambda f, m: progress(0.8 + 0.2 * f, m))
+    return solve_time_offset(a, b, search, lambda f, m: progress(0.8 + 0.2 * f, m))
 
 
-def solve_session(session: Session, sensor_a: str, sensor_b: str, search: TimeOffsetSettings | None = None,
-                  progress: ProgressCallback = no_progress) -> str:
-    """Measure ``t_b = t_a + offset`` from the session's captures and keep the result under ``sensor_b``; its id."""
-    a, b = signals(session, sensor_a, sensor_b, lambda f, m: progress(0.7 * f, m))
+def solve_session(session: Session, sensor_a: str, sensor_b: str, search: TimeOffsetSettings | None = None, *,
+                  recording: str | None = None, progress: ProgressCallback = no_progress) -> str:
+    """Measure ``t_b = t_a + offset`` from the session's captures (of ``recording`` alone, when given) and keep the
+    result under ``sensor_b``; its id."""
+    a, b = signals(session, sensor_a, sensor_b, lambda f, m: progress(0.7 * f, m),
+                   max_offset_s=(search or TimeOffsetSettings()).max_offset_s, recording=recording)
     result = solve_time_offset(a, b, search, lambda f, m: progress(0.7 + 0.3 * f, m))
-    return session.add_result(sensor_b, result.to_record(), inputs=[f"{sensor_a} captures", f"{sensor_b} captures"])
+    of = "" if recording is None else f" of {recording}"
+    return session.add_result(sensor_b, result.to_record(),
+                              inputs=[f"{sensor_a} captures{of}", f"{sensor_b} captures{of}"])
 
 
 def time_offset_results(session: Session, sensor: str) -> list[dict[str, Any]]:

@@ -1,7 +1,8 @@
 """What each sensor gives as its motion over time, for lining two sensors' clocks up.
 
-A *signal* is a sequence of 3-vectors on one sensor's clock, of one of two kinds, each related between the two
-sensors by a constant rotation (their mounting) alone, so no extrinsic is needed to compare them:
+A *signal* is a sequence of 3-vectors on one sensor's clock, of one of three kinds, each related between the two
+sensors by a constant rotation (their mounting) alone, so no extrinsic is needed to compare them (but for
+``"lines"``, which needs the rig's current one to put the camera's signal in the scanner's plane):
 
 - ``"directions"``: the unit normal of a board both sensors see, in the sensor's frame, turned towards the sensor.
   A camera reads it from the board's pose, a LiDAR from the plane fitted to the board's points; a board carried
@@ -9,6 +10,11 @@ sensors by a constant rotation (their mounting) alone, so no extrinsic is needed
 - ``"rates"``: angular rates (rad/s). A gyro measures them; a camera (from the board poses) or a LiDAR (from its
   odometry) gives them as finite differences of its orientations. Two sensors on one rig turned in a static scene,
   or two cameras watching one board, see the same angular velocity up to their mounting rotation.
+- ``"lines"``: the unit direction (z = 0) along which a board cuts a 2D scanner's plane, in the scanner's frame.
+  The scanner reads it from the board's segment in its scan, a camera from the board's normal rotated into the
+  scanner's frame by ``T_camera_lidar`` (:mod:`.scan_line`); the two agree up to a turn about the scan plane's
+  normal (the error of ``T_camera_lidar``'s yaw). One angle a sample: only turning the board about the vertical
+  moves it.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from backend.calib.camera_imu.time_offset import rates_from_rotations
 from backend.core.errors import InputError
 from backend.core.imu import ImuSamples
 
-SignalKind = Literal["directions", "rates"]
+SignalKind = Literal["directions", "rates", "lines"]
 MIN_SAMPLES = 20
 """Fewest samples of a signal worth aligning."""
 
@@ -36,7 +42,8 @@ class MotionSignal:
     t_s: np.ndarray
     """(N,) increasing sample times (s, the sensor's clock)."""
     vectors: np.ndarray
-    """(N, 3) unit board normals (``directions``) or angular rates (rad/s, ``rates``) in the sensor's frame."""
+    """(N, 3) unit board normals (``directions``), angular rates (rad/s, ``rates``) in the sensor's frame, or unit
+    directions of the board's cut through a 2D scanner's plane (``lines``, z = 0, the scanner's frame)."""
 
     def __post_init__(self) -> None:
         if len(self.t_s) < MIN_SAMPLES:

@@ -8,14 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from backend.calib.camera_imu.observations import format_detections_csv
 from backend.calib.time_offset.board_signals import camera_board_poses, camera_signal, lidar_signal
 from backend.calib.time_offset.signals import MotionSignal, board_normal_signal
 from backend.calib.time_offset.solver import TimeOffsetSettings, solve_time_offset
 from backend.core.errors import InputError
-from backend.exports.ros_camera_info import write_camera_info
-from backend.sim.moving_board import BOARD, simulate_moving_board
+from backend.sim.moving_board import simulate_moving_board
 from tests.conftest import cli_in_process
+from tests.time_offset_session import command_files
 
 
 @pytest.fixture(scope="module")
@@ -78,14 +77,7 @@ def test_signals_that_cannot_be_compared_are_refused(signals) -> None:
 
 def test_the_command_reads_detections_and_a_folder_of_scans(tmp_path, recording) -> None:
     """``calib-studio time-offset --camera camera.yaml --detections corners.csv --scans DIR --board SPEC --init T``."""
-    write_camera_info(tmp_path / "camera.yaml", recording.camera, "cam")
-    (tmp_path / "corners.csv").write_bytes(format_detections_csv(recording.observations()))
-    (tmp_path / "scans").mkdir()
-    for t_s, points in zip(recording.scan_t_s, recording.scans, strict=True):
-        np.save(tmp_path / "scans" / f"{round(t_s * 1e9)}.npy", points)
-    np.savetxt(tmp_path / "T.txt", recording.T_camera_lidar)
-    args = ["time-offset", "--camera", tmp_path / "camera.yaml", "--detections", tmp_path / "corners.csv", "--scans",
-            tmp_path / "scans", "--board", BOARD, "--json"]
+    args = command_files(tmp_path, recording, recording.scan_t_s, recording.scans, recording.T_camera_lidar)
     run = cli_in_process(*args, "--init", tmp_path / "T.txt")
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
