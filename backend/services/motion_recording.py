@@ -3,9 +3,12 @@
 Lining two sensors' clocks up (:mod:`backend.calib.time_offset`) needs both to watch one motion continuously, a
 board carried through both views or the rig turned in a static scene, not the few still captures the other steps
 take. :func:`record_motion` reads every named sensor's device on its own stream (:class:`MotionRecorder`, at most
-:data:`MAX_HZ` samples a second) and stores every sample as it comes: a camera's frame with its board found at full
-accuracy (frames without the board are counted, not stored), a LiDAR's scan. A lost device ends the recording with
-its message; what was stored is kept. Every capture of one recording carries its name in ``meta["recording"]``
+:data:`MAX_HZ` samples a second) and stores every sample as it comes: a camera's frame with its board (frames
+without the board are counted, not stored), a LiDAR's scan. The board is found by the live detector
+(:func:`~backend.services.live_capture.preview_detector`), whose corners end where the accurate detector's do (the
+same refinement at full resolution): the accurate search takes 0.4-0.8 s a 720p frame, which would cap a recording
+at about two frames a second, fewer on a busy machine. A lost device ends the recording with its message; what was
+stored is kept. Every capture of one recording carries its name in ``meta["recording"]``
 (:data:`~backend.store.schema.RECORDING_META_KEY`), so the offset is measured from that recording alone: the session
 holds the same sensors' other captures, taken with the board held still, which show no motion to line up.
 """
@@ -19,10 +22,10 @@ from collections.abc import Sequence
 
 from backend.calib._session import session_board, store_cloud
 from backend.calib.intrinsics import service as intrinsics_service
-from backend.calib.test_field.detection import detect_target
 from backend.core.errors import InputError
 from backend.core.result import ProgressCallback, no_progress
 from backend.devices.base import Sample
+from backend.services.live_capture import preview_detector
 from backend.services.sensor_stream import SensorStream, StatusCallback
 from backend.store.schema import RECORDING_META_KEY
 from backend.store.session import Session
@@ -59,7 +62,7 @@ class MotionRecorder(SensorStream):
         super().__init__(session, sensor, status, MAX_HZ)
         self.recording = recording
         self.is_camera = session.rig.get(sensor).kind == "camera"
-        self.target = session_board(session) if self.is_camera else None
+        self.detect = preview_detector(session_board(session)) if self.is_camera else None
         self.stored = 0
         self.missed = 0
 
@@ -67,7 +70,7 @@ class MotionRecorder(SensorStream):
         meta = {**sample.storable_meta(), RECORDING_META_KEY: self.recording}
         try:
             if self.is_camera:
-                detection = detect_target(sample.image, self.target, "frame")[0]
+                detection = self.detect(sample.image)
                 if detection is None:
                     self.missed += 1
                     return
