@@ -33,8 +33,9 @@ from backend.store.session import Session
 RECORDED_KINDS = ("camera", "lidar3d", "lidar2d")
 MAX_HZ = 15.0
 """Most samples stored per second and sensor: a carried board turns little in 1/15 s."""
-MAX_DURATION_S = 120.0
-"""Longest recording (s): 120 s of 15 Hz frames is 1,800 captures a sensor."""
+MAX_DURATION_S = 60.0
+"""Longest recording (s): 60 s at 15 Hz is 900 captures a sensor, about 250 MB of the demo's 720p images and 400 MB
+of its 16-beam scans (10 s took 41 and 70 MB); lining clocks up needs 10-20 s of motion."""
 OPEN_TIMEOUT_S = 60.0
 """Longest wait (s) for every device's first sample before the recording's clock starts."""
 PROGRESS_PERIOD_S = 0.25

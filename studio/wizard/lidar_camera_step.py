@@ -45,12 +45,14 @@ from backend.devices.image_io import read_image
 from backend.plots.lidar_camera import FLAG_SIGMAS as DROP_HINT_SIGMAS
 from backend.plots.lidar_camera import pose_evidence_figure
 from backend.plots.render import to_rgb
+from backend.services.demo import simulated_board_motion
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.marks import WARNING
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
 from studio.transform_sliders import TransformSliders
+from studio.wizard.simulated_board import move_board
 
 STEP = "lidar_camera"
 """The step's name: its scene nodes live under its layer group (:meth:`studio.scene.RigScene.group`)."""
@@ -139,6 +141,9 @@ class LidarCameraStep:
             self.data_text = gui.add_markdown("")
             self.capture_button = gui.add_button("Capture pair", hint="an image and a cloud of the same still moment")
             self.capture_jobs = JobPanel(ctx, [self.capture_button])
+            self.hold_button = gui.add_button("Hold the board still at each place (simulation)", visible=False,
+                                              hint="the simulated person carries the board without stopping (step "
+                                                   "11's clocks): a pair needs it held still")
             self.need_board = gui.add_checkbox("Board in view", initial_value=True,
                                                hint="refuse a pair without the board, and wait for it to hold still")
             self.integration = gui.add_number("LiDAR integration (s)", initial_value=0.0, min=0.0, max=60.0, step=0.1,
@@ -191,6 +196,7 @@ class LidarCameraStep:
             handle.on_update(lambda _: self._wake.set())
         self.reset_button.on_click(lambda _: self.editor.set(self._rig_T(), undoable=False))  # start afresh there
         self.capture_button.on_click(lambda _: self._capture())
+        self.hold_button.on_click(lambda _: move_board(ctx, self.camera.value, "scene"))
         self.solve_button.on_click(lambda _: self._solve())
         self.keep_button.on_click(lambda _: self._keep())
         self.drop_button.on_click(lambda _: self._drop_and_solve())
@@ -198,7 +204,7 @@ class LidarCameraStep:
         threading.Thread(target=self._redraw_loop, name="overlay", daemon=True).start()
         ctx.on_session_closing(self._close)
         ctx.on_session_changed(self._on_session)
-        ctx.on_rig_changed(lambda _: self._show_result(self.result_id, move_sliders=False))
+        ctx.on_rig_changed(lambda _: self._rig_changed())
 
     # -- session, sensors and data ------------------------------------------------------------
     def _close(self) -> None:
@@ -206,6 +212,14 @@ class LidarCameraStep:
         with self._draw_lock:  # after a redraw in flight, before the next
             self._scenes, self._inputs, self._page_scene = [], [], {}
             self._remove_colourised()
+
+    def _rig_changed(self) -> None:
+        self._show_hold_button()
+        self._show_result(self.result_id, move_sliders=False)
+
+    def _show_hold_button(self) -> None:
+        pair = self.pair
+        self.hold_button.visible = pair is not None and simulated_board_motion(self.ctx.session, pair[0]) == "carried"
 
     def _on_session(self, session) -> None:
         cameras = [f.name for f in session.rig.sensors("camera")]
@@ -228,6 +242,7 @@ class LidarCameraStep:
     def _select(self) -> None:
         """List the pair's scenes and results, put the rig's transform on the sliders, redraw."""
         pair = self.pair
+        self._show_hold_button()
         self.editor.frames = pair
         self.editor.set(self._rig_T(), undoable=False)
         if pair is None:  # not the previous pair's static_transform_publisher line

@@ -18,12 +18,13 @@ from backend.core.rig import Rig
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
 from backend.services import motion_recording
-from backend.services.demo import BOARD_MOTIONS, move_simulated_board, simulated_board_motion
+from backend.services.demo import simulated_board_motion
 from backend.store.session import Session
 from studio.context import StudioContext
 from studio.job_panel import JobPanel
 from studio.result_card import ResultCard
 from studio.result_history import ResultHistory
+from studio.wizard.simulated_board import move_board
 
 NONE = "(none)"
 DEFAULT_RECORD_S = 15.0
@@ -79,8 +80,8 @@ class TimeOffsetStep:
             self.clocks_text = gui.add_markdown("")
         self.measure_button.on_click(lambda _: self._measure())
         self.record_button.on_click(lambda _: self._record())
-        self.carry_button.on_click(lambda _: self._move_board("carried"))
-        self.hold_button.on_click(lambda _: self._move_board("scene"))
+        self.carry_button.on_click(lambda _: move_board(ctx, self.reference.value, "carried"))
+        self.hold_button.on_click(lambda _: move_board(ctx, self.reference.value, "scene"))
         self.reference.on_update(lambda _: self._pair_changed())
         self.sensor.on_update(lambda _: self._pair_changed())
         ctx.on_session_changed(self._session_changed)
@@ -120,15 +121,6 @@ class TimeOffsetStep:
         motion = None if session is None or reference == NONE else simulated_board_motion(session, reference)
         self.carry_button.visible = motion in ("wave", "scene")
         self.hold_button.visible = motion == "carried"
-
-    def _move_board(self, motion: str) -> None:
-        try:
-            move_simulated_board(self.ctx.session, self.reference.value, motion)
-        except InputError as exc:
-            self.ctx.notify("Cannot move the simulated board", exc.message, error=True)
-            return
-        self.ctx.notify("The simulated board", f"It is now {BOARD_MOTIONS[motion]}.")
-        self.ctx.rig_changed()
 
     def _record(self) -> None:
         session, pair = self.ctx.session, [self.reference.value, self.sensor.value]

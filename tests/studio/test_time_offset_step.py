@@ -12,8 +12,11 @@ from backend.calib.lidar_camera.capture import store_pair
 from backend.devices.base import Sample
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
+from backend.services.demo import BOARD_MOTIONS, move_simulated_board, simulated_board_motion
+from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.moving_board import CAMERA, simulate_moving_board
 from backend.store.session import SessionStore
+from studio.wizard.simulated_board import move_board
 from tests.conftest import ARTIFACTS, poll
 from tests.studio.in_process import in_process_studio
 from tests.time_offset_session import moving_board_session
@@ -61,3 +64,24 @@ def test_the_step_measures_shows_and_accepts_an_offset(tmp_path, free_port) -> N
         lidar_camera._load_scenes()
         assert f"clock offsets assumed: lidar {1e3 * record['time_offset_s']:.2f} ms" in \
             lidar_camera.data_text.content, lidar_camera.data_text.content
+
+
+def test_the_simulated_board_is_carried_for_clocks_and_held_again_for_pairs(tmp_path, free_port) -> None:
+    """On a simulated rig, step 11 offers to carry the yard's board without stopping; while it is carried, step 6
+    offers to hold it still again (its pairs need a still board), and step 11 offers the same."""
+    store = SessionStore(tmp_path / "sessions")
+    session = store.create("sim", rig=demo_rig(), board=DEMO_BOARD)
+    move_simulated_board(session, "cam_front", "scene")
+    with in_process_studio(store, session, free_port) as (app, notes):
+        clocks, pairs = app.time_offset_step, app.lidar_camera_step
+        clocks.reference.value = pairs.camera.value = "cam_front"
+        assert clocks.carry_button.visible and not clocks.hold_button.visible and not pairs.hold_button.visible
+        assert move_board(app.ctx, "cam_front", "carried")  # what step 11's button does
+        assert simulated_board_motion(session, "cam_front") == "carried"
+        assert notes[-1] == ("The simulated board", f"It is now {BOARD_MOTIONS['carried']}.")
+        assert pairs.hold_button.visible and clocks.hold_button.visible and not clocks.carry_button.visible
+        assert move_board(app.ctx, "cam_front", "scene")  # what step 6's button does
+        assert simulated_board_motion(session, "cam_front") == "scene" and not pairs.hold_button.visible
+        assert not move_board(app.ctx, "lidar_top", "carried")  # not a simulated camera: said, nothing moved
+        title, body = notes[-1]
+        assert title == "Cannot move the simulated board" and "lidar_top is not a simulated camera" in body
