@@ -13,7 +13,8 @@ landing on the studio's RMS (ratio ~1) is the check that the order is right.
 Solves:
 
 - ``ours``: :func:`calibrate_intrinsics` with ``pinhole-radtan`` and k3 (mrcal's ``LENSMODEL_OPENCV5``), free
-  aspect as mrcal has it, the default jackknife on, cross-validation off (it does not change the sigma).
+  aspect as mrcal has it, the default jackknife and corner rejection on, cross-validation off (it does not change
+  the sigma).
   ``projection_sigma_analytic_px`` is the same solve's with the jackknife off: the Jacobian's sigma alone.
 - mrcal, through Debian's ``mrcal-calibrate-cameras`` (the studio's venv cannot import mrcal), three ways:
   ``a_opencv5_plain``: ``LENSMODEL_OPENCV5`` with no board flex, no outlier rejection and no regularization, the
@@ -172,6 +173,7 @@ def ours(views: list[View], board: BoardSpec, size: tuple[int, int]):
     analytic = calibrate_intrinsics(views, board, size, replace(settings, jackknife=False))
     inverted = uncertainty_grid(result.camera)[2]
     figures = {"rms_px": result.rms_px, "views": len(views), "corners": result.corners["chosen"],
+               "corners_rejected": result.summary()["rejected_corners"],
                "projection_sigma_px": sigma_figures(result.projection_uncertainty, inverted),
                "projection_sigma_analytic_px": sigma_figures(analytic.projection_uncertainty, inverted),
                "grid_cells_not_inverted": int(np.count_nonzero(~inverted)),

@@ -41,10 +41,11 @@ def view_rms_bars(sensor: str, record: dict[str, Any] | None, width_in: float = 
 
 
 def residual_vectors(corners_px: np.ndarray, residuals_px: np.ndarray, view_index: np.ndarray,
-                     size: tuple[int, int]) -> Figure:
+                     size: tuple[int, int], rejected_px: np.ndarray | None = None) -> Figure:
     """Every used corner's residual (detected minus projected, (N, 2) px at ``corners_px``) as an arrow across the
-    image of ``size`` (width, height) px, scaled up to be seen, coloured by its length; beside it the residuals
-    themselves, one colour per view (``view_index``, (N,)), as Kalibr shows them."""
+    image of ``size`` (width, height) px, scaled up to be seen, coloured by its length, and the corners rejected as
+    outliers (``rejected_px``, (M, 2) px) as red crosses; beside it the residuals themselves, one colour per view
+    (``view_index``, (N,)), as Kalibr shows them."""
     with styled():
         figure = new_figure(7.0, 3.0)
         left, right = figure.subplots(1, 2, gridspec_kw={"width_ratios": [1.9, 1]})
@@ -57,6 +58,10 @@ def residual_vectors(corners_px: np.ndarray, residuals_px: np.ndarray, view_inde
                                  residuals_px[:, 1] * scale, length, cmap="viridis", angles="xy", scale_units="xy",
                                  scale=1, width=0.003)
             figure.colorbar(arrows, ax=left, label="|residual| (px)", shrink=0.8)
+        if rejected_px is not None and len(rejected_px):
+            left.scatter(rejected_px[:, 0], rejected_px[:, 1], marker="x", color="#e03131", s=14, lw=0.9,
+                         label=f"rejected ({len(rejected_px)})")
+            left.legend(loc="lower right", fontsize=6)
             right.scatter(residuals_px[:, 0], residuals_px[:, 1], c=view_index, cmap="tab20", s=3, lw=0)
             rms = float(np.sqrt(np.mean(length**2)))
             right.add_patch(mpl.patches.Circle((0, 0), rms, fill=False, color="#333333", lw=0.8, ls="--"))

@@ -73,6 +73,11 @@ class CameraReport:
         """Corners of the used views."""
         return sum(len(v.corners_px) for v in self.views if v.used)
 
+    def rejected_corners(self) -> np.ndarray:
+        """(M, 2) detected positions (px) of the corners the solve rejected as outliers, every view's."""
+        rejected = [view["rejected"]["corners_px"] for view in self.record.get("views", []) if view.get("rejected")]
+        return np.array([corner for corners in rejected for corner in corners], float).reshape(-1, 2)
+
     def used_corners(self) -> np.ndarray:
         """(N, 2) corners (px) of the used views."""
         corners = [v.corners_px for v in self.views if v.used]

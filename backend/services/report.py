@@ -74,7 +74,8 @@ def camera_plots(camera: CameraReport) -> dict[str, str | None]:
     """A camera's intrinsics plots: per-view RMS, residual vectors, corner coverage and projection maps."""
     maps = intrinsics_plots.projection_maps(camera.record)
     return {"rms": to_data_uri(intrinsics_plots.view_rms_bars(camera.sensor, camera.record)),
-            "vectors": to_data_uri(intrinsics_plots.residual_vectors(*camera.residual_arrays(), camera.image_size)),
+            "vectors": to_data_uri(intrinsics_plots.residual_vectors(*camera.residual_arrays(), camera.image_size,
+                                                                     camera.rejected_corners())),
             "coverage": to_data_uri(intrinsics_plots.coverage_map(camera.used_corners(), camera.image_size)),
             "maps": to_data_uri(maps) if maps else None}
 

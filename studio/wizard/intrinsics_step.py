@@ -358,11 +358,15 @@ def parameters_markdown(record: dict) -> str:
               for i in range(len(matrix)) for j in range(i + 1, len(matrix)) if abs(matrix[i, j]) > 0.9]
     used = sum(v["used"] for v in record["views"])
     outliers = [v["image"] for v in record["views"] if v["outlier"]]
+    rejected = [f"{v['image']} {len(v['rejected']['ids'])}" + (" (view dropped)" if v["rejected"]["view_dropped"]
+                                                               else "")
+                for v in record["views"] if v.get("rejected")]
     unc = record["projection_uncertainty"]
     return (
         f"{used} views used\n\n{table}\n\n"
         f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
         f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
+        f"Corners rejected as outliers: {', '.join(rejected) or 'none'}\n\n"
         f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
     )
 

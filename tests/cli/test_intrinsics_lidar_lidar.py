@@ -62,7 +62,9 @@ def test_intrinsics_json_contract(intrinsics_run):
     out = json.loads(run.stdout)
     assert isinstance(out, dict)
     assert set(out) == {"camera", "rms_px", "views", "std", "correlation", "projection_sigma_px", "corners",
-                        "cross_validation", "model_comparison", "verdict", "seconds"}
+                        "cross_validation", "model_comparison", "verdict", "seconds", "rejected_corners",
+                        "views_dropped"}
+    assert out["rejected_corners"] == 0 and out["views_dropped"] == []  # OpenCV's clean set (mrcal rejects none)
     assert out["model_comparison"] is None  # only with --model auto
     assert out["verdict"]["level"] in ("check", "reject") and out["verdict"]["reasons"]
     assert out["cross_validation"]["status"] == "consistent" and "difference_px" not in out["cross_validation"]
@@ -83,8 +85,8 @@ def test_intrinsics_json_contract(intrinsics_run):
     assert 0 < out["rms_px"] < 0.5
     assert len(out["views"]) == 13
     for view in out["views"]:
-        assert set(view) == {"image", "rms_px", "used"}
-        assert view["used"] is True and 0 < view["rms_px"] < 1.0
+        assert set(view) == {"image", "rms_px", "used", "rejected_corners"}
+        assert view["used"] is True and 0 < view["rms_px"] < 1.0 and view["rejected_corners"] == 0
     assert sorted(v["image"] for v in out["views"]) == sorted(f"left{i:02d}.jpg" for i in (*range(1, 10), 11, 12,
                                                                                             13, 14))
 

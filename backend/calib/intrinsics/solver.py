@@ -15,6 +15,9 @@ Checkerboard views come with several corner sets (``findChessboardCornersSB``'s 
 same refined by :func:`~backend.calib.board.detection.refine_corners` with a few window
 sizes); the solve uses the set that fits the model best on these views (``corners`` in
 the result).
+Single corners far beyond the corner noise are rejected first, round by round, as mrcal does
+(:func:`_reject_corners`); the result lists them per view, and a view that would lose more than a quarter of its
+corners is dropped whole and named.
 Every result carries a :class:`~backend.core.verdict.Verdict`: the worst projection
 sigma across the image against :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`,
 and, as the independent cross-check, two calibrations from the two halves of the
@@ -51,6 +54,20 @@ MIN_VIEW_SPREAD = 0.1
 MAX_RELATIVE_FOCAL_STD = 0.05
 """A focal length less certain than this fraction means the views cannot pin down the camera."""
 UNCERTAINTY_GRID = (16, 9)
+CORNER_OUTLIER_SIGMAS = 4.29
+"""A corner is an outlier when its residual is longer than this many per-axis sigmas of the corner noise: a 2D
+Gaussian residual is that long once in 10,000 corners (chi-squared, 2 degrees of freedom), so a clean set loses none;
+mrcal rejected none of the shared real sets' corners either (``benchmarks/intrinsics_vs_mrcal.py``). The sigma is
+the larger of every residual's RMS per axis and the view's own robust one (its median residual length over 1.1774,
+the median of a 2D Gaussian's): a view seen steeply or blurred is noisier as a whole, which is not a corner's fault
+(the view-level outlier flag speaks for it), while a corner off its own view's noise is."""
+MEDIAN_RESIDUAL_SIGMAS = float(np.sqrt(2.0 * np.log(2.0)))
+"""The median length of a 2D Gaussian residual, in per-axis sigmas (1.1774)."""
+MAX_REJECTED_SHARE = 0.25
+"""A view that would lose more than this share of its corners is dropped whole, and named: then the view (a wrong
+board pose, a smeared image), not a few corners, is bad."""
+MAX_REJECTION_ROUNDS = 5
+"""Solve-and-reject rounds at most; each round's noise estimate no longer carries the corners rejected before."""
 TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 SEED_RADIUS = 0.7
 """Views whose corners all lie within this fraction of the half-diagonal from the image centre seed a second
@@ -76,6 +93,9 @@ class IntrinsicsSettings:
     """pinhole-radtan only: estimate p1, p2 (else fixed at 0)."""
     fix_aspect: bool = False
     """Keep fx / fy at 1 (square pixels)."""
+    reject_corners: bool = True
+    """Leave out single corners whose residual is far beyond the corner noise, as mrcal does (:func:`_reject_corners`:
+    a view losing more than :data:`MAX_REJECTED_SHARE` is dropped whole)."""
     drop_outliers: bool = False
     """Re-solve without views flagged as outliers."""
     outlier_factor: float = 3.0
@@ -108,6 +128,8 @@ class ViewResidual:
     residuals_px: np.ndarray
     """(N, 2) detected minus projected corner position (px)."""
     T_camera_board: np.ndarray | None
+    rejected: RejectedCorners | None = None
+    """The view's corners rejected as outliers, if any."""
 
     def to_record(self) -> dict:
         return {
@@ -118,7 +140,25 @@ class ViewResidual:
             "ids": self.ids.tolist(),
             "residuals_px": np.round(self.residuals_px, 5).tolist(),
             "T_camera_board": None if self.T_camera_board is None else self.T_camera_board.tolist(),
+            "rejected": None if self.rejected is None else self.rejected.to_record(),
         }
+
+
+@dataclass
+class RejectedCorners:
+    """One view's corners rejected as outliers (:func:`_reject_corners`): where they were and how far off."""
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+    """(N, 2) their detected positions (px)."""
+    residuals_px: np.ndarray
+    """(N, 2) detected minus projected (px) in the round that rejected each."""
+    view_dropped: bool
+    """More than :data:`MAX_REJECTED_SHARE` of the view's corners were outliers: the whole view was left out."""
+
+    def to_record(self) -> dict:
+        return {"ids": self.ids.tolist(), "corners_px": np.round(self.corners_px, 3).tolist(),
+                "residuals_px": np.round(self.residuals_px, 4).tolist(), "view_dropped": self.view_dropped}
 
 
 @dataclass
@@ -153,7 +193,10 @@ class IntrinsicsResult(SolveResult):
         return {
             "camera": self.camera.to_dict(),
             "rms_px": self.rms_px,
-            "views": [{"image": v.name, "rms_px": v.rms_px, "used": v.used} for v in self.views],
+            "views": [{"image": v.name, "rms_px": v.rms_px, "used": v.used,
+                       "rejected_corners": 0 if v.rejected is None else len(v.rejected.ids)} for v in self.views],
+            "rejected_corners": sum(len(v.rejected.ids) for v in self.views if v.rejected is not None),
+            "views_dropped": [v.name for v in self.views if v.rejected is not None and v.rejected.view_dropped],
             "std": self.std,
             "correlation": {"names": self.correlation_names, "matrix": self.correlation.tolist()},
             "projection_sigma_px": {"max": unc["max_px"], "mean": unc["mean_px"], "centre": unc["centre_px"]},
@@ -254,14 +297,72 @@ def _photogrammetric_calibrate(views: list[View], board: BoardSpec, size: tuple[
                                          [v.detection.corners_px for v in views], list(rvecs), list(tvecs))
 
 
+def _solve_residuals(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
+                     solve: tuple) -> list[np.ndarray]:
+    """Each view's (N, 2) detected minus projected corners (px) under an OpenCV ``solve`` (K, dist, rvecs, tvecs)
+    of ``model``."""
+    K, dist, rvecs, tvecs = solve
+    camera = CameraIntrinsics(model, size[0], size[1], K, dist)
+    return [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
+            for v, r, t in zip(views, rvecs, tvecs, strict=True)]
+
+
 def _solve_rms(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
                solve: tuple) -> float:
     """Reprojection RMS (px) of ``views`` under an OpenCV ``solve`` (K, dist, rvecs, tvecs) of ``model``."""
-    K, dist, rvecs, tvecs = solve
-    camera = CameraIntrinsics(model, size[0], size[1], K, dist)
-    residuals = [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
-                 for v, r, t in zip(views, rvecs, tvecs, strict=True)]
-    return float(np.sqrt(np.mean(np.sum(np.concatenate(residuals) ** 2, axis=1))))
+    residuals = np.concatenate(_solve_residuals(views, board, size, model, solve))
+    return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
+
+
+def _kept_corners(detection: Detection, keep: np.ndarray) -> Detection:
+    """``detection`` with only the corners where ``keep`` (N,) is true (their refinements and markers too)."""
+    return replace(detection, corners_px=detection.corners_px[keep], ids=detection.ids[keep],
+                   refined={name: corners[keep] for name, corners in detection.refined.items()},
+                   marker_corners_px=None if detection.marker_corners_px is None else detection.marker_corners_px[keep])
+
+
+def _reject_corners(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                    progress: ProgressCallback) -> tuple[list[View], dict[str, RejectedCorners], tuple]:
+    """mrcal's outlier rejection, corner by corner: solve, drop every corner whose residual is longer than
+    :data:`CORNER_OUTLIER_SIGMAS` per-axis sigmas of the noise (all residuals', or its view's own where that is
+    larger), solve again, until none is (at most
+    :data:`MAX_REJECTION_ROUNDS`). A view that would lose more than :data:`MAX_REJECTED_SHARE` of its corners is
+    dropped whole instead. Returns the views kept (with their outlier corners taken out), what was rejected of each
+    view that lost any, and the last solve (K, dist, rvecs, tvecs) of the views kept."""
+    detected = {v.name: len(v.detection.ids) for v in views}
+    rejected: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    dropped: set[str] = set()
+    for round_index in range(MAX_REJECTION_ROUNDS if settings.reject_corners else 0):
+        _check_views(views, board)
+        solve = _calibrate(views, board, size, settings)
+        residuals = _solve_residuals(views, board, size, settings.model, solve)
+        noise_px = np.sqrt(np.mean(np.concatenate(residuals) ** 2))
+        lengths = [np.linalg.norm(r, axis=1) for r in residuals]
+        outliers = [length > CORNER_OUTLIER_SIGMAS * max(noise_px, np.median(length) / MEDIAN_RESIDUAL_SIGMAS)
+                    for length in lengths]
+        if not any(o.any() for o in outliers):
+            break
+        progress(0.1, f"rejecting outlier corners (round {round_index + 1}): {sum(map(np.sum, outliers))} beyond "
+                      f"{CORNER_OUTLIER_SIGMAS * noise_px:.2f} px or their view's noise")
+        kept = []
+        for view, residual, outlier in zip(views, residuals, outliers, strict=True):
+            if outlier.any():
+                rejected.setdefault(view.name, []).append(
+                    (view.detection.ids[outlier], view.detection.corners_px[outlier], residual[outlier]))
+                if sum(len(ids) for ids, _, _ in rejected[view.name]) > MAX_REJECTED_SHARE * detected[view.name]:
+                    dropped.add(view.name)
+                    continue
+                view = View(view.name, _kept_corners(view.detection, ~outlier))
+            kept.append(view)
+        views = kept
+    else:
+        _check_views(views, board)
+        solve = _calibrate(views, board, size, settings)
+    report = {name: RejectedCorners(np.concatenate([ids for ids, _, _ in parts]),
+                                    np.vstack([px for _, px, _ in parts]), np.vstack([r for _, _, r in parts]),
+                                    name in dropped)
+              for name, parts in rejected.items()}
+    return views, report, solve
 
 
 def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
@@ -549,22 +650,27 @@ def calibrate_intrinsics(
             raise InputError(f"{view.name} is {view.detection.image_size[0]}x{view.detection.image_size[1]} "
                              f"but the camera is {image_size[0]}x{image_size[1]}; all images must share one size",
                              view.name)
-    used = np.ones(len(views), bool)
     progress(0.05, "picking the corner set that fits better")
     _check_views(views, board)
     views, corners = _pick_corners(views, board, image_size, settings)
     views = _through_the_lens(views, board, image_size, settings)
     progress(0.1, f"solving {settings.model} from {len(views)} views")
+    kept, rejected, solve = _reject_corners(views, board, image_size, settings, progress)
+    kept_by_name = {v.name: v for v in kept}
+    views = [kept_by_name.get(v.name, v) for v in views]  # a view dropped whole keeps its corners, unused
+    used = np.array([v.name in kept_by_name for v in views])
     for attempt in range(2):
         active = [v for v, u in zip(views, used, strict=True) if u]
-        _check_views(active, board)
-        K, dist, rvecs, tvecs = _calibrate(active, board, image_size, settings)
+        if attempt:  # without the views flagged as outliers
+            _check_views(active, board)
+            solve = _calibrate(active, board, image_size, settings)
+        K, dist, rvecs, tvecs = solve
         camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
         progress(0.6 + 0.2 * attempt, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
         residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A)
         view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
-        outlier = view_rms > settings.outlier_factor * np.median(view_rms[used])
+        outlier = used & (view_rms > settings.outlier_factor * np.median(view_rms[used]))
         if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):
             break
         used = used & ~outlier
@@ -594,10 +700,13 @@ def calibrate_intrinsics(
                         if settings.cross_validate else {"status": "not made", "detail": "switched off"})
     all_res = np.concatenate([r for (r, _), u in zip(residuals, used, strict=True) if u])
     view_results = [
-        ViewResidual(v.name, bool(u), bool(o), float(rms), v.detection.ids, r, T)
+        ViewResidual(v.name, bool(u), bool(o), float(rms), v.detection.ids, r, T, rejected.get(v.name))
         for v, u, o, rms, (r, T) in zip(views, used, outlier, view_rms, residuals, strict=True)
     ]
     warnings = [f"{v.name}: reprojection RMS {v.rms_px:.2f} px is an outlier" for v in view_results if v.outlier]
+    warnings += [f"{v.name}: {len(v.rejected.ids)} of {len(v.ids)} corners were outliers, more than "
+                 f"{MAX_REJECTED_SHARE:.0%}: the view was dropped" for v in view_results
+                 if v.rejected is not None and v.rejected.view_dropped]
     correlation_names = [n for n, e in zip(names, estimated, strict=True) if e]
     model_report = None
     if settings.model == "photogrammetric":  # one principal distance c: fy is fx, and is left out of the tables

@@ -11,8 +11,10 @@ from backend.calib.board.detection import Detection, detect_board
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
+from backend.plots.intrinsics import residual_vectors
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
+from studio.wizard.intrinsics_step import parameters_markdown
 
 FISHEYE = CameraIntrinsics("fisheye-equidistant", 1280, 720,
                            np.array([[600.0, 0, 641.5], [0, 599.0, 359.2], [0, 0, 1]]), [0.05, -0.01, 0.004, -0.001])
@@ -75,6 +77,8 @@ def test_charuco_partial_views_are_used():
 
 @pytest.mark.slow
 def test_outlier_view_is_flagged_and_can_be_dropped():
+    """A view whose every corner is 1.5 px off (the others 0.05 px) is noisier as a whole, not a few bad corners: no
+    corner is rejected, it is flagged as an outlier view, and dropped on request."""
     views = rendered_views(PINHOLE, CHECKERBOARD, 12, seed=5)
     bad = views[4]
     noisy = bad.detection.corners_px + np.random.default_rng(0).normal(0, 1.5, bad.detection.corners_px.shape)
@@ -82,6 +86,7 @@ def test_outlier_view_is_flagged_and_can_be_dropped():
                                               refined={name: noisy for name in bad.detection.refined}))
 
     kept = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size)
+    assert kept.summary()["rejected_corners"] == 0
     flagged = [v.name for v in kept.views if v.outlier]
     assert flagged == [bad.name]
     assert all(v.used for v in kept.views)
@@ -94,3 +99,66 @@ def test_outlier_view_is_flagged_and_can_be_dropped():
     excluded = next(v for v in dropped.views if v.name == bad.name)
     assert excluded.rms_px > 1.0  # still reported against the re-solved model
     assert abs(dropped.camera.K[0, 0] - 900.0) < abs(kept.camera.K[0, 0] - 900.0) + 0.5
+
+
+def test_single_bad_corners_are_rejected_and_listed_per_view():
+    """Eight corners in four views moved by 2-4 px (a mis-detected corner, a speck of dust): each is rejected, named
+    by view and id with where it was and how far off, and the lens comes back as from the clean corners."""
+    views = rendered_views(PINHOLE, CHECKERBOARD, 12, seed=7)
+    clean = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size, IntrinsicsSettings(jackknife=False))
+    assert clean.summary()["rejected_corners"] == 0  # rendered corners: nothing beyond the noise
+    assert np.abs(clean.camera.K - PINHOLE.K).max() < 0.3
+    rng = np.random.default_rng(3)
+    moved: dict[str, set[int]] = {}
+    for index in (1, 4, 7, 10):
+        view = views[index]
+        picks = rng.choice(len(view.detection.ids), 2, replace=False)
+        shift = np.zeros_like(view.detection.corners_px)
+        shift[picks] = rng.uniform(2.0, 4.0, (2, 1)) * np.array([[0.6, 0.8]])
+        corners = view.detection.corners_px + shift
+        views[index] = View(view.name, Detection(corners, view.detection.ids, view.detection.image_size,
+                                                 refined={name: corners for name in view.detection.refined}))
+        moved[view.name] = set(view.detection.ids[picks].tolist())
+
+    result = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size, IntrinsicsSettings(jackknife=False))
+    found = {v.name: set(v.rejected.ids.tolist()) for v in result.views if v.rejected is not None}
+    assert found == moved
+    assert result.summary()["rejected_corners"] == 8 and result.summary()["views_dropped"] == []
+    assert all(v.used for v in result.views)
+    record = next(v for v in result.to_record()["views"] if v["image"] == views[1].name)["rejected"]
+    assert record["view_dropped"] is False and len(record["corners_px"]) == len(record["residuals_px"]) == 2
+    assert min(np.hypot(*np.array(record["residuals_px"]).T)) > 1.5
+    rejected_px = np.vstack([v.rejected.corners_px for v in result.views if v.rejected is not None])
+    used = [v for v in result.views if v.used]
+    residuals = np.vstack([v.residuals_px for v in used])
+    figure = residual_vectors(np.full_like(residuals, 100.0), residuals, np.zeros(len(residuals)), PINHOLE.image_size,
+                              rejected_px)  # the report's plot marks them
+    assert [t.get_text() for t in figure.axes[0].get_legend().get_texts()] == ["rejected (8)"]
+    listed = ", ".join(f"{name} 2" for name in sorted(moved))  # and the studio's panel lists them
+    assert f"Corners rejected as outliers: {listed}\n" in parameters_markdown(result.to_record())
+    unrejected = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size,
+                                      IntrinsicsSettings(jackknife=False, reject_corners=False))
+    assert unrejected.rms_px > 2 * result.rms_px
+    error_px, unrejected_error_px = (np.abs(r.camera.K - PINHOLE.K).max() for r in (result, unrejected))
+    assert error_px < 0.3 and error_px < unrejected_error_px, (error_px, unrejected_error_px)
+
+
+def test_a_view_that_would_lose_more_than_a_quarter_of_its_corners_is_dropped_and_named():
+    """A third of one view's corners 3 px off every which way (glare across the board): rather than keep two thirds
+    of a view, the view is dropped whole and named, and the others are solved as if it had not been taken. (A
+    coherent shift of a view is another matter: its pose takes it up, every corner looks alike, and the view-level
+    outlier flag speaks for it, as above.)"""
+    views = rendered_views(PINHOLE, CHECKERBOARD, 12, seed=7)
+    clean = calibrate_intrinsics(views[:3] + views[4:], CHECKERBOARD, PINHOLE.image_size,
+                                 IntrinsicsSettings(jackknife=False))
+    bad = views[3]
+    corners = bad.detection.corners_px.copy()
+    angles = np.random.default_rng(1).uniform(0.0, 2.0 * np.pi, len(corners[::3]))
+    corners[::3] += 3.0 * np.column_stack([np.cos(angles), np.sin(angles)])
+    views[3] = View(bad.name, Detection(corners, bad.detection.ids, bad.detection.image_size,
+                                        refined={name: corners for name in bad.detection.refined}))
+    result = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size, IntrinsicsSettings(jackknife=False))
+    assert result.summary()["views_dropped"] == [bad.name]
+    assert [v.name for v in result.views if not v.used] == [bad.name]
+    assert f"{bad.name}: " in " ".join(result.warnings) and "the view was dropped" in " ".join(result.warnings)
+    np.testing.assert_allclose(result.camera.K, clean.camera.K, atol=1e-6)

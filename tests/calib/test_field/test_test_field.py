@@ -53,7 +53,11 @@ def test_photogrammetric_intrinsics_from_the_wall(wall, tmp_path: Path):
     out = tmp_path / "camera.json"
     summary = _json(cli_in_process("intrinsics", images, "--board", spec, "--model", "photogrammetric",
                                    "--pixel-size-um", PIXEL_SIZE_UM, "--out", out, "--json"))
-    assert summary["rms_px"] < 0.3 and sum(v["used"] for v in summary["views"]) == 12
+    assert summary["rms_px"] < 0.3
+    # markers whose centres render off their own view's noise (steep, blurred) are rejected as mrcal would: 40 on
+    # this wall; wall_10 would lose more than a quarter of its markers, so it is dropped whole, and named
+    used = [v["image"] for v in summary["views"] if v["used"]]
+    assert len(used) >= 11 and sorted(used + summary["views_dropped"]) == sorted(v["image"] for v in summary["views"])
     parameters = summary["photogrammetric"]["parameters"]
     truth = dict(zip(["c", "xp", "yp", "K1", "K2", "K3", "P1", "P2", "A1", "A2"],
                      [CAMERA.K[0, 0], CAMERA.K[0, 2], CAMERA.K[1, 2], *CAMERA.dist], strict=True))
