@@ -16,6 +16,7 @@ holds the same sensors' other captures, taken with the board held still, which s
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import threading
 import time
 from collections.abc import Sequence
@@ -36,6 +37,9 @@ MAX_HZ = 15.0
 MAX_DURATION_S = 60.0
 """Longest recording (s): 60 s at 15 Hz is 900 captures a sensor, about 250 MB of the demo's 720p images and 400 MB
 of its 16-beam scans (10 s took 41 and 70 MB); lining clocks up needs 10-20 s of motion."""
+BYTES_PER_SAMPLE = 1_000_000
+"""Disk a stored sample may take, at most about (bytes): a 720p PNG is 0.4 MB, a 16-beam scan 0.44 MB, a 1080p
+frame or a 128-beam scan about 1 MB."""
 OPEN_TIMEOUT_S = 60.0
 """Longest wait (s) for every device's first sample before the recording's clock starts."""
 PROGRESS_PERIOD_S = 0.25
@@ -105,6 +109,12 @@ def check_recording(session: Session, sensors: Sequence[str], duration_s: float)
                              "IMU is recorded in step 10)", sensor)
         if not frame.device:
             raise InputError(f"{sensor} has no capture device: set one in the sensors step", sensor)
+    needed = duration_s * MAX_HZ * len(sensors) * BYTES_PER_SAMPLE
+    free = shutil.disk_usage(session.path).free
+    if free < needed:
+        raise InputError(f"recording {len(sensors)} sensor(s) for {duration_s:g} s may take {needed / 1e9:.1f} GB "
+                         f"but the session's disk has {free / 1e9:.1f} GB free: record for less, or free space first",
+                         "duration_s")
 
 
 def record_motion(session: Session, sensors: Sequence[str], duration_s: float,

@@ -8,6 +8,8 @@ recording alone finds the LiDAR's clock (the session's other captures, of the bo
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
 from fastapi.testclient import TestClient
 
@@ -118,3 +120,16 @@ def test_a_device_that_fails_ends_the_recording_and_says_so(store) -> None:
     with pytest.raises(InputError, match=r"recording rec-\S+ stopped: cam_spare: simulated no_such_camera: no "
                                          r"simulated camera named 'no_such_camera'.*the captures it stored are kept"):
         motion_recording.record_motion(session, ["cam_spare"], 5.0)
+
+
+def test_a_recording_the_disk_cannot_hold_is_refused_before_it_starts(client: TestClient, store, monkeypatch) -> None:
+    free = shutil.disk_usage(store.get("clocks").path).free
+    needed = 10.0 * motion_recording.MAX_HZ * 2 * motion_recording.BYTES_PER_SAMPLE
+    usage = shutil.disk_usage
+    monkeypatch.setattr(motion_recording.shutil, "disk_usage", lambda path: usage(path)._replace(free=int(needed) - 1))
+    answer = client.post(f"{SESSION}/recordings", json={"sensors": ["cam_front", "lidar_top"], "duration_s": 10})
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["error"] == {"message": "recording 2 sensor(s) for 10 s may take 0.3 GB but the session's "
+                                                 "disk has 0.3 GB free: record for less, or free space first",
+                                      "input": "duration_s"}
+    assert free > needed  # the real disk would have held it
