@@ -15,7 +15,9 @@ Solves:
 - ``ours``: :func:`calibrate_intrinsics` with ``pinhole-radtan`` and k3 (mrcal's ``LENSMODEL_OPENCV5``), free
   aspect as mrcal has it, the default jackknife and corner rejection on, cross-validation off (it does not change
   the sigma).
-  ``projection_sigma_analytic_px`` is the same solve's with the jackknife off: the Jacobian's sigma alone.
+  ``projection_sigma_analytic_px`` is the same solve's with the jackknife off: the Jacobian's sigma alone, the
+  intrinsics' covariance propagated; ``projection_sigma_noise_model_px`` the same solve's mrcal way (the camera
+  free to turn against the boards, ``projection_uncertainty["noise_model"]``), reported beside, not yet judged.
 - mrcal, through Debian's ``mrcal-calibrate-cameras`` (the studio's venv cannot import mrcal), three ways:
   ``a_opencv5_plain``: ``LENSMODEL_OPENCV5`` with no board flex, no outlier rejection and no regularization, the
   closest mrcal gets to the studio's solve; ``b_opencv5_flex_outliers``: the same model mrcal's default way,
@@ -176,6 +178,8 @@ def ours(views: list[View], board: BoardSpec, size: tuple[int, int]):
                "corners_rejected": result.summary()["rejected_corners"],
                "projection_sigma_px": sigma_figures(result.projection_uncertainty, inverted),
                "projection_sigma_analytic_px": sigma_figures(analytic.projection_uncertainty, inverted),
+               "projection_sigma_noise_model_px": sigma_figures(analytic.projection_uncertainty["noise_model"],
+                                                                inverted),
                "grid_cells_not_inverted": int(np.count_nonzero(~inverted)),
                "camera": result.camera.to_dict(), "seconds": result.seconds}
     return result, figures
@@ -235,7 +239,8 @@ def ratios(our_figures: dict, mrcal: dict) -> dict:
         if "rms_px" not in theirs:
             continue
         result[solve] = {"rms_px": our_figures["rms_px"] / theirs["rms_px"]}
-        for label, sigma in (("sigma", "projection_sigma_px"), ("sigma_analytic", "projection_sigma_analytic_px")):
+        for label, sigma in (("sigma", "projection_sigma_px"), ("sigma_analytic", "projection_sigma_analytic_px"),
+                             ("sigma_noise_model", "projection_sigma_noise_model_px")):
             result[solve][f"{label}_centre"] = our_figures[sigma]["centre"] / theirs["projection_sigma_px"]["centre"]
             result[solve][f"{label}_worst"] = (our_figures[sigma]["worst_where_inverted"]
                                                / theirs["projection_sigma_px"]["worst"])

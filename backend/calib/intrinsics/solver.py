@@ -44,7 +44,7 @@ from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.core.markers import marker_centres
 from backend.core.result import ProgressCallback, SolveResult, jackknife_std, no_progress
-from backend.core.transforms import from_rvec_tvec, to_rvec_tvec
+from backend.core.transforms import from_rvec_tvec, skew, to_rvec_tvec
 from backend.core.uncertainty import sigmas
 from backend.core.verdict import Verdict
 
@@ -539,6 +539,45 @@ def _projection_uncertainty(camera: CameraIntrinsics, cov_intrinsics: np.ndarray
     }
 
 
+def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """SO(3)'s left Jacobian at the rotation vector ``rvec`` (rad): a change ``d`` of the rotation vector turns the
+    rotation by ``J_l(rvec) d`` (rad) about the axes it maps into, ``R(rvec + d) = exp(J_l d) R(rvec)``."""
+    phi = np.asarray(rvec, float).ravel()
+    theta = float(np.linalg.norm(phi))
+    K = skew(phi[None])[0]
+    if theta < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + (1.0 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
+
+
+def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np.ndarray, rvecs) -> dict[str, Any]:
+    """mrcal's projection uncertainty at infinity: the 1-sigma (worst direction, px) of where a far point seen at
+    each grid cell projects, with the point tied to the boards, not to the camera.
+
+    The camera's frame is defined by nothing but the boards' poses, so a perturbed solve may turn the camera
+    against them; a far point fixed to the boards then turns with their mean rotation: ``v' = v + mean_i(dphi_i) x
+    v`` with ``dphi_i = J_l(rvec_i) drvec_i`` each used view's change of rotation in the camera's axes
+    (:func:`_left_jacobian`). With the intrinsics' change, the projection's Jacobian spans the free intrinsics and
+    every used view's rotation, and ``cov_all`` (:func:`_covariance`, the poses marginalised by taking its block)
+    propagates through it. The principal point's sigma, which such a turn takes up, then no longer counts against
+    the centre, as it does when the intrinsics alone are propagated (:func:`_projection_uncertainty`).
+    """
+    cols, rows = UNCERTAINTY_GRID
+    xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
+    _, J = _project(camera, np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3))
+    J = J.reshape(len(xy), 2, -1)
+    n_free = A.shape[1]
+    full = np.zeros((len(xy), 2, cov_all.shape[0]))
+    full[:, :, :n_free] = J[:, :, 6:] @ A
+    for i, rvec in enumerate(rvecs):  # J[..., :3]: d(projection)/d(a turn of the point about the camera's origin)
+        full[:, :, n_free + 6 * i: n_free + 6 * i + 3] = J[:, :, :3] @ _left_jacobian(rvec) / len(rvecs)
+    cov_uv = full @ cov_all @ full.transpose(0, 2, 1)
+    worst = np.sqrt(np.clip(np.linalg.eigvalsh(cov_uv)[:, -1], 0, None)).reshape(rows, cols)
+    return {"grid": [cols, rows], "sigma_px": np.round(worst, 5).tolist(), "mean_px": float(worst.mean()),
+            "max_px": float(worst.max()), "centre_px": float(worst[rows // 2, cols // 2]), "range": "infinity",
+            "method": "noise model, the camera free to turn against the boards (mrcal's)"}
+
+
 def worst_projection_sigma_px(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> float:
     """The largest 1-sigma (px) across the image of projecting a far point, from the covariance of
     [fx, fy, cx, cy, dist...] (:func:`_projection_uncertainty`'s ``max_px``)."""
@@ -694,6 +733,7 @@ def calibrate_intrinsics(
     std_all = np.where(estimated, np.maximum(std_all, std_jackknife), 0.0)
     cov = np.outer(std_all, std_all) * _embed(correlation, estimated)
     projection = _projection_uncertainty(camera, cov)
+    projection["noise_model"] = _noise_model_projection(camera, cov_all, A, rvecs)  # reported beside, not judged
     progress(0.92, "cross-validating: solving each half of the views")
     cross_validation = (_cross_validate(active, board, image_size, replace(settings, jackknife=False),
                                         projection["max_px"] / max(analytic_max_px, 1e-12))
