@@ -280,10 +280,16 @@ offset against the rig's clock (ms, 1-sigma), where one was measured and accepte
 <tr><th>Result</th><td>{{ c.result_id }}, solved {{ r.created | utc }} in {{ r.seconds | fixed(2) }} s</td></tr>
 <tr><th>Model</th><td>{{ r.camera.model }}, {{ r.camera.width }}×{{ r.camera.height }} px, board {{ r.board }}</td></tr>
 <tr><th>Data</th><td>{{ c.views | selectattr("used") | list | length }} of {{ r.views | length }} views used,
-  {{ c.n_corners }} corners (set {{ r.corners.chosen if r.corners else "—" }})</td></tr>
+  {{ c.n_corners }} corners (set {{ r.corners.chosen if r.corners else "—" }}){% if r.rejected_corners is defined %},
+  {{ r.rejected_corners }} rejected as outliers{% if r.views_dropped %} (views dropped:
+  {{ r.views_dropped | join(", ") }}){% endif %}{% endif %}</td></tr>
 <tr><th>Reprojection RMS</th><td>{{ r.rms_px | fixed(4) }} px</td></tr>
 <tr><th>Projection sigma across the image</th><td>max {{ r.projection_sigma_px.max | fixed(3) }} px, mean
   {{ r.projection_sigma_px.mean | fixed(3) }} px, centre {{ r.projection_sigma_px.centre | fixed(3) }} px</td></tr>
+{% if r.projection_uncertainty.noise_model %}<tr><th>Noise-model sigma (mrcal's, not judged)</th><td>max
+  {{ r.projection_uncertainty.noise_model.max_px | fixed(3) }} px, centre
+  {{ r.projection_uncertainty.noise_model.centre_px | fixed(3) }} px: the camera free to turn against the
+  boards</td></tr>{% endif %}
 <tr><th>Cross-validation</th><td>{{ r.cross_validation.status }}: {{ r.cross_validation.detail }}</td></tr>
 {% if r.model_comparison %}<tr><th>Model comparison</th><td>{{ r.model_comparison.recommended }}:
   {{ r.model_comparison.reason }}</td></tr>{% endif %}

@@ -106,6 +106,9 @@ def test_intrinsics_section_holds_the_accepted_numbers(session: Session, html: s
     assert f"{fixed(record['rms_px'], 4)} px" in text
     assert number(record["camera"]["K"][0][0], 6) in text and number(record["std"]["fx"], 3) in text
     assert f"max {fixed(record['projection_sigma_px']['max'], 3)} px" in text
+    assert f"{record['rejected_corners']} rejected as outliers" in text
+    noise_model = record["projection_uncertainty"]["noise_model"]
+    assert f"centre {fixed(noise_model['centre_px'], 3)} px: the camera free to turn" in " ".join(text.split())
     assert record["cross_validation"]["status"] in text
     assert f'badge {record["verdict"]["level"]}' in text
     for reason in record["verdict"]["reasons"]:
