@@ -42,6 +42,9 @@ BYTES_PER_SAMPLE = 1_000_000
 frame or a 128-beam scan about 1 MB."""
 OPEN_TIMEOUT_S = 60.0
 """Longest wait (s) for every device's first sample before the recording's clock starts."""
+MIN_RATE_HZ = 5.0
+"""Fewest captures a second and sensor a board carried at a walking pace, turned to and fro, is followed by: a
+recording slower than this (a busy machine, a slow device) is said to be, and the offset's sigma shows the cost."""
 PROGRESS_PERIOD_S = 0.25
 """How often the recording's progress is reported (s)."""
 
@@ -56,6 +59,12 @@ class Recording:
     missed: dict[str, int]
     """Camera frames per camera where the board was not found (not stored)."""
     duration_s: float
+    rates_hz: dict[str, float]
+    """Captures stored a second per sensor over the recording's duration."""
+
+    def slow(self) -> list[str]:
+        """The sensors stored at fewer than :data:`MIN_RATE_HZ` captures a second."""
+        return [sensor for sensor, rate in self.rates_hz.items() if rate < MIN_RATE_HZ]
 
 
 class MotionRecorder(SensorStream):
@@ -143,10 +152,11 @@ def record_motion(session: Session, sensors: Sequence[str], duration_s: float,
         silent = [stream.sensor for stream in streams if not stream.frames_seen]
         if silent and not errors:
             errors.append(f"{', '.join(silent)} sent nothing within {OPEN_TIMEOUT_S:g} s")
-        started = time.monotonic()
+        started, stored_before = time.monotonic(), {s.sensor: s.stored for s in streams}
         while not errors and (elapsed := time.monotonic() - started) < duration_s:
             progress(elapsed / duration_s, f"recording {name}: " + ", ".join(
-                f"{s.sensor} {s.stored}" + (f" ({s.missed} without the board)" if s.missed else "") for s in streams))
+                f"{s.sensor} {s.stored} ({s.rate_hz:.0f}/s)" + (f", {s.missed} without the board" if s.missed else "")
+                for s in streams))
             failed.wait(min(PROGRESS_PERIOD_S, max(0.0, duration_s - elapsed)))
     finally:
         for stream in streams:
@@ -154,4 +164,4 @@ def record_motion(session: Session, sensors: Sequence[str], duration_s: float,
     if errors:
         raise InputError(f"recording {name} stopped: {errors[0]}; the captures it stored are kept", name)
     return Recording(name, {s.sensor: s.stored for s in streams}, {s.sensor: s.missed for s in streams if s.is_camera},
-                     duration_s)
+                     duration_s, {s.sensor: (s.stored - stored_before[s.sensor]) / duration_s for s in streams})

@@ -134,8 +134,13 @@ class TimeOffsetStep:
     def _recorded(self, recording: motion_recording.Recording) -> None:
         self._list_recordings(recording.name)
         missed = "".join(f"; {camera}: {n} frame(s) without the board" for camera, n in recording.missed.items() if n)
+        slow = recording.slow()
+        advice = (f" Slow: {', '.join(f'{sensor} {recording.rates_hz[sensor]:.1f}/s' for sensor in slow)}, under "
+                  f"{motion_recording.MIN_RATE_HZ:g}/s (a busy machine or a slow device): the offset's σ will show "
+                  "what that costs; record again with less running." if slow else "")
         self.ctx.notify("Recorded", f"{recording.name}: " + ", ".join(
-            f"{sensor} {n} capture(s)" for sensor, n in recording.stored.items()) + missed + ". Measure it now.")
+            f"{sensor} {n} capture(s)" for sensor, n in recording.stored.items()) + missed + ". Measure it now."
+            + advice, error=bool(slow))
 
     def _show_clocks(self) -> None:
         self.clocks_text.content = clocks_markdown(self.ctx.session.rig)

@@ -69,6 +69,8 @@ def test_both_sensors_recorded_every_frame_as_one_recording(client: TestClient, 
     session = store.get("clocks")
     assert recorded["duration_s"] == RECORD_S
     assert recorded["stored"]["cam_front"] >= 20 and recorded["stored"]["lidar_top"] >= 20, recorded
+    for sensor, rate in recorded["rates_hz"].items():  # captures a second over the duration, at most the cap
+        assert 0 < rate <= motion_recording.MAX_HZ * 1.1 and rate * RECORD_S <= recorded["stored"][sensor] + 1
     for sensor in ("cam_front", "lidar_top"):
         tagged = [c for c in session.captures(sensor) if c.meta.get("recording") == recorded["name"]]
         assert len(tagged) == recorded["stored"][sensor]
@@ -133,3 +135,8 @@ def test_a_recording_the_disk_cannot_hold_is_refused_before_it_starts(client: Te
                                                  "disk has 0.3 GB free: record for less, or free space first",
                                       "input": "duration_s"}
     assert free > needed  # the real disk would have held it
+
+
+def test_a_slow_recording_is_named_by_its_sensors():
+    slow = motion_recording.Recording("rec-1", {"cam": 20, "lidar": 90}, {"cam": 0}, 10.0, {"cam": 2.0, "lidar": 9.0})
+    assert slow.slow() == ["cam"]

@@ -13,6 +13,7 @@ from backend.devices.base import Sample
 from backend.plots.render import to_rgb
 from backend.plots.time_offset import aligned_signals
 from backend.services.demo import BOARD_MOTIONS, move_simulated_board, simulated_board_motion
+from backend.services.motion_recording import Recording
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.moving_board import CAMERA, simulate_moving_board
 from backend.store.session import SessionStore
@@ -85,3 +86,10 @@ def test_the_simulated_board_is_carried_for_clocks_and_held_again_for_pairs(tmp_
         assert not move_board(app.ctx, "lidar_top", "carried")  # not a simulated camera: said, nothing moved
         title, body = notes[-1]
         assert title == "Cannot move the simulated board" and "lidar_top is not a simulated camera" in body
+
+        clocks._recorded(Recording("rec-20261206-120000", {"cam_front": 30, "lidar_top": 140}, {"cam_front": 2}, 10.0,
+                                   {"cam_front": 3.0, "lidar_top": 14.0}))  # what a busy machine records
+        title, body = notes[-1]
+        assert title == "Recorded" and body.startswith("rec-20261206-120000: cam_front 30 capture(s), lidar_top 140 "
+                                                       "capture(s); cam_front: 2 frame(s) without the board.")
+        assert "Slow: cam_front 3.0/s, under 5/s" in body and "lidar_top 14" not in body.split("Slow:")[1]

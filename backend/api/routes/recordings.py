@@ -62,7 +62,8 @@ class MotionRecordingRequest(BaseModel):
 def record_motion(body: MotionRecordingRequest, session: deps.SessionDep, jobs: deps.JobsDep) -> dict[str, Any]:
     """Record the sensors together, every frame, in the background (a board carried through their views, for
     their time offset); the job's ``summary`` has the recording's ``name`` (``recording`` of a time-offset
-    request), the captures ``stored`` and the camera frames ``missed`` (no board) per sensor, and ``duration_s``."""
+    request), the captures ``stored``, the camera frames ``missed`` (no board) and the captures a second
+    ``rates_hz`` per sensor, and ``duration_s``."""
     motion_recording.check_recording(session, body.sensors, body.duration_s)  # fail fast, before queueing
     job = jobs.submit(f"recording {', '.join(body.sensors)}", lambda progress: dataclasses.asdict(
         motion_recording.record_motion(session, body.sensors, body.duration_s, progress)))
