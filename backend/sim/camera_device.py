@@ -26,7 +26,7 @@ from backend.core.errors import InputError
 from backend.devices.base import CaptureDevice, DeviceError, Sample
 from backend.sim.board_motion import covering_poses
 from backend.sim.board_renderer import render_board_image
-from backend.sim.carried_board import carried_board_pose
+from backend.sim.carried_board import yard_board_pose
 from backend.sim.demo_rig import DEMO_BOARD, demo_rig
 from backend.sim.lidar_scene import moving_board_poses, robot_place
 from backend.sim.scene_camera import clean_yard_image
@@ -153,12 +153,8 @@ class SimulatedCamera(CaptureDevice):
             image = render_board_image(self._intrinsics, self._board_spec, T_camera_board, rng)
             meta = {}
         else:
-            if self.board_carry_s > 0:
-                pose_index, T_base_board = carried_board_pose(self._T_base_boards, exposed_s, self.board_hold_s,
-                                                              self.board_carry_s)
-            else:
-                pose_index = held_pose_index(index, self.n_poses, self.board_hold_s)
-                T_base_board = self._T_base_boards[pose_index]
+            pose_index, T_base_board = yard_board_pose(self._T_base_boards, index, exposed_s, self.board_hold_s,
+                                                       self.board_carry_s)
             T_camera_board = np.linalg.inv(self._T_base_camera) @ T_base_board
             image = self._yard_image(T_base_board, rng)
             meta = {"T_base_board": T_base_board.tolist(), "place": self.place}

@@ -20,6 +20,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from backend.sim.timing import held_pose_index
+
 SWAY_DEG = 20.0
 """Amplitude (deg) of the to-and-fro turn about the board's vertical (its y axis) during each carry."""
 
@@ -45,3 +47,14 @@ def carried_board_pose(poses: Sequence[np.ndarray], t_s: float, hold_s: float, c
     T[:3, :3] = (Slerp([0.0, 1.0], Rotation.from_matrix([T_from[:3, :3], T_to[:3, :3]]))(way) * sway).as_matrix()
     T[:3, 3] = (1.0 - way) * T_from[:3, 3] + way * T_to[:3, 3]
     return index, T
+
+
+def yard_board_pose(poses: Sequence[np.ndarray], frame_index: int, t_s: float, hold_s: float, carry_s: float
+                    ) -> tuple[int, np.ndarray]:
+    """Where a simulated device's frame ``frame_index``, read at wall-clock ``t_s`` (s), sees the yard's board: the
+    index of its pose and ``T_base_board``; carried between the poses when ``carry_s > 0``
+    (:func:`carried_board_pose`), else at one of them (:func:`~backend.sim.timing.held_pose_index`)."""
+    if carry_s > 0:
+        return carried_board_pose(poses, t_s, hold_s, carry_s)
+    index = held_pose_index(frame_index, len(poses), hold_s)
+    return index, np.asarray(poses[index], float)

@@ -17,10 +17,10 @@ import time
 import numpy as np
 
 from backend.devices.base import CaptureDevice, DeviceError, Sample
-from backend.sim.carried_board import carried_board_pose
+from backend.sim.carried_board import yard_board_pose
 from backend.sim.demo_rig import demo_rig
 from backend.sim.lidar_scene import LidarScan, LidarScene, default_board_pose, moving_board_poses, robot_place
-from backend.sim.timing import SimulatedTiming, held_pose_index
+from backend.sim.timing import SimulatedTiming
 
 
 class SimulatedLidar(CaptureDevice):
@@ -130,14 +130,10 @@ class SimulatedLidar(CaptureDevice):
             raise DeviceError("read() before open()", self.describe())
         index = self._timing.next_frame(self.describe())
         scanned_s = time.time()
-        if self.board_carry_s > 0:
-            pose_index, T_base_board = carried_board_pose(self._poses, scanned_s, self.board_hold_s,
-                                                          self.board_carry_s)
-            scan = self.scan(index, T_base_board=T_base_board)
-        else:
-            pose_index = held_pose_index(index, len(self._poses), self.board_hold_s)
-            T_base_board = self._poses[pose_index]
-            scan = self.scan(index, pose_index)
+        pose_index, T_base_board = yard_board_pose(self._poses, index, scanned_s, self.board_hold_s,
+                                                   self.board_carry_s)
+        # a held pose's scene is cached; a carried board's stands where it is for this scan alone
+        scan = self.scan(index, T_base_board=T_base_board) if self.board_carry_s > 0 else self.scan(index, pose_index)
         meta = {
             "frame_index": index,
             "board_pose_index": pose_index,

@@ -515,28 +515,32 @@ def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics
     return jackknife_std(np.array(estimates))
 
 
+def _far_point_jacobians(camera: CameraIntrinsics) -> np.ndarray:
+    """(cells, 2, 6 + intrinsics) Jacobian of projecting the far point each :data:`UNCERTAINTY_GRID` cell sees, in
+    :func:`_project`'s column order: a turn of the point about the camera's origin (3), a shift (3), the
+    intrinsics."""
+    xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
+    _, J = _project(camera, np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3))
+    return J.reshape(len(xy), 2, -1)
+
+
+def _sigma_grid(J: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+    """The worst-direction 1-sigma (px) of each grid cell's projection, ``J`` (cells, 2, P) of parameters with
+    covariance ``cov`` (P, P), over the grid, its mean, worst and centre."""
+    cols, rows = UNCERTAINTY_GRID
+    cov_uv = J @ cov @ J.transpose(0, 2, 1)
+    worst = np.sqrt(np.clip(np.linalg.eigvalsh(cov_uv)[:, -1], 0, None)).reshape(rows, cols)
+    return {"grid": [cols, rows], "sigma_px": np.round(worst, 5).tolist(), "mean_px": float(worst.mean()),
+            "max_px": float(worst.max()), "centre_px": float(worst[rows // 2, cols // 2]), "range": "infinity"}
+
+
 def _projection_uncertainty(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> dict[str, Any]:
     """1-sigma (worst direction) error in pixels of projecting a far-away point, across the image.
 
     Only the intrinsics' uncertainty is propagated (points at infinity, so the board
     poses drop out), like mrcal's ``show-projection-uncertainty`` at infinite range.
     """
-    cols, rows = UNCERTAINTY_GRID
-    xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
-    points = np.column_stack([xy, np.ones(len(xy))])
-    _, J = _project(camera, points, np.zeros(3), np.zeros(3))
-    J_intr = J[:, 6:].reshape(len(points), 2, -1)
-    cov_uv = J_intr @ cov_intrinsics @ J_intr.transpose(0, 2, 1)
-    worst = np.sqrt(np.clip(np.linalg.eigvalsh(cov_uv)[:, -1], 0, None)).reshape(rows, cols)
-    centre = np.sqrt(max(np.linalg.eigvalsh(J_intr[0:1] @ cov_intrinsics @ J_intr[0:1].transpose(0, 2, 1))[0, -1], 0))
-    return {
-        "grid": [cols, rows],
-        "sigma_px": np.round(worst, 5).tolist(),
-        "mean_px": float(worst.mean()),
-        "max_px": float(worst.max()),
-        "centre_px": float(worst[rows // 2, cols // 2]) if rows and cols else float(centre),
-        "range": "infinity",
-    }
+    return _sigma_grid(_far_point_jacobians(camera)[:, :, 6:], cov_intrinsics)
 
 
 def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
@@ -562,20 +566,13 @@ def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np
     propagates through it. The principal point's sigma, which such a turn takes up, then no longer counts against
     the centre, as it does when the intrinsics alone are propagated (:func:`_projection_uncertainty`).
     """
-    cols, rows = UNCERTAINTY_GRID
-    xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
-    _, J = _project(camera, np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3))
-    J = J.reshape(len(xy), 2, -1)
+    J = _far_point_jacobians(camera)
     n_free = A.shape[1]
-    full = np.zeros((len(xy), 2, cov_all.shape[0]))
+    full = np.zeros((len(J), 2, cov_all.shape[0]))
     full[:, :, :n_free] = J[:, :, 6:] @ A
     for i, rvec in enumerate(rvecs):  # J[..., :3]: d(projection)/d(a turn of the point about the camera's origin)
         full[:, :, n_free + 6 * i: n_free + 6 * i + 3] = J[:, :, :3] @ _left_jacobian(rvec) / len(rvecs)
-    cov_uv = full @ cov_all @ full.transpose(0, 2, 1)
-    worst = np.sqrt(np.clip(np.linalg.eigvalsh(cov_uv)[:, -1], 0, None)).reshape(rows, cols)
-    return {"grid": [cols, rows], "sigma_px": np.round(worst, 5).tolist(), "mean_px": float(worst.mean()),
-            "max_px": float(worst.max()), "centre_px": float(worst[rows // 2, cols // 2]), "range": "infinity",
-            "method": "noise model, the camera free to turn against the boards (mrcal's)"}
+    return _sigma_grid(full, cov_all) | {"method": "noise model, the camera free to turn against the boards (mrcal's)"}
 
 
 def worst_projection_sigma_px(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> float:

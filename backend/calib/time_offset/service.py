@@ -148,15 +148,26 @@ def signals(session: Session, sensor_a: str, sensor_b: str, progress: ProgressCa
     scans = [session.capture_cloud(sensor_b, c.id)[0] for c in captures]
     scan_t_s = np.array([c.timestamp_s for c in captures])
     T_camera_lidar = session.rig.T_a_b(sensor_a, sensor_b)
-    board = session_plane_board(session, "a time offset")
-    if session.rig.get(sensor_b).kind == "lidar2d":
-        if any(len(points) for points in scans) and not planar_scans(scans, sensor_b):
-            raise InputError(f"{sensor_b} is a 2D scanner (lidar2d) but its captures hold points off its scan plane "
-                             "(z != 0); if it is a 3D LiDAR, set its kind to lidar3d", sensor_b)
-        return scan_line_signals(sensor_a, sensor_b, board, scan_t_s, scans, t_a, T_a_board, T_camera_lidar,
+    planar = session.rig.get(sensor_b).kind == "lidar2d"
+    if planar and any(len(points) for points in scans) and not planar_scans(scans, sensor_b):
+        raise InputError(f"{sensor_b} is a 2D scanner (lidar2d) but its captures hold points off its scan plane "
+                         "(z != 0); if it is a 3D LiDAR, set its kind to lidar3d", sensor_b)
+    return _camera_lidar_signals((sensor_a, sensor_b), session_plane_board(session, "a time offset"), t_a, T_a_board,
+                                 scan_t_s, scans, T_camera_lidar, planar, max_offset_s, progress)
+
+
+def _camera_lidar_signals(names: tuple[str, str], board: BoardSpec, camera_t_s: np.ndarray,
+                          T_camera_boards: np.ndarray, scan_t_s: np.ndarray, scans: list[np.ndarray],
+                          T_camera_lidar: np.ndarray, planar: bool, max_offset_s: float,
+                          progress: ProgressCallback) -> tuple[MotionSignal, MotionSignal]:
+    """A camera's and a LiDAR's signals (``names``: theirs) from the camera's board poses and the LiDAR's scans: the
+    board's line in the scan plane for a 2D scanner (``planar``, its sweep fitted with offsets within
+    ``±max_offset_s``), else the board's normal."""
+    if planar:
+        return scan_line_signals(*names, board, scan_t_s, scans, camera_t_s, T_camera_boards, T_camera_lidar,
                                  max_offset_s, progress)
-    lidar = lidar_signal(sensor_b, board, scan_t_s, scans, t_a, T_a_board, T_camera_lidar, progress)
-    return board_normal_signal(sensor_a, t_a, T_a_board), lidar
+    return (board_normal_signal(names[0], camera_t_s, T_camera_boards),
+            lidar_signal(names[1], board, scan_t_s, scans, camera_t_s, T_camera_boards, T_camera_lidar, progress))
 
 
 def solve_files(camera_path: Path, corners: Path, scans: Path, board: str, T_camera_lidar: np.ndarray,
@@ -180,13 +191,9 @@ def solve_files(camera_path: Path, corners: Path, scans: Path, board: str, T_cam
     if len(times) < 2:
         raise InputError(f"the board's pose was found in {len(times)} frame(s)", str(corners))
     scan_times, clouds = read_scan_folder(scans)
-    if planar_scans(clouds, str(scans)):
-        a, b = scan_line_signals("camera", "lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
-                                 (search or TimeOffsetSettings()).max_offset_s, lambda f, m: progress(0.3 + 0.5 * f, m))
-    else:
-        a = board_normal_signal("camera", times, poses)
-        b = lidar_signal("lidar", spec, scan_times, clouds, times, poses, T_camera_lidar,
-                         lambda f, m: progress(0.3 + 0.5 * f, m))
+    a, b = _camera_lidar_signals(("camera", "lidar"), spec, times, poses, scan_times, clouds, T_camera_lidar,
+                                 planar_scans(clouds, str(scans)), (search or TimeOffsetSettings()).max_offset_s,
+                                 lambda f, m: progress(0.3 + 0.5 * f, m))
     return solve_time_offset(a, b, search, lambda f, m: progress(0.8 + 0.2 * f, m))
 
 
