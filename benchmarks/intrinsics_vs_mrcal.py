@@ -13,11 +13,10 @@ landing on the studio's RMS (ratio ~1) is the check that the order is right.
 Solves:
 
 - ``ours``: :func:`calibrate_intrinsics` with ``pinhole-radtan`` and k3 (mrcal's ``LENSMODEL_OPENCV5``), free
-  aspect as mrcal has it, the default jackknife and corner rejection on, cross-validation off (it does not change
-  the sigma).
-  ``projection_sigma_analytic_px`` is the same solve's with the jackknife off: the Jacobian's sigma alone, the
-  intrinsics' covariance propagated; ``projection_sigma_noise_model_px`` the same solve's mrcal way (the camera
-  free to turn against the boards, ``projection_uncertainty["noise_model"]``), reported beside, not yet judged.
+  aspect as mrcal has it, the defaults otherwise (the board's flex solved, corner rejection and the jackknife on),
+  cross-validation off (it does not change the sigma). Its ``projection_sigma_px`` is the result's, mrcal's way
+  (the camera free to turn against the boards); ``jackknife_projection_max_px`` the jackknife's (the intrinsics
+  alone propagated), reported beside it as a cross-check; ``flat`` the same solve with the board held flat.
 - mrcal, through Debian's ``mrcal-calibrate-cameras`` (the studio's venv cannot import mrcal), three ways:
   ``a_opencv5_plain``: ``LENSMODEL_OPENCV5`` with no board flex, no outlier rejection and no regularization, the
   closest mrcal gets to the studio's solve; ``b_opencv5_flex_outliers``: the same model mrcal's default way,
@@ -169,17 +168,19 @@ def sigma_figures(projection_uncertainty: dict, inverted: np.ndarray) -> dict:
 
 
 def ours(views: list[View], board: BoardSpec, size: tuple[int, int]):
-    """The studio's solve as reported (jackknife on) and its analytic sigma; returns (result, figures)."""
+    """The studio's solve as reported, and the same with the board flat; returns (result, figures)."""
     settings = IntrinsicsSettings(estimate_k3=True, cross_validate=False)
     result = calibrate_intrinsics(views, board, size, settings)
-    analytic = calibrate_intrinsics(views, board, size, replace(settings, jackknife=False))
+    flat = calibrate_intrinsics(views, board, size, replace(settings, board_flex=False, jackknife=False))
     inverted = uncertainty_grid(result.camera)[2]
     figures = {"rms_px": result.rms_px, "views": len(views), "corners": result.corners["chosen"],
                "corners_rejected": result.summary()["rejected_corners"],
+               "calobject_warp_mm": result.board_flex["warp_mm"], "calobject_warp_std_mm": result.board_flex["std_mm"],
                "projection_sigma_px": sigma_figures(result.projection_uncertainty, inverted),
-               "projection_sigma_analytic_px": sigma_figures(analytic.projection_uncertainty, inverted),
-               "projection_sigma_noise_model_px": sigma_figures(analytic.projection_uncertainty["noise_model"],
-                                                                inverted),
+               "projection_sigma_max_covered_px": result.projection_uncertainty["max_covered_px"],
+               "jackknife_projection_max_px": result.jackknife["projection_max_px"],
+               "flat": {"rms_px": flat.rms_px,
+                        "projection_sigma_px": sigma_figures(flat.projection_uncertainty, inverted)},
                "grid_cells_not_inverted": int(np.count_nonzero(~inverted)),
                "camera": result.camera.to_dict(), "seconds": result.seconds}
     return result, figures
@@ -231,19 +232,20 @@ def mrcal_figures(models: dict[str, str], camera: CameraIntrinsics, missing: int
 
 
 def ratios(our_figures: dict, mrcal: dict) -> dict:
-    """ours / mrcal's for RMS and the projection sigmas (reported and analytic), against the plain and the default
-    OPENCV5 solves; each worst sigma is over the grid cells where its own model inverts."""
+    """ours / mrcal's for RMS and the projection sigma (centre, worst), like for like: our flat-board solve against
+    mrcal's plain OPENCV5 (a), our result (flex solved) against mrcal's default (b); each worst sigma is over the
+    grid cells where its own model inverts."""
     result = {}
     for solve in ("a_opencv5_plain", "b_opencv5_flex_outliers"):
         theirs = mrcal[solve]
         if "rms_px" not in theirs:
             continue
-        result[solve] = {"rms_px": our_figures["rms_px"] / theirs["rms_px"]}
-        for label, sigma in (("sigma", "projection_sigma_px"), ("sigma_analytic", "projection_sigma_analytic_px"),
-                             ("sigma_noise_model", "projection_sigma_noise_model_px")):
-            result[solve][f"{label}_centre"] = our_figures[sigma]["centre"] / theirs["projection_sigma_px"]["centre"]
-            result[solve][f"{label}_worst"] = (our_figures[sigma]["worst_where_inverted"]
-                                               / theirs["projection_sigma_px"]["worst"])
+        like = our_figures if solve == "b_opencv5_flex_outliers" else our_figures["flat"]
+        result[solve] = {"rms_px": like["rms_px"] / theirs["rms_px"],
+                         "sigma_centre": (like["projection_sigma_px"]["centre"]
+                                          / theirs["projection_sigma_px"]["centre"]),
+                         "sigma_worst": (like["projection_sigma_px"]["worst_where_inverted"]
+                                         / theirs["projection_sigma_px"]["worst"])}
     return result
 
 

@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from backend.calib.intrinsics.flex import solved_board
 from backend.core.boards import BoardSpec
 from backend.core.errors import InputError
 from backend.core.rig import Rig
@@ -40,12 +41,25 @@ def session_board(session: Session) -> CameraTarget:
 
 
 def session_plane_board(session: Session, use: str) -> BoardSpec:
-    """The session's board for ``use`` (e.g. "the target method"), which a test field cannot serve."""
+    """The session's board for ``use`` (e.g. "the target method"), which a test field cannot serve, bowed as its
+    cameras' accepted intrinsics measured it (:func:`measured_board`): a board pose fitted to a flat board where the
+    board bows is off by the bow."""
     board = session_board(session)
     if not isinstance(board, BoardSpec):
         raise InputError(f"the session's target is a test field ({session.board}); {use} needs a board: set a "
                          "checkerboard or ChArUco spec", "board")
-    return board
+    return measured_board(session, board)
+
+
+def measured_board(session: Session, board: BoardSpec) -> BoardSpec:
+    """``board`` with the flex the session's accepted intrinsics solved for it (``board_flex``): the best determined
+    (smallest sigma) when several cameras measured it, flat when none did."""
+    measured = [record for record in map(session.result, session.accepted_slots().values())
+                if record.get("kind") == "intrinsics" and record.get("board") == str(board)
+                and (record.get("board_flex") or {}).get("status") == "solved"]
+    if not measured:
+        return board
+    return solved_board(min(measured, key=lambda record: max(record["board_flex"]["std_mm"])))
 
 
 def pair_board(session: Session) -> BoardSpec | None:

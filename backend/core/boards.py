@@ -10,7 +10,11 @@ A spec is one string (``../shared/conventions.md``):
 
 Corner positions are in the board frame: origin at the first inner corner (an AprilGrid's: the top-left tag's
 top-left corner as printed), x along the columns, y along the rows (down the sheet), z = 0 on the board surface
-(metres).
+(metres). A board that bows carries its flex (``warp_m``, mrcal's ``calobject_warp``): the corners then leave the
+plane by ``z = w_x 4 xr (1 - xr) + w_y 4 yr (1 - yr)``, ``xr`` and ``yr`` the corner's place across the corners from 0
+to 1, so each term is 0 at the outer corners and its value at the centre line; z points away from a camera that sees
+the printed side, so a positive flex bows the centre away from it. The spec string does not carry it: the flex is
+measured (:mod:`backend.calib.intrinsics.flex`), not printed.
 
 An AprilGrid is laid out as Kalibr prints it (``kalibr_create_target_pdf``): tag 0 at the bottom left, ids rising
 to the right and then upward, and a black square of the gap's side at every crossing of the gaps. Its corners are
@@ -20,7 +24,7 @@ view of some tags gives those tags' corners (partial views count, as for ChArUco
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Literal
 
@@ -33,6 +37,14 @@ from backend.core.markers import marker_cells
 BoardKind = Literal["checkerboard", "charuco", "aprilgrid"]
 APRILGRID_DICTIONARY = "DICT_APRILTAG_36h11"
 """The AprilGrid's tag family, as OpenCV names it (Kalibr's tag36h11)."""
+
+
+def bow_z(x: np.ndarray, y: np.ndarray, warp_m: tuple[float, float], span_m: tuple[float, float]) -> np.ndarray:
+    """A bowed board's z (m) at board-plane ``x`` and ``y`` (m, arrays of one shape; the result keeps their float
+    type): ``w_x 4 xr (1 - xr) + w_y 4 yr (1 - yr)`` with ``xr = x / span_x``, ``yr = y / span_y``, continued beyond
+    0..1 (a plate's margin bends on)."""
+    (w_x, w_y), (s_x, s_y) = warp_m, span_m
+    return (4.0 * w_x / s_x**2) * x * (s_x - x) + (4.0 * w_y / s_y**2) * y * (s_y - y)
 
 
 @dataclass(frozen=True)
@@ -50,6 +62,9 @@ class BoardSpec:
     dictionary: str = ""
     spacing: float = 0.0
     """An AprilGrid's gap between tags as a fraction of the tag's side (Kalibr's ``tagSpacing``)."""
+    warp_m: tuple[float, float] = (0.0, 0.0)
+    """The board's flex along x and y (m): how far the centre line stands off the plane through the outer corners
+    (the module's docstring gives the shape)."""
 
     @classmethod
     def parse(cls, spec: str) -> BoardSpec:
@@ -152,14 +167,36 @@ class BoardSpec:
 
     @cached_property
     def object_points(self) -> np.ndarray:
-        """(N, 3) float32 inner-corner positions in the board frame (m), row-major ids."""
+        """(N, 3) float32 inner-corner positions in the board frame (m), row-major ids, bowed by ``warp_m``."""
+        return np.column_stack([self.plane_xy, self.warp_basis @ np.asarray(self.warp_m, float)]).astype(np.float32)
+
+    @cached_property
+    def plane_xy(self) -> np.ndarray:
+        """(N, 2) corner positions in the board's plane (m), row-major ids, as for any target
+        (:class:`~backend.core.test_field.TestField` has its own)."""
         c, r = self.corner_grid
         grid = np.mgrid[0:c, 0:r].T.reshape(-1, 2).astype(np.float64)
         if self.kind == "aprilgrid":  # a tag's two corners a side, then the gap to the next tag
-            grid = (grid // 2) * (self.square_m + self.gap_m) + (grid % 2) * self.square_m
-        else:
-            grid *= self.square_m
-        return np.column_stack([grid, np.zeros(len(grid))]).astype(np.float32)
+            return (grid // 2) * (self.square_m + self.gap_m) + (grid % 2) * self.square_m
+        return grid * self.square_m
+
+    @property
+    def warp_span_m(self) -> tuple[float, float]:
+        """Board-plane x and y (m) of the last corner, where the bow's parabolas return to 0 (they are 0 at the
+        origin, the first corner, too)."""
+        x, y = np.maximum(self.plane_xy.max(axis=0), 1e-12)
+        return float(x), float(y)
+
+    @cached_property
+    def warp_basis(self) -> np.ndarray:
+        """(N, 2) each corner's z (m) per metre of flex along x and along y (:func:`bow_z`: ``4 xr (1 - xr)`` and
+        ``4 yr (1 - yr)``, ``xr``, ``yr`` its place across the corners from 0 to 1; mrcal's ``calobject_warp``)."""
+        x, y = self.plane_xy.T
+        return np.column_stack([bow_z(x, y, (1.0, 0.0), self.warp_span_m), bow_z(x, y, (0.0, 1.0), self.warp_span_m)])
+
+    def with_warp(self, warp_m: tuple[float, float] | np.ndarray) -> BoardSpec:
+        """This board bowed by ``warp_m`` (m, along x and y) instead of its own flex."""
+        return replace(self, warp_m=(float(warp_m[0]), float(warp_m[1])))
 
     def aprilgrid_corner_ids(self, tag_ids: np.ndarray) -> np.ndarray:
         """(N, 4) corner ids of AprilGrid tags ``tag_ids`` (N,), in OpenCV's order for a marker (top-left,
@@ -167,12 +204,6 @@ class BoardSpec:
         column, sheet_row = tag_ids % self.cols, self.rows - 1 - tag_ids // self.cols  # tag 0 at the bottom left
         top_left = 2 * sheet_row * (2 * self.cols) + 2 * column
         return top_left[:, None] + np.array([0, 1, 2 * self.cols + 1, 2 * self.cols])[None, :]
-
-    @property
-    def plane_xy(self) -> np.ndarray:
-        """(N, 2) corner positions in the board's plane (m), as for any target (:class:`~backend.core.test_field.
-        TestField` has its own)."""
-        return self.object_points[:, :2]
 
     @property
     def size_m(self) -> tuple[float, float]:

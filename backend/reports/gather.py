@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from backend.calib.board.detection import Detection
+from backend.calib.intrinsics.flex import solved_board
 from backend.calib.lidar_camera.service import session_pose_evidence
 from backend.calib.lidar_camera.target_evidence import PoseEvidence
 from backend.calib.lidar_lidar.gicp import LidarLidarSettings, evaluate_alignment
@@ -187,7 +188,7 @@ def camera_report(session: Session, record: dict[str, Any]) -> CameraReport:
     """The views of an intrinsics ``record`` with their corners read from the captures, and their residuals as
     stored or, where the record lacks them, recomputed (:func:`view_residuals`)."""
     camera = CameraIntrinsics.from_dict(record["camera"])
-    board = BoardSpec.parse(record["board"])
+    board = solved_board(record)
     corner_set = record.get("corners", {}).get("chosen", "sb")
     captures = {c.id: c for c in session.captures(record["sensor"])}
     views, unreadable = [], []

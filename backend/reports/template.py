@@ -284,12 +284,18 @@ offset against the rig's clock (ms, 1-sigma), where one was measured and accepte
   {{ r.rejected_corners }} rejected as outliers{% if r.views_dropped %} (views dropped:
   {{ r.views_dropped | join(", ") }}){% endif %}{% endif %}</td></tr>
 <tr><th>Reprojection RMS</th><td>{{ r.rms_px | fixed(4) }} px</td></tr>
-<tr><th>Projection sigma across the image</th><td>max {{ r.projection_sigma_px.max | fixed(3) }} px, mean
-  {{ r.projection_sigma_px.mean | fixed(3) }} px, centre {{ r.projection_sigma_px.centre | fixed(3) }} px</td></tr>
-{% if r.projection_uncertainty.noise_model %}<tr><th>Noise-model sigma (mrcal's, not judged)</th><td>max
-  {{ r.projection_uncertainty.noise_model.max_px | fixed(3) }} px, centre
-  {{ r.projection_uncertainty.noise_model.centre_px | fixed(3) }} px: the camera free to turn against the
-  boards</td></tr>{% endif %}
+<tr><th>Projection sigma (mrcal's noise model)</th><td>{% set pu = r.projection_uncertainty %}{% if
+  pu.max_covered_px is defined and pu.max_covered_px is not none %}worst {{ pu.max_covered_px | fixed(3) }} px where
+  the boards reach ({{ (100 * pu.covered_share) | round | int }} % of the image), {% endif %}max
+  {{ r.projection_sigma_px.max | fixed(3) }} px, mean {{ r.projection_sigma_px.mean | fixed(3) }} px, centre
+  {{ r.projection_sigma_px.centre | fixed(3) }} px</td></tr>
+{% if r.board_flex %}<tr><th>Board flex</th><td>{% if r.board_flex.status == "solved" %}x
+  {{ r.board_flex.warp_mm[0] | fixed(3) }} ± {{ r.board_flex.std_mm[0] | fixed(3) }} mm, y
+  {{ r.board_flex.warp_mm[1] | fixed(3) }} ± {{ r.board_flex.std_mm[1] | fixed(3) }} mm{% else %}{{
+  r.board_flex.status }}: {{ r.board_flex.detail }}{% endif %}</td></tr>{% endif %}
+{% if r.jackknife %}<tr><th>Jackknife (cross-check)</th><td>up to {{ r.jackknife.ratio | fixed(1) }}× the
+  noise model's parameter sigmas, worst projection {{ r.jackknife.projection_max_px | fixed(3) }} px</td></tr>{%
+  endif %}
 <tr><th>Cross-validation</th><td>{{ r.cross_validation.status }}: {{ r.cross_validation.detail }}</td></tr>
 {% if r.model_comparison %}<tr><th>Model comparison</th><td>{{ r.model_comparison.recommended }}:
   {{ r.model_comparison.reason }}</td></tr>{% endif %}

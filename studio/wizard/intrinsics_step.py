@@ -362,13 +362,27 @@ def parameters_markdown(record: dict) -> str:
                                                                else "")
                 for v in record["views"] if v.get("rejected")]
     unc = record["projection_uncertainty"]
+    reach = (f"worst {unc['max_covered_px']:.3f} px where the boards reach ({unc['covered_share']:.0%} of the "
+             "image), " if unc.get("max_covered_px") is not None else "")
     return (
         f"{used} views used\n\n{table}\n\n"
         f"Strong correlations: {', '.join(strong) or 'none above 0.9'}\n\n"
         f"Outlier views: {', '.join(outliers) or 'none'}\n\n"
         f"Corners rejected as outliers: {', '.join(rejected) or 'none'}\n\n"
-        f"Projection σ (far points): mean {unc['mean_px']:.3f} px, max {unc['max_px']:.3f} px"
+        f"Board flex: {flex_phrase(record.get('board_flex'))}\n\n"
+        f"Projection σ (far points, mrcal's noise model): {reach}mean {unc['mean_px']:.3f} px, "
+        f"max {unc['max_px']:.3f} px"
     )
+
+
+def flex_phrase(flex: dict | None) -> str:
+    """The board's bow as a result gives it (``board_flex``), in mm with its sigma, or why it was not solved."""
+    if flex is None:
+        return "not solved (an older result)"
+    if flex["status"] != "solved":
+        return f"{flex['status']}: {flex['detail']}"
+    (x, y), (sx, sy) = flex["warp_mm"], flex["std_mm"]
+    return f"x {x:+.3f} ± {sx:.3f} mm, y {y:+.3f} ± {sy:.3f} mm"
 
 
 def photogrammetric_markdown(block: dict) -> str:

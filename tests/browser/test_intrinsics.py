@@ -119,7 +119,8 @@ def test_demo_page_renders_rig(page: Page) -> None:
     assert used and f"{used.group(1)} views ·" in body, body
     page.get_by_text(re.compile(r"Enough data - full coverage")).scroll_into_view_if_needed()
     page.screenshot(path=ARTIFACTS / "studio_cam_front_enough_data.png")
-    for text in ("RMS", "fx", "fy", "cx", "cy", "σ", "Projection σ (far points): mean"):
+    for text in ("RMS", "fx", "fy", "cx", "cy", "σ", "Projection σ (far points, mrcal's noise model): worst",
+                 "Board flex: x "):
         assert text in body, f"{text!r} missing from the page"
 
 

@@ -63,10 +63,12 @@ def test_intrinsics_json_contract(intrinsics_run):
     assert isinstance(out, dict)
     assert set(out) == {"camera", "rms_px", "views", "std", "correlation", "projection_sigma_px", "corners",
                         "cross_validation", "model_comparison", "verdict", "seconds", "rejected_corners",
-                        "views_dropped"}
+                        "views_dropped", "board_flex", "jackknife"}
     assert out["rejected_corners"] == 0 and out["views_dropped"] == []  # OpenCV's clean set (mrcal rejects none)
     assert out["model_comparison"] is None  # only with --model auto
-    assert out["verdict"]["level"] in ("check", "reject") and out["verdict"]["reasons"]
+    assert out["verdict"]["level"] == "trusted" and out["verdict"]["reasons"]  # where the boards reach (44 %)
+    assert out["board_flex"]["status"] == "solved" and len(out["board_flex"]["std_mm"]) == 2
+    assert out["jackknife"]["ratio"] > 1
     assert out["cross_validation"]["status"] == "consistent" and "difference_px" not in out["cross_validation"]
     fits = out["corners"]["rms_px"]
     assert set(fits) == {"sb", "refined-0.3", "refined-0.4", "refined-0.5"}
@@ -209,9 +211,9 @@ def test_export_camera_info_from_session(left_images, tmp_path: Path):
     report = service.import_images(session, "cam_left", [(p.name, p.read_bytes()) for p in left_images])
     assert len(report.added) == 13
     result_id, result = service.solve_session(session, "cam_left", IntrinsicsSettings())
-    # 13 VGA views leave the image corners loose (projection sigma above 0.3 px there): a 'check', confirmed
-    assert result.verdict.level == "check", result.verdict
-    rig_service.accept(session, result_id, confirm=True)
+    # 13 VGA views pin the lens where their boards reach (the image corners' looser sigma is named): trusted
+    assert result.verdict.level == "trusted", result.verdict
+    rig_service.accept(session, result_id)
 
     run = cli_in_process("export", session.path, "--format", "camera_info", "--sensor", "cam_left")
     assert run.returncode == 0, run.stderr

@@ -107,8 +107,12 @@ def test_intrinsics_section_holds_the_accepted_numbers(session: Session, html: s
     assert number(record["camera"]["K"][0][0], 6) in text and number(record["std"]["fx"], 3) in text
     assert f"max {fixed(record['projection_sigma_px']['max'], 3)} px" in text
     assert f"{record['rejected_corners']} rejected as outliers" in text
-    noise_model = record["projection_uncertainty"]["noise_model"]
-    assert f"centre {fixed(noise_model['centre_px'], 3)} px: the camera free to turn" in " ".join(text.split())
+    projection, flex = record["projection_uncertainty"], record["board_flex"]
+    assert (f"worst {fixed(projection['max_covered_px'], 3)} px where the boards reach "
+            f"({round(100 * projection['covered_share'])} % of the image)") in " ".join(text.split())
+    assert flex["status"] == "solved"
+    assert (f"x {fixed(flex['warp_mm'][0], 3)} ± {fixed(flex['std_mm'][0], 3)} mm, y "
+            f"{fixed(flex['warp_mm'][1], 3)} ± {fixed(flex['std_mm'][1], 3)} mm") in " ".join(text.split())
     assert record["cross_validation"]["status"] in text
     assert f'badge {record["verdict"]["level"]}' in text
     for reason in record["verdict"]["reasons"]:

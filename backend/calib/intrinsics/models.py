@@ -81,7 +81,7 @@ def _fit(candidate: Candidate, views: list[View], board: BoardSpec, size: tuple[
          base: IntrinsicsSettings) -> tuple[np.ndarray, np.ndarray]:
     """K and dist of ``candidate`` fitted on ``views``."""
     if candidate.settings is not None:
-        K, dist, _, _ = _calibrate(views, board, size, candidate.settings)
+        K, dist, *_ = _calibrate(views, board, size, candidate.settings)
         return K, dist
     flags = (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_ZERO_TANGENT_DIST * (not base.estimate_tangential)
              | cv2.CALIB_FIX_ASPECT_RATIO * base.fix_aspect)
@@ -198,5 +198,6 @@ def solve_auto(views: list[View], board: BoardSpec, size: tuple[int, int], setti
     comparison = compare_models(picked, board, size, settings)
     result = calibrate_intrinsics(views, board, size, settings_for(comparison["recommended"], settings), progress)
     result.model_comparison = comparison
-    result.verdict = intrinsics_verdict(result.projection_uncertainty, result.cross_validation, models_compared=True)
+    result.verdict = intrinsics_verdict(result.projection_uncertainty, result.cross_validation, result.board_flex,
+                                        result.jackknife, models_compared=True)
     return result

@@ -1,15 +1,17 @@
-"""Camera intrinsic calibration with honest uncertainties.
+"""Camera intrinsic calibration with honest uncertainties, judged as mrcal judges a lens.
 
 OpenCV does the solve (``calibrateCamera`` for ``pinhole-radtan``,
 ``fisheye.calibrate`` for ``fisheye-equidistant``); the ``photogrammetric`` model, which OpenCV cannot fit, is
-solved by :mod:`backend.calib.intrinsics.photogrammetric` from OpenCV's solve. OpenCV reports per-parameter
-standard deviations but not their covariance, so we rebuild the full problem's
-Jacobian from OpenCV's own analytic projection Jacobians (``projectPoints``) and
-compute ``cov = sigma^2 (J^T J)^-1`` over intrinsics *and* every view's pose,
+solved by :mod:`backend.calib.intrinsics.photogrammetric` from OpenCV's solve. A board's bow (mrcal's
+``calobject_warp``) is then solved with the lens and the poses (:mod:`backend.calib.intrinsics.flex`), or held at
+zero and said why. OpenCV reports per-parameter standard deviations but not their covariance, so we rebuild the
+full problem's Jacobian from OpenCV's own analytic projection Jacobians (``projectPoints``) and
+compute ``cov = sigma^2 (J^T J)^-1`` over intrinsics, every view's pose and the flex,
 with ``sigma^2`` the residual variance (``SSR / (2N - P)``). That gives the
 standard deviations, the correlation matrix (e.g. k1-k2) and the projection
 uncertainty across the image, all from one documented noise model:
-independent, isotropic Gaussian corner noise.
+independent, isotropic Gaussian corner noise. The projection uncertainty is mrcal's: the camera free to turn
+against the boards, the poses marginalised (:func:`_noise_model_projection`).
 
 Checkerboard views come with several corner sets (``findChessboardCornersSB``'s and the
 same refined by :func:`~backend.calib.board.detection.refine_corners` with a few window
@@ -18,17 +20,20 @@ the result).
 Single corners far beyond the corner noise are rejected first, round by round, as mrcal does
 (:func:`_reject_corners`); the result lists them per view, and a view that would lose more than a quarter of its
 corners is dropped whole and named.
-Every result carries a :class:`~backend.core.verdict.Verdict`: the worst projection
-sigma across the image against :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`,
-and, as the independent cross-check, two calibrations from the two halves of the
-views compared across the image (:mod:`backend.calib.intrinsics.crossval`).
+Every result carries a :class:`~backend.core.verdict.Verdict` (:func:`~backend.calib.intrinsics.checks.
+intrinsics_verdict`): the worst projection sigma where the views' boards reach against
+:data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`, and, as the independent cross-check, two calibrations from
+the two halves of the views compared across the image (:mod:`backend.calib.intrinsics.crossval`): halves that
+differ by more than their sigmas are model error, and the verdict names the fixes. A leave-one-view-out jackknife
+is reported beside the sigmas as a further cross-check (:func:`_jackknife_report`), not as them.
 """
+
 
 from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import cv2
 import numpy as np
@@ -39,6 +44,8 @@ from backend.calib.board.pose import board_pose
 from backend.calib.intrinsics import photogrammetric
 from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.crossval import grid_pixels, projection_difference
+from backend.calib.intrinsics.flex import FLEX_MAX_STD_M, flex_columns, flex_unsupported, refine_with_flex
+from backend.calib.intrinsics.projection import project_board
 from backend.core.boards import BoardSpec
 from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
@@ -93,6 +100,10 @@ class IntrinsicsSettings:
     """pinhole-radtan only: estimate p1, p2 (else fixed at 0)."""
     fix_aspect: bool = False
     """Keep fx / fy at 1 (square pixels)."""
+    board_flex: bool = True
+    """Solve the board's bow (mrcal's ``calobject_warp``, :mod:`backend.calib.intrinsics.flex`) with the lens; it is
+    held at zero, and the result says why, for a test field, the photogrammetric model, or views that do not
+    determine it."""
     reject_corners: bool = True
     """Leave out single corners whose residual is far beyond the corner noise, as mrcal does (:func:`_reject_corners`:
     a view losing more than :data:`MAX_REJECTED_SHARE` is dropped whole)."""
@@ -101,11 +112,25 @@ class IntrinsicsSettings:
     outlier_factor: float = 3.0
     """A view is an outlier when its RMS exceeds this many times the median view RMS."""
     jackknife: bool = True
-    """Also estimate sigmas by leaving out one view at a time, and report the larger (see :func:`_jackknife_std`)."""
+    """Also estimate sigmas by leaving out one view at a time, reported beside the noise model's as a cross-check
+    (:func:`_jackknife_report`)."""
     cross_validate: bool = True
     """Also calibrate each half of the views and compare them (:func:`_cross_validate`), the verdict's cross-check."""
     pixel_size_um: float | None = None
     """The sensor's pixel pitch (um): the photogrammetric model's parameters are then reported in mm too."""
+
+
+class Solve(NamedTuple):
+    """One solve of a lens from board views: OpenCV's layout, and the board as solved."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    rvecs: list[np.ndarray]
+    """Each view's board-to-camera rotation vector (3, 1)."""
+    tvecs: list[np.ndarray]
+    """Each view's board-to-camera translation (3, 1, m)."""
+    board: BoardSpec
+    """The board with its solved flex (``warp_m``), or as given when the flex was not solved."""
 
 
 @dataclass
@@ -187,6 +212,12 @@ class IntrinsicsResult(SolveResult):
     """With ``model="auto"``: the held-out comparison of the candidate models and the recommendation."""
     photogrammetric: dict[str, Any] | None = None
     """With the ``photogrammetric`` model: :func:`backend.calib.intrinsics.photogrammetric.report`."""
+    jackknife: dict[str, Any] | None = None
+    """The views' jackknife beside the noise model's sigmas (:func:`_jackknife_report`), a cross-check; None when
+    switched off."""
+    board_flex: dict[str, Any] = field(default_factory=lambda: {"status": "not solved", "warp_mm": [0.0, 0.0],
+                                                                "std_mm": None, "detail": "not asked"})
+    """The board's bow (:func:`_flex_report`); ``board`` carries it as ``warp_m``."""
 
     def summary(self) -> dict[str, Any]:
         unc = self.projection_uncertainty
@@ -201,6 +232,8 @@ class IntrinsicsResult(SolveResult):
             "correlation": {"names": self.correlation_names, "matrix": self.correlation.tolist()},
             "projection_sigma_px": {"max": unc["max_px"], "mean": unc["mean_px"], "centre": unc["centre_px"]},
             "corners": self.corners,
+            "board_flex": self.board_flex,
+            "jackknife": self.jackknife,
             "cross_validation": {k: v for k, v in self.cross_validation.items()
                                  if k not in ("difference_px", "expected_px")},
             "model_comparison": self.model_comparison,
@@ -243,8 +276,21 @@ def _check_views(views: list[View], board: BoardSpec) -> None:
 
 
 def _calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-               guess: CameraIntrinsics | None = None):
-    """The solve of ``views`` in ``settings.model``, from ``guess`` if given; returns (K, dist, rvecs, tvecs).
+               guess: CameraIntrinsics | None = None) -> Solve:
+    """The solve of ``views`` in ``settings.model``, from ``guess`` if given, with the board's flex when
+    ``settings.board_flex`` and the target can bow (:func:`~backend.calib.intrinsics.flex.refine_with_flex`, from
+    OpenCV's solve with ``board`` as given; its ``warp_m`` is the flex's start)."""
+    solve = _opencv_calibrate(views, board, size, settings, guess)
+    if not settings.board_flex or flex_unsupported(board, settings.model):
+        return solve
+    camera = CameraIntrinsics(settings.model, size[0], size[1], solve.K, solve.dist)
+    return Solve(*refine_with_flex(camera, _free_intrinsics(camera, settings), board, [v.detection for v in views],
+                                   solve.rvecs, solve.tvecs))
+
+
+def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                      guess: CameraIntrinsics | None = None) -> Solve:
+    """The solve of ``views`` in ``settings.model`` with ``board`` held as given, from ``guess`` if given.
 
     Without a guess, OpenCV starts from a distortion-free camera, and with a strong lens and boards in the
     image corners it can settle in a wrong minimum (the demo's wide lens: 0.72 px RMS and fx 3 px off, where
@@ -255,13 +301,13 @@ def _calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], setti
     this solve of OpenCV's model (:func:`_photogrammetric_calibrate`).
     """
     if settings.model == "photogrammetric":
-        return _photogrammetric_calibrate(views, board, size, guess)
+        return Solve(*_photogrammetric_calibrate(views, board, size, guess), board)
     if guess is not None:
         return _opencv_solve(views, board, size, settings, guess)
     scored, failure = [], None  # (RMS over all views in px, solve) of each solve that ran
     try:
         plain = _opencv_solve(views, board, size, settings)
-        scored.append((_solve_rms(views, board, size, settings.model, plain), plain))
+        scored.append((_solve_rms(views, size, settings.model, plain), plain))
     except InputError as exc:  # OpenCV's fisheye start can fail on a view the seeded solve gets past
         failure = exc
     if scored and scored[0][0] <= SETTLED_RMS_PX:
@@ -271,9 +317,9 @@ def _calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], setti
              if np.linalg.norm(v.detection.corners_px - centre, axis=1).max() < SEED_RADIUS * np.linalg.norm(centre)]
     if MIN_VIEWS <= len(inner) < len(views):
         try:
-            K, dist, _, _ = _opencv_solve(inner, board, size, settings)
+            K, dist, *_ = _opencv_solve(inner, board, size, settings)
             seeded = _opencv_solve(views, board, size, settings, CameraIntrinsics(settings.model, *size, K, dist))
-            scored.append((_solve_rms(views, board, size, settings.model, seeded), seeded))
+            scored.append((_solve_rms(views, size, settings.model, seeded), seeded))
         except (InputError, cv2.error):  # the inner views alone do not pin the lens down
             pass
     if not scored:
@@ -286,7 +332,8 @@ def _photogrammetric_calibrate(views: list[View], board: BoardSpec, size: tuple[
     """The photogrammetric bundle adjustment of ``views``, from ``guess`` or else from OpenCV's five-coefficient
     solve with ``fx = fy`` (the model with ``A1 = A2 = 0``); returns (K, dist, rvecs, tvecs)."""
     if guess is None:
-        K, dist, rvecs, tvecs = _calibrate(views, board, size, IntrinsicsSettings(estimate_k3=True, fix_aspect=True))
+        K, dist, rvecs, tvecs, _ = _opencv_calibrate(views, board, size,
+                                                     IntrinsicsSettings(estimate_k3=True, fix_aspect=True))
         guess = photogrammetric.start_from_opencv(K, dist, size)
     else:
         poses = [board_pose(guess, board, v.detection) for v in views]
@@ -297,20 +344,17 @@ def _photogrammetric_calibrate(views: list[View], board: BoardSpec, size: tuple[
                                          [v.detection.corners_px for v in views], list(rvecs), list(tvecs))
 
 
-def _solve_residuals(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
-                     solve: tuple) -> list[np.ndarray]:
-    """Each view's (N, 2) detected minus projected corners (px) under an OpenCV ``solve`` (K, dist, rvecs, tvecs)
-    of ``model``."""
-    K, dist, rvecs, tvecs = solve
-    camera = CameraIntrinsics(model, size[0], size[1], K, dist)
-    return [v.detection.corners_px - _project(camera, v.detection.object_points(board), r, t)[0]
-            for v, r, t in zip(views, rvecs, tvecs, strict=True)]
+def _solve_residuals(views: list[View], size: tuple[int, int], model: CameraModelName,
+                     solve: Solve) -> list[np.ndarray]:
+    """Each view's (N, 2) detected minus projected corners (px) under a ``solve`` of ``model``."""
+    camera = CameraIntrinsics(model, size[0], size[1], solve.K, solve.dist)
+    return [v.detection.corners_px - project_board(camera, v.detection.object_points(solve.board), r, t)[0]
+            for v, r, t in zip(views, solve.rvecs, solve.tvecs, strict=True)]
 
 
-def _solve_rms(views: list[View], board: BoardSpec, size: tuple[int, int], model: CameraModelName,
-               solve: tuple) -> float:
-    """Reprojection RMS (px) of ``views`` under an OpenCV ``solve`` (K, dist, rvecs, tvecs) of ``model``."""
-    residuals = np.concatenate(_solve_residuals(views, board, size, model, solve))
+def _solve_rms(views: list[View], size: tuple[int, int], model: CameraModelName, solve: Solve) -> float:
+    """Reprojection RMS (px) of ``views`` under a ``solve`` of ``model``."""
+    residuals = np.concatenate(_solve_residuals(views, size, model, solve))
     return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
 
 
@@ -322,20 +366,20 @@ def _kept_corners(detection: Detection, keep: np.ndarray) -> Detection:
 
 
 def _reject_corners(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-                    progress: ProgressCallback) -> tuple[list[View], dict[str, RejectedCorners], tuple]:
+                    progress: ProgressCallback) -> tuple[list[View], dict[str, RejectedCorners], Solve]:
     """mrcal's outlier rejection, corner by corner: solve, drop every corner whose residual is longer than
     :data:`CORNER_OUTLIER_SIGMAS` per-axis sigmas of the noise (all residuals', or its view's own where that is
     larger), solve again, until none is (at most
     :data:`MAX_REJECTION_ROUNDS`). A view that would lose more than :data:`MAX_REJECTED_SHARE` of its corners is
     dropped whole instead. Returns the views kept (with their outlier corners taken out), what was rejected of each
-    view that lost any, and the last solve (K, dist, rvecs, tvecs) of the views kept."""
+    view that lost any, and the last solve of the views kept."""
     detected = {v.name: len(v.detection.ids) for v in views}
     rejected: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     dropped: set[str] = set()
     for round_index in range(MAX_REJECTION_ROUNDS if settings.reject_corners else 0):
         _check_views(views, board)
         solve = _calibrate(views, board, size, settings)
-        residuals = _solve_residuals(views, board, size, settings.model, solve)
+        residuals = _solve_residuals(views, size, settings.model, solve)
         noise_px = np.sqrt(np.mean(np.concatenate(residuals) ** 2))
         lengths = [np.linalg.norm(r, axis=1) for r in residuals]
         outliers = [length > CORNER_OUTLIER_SIGMAS * max(noise_px, np.median(length) / MEDIAN_RESIDUAL_SIGMAS)
@@ -366,9 +410,9 @@ def _reject_corners(views: list[View], board: BoardSpec, size: tuple[int, int], 
 
 
 def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-                  guess: CameraIntrinsics | None = None):
-    """One run of OpenCV's solver, from ``guess`` if given (else from :func:`planar_start` for a target that is
-    not planar); returns (K, dist, rvecs, tvecs)."""
+                  guess: CameraIntrinsics | None = None) -> Solve:
+    """One run of OpenCV's solver with ``board`` as given, from ``guess`` if given (else from :func:`planar_start`
+    for a target that is not planar)."""
     object_points = [v.detection.object_points(board).astype(np.float64).reshape(-1, 1, 3) for v in views]
     image_points = [v.detection.corners_px.reshape(-1, 1, 2) for v in views]
     if guess is None and (K_start := planar_start(views, board, size)) is not None:
@@ -383,7 +427,7 @@ def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], se
         except cv2.error as exc:
             raise InputError(f"the fisheye solve failed ({exc.err}); check the board spec and add varied views",
                              "views") from None
-        return K, dist.ravel(), rvecs, tvecs
+        return Solve(K, dist.ravel(), rvecs, tvecs, board)
     flags = cv2.CALIB_FIX_K3 * (not settings.estimate_k3) | cv2.CALIB_ZERO_TANGENT_DIST * (
         not settings.estimate_tangential) | cv2.CALIB_FIX_ASPECT_RATIO * settings.fix_aspect
     flags |= cv2.CALIB_USE_INTRINSIC_GUESS if guess else 0
@@ -392,7 +436,7 @@ def _opencv_solve(views: list[View], board: BoardSpec, size: tuple[int, int], se
                                                    guess.K.copy() if guess else np.eye(3),
                                                    guess.dist.copy() if guess else None,
                                                    flags=flags, criteria=TERM_CRITERIA)
-    return K, dist.ravel()[:5], rvecs, tvecs
+    return Solve(K, dist.ravel()[:5], rvecs, tvecs, board)
 
 
 def planar_start(views: list[View], board: BoardSpec, size: tuple[int, int]) -> np.ndarray | None:
@@ -407,22 +451,6 @@ def planar_start(views: list[View], board: BoardSpec, size: tuple[int, int]) -> 
                                         flags=cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
                                         | cv2.CALIB_ZERO_TANGENT_DIST, criteria=TERM_CRITERIA)
     return K
-
-
-def _project(camera: CameraIntrinsics, object_points: np.ndarray, rvec, tvec) -> tuple[np.ndarray, np.ndarray]:
-    """Project board points; returns pixels (N, 2) and the Jacobian columns in the
-    order [rvec(3), tvec(3), fx, fy, cx, cy, dist...] (2N rows, u and v interleaved)."""
-    if camera.model == "photogrammetric":
-        return photogrammetric.project(camera, object_points, rvec, tvec)
-    pts = object_points.astype(np.float64).reshape(-1, 1, 3)
-    if camera.is_fisheye:
-        uv, J = cv2.fisheye.projectPoints(pts, rvec, tvec, camera.K, camera.dist[:4])
-        # fisheye order is [f(2), c(2), k(4), r(3), t(3), alpha]; reorder to the pinhole order.
-        J = np.hstack([J[:, 8:14], J[:, 0:8]])
-    else:
-        uv, J = cv2.projectPoints(pts, rvec, tvec, camera.K, camera.dist)
-        J = J[:, : 10 + camera.dist.size]
-    return uv.reshape(-1, 2), J
 
 
 def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> np.ndarray:
@@ -449,9 +477,11 @@ def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> 
 
 
 def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, rvecs, tvecs, used: np.ndarray,
-                A: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
+                A: np.ndarray, flex: bool = False
+                ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
     """Residuals and pose of every view, the covariance of [fx, fy, cx, cy, dist...], and the covariance over
-    the free intrinsics (``A``'s columns) and every used view's ``rvec`` and ``tvec``.
+    the free intrinsics (``A``'s columns), every used view's ``rvec`` and ``tvec`` and, with ``flex``, the board's
+    flex along x and y (m; the last two, :func:`~backend.calib.intrinsics.flex.flex_columns`).
 
     ``rvecs``/``tvecs`` are OpenCV's poses of the used views; excluded views get a
     pose by PnP so their residuals can still be shown. Covariance units are px^2
@@ -468,17 +498,19 @@ def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, r
             k += 1
         else:  # an excluded view still gets a pose for its residuals (PnP with the solved model)
             rvec, tvec = to_rvec_tvec(board_pose(camera, board, view.detection))
-        uv, J = _project(camera, obj, rvec, tvec)
+        uv, J = project_board(camera, obj, rvec, tvec)
         residuals.append((view.detection.corners_px - uv, from_rvec_tvec(rvec, tvec)))
         if is_used:
-            blocks.append(J)
+            blocks.append((J, flex_columns(J, rvec, board.warp_basis[view.detection.ids]) if flex else None))
             rows_r.append((view.detection.corners_px - uv).ravel())
-    n_rows = sum(b.shape[0] for b in blocks)
-    jac = np.zeros((n_rows, n_free + 6 * n_used))
+    n_rows = sum(J.shape[0] for J, _ in blocks)
+    jac = np.zeros((n_rows, n_free + 6 * n_used + 2 * flex))
     row = 0
-    for i, J in enumerate(blocks):
+    for i, (J, J_flex) in enumerate(blocks):
         jac[row:row + len(J), :n_free] = J[:, 6:] @ A
         jac[row:row + len(J), n_free + 6 * i: n_free + 6 * i + 6] = J[:, :6]
+        if flex:
+            jac[row:row + len(J), -2:] = J_flex
         row += len(J)
     r = np.concatenate(rows_r)
     dof = max(len(r) - jac.shape[1], 1)
@@ -492,13 +524,6 @@ def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, r
     return residuals, A @ cov_all[:n_free, :n_free] @ A.T, cov_all
 
 
-def _embed(matrix: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Place a square matrix over the ``mask`` rows/columns of a zero matrix."""
-    full = np.zeros((mask.size, mask.size))
-    full[np.ix_(mask, mask)] = matrix
-    return full
-
-
 def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics, settings: IntrinsicsSettings,
                    progress: ProgressCallback) -> np.ndarray:
     """Leave-one-view-out jackknife standard deviation of [fx, fy, cx, cy, dist...].
@@ -510,17 +535,17 @@ def _jackknife_std(views: list[View], board: BoardSpec, camera: CameraIntrinsics
     estimates = []
     for i in range(len(views)):
         progress(0.6 + 0.3 * i / len(views), f"jackknife: re-solving without view {i + 1} of {len(views)}")
-        K, dist, _, _ = _calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
+        K, dist, *_ = _calibrate(views[:i] + views[i + 1:], board, camera.image_size, settings, camera)
         estimates.append(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()])
     return jackknife_std(np.array(estimates))
 
 
 def _far_point_jacobians(camera: CameraIntrinsics) -> np.ndarray:
     """(cells, 2, 6 + intrinsics) Jacobian of projecting the far point each :data:`UNCERTAINTY_GRID` cell sees, in
-    :func:`_project`'s column order: a turn of the point about the camera's origin (3), a shift (3), the
-    intrinsics."""
+    :func:`~backend.calib.intrinsics.projection.project_board`'s column order: a turn of the point about the
+    camera's origin (3), a shift (3), the intrinsics."""
     xy = camera.undistort_points(grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID))
-    _, J = _project(camera, np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3))
+    _, J = project_board(camera, np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3))
     return J.reshape(len(xy), 2, -1)
 
 
@@ -554,7 +579,8 @@ def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
     return np.eye(3) + (1.0 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
 
 
-def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np.ndarray, rvecs) -> dict[str, Any]:
+def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np.ndarray, rvecs,
+                            corners_px: list[np.ndarray]) -> dict[str, Any]:
     """mrcal's projection uncertainty at infinity: the 1-sigma (worst direction, px) of where a far point seen at
     each grid cell projects, with the point tied to the boards, not to the camera.
 
@@ -565,6 +591,11 @@ def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np
     every used view's rotation, and ``cov_all`` (:func:`_covariance`, the poses marginalised by taking its block)
     propagates through it. The principal point's sigma, which such a turn takes up, then no longer counts against
     the centre, as it does when the intrinsics alone are propagated (:func:`_projection_uncertainty`).
+
+    This is the result's projection sigma (``max_px`` over the whole image), and ``covered`` says which cells
+    the views' boards reach (:func:`_covered_cells`, from each used view's ``corners_px``), with the worst sigma
+    within them (``max_covered_px``, the one the verdict weighs) and beyond them (``max_uncovered_px``, None when
+    every cell is reached).
     """
     J = _far_point_jacobians(camera)
     n_free = A.shape[1]
@@ -572,7 +603,42 @@ def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np
     full[:, :, :n_free] = J[:, :, 6:] @ A
     for i, rvec in enumerate(rvecs):  # J[..., :3]: d(projection)/d(a turn of the point about the camera's origin)
         full[:, :, n_free + 6 * i: n_free + 6 * i + 3] = J[:, :, :3] @ _left_jacobian(rvec) / len(rvecs)
-    return _sigma_grid(full, cov_all) | {"method": "noise model, the camera free to turn against the boards (mrcal's)"}
+    grid = _sigma_grid(full, cov_all)
+    covered = _covered_cells(camera, corners_px)
+    sigma = np.asarray(grid["sigma_px"])
+    return grid | {"method": "noise model, the camera free to turn against the boards (mrcal's)",
+                   "covered": covered.tolist(), "covered_share": float(covered.mean()),
+                   "max_covered_px": float(sigma[covered].max()) if covered.any() else None,
+                   "max_uncovered_px": float(sigma[~covered].max()) if not covered.all() else None}
+
+
+def _covered_cells(camera: CameraIntrinsics, corners_px: list[np.ndarray]) -> np.ndarray:
+    """(rows, cols) of :data:`UNCERTAINTY_GRID`: whether a cell's centre lies within some view's board, the convex
+    hull of its (N, 2) corners (px)."""
+    pixels = grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID).astype(np.float32)
+    covered = np.zeros(len(pixels), bool)
+    for corners in corners_px:
+        hull = cv2.convexHull(np.asarray(corners, np.float32))
+        covered |= np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), False) >= 0 for u, v in pixels])
+    cols, rows = UNCERTAINTY_GRID
+    return covered.reshape(rows, cols)
+
+
+def _jackknife_report(camera: CameraIntrinsics, cov: np.ndarray, std_jackknife: np.ndarray,
+                      estimated: np.ndarray) -> dict[str, Any]:
+    """The leave-one-view-out spread of ``[fx, fy, cx, cy, dist...]`` beside the noise model's (``cov``), a
+    cross-check: ``std`` per parameter, ``ratio`` its largest over the noise model's, and the worst projection
+    sigma either gives (the intrinsics alone, the noise model's correlations kept). Views, not corners, are the
+    jackknife's units, so a ratio well above 1 says the corner errors are shared within views (a bowed board not
+    modelled, blur, a lens the model cannot follow): the cross-validation then tells model error from chance."""
+    std_analytic = sigmas(cov)
+    d = np.where(estimated, std_analytic, 1.0)
+    cov_jackknife = np.outer(std_jackknife, std_jackknife) * cov / np.outer(d, d)
+    ratio = np.where(estimated, std_jackknife / np.where(estimated, std_analytic, 1.0), 0.0)
+    return {"std": std_jackknife.tolist(), "ratio": float(ratio.max()),
+            "projection_max_px": _projection_uncertainty(camera, cov_jackknife)["max_px"],
+            "noise_model_projection_max_px": _projection_uncertainty(camera, cov)["max_px"],
+            "method": "leave one view out; the intrinsics alone propagated to a far point"}
 
 
 def worst_projection_sigma_px(camera: CameraIntrinsics, cov_intrinsics: np.ndarray) -> float:
@@ -589,7 +655,7 @@ def _through_the_lens(views: list[View], board: BoardSpec, size: tuple[int, int]
     A board's views are returned as they are."""
     if any(v.detection.marker_corners_px is None for v in views):
         return views
-    K, dist, _, _ = _calibrate(views, board, size, settings)
+    K, dist, *_ = _calibrate(views, board, size, settings)
     camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
     return [View(v.name, replace(v.detection, corners_px=marker_centres(v.detection.marker_corners_px, camera)))
             for v in views]
@@ -604,7 +670,7 @@ def _with_corners(views: list[View], corner_set: str) -> list[View]:
 
 def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
     """Reprojection RMS (px) of a plain solve (no uncertainty) on ``views``."""
-    return _solve_rms(views, board, size, settings.model, _calibrate(views, board, size, settings))
+    return _solve_rms(views, size, settings.model, _calibrate(views, board, size, settings))
 
 
 def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
@@ -623,14 +689,52 @@ def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
                                           "why": "the set whose corners fit the model best"}
 
 
-def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-                    inflation: float) -> dict[str, Any]:
+def _solves_flex(board: BoardSpec, settings: IntrinsicsSettings) -> bool:
+    """Whether a solve with ``settings`` solves ``board``'s flex."""
+    return settings.board_flex and flex_unsupported(board, settings.model) is None
+
+
+def _determined_flex(views: list[View], used: np.ndarray, solve: Solve, size: tuple[int, int],
+                     settings: IntrinsicsSettings) -> tuple[Solve, IntrinsicsSettings, str | None]:
+    """``solve`` and ``settings`` when the ``used`` views determine the board's flex (each term's sigma within
+    :data:`~backend.calib.intrinsics.flex.FLEX_MAX_STD_M`), or when it is not solved; else the solve with the board
+    held flat, the settings that hold it, and why."""
+    if not _solves_flex(solve.board, settings):
+        return solve, settings, None
+    camera = CameraIntrinsics(settings.model, size[0], size[1], solve.K, solve.dist)
+    _, _, cov_all = _covariance(camera, views, solve.board, solve.rvecs, solve.tvecs, used,
+                                _free_intrinsics(camera, settings), flex=True)
+    std_m = np.sqrt(np.clip(np.diag(cov_all)[-2:], 0, None))
+    if std_m.max() <= FLEX_MAX_STD_M:
+        return solve, settings, None
+    flat = replace(settings, board_flex=False)
+    active = [v for v, u in zip(views, used, strict=True) if u]
+    return (_calibrate(active, solve.board.with_warp((0.0, 0.0)), size, flat), flat,
+            f"held at zero: the views do not determine it (sigma {1e3 * std_m.max():.2g} mm > "
+            f"{1e3 * FLEX_MAX_STD_M:.2g} mm); tilt the board 20-40 degrees in some views, about both its axes")
+
+
+def _flex_report(board: BoardSpec, settings: IntrinsicsSettings, cov_all: np.ndarray,
+                 note: str | None) -> dict[str, Any]:
+    """The board's flex as the result gives it: ``status`` ``solved`` (with ``warp_mm`` and ``std_mm``, along x and
+    y) or ``held at zero`` / ``not solved`` with ``detail``."""
+    if _solves_flex(board, settings):
+        return {"status": "solved", "warp_mm": [round(1e3 * w, 4) for w in board.warp_m],
+                "std_mm": [round(1e3 * float(s), 4) for s in np.sqrt(np.clip(np.diag(cov_all)[-2:], 0, None))],
+                "detail": "the bow of the board's centre lines along x and y (mrcal's calobject_warp), solved with "
+                          "the lens"}
+    return {"status": "held at zero" if note else "not solved", "warp_mm": [0.0, 0.0], "std_mm": None,
+            "detail": note or flex_unsupported(board, settings.model) or "switched off"}
+
+
+def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int],
+                    settings: IntrinsicsSettings) -> dict[str, Any]:
     """Calibrate the even and the odd views apart and compare them across the image (mrcal's cross-validation).
 
-    Each half's analytic projection sigma is scaled by ``inflation`` (the full solve's reported over its
-    analytic worst projection sigma: what the jackknife found the corner-noise model misses), so both halves
-    are judged with the noise model the result reports. Returns ``status`` ``consistent``, ``inconsistent``
-    or ``not made`` with a ``detail``, and the comparison's grids.
+    Each half carries the projection sigma the result reports (:func:`_noise_model_projection`), so where the
+    halves differ by more than their sigmas the noise model does not explain the data: model error (a board's
+    bow, a lens the model cannot follow) or bad views. Returns ``status`` ``consistent``, ``inconsistent`` or
+    ``not made`` with a ``detail``, and the comparison's grids.
     """
     if len(views) < 2 * MIN_VIEWS:
         return {"status": "not made", "detail": f"{len(views)} views; two halves need at least {2 * MIN_VIEWS}"}
@@ -638,13 +742,15 @@ def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int], 
     for half in (views[0::2], views[1::2]):
         try:
             _check_views(half, board)
-            K, dist, rvecs, tvecs = _calibrate(half, board, size, settings)
+            K, dist, rvecs, tvecs, solved_board = _calibrate(half, board, size, settings)
         except InputError as exc:
             return {"status": "not made", "detail": f"a half of the views cannot be solved alone: {exc.message}"}
         camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
-        _, cov, _ = _covariance(camera, half, board, rvecs, tvecs, np.ones(len(half), bool),
-                             _free_intrinsics(camera, settings))
-        halves.append((camera, np.array(_projection_uncertainty(camera, cov)["sigma_px"]) * inflation))
+        A = _free_intrinsics(camera, settings)
+        _, _, cov_all = _covariance(camera, half, solved_board, rvecs, tvecs, np.ones(len(half), bool), A,
+                                    _solves_flex(solved_board, settings))
+        sigma = _noise_model_projection(camera, cov_all, A, rvecs, [v.detection.corners_px for v in half])
+        halves.append((camera, np.array(sigma["sigma_px"])))
     (a, sigma_a), (b, sigma_b) = halves
     diff = projection_difference(a, sigma_a, b, sigma_b, UNCERTAINTY_GRID)
     detail = f"the halves ({len(views[0::2])} and {len(views[1::2])} views) " + _difference_phrase(diff)
@@ -695,16 +801,18 @@ def calibrate_intrinsics(
     kept_by_name = {v.name: v for v in kept}
     views = [kept_by_name.get(v.name, v) for v in views]  # a view dropped whole keeps its corners, unused
     used = np.array([v.name in kept_by_name for v in views])
+    solve, settings, flex_note = _determined_flex(views, used, solve, image_size, settings)
     for attempt in range(2):
         active = [v for v, u in zip(views, used, strict=True) if u]
         if attempt:  # without the views flagged as outliers
             _check_views(active, board)
-            solve = _calibrate(active, board, image_size, settings)
-        K, dist, rvecs, tvecs = solve
+            solve = _calibrate(active, solve.board, image_size, settings)
+        K, dist, rvecs, tvecs, board = solve
         camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
         progress(0.6 + 0.2 * attempt, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
-        residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A)
+        residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A,
+                                              _solves_flex(board, settings))
         view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
         outlier = used & (view_rms > settings.outlier_factor * np.median(view_rms[used]))
         if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):
@@ -724,16 +832,11 @@ def calibrate_intrinsics(
     d = np.sqrt(np.diag(corr_cov))
     correlation = corr_cov / np.outer(d, d)
     active = [v for v, u in zip(views, used, strict=True) if u]
-    std_jackknife = _jackknife_std(active, board, camera, settings, progress) if settings.jackknife else 0 * std_all
-    analytic_max_px = _projection_uncertainty(camera, cov)["max_px"]
-    # Report the larger of the two sigmas per parameter, keeping the analytic correlation structure.
-    std_all = np.where(estimated, np.maximum(std_all, std_jackknife), 0.0)
-    cov = np.outer(std_all, std_all) * _embed(correlation, estimated)
-    projection = _projection_uncertainty(camera, cov)
-    projection["noise_model"] = _noise_model_projection(camera, cov_all, A, rvecs)  # reported beside, not judged
+    projection = _noise_model_projection(camera, cov_all, A, rvecs, [v.detection.corners_px for v in active])
+    jackknife = (_jackknife_report(camera, cov, _jackknife_std(active, board, camera, settings, progress), estimated)
+                 if settings.jackknife else None)
     progress(0.92, "cross-validating: solving each half of the views")
-    cross_validation = (_cross_validate(active, board, image_size, replace(settings, jackknife=False),
-                                        projection["max_px"] / max(analytic_max_px, 1e-12))
+    cross_validation = (_cross_validate(active, board, image_size, replace(settings, jackknife=False))
                         if settings.cross_validate else {"status": "not made", "detail": "switched off"})
     all_res = np.concatenate([r for (r, _), u in zip(residuals, used, strict=True) if u])
     view_results = [
@@ -751,6 +854,7 @@ def calibrate_intrinsics(
         correlation, correlation_names = correlation[np.ix_(kept, kept)], photogrammetric.INTERIOR
         model_report = photogrammetric.report(camera, np.delete(std_all, 1), correlation, cov_all, rvecs, tvecs,
                                               [v.name for v in active], settings.pixel_size_um)
+    flex_report = _flex_report(board, settings, cov_all, flex_note)
     progress(1.0, "done")
     return IntrinsicsResult(
         camera=camera,
@@ -766,7 +870,9 @@ def calibrate_intrinsics(
         seconds=time.perf_counter() - started,
         corners=corners,
         cross_validation=cross_validation,
-        verdict=intrinsics_verdict(projection, cross_validation),
+        verdict=intrinsics_verdict(projection, cross_validation, flex_report, jackknife),
         warnings=warnings,
         photogrammetric=model_report,
+        board_flex=flex_report,
+        jackknife=jackknife,
     )

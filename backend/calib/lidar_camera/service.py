@@ -245,6 +245,7 @@ def solve_pairs(camera: CameraIntrinsics, board: BoardSpec | VTarget | None, pai
         f"carried into the board poses, from {lens.source} ({', '.join(lens.names)})" if lens is not None else
         "not known: the result's sigma leaves out the camera's intrinsics' own (give their sigmas, or accept the "
         "camera's intrinsics from a solve)")
+    result.diagnostics["board_flex_mm"] = [1e3 * w for w in board.warp_m]  # as the camera's intrinsics measured it
     judge(result)
     return result
 

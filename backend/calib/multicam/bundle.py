@@ -184,7 +184,8 @@ class MulticamResult(SolveResult):
                 "transforms": {name: t.to_record() for name, t in self.transforms.items()},
                 "rms_px": dict(self.rms_px), "seconds": self.seconds,
                 "verdict": {name: verdict.to_dict() for name, verdict in self.verdicts.items()},
-                "board": str(self.board), "settings": asdict(self.settings), "intrinsics_std": self.intrinsics_std,
+                "board": str(self.board), "board_flex_mm": [1e3 * w for w in self.board.warp_m],
+                "settings": asdict(self.settings), "intrinsics_std": self.intrinsics_std,
                 "intrinsics_projection_sigma_px": {name: finite_or_none([sigma])[0] for name, sigma
                                                    in self.intrinsics_projection_sigma_px.items()},
                 "pairs": self.pairs, "frames": [f.to_record() for f in self.frames],
