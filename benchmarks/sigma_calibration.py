@@ -15,7 +15,8 @@ per parameter the normalised error ``z = (estimate - truth) / sigma`` is taken, 
 
 Solvers and what varies per seed ``s`` (seed 0 is the data of the tests named):
 
-- ``intrinsics``: ``calibrate_intrinsics`` with the default ``IntrinsicsSettings`` (k1, k2, p1, p2; jackknife on)
+- ``intrinsics``: ``calibrate_intrinsics`` with the default ``IntrinsicsSettings`` (k1, k2, p1, p2, the board's
+  flex; the sigmas are the noise model's, mrcal's, the jackknife only beside them)
   on 15 views of the simulated ``cam_front`` (device seed ``s``: board motion and image noise), as
   ``tests/calib/intrinsics/test_sim.py``; parameters fx, fy, cx, cy (px), k1, k2, p1, p2 (k3 is fixed at 0);
 - ``lidar_camera_target``: ``solve_target`` on 12 board poses (``moving_board_poses(12, seed=s)``), a 16-beam

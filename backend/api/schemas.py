@@ -94,6 +94,8 @@ class IntrinsicsSolveRequest(FiniteModel):
     estimate_k3: bool = False
     estimate_tangential: bool = True
     fix_aspect: bool = False
+    board_flex: bool = Field(True, description="solve the board's bow with the lens (mrcal's calobject_warp)")
+    reject_corners: bool = Field(True, description="leave out single corners far beyond the corner noise")
     drop_outliers: bool = False
     outlier_factor: float = Field(3.0, gt=1.0)
     pixel_size_um: float | None = Field(None, gt=0, lt=1000, description="the pixel pitch (um): the photogrammetric "

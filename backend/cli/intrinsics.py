@@ -30,6 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     intr.add_argument("--no-tangential", action="store_true", help="fix p1 = p2 = 0 (pinhole-radtan)")
     intr.add_argument("--fix-aspect", action="store_true", help="keep fx = fy")
     intr.add_argument("--drop-outliers", action="store_true", help="re-solve without outlier views")
+    intr.add_argument("--flat-board", action="store_true", help="hold the board flat: do not solve its bow "
+                      "(mrcal's calobject_warp) with the lens")
+    intr.add_argument("--keep-outlier-corners", action="store_true", help="do not leave out single corners far "
+                      "beyond the corner noise")
     intr.add_argument("--out", type=Path, help="write the camera here: ROS camera_info YAML, or the camera JSON "
                       "(any model, with its sigmas) for a .json name")
     intr.add_argument("--camera-name", default="camera", help="camera_name in the YAML")
@@ -55,7 +59,8 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
     auto_for = "camera_info" if args.out is not None and not as_json and args.model == "auto" else args.auto_for
     settings = IntrinsicsSettings(model=args.model, auto_for=auto_for, estimate_k3=args.k3,
                                   estimate_tangential=not args.no_tangential, fix_aspect=args.fix_aspect,
-                                  drop_outliers=args.drop_outliers, pixel_size_um=args.pixel_size_um)
+                                  drop_outliers=args.drop_outliers, pixel_size_um=args.pixel_size_um,
+                                  board_flex=not args.flat_board, reject_corners=not args.keep_outlier_corners)
     result, skipped = solve_files(args.images_dir, parse_target(args.board), settings,
                                        progress_to_stderr(False))
     for item in skipped:

@@ -62,6 +62,7 @@ def residual_vectors(corners_px: np.ndarray, residuals_px: np.ndarray, view_inde
             left.scatter(rejected_px[:, 0], rejected_px[:, 1], marker="x", color="#e03131", s=14, lw=0.9,
                          label=f"rejected ({len(rejected_px)})")
             left.legend(loc="lower right", fontsize=6)
+        if len(corners_px):
             right.scatter(residuals_px[:, 0], residuals_px[:, 1], c=view_index, cmap="tab20", s=3, lw=0)
             rms = float(np.sqrt(np.mean(length**2)))
             right.add_patch(mpl.patches.Circle((0, 0), rms, fill=False, color="#333333", lw=0.8, ls="--"))

@@ -89,6 +89,9 @@ class IntrinsicsStep:
                 self.k3 = gui.add_checkbox("Estimate k3", initial_value=False)
                 self.tangential = gui.add_checkbox("Estimate p1, p2", initial_value=True)
                 self.fix_aspect = gui.add_checkbox("Fix aspect (fx = fy)", initial_value=False)
+                self.board_flex = gui.add_checkbox("Solve the board's flex", initial_value=True,
+                                                   hint="mrcal's calobject_warp: the board's bow, solved with the lens")
+                self.reject_corners = gui.add_checkbox("Reject outlier corners", initial_value=True)
                 self.drop_outliers = gui.add_checkbox("Drop outlier views and re-solve", initial_value=False)
                 self.solve_button = gui.add_button("Solve", color="blue")
                 self.jobs = JobPanel(ctx, [self.solve_button], cancel_label="Cancel solve")
@@ -283,14 +286,15 @@ class IntrinsicsStep:
         return IntrinsicsSettings(model=self.model.value, auto_for=AUTO_FOR[self.auto_for.value],
                                   estimate_k3=self.k3.value,
                                   estimate_tangential=self.tangential.value, fix_aspect=self.fix_aspect.value,
-                                  drop_outliers=self.drop_outliers.value,
+                                  drop_outliers=self.drop_outliers.value, board_flex=self.board_flex.value,
+                                  reject_corners=self.reject_corners.value,
                                   pixel_size_um=float(self.pixel_size.value) or None)
 
     def _model_chosen(self) -> None:
         """Show the options of the chosen model: the photogrammetric model always estimates its ten parameters."""
         self.auto_for.visible = self.model.value == "auto"
         self.pixel_size.visible = self.model.value in ("photogrammetric", "auto")
-        for option in (self.k3, self.tangential, self.fix_aspect):
+        for option in (self.k3, self.tangential, self.fix_aspect, self.board_flex):
             option.visible = self.model.value != "photogrammetric"
 
     def _solve(self) -> None:

@@ -127,6 +127,20 @@ def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_pat
 
 
 @pytest.mark.slow
+def test_intrinsics_can_hold_the_board_flat_and_keep_every_corner(intrinsics_run):
+    """``--flat-board`` and ``--keep-outlier-corners``: OpenCV's own problem (a flat board, every corner), so the fit
+    is the flat board's, worse than with the flex the default solves (the contract test's run)."""
+    default, work = intrinsics_run
+    run = cli_in_process("intrinsics", work / "images", "--board", BOARD, "--json", "--fix-aspect", "--k3",
+                         "--flat-board", "--keep-outlier-corners")
+    assert run.returncode == 0, run.stderr
+    flat = json.loads(run.stdout)
+    assert flat["board_flex"] == {"status": "not solved", "warp_mm": [0.0, 0.0], "std_mm": None,
+                                  "detail": "switched off"}
+    assert flat["rms_px"] > json.loads(default.stdout)["rms_px"] + 0.005
+
+
+@pytest.mark.slow
 def test_intrinsics_progress_on_stderr_and_yaml_written(intrinsics_run):
     run, work = intrinsics_run
     assert run.returncode == 0, run.stderr

@@ -23,6 +23,7 @@ from backend.core.boards import BoardSpec
 from backend.core.transforms import transform_points
 from backend.sim.board_motion import board_poses
 from backend.sim.board_renderer import render_board_image
+from studio.wizard.intrinsics_step import parameters_markdown
 from tests.calib.intrinsics.test_models import PINHOLE, intrinsic_errors, rendered_views
 
 BOARD = BoardSpec.parse("checkerboard:10x7:0.06")
@@ -91,3 +92,22 @@ def test_rendered_bow_moves_the_corners_where_the_bowed_board_has_them():
     off_flat = np.linalg.norm(detection.corners_px - flat_px[ids], axis=1)
     assert np.median(off_bowed) < 0.04
     assert np.median(off_flat) > 0.08 and off_flat.max() > 0.25
+
+
+def test_a_flex_the_views_do_not_determine_is_held_at_zero_and_said_so(views, monkeypatch):
+    """Clean corners determine the flex from three views already (sigma 0.02 mm here), so the threshold is lowered
+    below this scene's sigma to take the path a noisy set takes: the board is held flat, the result says why and
+    what to do, and the lens is the flat board's solve."""
+    monkeypatch.setattr("backend.calib.intrinsics.solver.FLEX_MAX_STD_M", 1e-6)
+    settings = IntrinsicsSettings(jackknife=False, cross_validate=False)
+    held = calibrate_intrinsics(views["bowed"], BOARD, PINHOLE.image_size, settings)
+    flex = held.board_flex
+    assert flex["status"] == "held at zero" and flex["warp_mm"] == [0.0, 0.0] and flex["std_mm"] is None
+    assert flex["detail"].startswith("the views do not determine it (sigma 0.00") and "> 0.001 mm" in \
+        flex["detail"] and "tilt the board 20-40 degrees" in flex["detail"]
+    assert held.board.warp_m == (0.0, 0.0) and held.settings.board_flex is False
+    assert f"Board flex: held at zero: {flex['detail']}" in parameters_markdown(held.to_record())
+    flat = calibrate_intrinsics(views["bowed"], BOARD, PINHOLE.image_size, IntrinsicsSettings(
+        jackknife=False, cross_validate=False, board_flex=False))
+    np.testing.assert_allclose(held.camera.K, flat.camera.K)
+    assert held.rms_px == pytest.approx(flat.rms_px)

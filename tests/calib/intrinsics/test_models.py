@@ -134,6 +134,10 @@ def test_single_bad_corners_are_rejected_and_listed_per_view():
     figure = residual_vectors(np.full_like(residuals, 100.0), residuals, np.zeros(len(residuals)), PINHOLE.image_size,
                               rejected_px)  # the report's plot marks them
     assert [t.get_text() for t in figure.axes[0].get_legend().get_texts()] == ["rejected (8)"]
+    for marked in (rejected_px, None):  # the residuals by view are drawn with rejected corners or without
+        plotted = residual_vectors(np.full_like(residuals, 100.0), residuals, np.zeros(len(residuals)),
+                                   PINHOLE.image_size, marked).axes[1].collections[0].get_offsets()
+        np.testing.assert_allclose(plotted, residuals)
     listed = ", ".join(f"{name} 2" for name in sorted(moved))  # and the studio's panel lists them
     assert f"Corners rejected as outliers: {listed}\n" in parameters_markdown(result.to_record())
     unrejected = calibrate_intrinsics(views, CHECKERBOARD, PINHOLE.image_size,
