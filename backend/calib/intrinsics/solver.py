@@ -365,6 +365,31 @@ def _kept_corners(detection: Detection, keep: np.ndarray) -> Detection:
                    marker_corners_px=None if detection.marker_corners_px is None else detection.marker_corners_px[keep])
 
 
+def _picked_and_rejected(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                         progress: ProgressCallback):
+    """The views in the corner set that fits best (:func:`_pick_corners`, through the lens for a test field) and
+    :func:`_reject_corners`' outcome on them: the views (every one, in the chosen set), those kept, what was
+    rejected, the solve and the corner choice. A view dropped whole does not vote for the corner set either: when
+    any is dropped, the set is chosen again without it and, if that choice differs, the rest is solved again in it,
+    as if the dropped view had not been taken."""
+    picked, corners = _pick_corners(views, board, size, settings)
+    picked = _through_the_lens(picked, board, size, settings)
+    progress(0.1, f"solving {settings.model} from {len(picked)} views")
+    kept, rejected, solve = _reject_corners(picked, board, size, settings, progress)
+    dropped = {name for name, report in rejected.items() if report.view_dropped}
+    if not dropped:
+        return picked, kept, rejected, solve, corners
+    again, corners_again = _pick_corners([v for v in views if v.name not in dropped], board, size, settings)
+    if corners_again["chosen"] == corners["chosen"]:
+        return picked, kept, rejected, solve, corners
+    again = _through_the_lens(again, board, size, settings)
+    kept, rejected_again, solve = _reject_corners(again, board, size, settings, progress)
+    by_name = {v.name: v for v in again}
+    return ([by_name.get(v.name, v) for v in picked], kept,
+            {name: report for name, report in rejected.items() if name in dropped} | rejected_again, solve,
+            corners_again | {"why": corners_again["why"] + f", chosen again without the dropped {sorted(dropped)}"})
+
+
 def _reject_corners(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
                     progress: ProgressCallback) -> tuple[list[View], dict[str, RejectedCorners], Solve]:
     """mrcal's outlier rejection, corner by corner: solve, drop every corner whose residual is longer than
@@ -796,10 +821,7 @@ def calibrate_intrinsics(
                              view.name)
     progress(0.05, "picking the corner set that fits better")
     _check_views(views, board)
-    views, corners = _pick_corners(views, board, image_size, settings)
-    views = _through_the_lens(views, board, image_size, settings)
-    progress(0.1, f"solving {settings.model} from {len(views)} views")
-    kept, rejected, solve = _reject_corners(views, board, image_size, settings, progress)
+    views, kept, rejected, solve, corners = _picked_and_rejected(views, board, image_size, settings, progress)
     kept_by_name = {v.name: v for v in kept}
     views = [kept_by_name.get(v.name, v) for v in views]  # a view dropped whole keeps its corners, unused
     used = np.array([v.name in kept_by_name for v in views])
