@@ -89,8 +89,11 @@ def test_the_recording_alone_gives_the_lidars_clock(client: TestClient, recorded
     # held to its sigma always, and to 3 ms when the sigma is fit for that: on a loaded machine a 10 s recording
     # keeps fewer frames, and the sigma says so (the step-11 browser test's rule)
     assert abs(error_s) < 3 * sigma_s + 1e-3, found
-    assert sigma_s >= 2e-3 or abs(error_s) < 3e-3, found
-    assert found["verdict"]["level"] in ("trusted", "check"), found["verdict"]
+    verdict = found["verdict"]
+    if sigma_s < 2e-3:  # enough frames kept
+        assert abs(error_s) < 3e-3 and verdict["level"] in ("trusted", "check"), found
+    else:  # a loaded machine kept too few (CI once: 35.9 ms): the verdict says so rather than trust it
+        assert verdict["level"] != "trusted" and any("time offset sigma" in r for r in verdict["reasons"]), found
 
 
 def test_a_recording_that_does_not_hold_both_sensors_is_refused(client: TestClient, recorded: dict) -> None:
