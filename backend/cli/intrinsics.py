@@ -90,12 +90,13 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _camera_file(result, camera_name: str, as_json: bool) -> str:
-    """The text of ``--out``: the camera JSON (with the sigmas and any photogrammetric report) or camera_info."""
+    """The text of ``--out``: the camera JSON (with the sigmas, the board's flex and any photogrammetric report) or
+    camera_info."""
     from backend.exports.camera_json import dump_camera_json
     from backend.exports.ros_camera_info import dump_camera_info
 
     if not as_json:
         return dump_camera_info(result.camera, camera_name)
-    extra = {"std": result.std, "rms_px": result.rms_px}
+    extra = {"std": result.std, "rms_px": result.rms_px, "board_flex": result.board_flex}
     return dump_camera_json(result.camera, camera_name,
                             extra | ({"photogrammetric": result.photogrammetric} if result.photogrammetric else {}))

@@ -24,7 +24,8 @@ _EXPECTED_FILE = "a camera JSON object with model, width, height, K (3x3, px) an
 
 
 def dump_camera_json(camera: CameraIntrinsics, camera_name: str, extra: dict[str, Any] | None = None) -> str:
-    """The camera as camera JSON text, with ``extra`` keys (``std``, ``photogrammetric``) after the camera's own."""
+    """The camera as camera JSON text, with ``extra`` keys (``std``, ``board_flex``, ``photogrammetric``) after the
+    camera's own."""
     require_finite({"K": camera.K, "dist": camera.dist}, f"camera JSON of {shorten(camera_name)}", camera_name)
     return json.dumps({"camera_name": camera_name, **camera.to_dict(), **(extra or {})}, indent=2) + "\n"
 

@@ -87,7 +87,7 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
     result_id = session.accepted(f"{sensor}/intrinsics")
     record = session.result(result_id) if result_id else None
     if fmt == "camera-json":
-        kept = ("rms_px", "std", "correlation", "photogrammetric")
+        kept = ("rms_px", "std", "correlation", "photogrammetric", "board_flex")
         return f"{sensor}.json", dump_camera_json(camera, sensor, {key: record[key] for key in kept
                                                                    if record and key in record})
     extra = {"avg_reprojection_error": record["rms_px"]} if record else None

@@ -414,6 +414,7 @@ def test_a_photogrammetric_solve_through_the_api_and_the_camera_json_export(clie
     assert document["model"] == kept["camera"]["model"] and document["dist"] == kept["camera"]["dist"]
     assert document["std"] == kept["std"] and document["correlation"] == kept["correlation"]
     assert document["model"] == "photogrammetric" and document["photogrammetric"] == kept["photogrammetric"]
+    assert document["board_flex"] == kept["board_flex"] and document["board_flex"]["status"] == "not solved"
     response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve",
                            json={"model": "photogrammetric", "pixel_size_um": -1})
     assert response.status_code == 422 and "pixel_size_um" in response.text

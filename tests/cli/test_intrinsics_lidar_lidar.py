@@ -129,15 +129,17 @@ def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_pat
 @pytest.mark.slow
 def test_intrinsics_can_hold_the_board_flat_and_keep_every_corner(intrinsics_run):
     """``--flat-board`` and ``--keep-outlier-corners``: OpenCV's own problem (a flat board, every corner), so the fit
-    is the flat board's, worse than with the flex the default solves (the contract test's run)."""
+    is the flat board's, worse than with the flex the default solves (the contract test's run); the camera JSON
+    says so as the JSON output does."""
     default, work = intrinsics_run
     run = cli_in_process("intrinsics", work / "images", "--board", BOARD, "--json", "--fix-aspect", "--k3",
-                         "--flat-board", "--keep-outlier-corners")
+                         "--flat-board", "--keep-outlier-corners", "--out", work / "flat.json")
     assert run.returncode == 0, run.stderr
     flat = json.loads(run.stdout)
     assert flat["board_flex"] == {"status": "not solved", "warp_mm": [0.0, 0.0], "std_mm": None,
                                   "detail": "switched off"}
     assert flat["rms_px"] > json.loads(default.stdout)["rms_px"] + 0.005
+    assert json.loads((work / "flat.json").read_text())["board_flex"] == flat["board_flex"]  # the camera JSON too
 
 
 @pytest.mark.slow

@@ -366,7 +366,8 @@ def _kept_corners(detection: Detection, keep: np.ndarray) -> Detection:
 
 
 def _picked_and_rejected(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
-                         progress: ProgressCallback):
+                         progress: ProgressCallback
+                         ) -> tuple[list[View], list[View], dict[str, RejectedCorners], Solve, dict[str, Any]]:
     """The views in the corner set that fits best (:func:`_pick_corners`, through the lens for a test field) and
     :func:`_reject_corners`' outcome on them: the views (every one, in the chosen set), those kept, what was
     rejected, the solve and the corner choice. A view dropped whole does not vote for the corner set either: when
