@@ -63,6 +63,18 @@ class CameraIntrinsics:
         """(width, height) in pixels, as OpenCV expects."""
         return self.width, self.height
 
+    @property
+    def parameters(self) -> np.ndarray:
+        """``[fx, fy, cx, cy, dist...]`` (px, and the distortion coefficients' units): the order of the solvers'
+        Jacobians and covariances."""
+        return np.r_[self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.dist]
+
+    def with_parameters(self, parameters: np.ndarray) -> CameraIntrinsics:
+        """This camera (model, size) with ``[fx, fy, cx, cy, dist...]`` set to ``parameters``."""
+        fx, fy, cx, cy = parameters[:4]
+        return CameraIntrinsics(self.model, self.width, self.height,
+                                np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), parameters[4:])
+
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Project (N, 3) points in the optical frame (m) to (N, 2) pixels.
 

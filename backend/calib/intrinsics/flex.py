@@ -44,30 +44,18 @@ def flex_columns(J: np.ndarray, rvec: np.ndarray, basis: np.ndarray) -> np.ndarr
     return (J[:, 3:6] @ normal_camera)[:, None] * np.repeat(basis, 2, axis=0)
 
 
-def camera_with(camera: CameraIntrinsics, parameters: np.ndarray) -> CameraIntrinsics:
-    """``camera`` with ``[fx, fy, cx, cy, dist...]`` set to ``parameters``."""
-    fx, fy, cx, cy = parameters[:4]
-    return CameraIntrinsics(camera.model, camera.width, camera.height,
-                            np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), np.asarray(parameters[4:]))
-
-
-def intrinsic_vector(camera: CameraIntrinsics) -> np.ndarray:
-    """``[fx, fy, cx, cy, dist...]`` of ``camera``."""
-    return np.r_[camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2], camera.dist.ravel()]
-
-
 def refine_with_flex(camera: CameraIntrinsics, free: np.ndarray, board: BoardSpec, detections: list[Detection],
                      rvecs: list[np.ndarray], tvecs: list[np.ndarray]):
     """The least-squares solve of ``detections`` over the free intrinsics (``free``: the (n_all, n_free) map of
     their changes to ``[fx, fy, cx, cy, dist...]``), every view's pose and the board's flex, from ``camera``, the
     poses and ``board.warp_m``. Returns ``(K, dist, rvecs, tvecs, board)``, the board bowed by the solved flex."""
     n_free, n_views = free.shape[1], len(detections)
-    start_vector = intrinsic_vector(camera)
+    start_vector = camera.parameters
     flat = [board.plane_xy[d.ids] for d in detections]
     basis = [board.warp_basis[d.ids] for d in detections]
 
     def unpack(params: np.ndarray) -> tuple[CameraIntrinsics, np.ndarray, np.ndarray]:
-        return (camera_with(camera, start_vector + free @ params[:n_free]), params[n_free:n_free + 2],
+        return (camera.with_parameters(start_vector + free @ params[:n_free]), params[n_free:n_free + 2],
                 params[n_free + 2:].reshape(n_views, 6))
 
     def evaluate(params: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:

@@ -659,10 +659,9 @@ def _jackknife_report(camera: CameraIntrinsics, cov: np.ndarray, std_jackknife: 
     sigma either gives (the intrinsics alone, the noise model's correlations kept). Views, not corners, are the
     jackknife's units, so a ratio well above 1 says the corner errors are shared within views (a bowed board not
     modelled, blur, a lens the model cannot follow): the cross-validation then tells model error from chance."""
-    std_analytic = sigmas(cov)
-    d = np.where(estimated, std_analytic, 1.0)
+    d = np.where(estimated, sigmas(cov), 1.0)
     cov_jackknife = np.outer(std_jackknife, std_jackknife) * cov / np.outer(d, d)
-    ratio = np.where(estimated, std_jackknife / np.where(estimated, std_analytic, 1.0), 0.0)
+    ratio = np.where(estimated, std_jackknife / d, 0.0)
     return {"std": std_jackknife.tolist(), "ratio": float(ratio.max()),
             "projection_max_px": _projection_uncertainty(camera, cov_jackknife)["max_px"],
             "noise_model_projection_max_px": _projection_uncertainty(camera, cov)["max_px"],
@@ -722,24 +721,18 @@ def _solves_flex(board: BoardSpec, settings: IntrinsicsSettings) -> bool:
     return settings.board_flex and flex_unsupported(board, settings.model) is None
 
 
-def _determined_flex(views: list[View], used: np.ndarray, solve: Solve, size: tuple[int, int],
-                     settings: IntrinsicsSettings) -> tuple[Solve, IntrinsicsSettings, str | None]:
-    """``solve`` and ``settings`` when the ``used`` views determine the board's flex (each term's sigma within
-    :data:`~backend.calib.intrinsics.flex.FLEX_MAX_STD_M`), or when it is not solved; else the solve with the board
-    held flat, the settings that hold it, and why."""
-    if not _solves_flex(solve.board, settings):
-        return solve, settings, None
-    camera = CameraIntrinsics(settings.model, size[0], size[1], solve.K, solve.dist)
-    _, _, cov_all = _covariance(camera, views, solve.board, solve.rvecs, solve.tvecs, used,
-                                _free_intrinsics(camera, settings), flex=True)
-    std_m = np.sqrt(np.clip(np.diag(cov_all)[-2:], 0, None))
-    if std_m.max() <= FLEX_MAX_STD_M:
-        return solve, settings, None
-    flat = replace(settings, board_flex=False)
-    active = [v for v, u in zip(views, used, strict=True) if u]
-    return (_calibrate(active, solve.board.with_warp((0.0, 0.0)), size, flat), flat,
-            f"the views do not determine it (sigma {1e3 * std_m.max():.2g} mm > "
-            f"{1e3 * FLEX_MAX_STD_M:.2g} mm); tilt the board 20-40 degrees in some views, about both its axes")
+def _flex_std_m(cov_all: np.ndarray) -> np.ndarray:
+    """The flex's 1-sigma along x and y (m) from :func:`_covariance`'s ``cov_all`` of a solve with the flex."""
+    return np.sqrt(np.clip(np.diag(cov_all)[-2:], 0, None))
+
+
+def _undetermined_flex(board: BoardSpec, settings: IntrinsicsSettings, cov_all: np.ndarray) -> str | None:
+    """Why the board's flex is to be held at zero, when this solve solved it (``cov_all``: its covariance) and a term's
+    sigma exceeds :data:`~backend.calib.intrinsics.flex.FLEX_MAX_STD_M`; None when it is determined or not solved."""
+    if not _solves_flex(board, settings) or (std_m := _flex_std_m(cov_all)).max() <= FLEX_MAX_STD_M:
+        return None
+    return (f"the views do not determine it (sigma {1e3 * std_m.max():.2g} mm > {1e3 * FLEX_MAX_STD_M:.2g} mm); "
+            "tilt the board 20-40 degrees in some views, about both its axes")
 
 
 def _flex_report(board: BoardSpec, settings: IntrinsicsSettings, cov_all: np.ndarray,
@@ -748,7 +741,7 @@ def _flex_report(board: BoardSpec, settings: IntrinsicsSettings, cov_all: np.nda
     y) or ``held at zero`` / ``not solved`` with ``detail``."""
     if _solves_flex(board, settings):
         return {"status": "solved", "warp_mm": [round(1e3 * w, 4) for w in board.warp_m],
-                "std_mm": [round(1e3 * float(s), 4) for s in np.sqrt(np.clip(np.diag(cov_all)[-2:], 0, None))],
+                "std_mm": [round(1e3 * float(s), 4) for s in _flex_std_m(cov_all)],
                 "detail": "the bow of the board's centre lines along x and y (mrcal's calobject_warp), solved with "
                           "the lens"}
     return {"status": "held at zero" if note else "not solved", "warp_mm": [0.0, 0.0], "std_mm": None,
@@ -826,23 +819,27 @@ def calibrate_intrinsics(
     kept_by_name = {v.name: v for v in kept}
     views = [kept_by_name.get(v.name, v) for v in views]  # a view dropped whole keeps its corners, unused
     used = np.array([v.name in kept_by_name for v in views])
-    solve, settings, flex_note = _determined_flex(views, used, solve, image_size, settings)
-    for attempt in range(2):
+    flex_note, outliers_dropped = None, False
+    while True:
         active = [v for v, u in zip(views, used, strict=True) if u]
-        if attempt:  # without the views flagged as outliers
-            _check_views(active, board)
-            solve = _calibrate(active, solve.board, image_size, settings)
         K, dist, rvecs, tvecs, board = solve
         camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
-        progress(0.6 + 0.2 * attempt, "estimating uncertainty")
+        progress(0.6 + 0.2 * outliers_dropped, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
         residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A,
                                               _solves_flex(board, settings))
+        if not outliers_dropped and flex_note is None and (flex_note := _undetermined_flex(board, settings, cov_all)):
+            settings = replace(settings, board_flex=False)  # the bow held at zero: solved again without it
+            solve = _calibrate(active, board.with_warp((0.0, 0.0)), image_size, settings)
+            continue
         view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r, _ in residuals])
         outlier = used & (view_rms > settings.outlier_factor * np.median(view_rms[used]))
-        if not (settings.drop_outliers and attempt == 0 and np.any(outlier & used)):
+        if outliers_dropped or not (settings.drop_outliers and np.any(outlier)):
             break
-        used = used & ~outlier
+        used, outliers_dropped = used & ~outlier, True  # solved again without the views flagged as outliers
+        active = [v for v, u in zip(views, used, strict=True) if u]
+        _check_views(active, board)
+        solve = _calibrate(active, board, image_size, settings)
 
     std_all = sigmas(cov)
     if std_all[0] > MAX_RELATIVE_FOCAL_STD * camera.K[0, 0]:

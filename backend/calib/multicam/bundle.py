@@ -203,16 +203,6 @@ def _free_intrinsics(camera: CameraIntrinsics) -> list[str]:
     return INTRINSIC_NAMES + dist
 
 
-def _intrinsics_vector(camera: CameraIntrinsics) -> np.ndarray:
-    return np.concatenate([[camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]], camera.dist])
-
-
-def _with_vector(camera: CameraIntrinsics, vector: np.ndarray) -> CameraIntrinsics:
-    fx, fy, cx, cy = vector[:4]
-    return CameraIntrinsics(camera.model, camera.width, camera.height,
-                            np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), vector[4:])
-
-
 def _pixel_jacobians(camera: CameraIntrinsics, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels (N, 2), d pixel / d point (N, 2, 3) and d pixel / d [fx, fy, cx, cy, dist...] (N, 2, 4 + len(dist))
     of points (N, 3) in the optical frame (m), from OpenCV's analytic projection Jacobians (at rvec = tvec = 0 the
@@ -331,9 +321,9 @@ class _Problem:
         board_step = step[self.n_camera_params:self.n_camera_params + 6 * len(self.frames)].reshape(-1, 6)
         cameras = dict(self.cameras)
         for name, where in self.intrinsics_offsets().items():
-            vector = _intrinsics_vector(cameras[name])
+            vector = cameras[name].parameters
             vector[self.free_columns[name]] += step[where]
-            cameras[name] = _with_vector(cameras[name], vector)
+            cameras[name] = cameras[name].with_parameters(vector)
         return apply_params_many(self.T_cam, camera_step), apply_params_many(self.T_board, board_step), cameras
 
     def take(self, state: tuple[np.ndarray, np.ndarray, dict[str, CameraIntrinsics]]) -> None:
