@@ -23,7 +23,8 @@ def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, A
     - The noise model's projection sigma (``projection``: :func:`~backend.calib.intrinsics.solver.
       _noise_model_projection`) at its worst where the views' boards reach (``max_covered_px``) against
       :data:`~backend.core.verdict.PROJECTION_TOLERANCE_PX`; beyond the views the sigma is extrapolation and is
-      named, not judged, and views that reach under :data:`MIN_COVERED_SHARE` of the image are a ``check``.
+      named, not judged, and views that reach under :data:`MIN_COVERED_SHARE` of the image are a ``check`` (boards
+      that reach no cell's centre at all are judged across the whole image).
     - The cross-check: two halves of the views solved apart (``cross_validation``: ``status`` and ``detail``). Halves
       that differ by more than their sigmas are model error, and the advice names the fixes in the order to try
       them: the board's flex when it was not solved (``board_flex``), a richer lens model (not the model comparison
@@ -33,10 +34,13 @@ def intrinsics_verdict(projection: dict[str, Any], cross_validation: dict[str, A
     Advice is in words every front-end shares (no command-line flag).
     """
     judge = VerdictBuilder()
-    covered = projection.get("max_covered_px", projection["max_px"])
-    judge.sigma("worst projection where the views reach", covered, PROJECTION_TOLERANCE_PX, "px")
-    share = projection.get("covered_share", 1.0)
-    if projection.get("max_uncovered_px") is not None:
+    if projection["max_covered_px"] is None:  # boards too small to reach a grid cell's centre: judge the whole image
+        judge.sigma("worst projection across the image", projection["max_px"], PROJECTION_TOLERANCE_PX, "px")
+    else:
+        judge.sigma("worst projection where the views reach", projection["max_covered_px"], PROJECTION_TOLERANCE_PX,
+                    "px")
+    share = projection["covered_share"]
+    if projection["max_uncovered_px"] is not None:
         reach = f"the views' boards reach {share:.0%} of the image; beyond them the sigma is up to " \
                 f"{projection['max_uncovered_px']:.3g} px (extrapolated: add views there to calibrate it)"
         if share < MIN_COVERED_SHARE:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from backend.calib.board.detection import Detection, _agrees_with_neighbours
+from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.crossval import CONSISTENT_FACTOR, grid_pixels, projection_difference
 from backend.calib.intrinsics.models import SIMPLE, compare_models, solve_auto
 from backend.calib.intrinsics.solver import IntrinsicsSettings, View, _difference_phrase, calibrate_intrinsics
@@ -161,3 +162,14 @@ def test_too_few_views_keep_the_simple_model_and_name_the_missing_cross_check(mi
     assert result.verdict.level != "trusted"
     assert any(r.startswith("no cross-check two halves of the views: 5 views") for r in result.verdict.reasons)
     assert result.to_record()["verdict"] == result.verdict.to_dict()
+
+
+def test_boards_that_reach_no_cell_are_judged_across_the_image():
+    """Boards too small to cover a grid cell's centre leave nothing to judge where they reach: the whole image's
+    worst sigma is judged (not a sigma 'not determined by the data'), and the reach is a check."""
+    projection = {"max_px": 0.2, "max_covered_px": None, "covered_share": 0.0, "max_uncovered_px": 0.2}
+    consistent = {"status": "consistent", "worst_ratio": 0.5, "detail": "the halves agree"}
+    verdict = intrinsics_verdict(projection, consistent)
+    assert verdict.level == "check", verdict.reasons
+    assert verdict.reasons[0] == "worst projection across the image sigma 0.2 px is within the tolerance 0.3 px"
+    assert "the views' boards reach 0% of the image" in verdict.reasons[1] and "under the 33%" in verdict.reasons[1]
