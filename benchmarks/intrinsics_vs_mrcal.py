@@ -16,7 +16,9 @@ Solves:
   aspect as mrcal has it, the defaults otherwise (the board's flex solved, corner rejection and the jackknife on),
   cross-validation off (it does not change the sigma). Its ``projection_sigma_px`` is the result's, mrcal's way
   (the camera free to turn against the boards); ``jackknife_projection_max_px`` the jackknife's (the intrinsics
-  alone propagated), reported beside it as a cross-check; ``flat`` the same solve with the board held flat.
+  alone propagated), reported beside it as a cross-check; ``flat`` the same solve with the board held flat;
+  ``splined`` the studio's ``splined-stereographic`` solve (the defaults, flex and rejection) with the set's knots
+  and field of view.
 - mrcal, through Debian's ``mrcal-calibrate-cameras`` (the studio's venv cannot import mrcal), three ways:
   ``a_opencv5_plain``: ``LENSMODEL_OPENCV5`` with no board flex, no outlier rejection and no regularization, the
   closest mrcal gets to the studio's solve; ``b_opencv5_flex_outliers``: the same model mrcal's default way,
@@ -39,7 +41,7 @@ not invert are counted (``grid_cells_not_inverted``) and left out of that differ
 ``worst`` is its result's, over the whole grid.
 
 Ratios are ours / mrcal's, for RMS and the sigmas (reported and analytic; worst over the cells each model
-inverts), against ``a`` and ``b``. When Debian's mrcal is missing the
+inverts), against ``a`` and ``b``, and our splined solve against ``c``. When Debian's mrcal is missing the
 JSON says ``"mrcal": "not installed"`` and carries the studio's figures alone.
 
 Prints one JSON object on stdout; progress goes to stderr.
@@ -65,6 +67,7 @@ from backend.calib.intrinsics.crossval import grid_pixels
 from backend.calib.intrinsics.solver import UNCERTAINTY_GRID, IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
+from backend.core.splined import SplineGrid, rays_where_inverting
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MRCAL_PYTHON = "/usr/bin/python3"
@@ -157,7 +160,11 @@ def uncertainty_grid(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, 
     """The studio's uncertainty grid: cell-centre pixels (N, 2), ``camera``'s rays there (N, 3), and whether
     ``camera`` projects each ray back onto its pixel (N,)."""
     pixels = grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID)
-    rays = camera.rays(pixels)
+    if camera.spline is None:
+        rays = camera.rays(pixels)
+    else:  # NaN where the spline folds; such a cell is not inverted, and mrcal is given a ray on the axis there
+        rays = rays_where_inverting(camera.spline, camera.parameters, pixels)
+        rays[np.isnan(rays[:, 0])] = (0.0, 0.0, 1.0)
     return pixels, rays, np.linalg.norm(camera.project(rays) - pixels, axis=1) < ROUND_TRIP_PX
 
 
@@ -167,12 +174,17 @@ def sigma_figures(projection_uncertainty: dict, inverted: np.ndarray) -> dict:
             "worst_where_inverted": float(np.ravel(projection_uncertainty["sigma_px"])[inverted].max())}
 
 
-def ours(views: list[View], board: BoardSpec, size: tuple[int, int]):
-    """The studio's solve as reported, and the same with the board flat; returns (result, figures)."""
+def ours(views: list[View], board: BoardSpec, size: tuple[int, int], spline: SplineGrid):
+    """The studio's solve as reported, the same with the board flat, and the splined model's solve on ``spline``;
+    returns (result, figures)."""
     settings = IntrinsicsSettings(estimate_k3=True, cross_validate=False)
     result = calibrate_intrinsics(views, board, size, settings)
     flat = calibrate_intrinsics(views, board, size, replace(settings, board_flex=False, jackknife=False))
+    splined = calibrate_intrinsics(views, board, size, replace(settings, model="splined-stereographic",
+                                                               spline_knots=(spline.nx, spline.ny),
+                                                               spline_fov_x_deg=spline.fov_x_deg))
     inverted = uncertainty_grid(result.camera)[2]
+    splined_inverted = uncertainty_grid(splined.camera)[2]
     figures = {"rms_px": result.rms_px, "views": len(views), "corners": result.corners["chosen"],
                "corners_rejected": result.summary()["rejected_corners"],
                "calobject_warp_mm": result.board_flex["warp_mm"], "calobject_warp_std_mm": result.board_flex["std_mm"],
@@ -181,6 +193,15 @@ def ours(views: list[View], board: BoardSpec, size: tuple[int, int]):
                "jackknife_projection_max_px": result.jackknife["projection_max_px"],
                "flat": {"rms_px": flat.rms_px,
                         "projection_sigma_px": sigma_figures(flat.projection_uncertainty, inverted)},
+               "splined": {"lensmodel": splined.splined["lensmodel"], "rms_px": splined.rms_px,
+                           "corners": splined.corners["chosen"],
+                           "corners_rejected": splined.summary()["rejected_corners"],
+                           "calobject_warp_mm": splined.board_flex["warp_mm"],
+                           "projection_sigma_px": sigma_figures(splined.projection_uncertainty, splined_inverted),
+                           "unconstrained_knots": splined.splined["unconstrained_knots"],
+                           "knots_under_image": splined.splined["knots_under_image"],
+                           "opencv_fit_max_residual_px": splined.splined["opencv"]["max_residual_px"],
+                           "verdict": splined.verdict.level, "seconds": splined.seconds},
                "grid_cells_not_inverted": int(np.count_nonzero(~inverted)),
                "camera": result.camera.to_dict(), "seconds": result.seconds}
     return result, figures
@@ -234,13 +255,14 @@ def mrcal_figures(models: dict[str, str], camera: CameraIntrinsics, missing: int
 def ratios(our_figures: dict, mrcal: dict) -> dict:
     """ours / mrcal's for RMS and the projection sigma (centre, worst), like for like: our flat-board solve against
     mrcal's plain OPENCV5 (a), our result (flex solved) against mrcal's default (b); each worst sigma is over the
-    grid cells where its own model inverts."""
+    grid cells where its own model inverts; our splined solve against mrcal's (c)."""
     result = {}
-    for solve in ("a_opencv5_plain", "b_opencv5_flex_outliers"):
+    like_for_like = {"a_opencv5_plain": our_figures["flat"], "b_opencv5_flex_outliers": our_figures,
+                     "c_splined": our_figures["splined"]}
+    for solve, like in like_for_like.items():
         theirs = mrcal[solve]
         if "rms_px" not in theirs:
             continue
-        like = our_figures if solve == "b_opencv5_flex_outliers" else our_figures["flat"]
         result[solve] = {"rms_px": like["rms_px"] / theirs["rms_px"],
                          "sigma_centre": (like["projection_sigma_px"]["centre"]
                                           / theirs["projection_sigma_px"]["centre"]),
@@ -258,7 +280,7 @@ def evaluate(calibration_set: CalibrationSet, version: str | None) -> dict:
     views = [View(name, d) for name, d in detections if d is not None]
     size = views[0].detection.image_size
     log(f"{calibration_set.name}: the studio's solve on {len(views)} views ...")
-    result, our_figures = ours(views, board, size)
+    result, our_figures = ours(views, board, size, SplineGrid.from_mrcal_name(calibration_set.spline))
     if version is None:
         return {"ours": our_figures}
     with tempfile.TemporaryDirectory(prefix="intrinsics_vs_mrcal_") as tmp:

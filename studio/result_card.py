@@ -68,9 +68,11 @@ def residuals_markdown(residuals: dict[str, Any]) -> str:
 
 def _intrinsics_markdown(camera: dict[str, Any]) -> str:
     K = np.array(camera["K"])
-    dist = ", ".join(f"{d:.4g}" for d in camera["dist"])
+    spline = camera.get("spline")
+    lens = (f"spline {spline['nx']}×{spline['ny']} knots over {spline['fov_x_deg']:g}° across" if spline else
+            f"dist [{', '.join(f'{d:.4g}' for d in camera['dist'])}]")
     return (f"{camera['model']} {camera['width']}×{camera['height']} · fx {K[0, 0]:.1f}, fy {K[1, 1]:.1f}, "
-            f"cx {K[0, 2]:.1f}, cy {K[1, 2]:.1f} px · dist [{dist}]")
+            f"cx {K[0, 2]:.1f}, cy {K[1, 2]:.1f} px · {lens}")
 
 
 def exports_markdown(name: str, camera: CameraIntrinsics) -> str:

@@ -86,8 +86,9 @@ class SensorUpdate(FiniteModel):
 
 
 class IntrinsicsSolveRequest(FiniteModel):
-    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "auto"] = Field(
+    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "splined-stereographic", "auto"] = Field(
         "pinhole-radtan", description="'photogrammetric': the collinearity model with K1-K3, P1, P2, A1, A2; "
+                                      "'splined-stereographic': mrcal's splined model, for wide and fisheye lenses; "
                                       "'auto': compare the lens models on held-out views and solve with the best")
     auto_for: Literal["any", "camera_info", "kalibr"] = Field(
         "any", description="with 'auto': choose only among the models this export carries (kalibr: no k3)")
@@ -100,6 +101,10 @@ class IntrinsicsSolveRequest(FiniteModel):
     outlier_factor: float = Field(3.0, gt=1.0)
     pixel_size_um: float | None = Field(None, gt=0, lt=1000, description="the pixel pitch (um): the photogrammetric "
                                         "model's parameters are reported in mm too")
+    spline_knots: tuple[Annotated[int, Field(ge=4, le=40)], Annotated[int, Field(ge=4, le=40)]] | None = Field(
+        None, description="splined-stereographic: the knots across and down (left out: chosen from the views)")
+    spline_fov_x_deg: float | None = Field(None, gt=0, lt=360, description="splined-stereographic: the field of "
+                                           "view across (deg) the knots span (left out: the image's plus a margin)")
     capture_ids: list[str] | None = None
 
 

@@ -34,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     export.add_argument("--cameras", metavar="A,B", type=_names,
                         help="kalibr only: the cameras to write, in order (default: every camera with intrinsics "
                              "Kalibr can describe)")
-    export.add_argument("--sensor", help="camera name (camera_info, opencv, camera-json)")
+    export.add_argument("--sensor", help="camera name (camera_info, opencv, camera-json, mrcal)")
     export.add_argument("--out", type=Path, help="file to write (default: stdout)")
     export.set_defaults(handler=run_export)
 

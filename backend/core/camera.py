@@ -4,8 +4,10 @@
 ROS ``plumb_bob``); ``fisheye-equidistant`` is OpenCV's fisheye model
 (``dist = [k1, k2, k3, k4]``, ROS ``equidistant``); ``photogrammetric`` is the collinearity model with
 self-calibration (:mod:`backend.core.photogrammetric`: ``K`` holds the principal distance ``c`` as ``fx = fy``
-and the principal point, ``dist = [K1, K2, K3, P1, P2, A1, A2]`` in pixel units), which ROS cannot carry.
-Points are in the camera's
+and the principal point, ``dist = [K1, K2, K3, P1, P2, A1, A2]`` in pixel units), which ROS cannot carry;
+``splined-stereographic`` is mrcal's splined model (:mod:`backend.core.splined`: ``K`` holds its fx, fy, cx, cy,
+``dist`` its control points, ``spline`` its knots and field of view), which only the camera JSON and mrcal's
+``.cameramodel`` carry. Points are in the camera's
 optical frame (x right, y down, z forward, metres); pixels follow OpenCV (centre
 of the top-left pixel is (0, 0)).
 """
@@ -18,12 +20,16 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from backend.core import photogrammetric
+from backend.core import photogrammetric, splined
 from backend.core.errors import InputError
+from backend.core.splined import SplineGrid
 
-CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric"]
-CAMERA_MODELS: tuple[CameraModelName, ...] = ("pinhole-radtan", "fisheye-equidistant", "photogrammetric")
+CameraModelName = Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "splined-stereographic"]
+CAMERA_MODELS: tuple[CameraModelName, ...] = ("pinhole-radtan", "fisheye-equidistant", "photogrammetric",
+                                              "splined-stereographic")
 ROS_DISTORTION_NAMES: dict[str, str] = {"pinhole-radtan": "plumb_bob", "fisheye-equidistant": "equidistant"}
+SPLINED_HINT = " (its splined section holds the OpenCV model fitted to the spline, with the residual between the two)"
+"""What an export that refuses the splined model points to instead."""
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 DIST_NAMES: dict[str, list[str]] = {
     "pinhole-radtan": ["k1", "k2", "p1", "p2", "k3"],
@@ -41,13 +47,26 @@ class CameraIntrinsics:
     height: int
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    spline: SplineGrid | None = None
+    """The splined model's knots and field of view (``splined-stereographic`` only)."""
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
         self.dist = np.asarray(self.dist, dtype=float).ravel()
-        expected = len(DIST_NAMES[self.model])
+        if (self.model == "splined-stereographic") != (self.spline is not None):
+            raise ValueError("the splined-stereographic model, and only it, takes a spline grid")
+        expected = len(self.dist_names)
         if self.dist.size < expected:
             self.dist = np.concatenate([self.dist, np.zeros(expected - self.dist.size)])
+
+    @property
+    def dist_names(self) -> list[str]:
+        """The names of ``dist``'s entries: the model's coefficients, or the splined model's control points
+        ``du_x[iy,ix]``, ``du_y[iy,ix]`` (mrcal's order)."""
+        if self.spline is None:
+            return DIST_NAMES[self.model]
+        return [f"du_{axis}[{iy},{ix}]" for iy in range(self.spline.ny) for ix in range(self.spline.nx)
+                for axis in "xy"]
 
     @property
     def is_fisheye(self) -> bool:
@@ -55,8 +74,9 @@ class CameraIntrinsics:
 
     @property
     def is_opencv(self) -> bool:
-        """Whether OpenCV's functions take ``K`` and ``dist`` as they are (not the photogrammetric model)."""
-        return self.model != "photogrammetric"
+        """Whether OpenCV's functions take ``K`` and ``dist`` as they are (not the photogrammetric or splined
+        model)."""
+        return self.model in ("pinhole-radtan", "fisheye-equidistant")
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -73,7 +93,7 @@ class CameraIntrinsics:
         """This camera (model, size) with ``[fx, fy, cx, cy, dist...]`` set to ``parameters``."""
         fx, fy, cx, cy = parameters[:4]
         return CameraIntrinsics(self.model, self.width, self.height,
-                                np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), parameters[4:])
+                                np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), parameters[4:], self.spline)
 
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Project (N, 3) points in the optical frame (m) to (N, 2) pixels.
@@ -81,6 +101,8 @@ class CameraIntrinsics:
         Points behind the camera are projected too; callers filter on ``z > 0``.
         """
         pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+        if self.spline is not None:  # stereographic: defined beyond 90 degrees off the axis too
+            return splined.project(self.spline, self.parameters, pts)
         return self.project_normalised(pts[:, :2] / pts[:, 2:])
 
     def project_normalised(self, xy: np.ndarray) -> np.ndarray:
@@ -99,6 +121,9 @@ class CameraIntrinsics:
         of the conventions are supported. Computed in the dtype of ``x`` and ``y``
         (float32 in, float32 out: about 1e-4 px at 1280x720); ``x`` and ``y`` are not modified.
         """
+        if self.spline is not None:
+            q = splined.project(self.spline, self.parameters, np.column_stack([x, y, np.ones_like(x)]))
+            return q[:, 0].astype(x.dtype, copy=False), q[:, 1].astype(y.dtype, copy=False)
         if self.model == "photogrammetric":
             xo, yo = photogrammetric.distort(x * float(self.K[0, 0]), y * float(self.K[1, 1]), self.dist)
             return (xo + float(self.K[0, 2])).astype(x.dtype, copy=False), (yo + float(self.K[1, 2])).astype(
@@ -140,6 +165,9 @@ class CameraIntrinsics:
     def undistort_points(self, pixels: np.ndarray) -> np.ndarray:
         """Normalised image coordinates (x/z, y/z) of (N, 2) distorted pixels."""
         uv = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if self.spline is not None:
+            rays = self.rays(uv.reshape(-1, 2))
+            return rays[:, :2] / rays[:, 2:]
         if self.model == "photogrammetric":
             xbar, ybar = photogrammetric.undistort(uv[:, 0, 0] - self.K[0, 2], uv[:, 0, 1] - self.K[1, 2], self.dist)
             return np.column_stack([xbar / self.K[0, 0], ybar / self.K[1, 1]])
@@ -151,6 +179,8 @@ class CameraIntrinsics:
 
     def rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unit viewing rays (N, 3) in the optical frame for distorted pixels (N, 2)."""
+        if self.spline is not None:
+            return splined.unproject(self.spline, self.parameters, pixels)
         xy = self.undistort_points(pixels)
         rays = np.column_stack([xy, np.ones(len(xy))])
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
@@ -161,18 +191,23 @@ class CameraIntrinsics:
         return float(2 * np.arctan2(self.height / 2, self.K[1, 1]))
 
     def to_dict(self) -> dict:
-        """The conventions' camera JSON: model, width, height, K (nested), dist (list)."""
+        """The conventions' camera JSON: model, width, height, K (nested), dist (list), and the splined model's
+        ``spline`` (:meth:`SplineGrid.to_dict`)."""
         return {
             "model": self.model,
             "width": int(self.width),
             "height": int(self.height),
             "K": self.K.tolist(),
             "dist": self.dist.tolist(),
+            **({"spline": self.spline.to_dict()} if self.spline is not None else {}),
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> CameraIntrinsics:
-        return cls(data["model"], int(data["width"]), int(data["height"]), np.array(data["K"]), np.array(data["dist"]))
+        spline = data.get("spline")
+        return cls(data["model"], int(data["width"]), int(data["height"]), np.array(data["K"]), np.array(data["dist"]),
+                   None if spline is None else SplineGrid(int(spline["nx"]), int(spline["ny"]),
+                                                          float(spline["fov_x_deg"])))
 
 
 def _horner(t: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:

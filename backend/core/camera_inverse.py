@@ -15,9 +15,10 @@ from functools import lru_cache
 import numpy as np
 
 from backend.core.camera import CameraIntrinsics, CameraModelName
+from backend.core.splined import SplineGrid
 
-CameraKey = tuple[CameraModelName, int, int, tuple[float, ...], tuple[float, ...]]
-"""A camera's parameters as a hashable cache key: model, width, height, K (row-major), dist."""
+CameraKey = tuple[CameraModelName, int, int, tuple[float, ...], tuple[float, ...], SplineGrid | None]
+"""A camera's parameters as a hashable cache key: model, width, height, K (row-major), dist, spline grid."""
 
 
 def undistort_exact(camera: CameraIntrinsics, pixels: np.ndarray, iterations: int = 10) -> np.ndarray:
@@ -67,13 +68,13 @@ def visible_radius(camera: CameraIntrinsics) -> float:
 
 def camera_key(camera: CameraIntrinsics) -> CameraKey:
     """``camera``'s parameters as a hashable cache key."""
-    return camera.model, camera.width, camera.height, tuple(camera.K.ravel()), tuple(camera.dist)
+    return camera.model, camera.width, camera.height, tuple(camera.K.ravel()), tuple(camera.dist), camera.spline
 
 
 def camera_from_key(key: CameraKey) -> CameraIntrinsics:
     """The camera of a :func:`camera_key`."""
-    model, width, height, K, dist = key
-    return CameraIntrinsics(model, width, height, np.reshape(K, (3, 3)), np.array(dist))
+    model, width, height, K, dist, spline = key
+    return CameraIntrinsics(model, width, height, np.reshape(K, (3, 3)), np.array(dist), spline)
 
 
 @lru_cache(maxsize=8)

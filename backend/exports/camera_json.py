@@ -17,6 +17,8 @@ import numpy as np
 from backend.core.camera import CAMERA_MODELS, DIST_NAMES, CameraIntrinsics
 from backend.core.errors import InputError, shorten
 from backend.core.finite import require_finite
+from backend.core.splined import SplineGrid
+from backend.exports.mrcal_cameramodel import load_mrcal_cameramodel
 from backend.exports.ros_camera_info import load_camera_info
 from backend.exports.text_file import read_text
 
@@ -31,9 +33,14 @@ def dump_camera_json(camera: CameraIntrinsics, camera_name: str, extra: dict[str
 
 
 def load_camera(path: Path) -> tuple[CameraIntrinsics, str]:
-    """A camera file by its suffix: ``.json`` is :func:`load_camera_json`, anything else ROS camera_info YAML."""
+    """A camera file by its suffix: ``.json`` is :func:`load_camera_json`, ``.cameramodel`` mrcal's
+    (:func:`~backend.exports.mrcal_cameramodel.load_mrcal_cameramodel`, named by its file), anything else ROS
+    camera_info YAML."""
     path = Path(path)
-    return load_camera_json(path) if path.suffix.lower() == ".json" else load_camera_info(path)
+    suffix = path.suffix.lower()
+    if suffix == ".cameramodel":
+        return load_mrcal_cameramodel(path), path.stem
+    return load_camera_json(path) if suffix == ".json" else load_camera_info(path)
 
 
 def load_camera_json(path: Path) -> tuple[CameraIntrinsics, str]:
@@ -67,15 +74,30 @@ def load_camera_json(path: Path) -> tuple[CameraIntrinsics, str]:
     K = _numbers(document.get("K"), (3, 3))
     if K is None or not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0])):
         raise error("K", f"is {shorten(document.get('K'))}", "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    names = DIST_NAMES[model]
-    dist = _numbers(document.get("dist"), (len(names),))
+    spline = _spline(document.get("spline"), error) if model == "splined-stereographic" else None
+    names = DIST_NAMES[model] if spline is None else ["the control points"]
+    count = len(names) if spline is None else spline.n_control
+    dist = _numbers(document.get("dist"), (count,))
     if dist is None:
-        raise error("dist", f"is {shorten(document.get('dist'))}", f"{len(names)} numbers for {model}: "
+        raise error("dist", f"is {shorten(document.get('dist'))}", f"{count} numbers for {model}: "
                     f"[{', '.join(names)}]")
     name = document.get("camera_name", "unknown")
     if not isinstance(name, str):
         raise error("camera_name", f"is {shorten(name)}", "a string")
-    return CameraIntrinsics(model, size["width"], size["height"], K, dist), name
+    return CameraIntrinsics(model, size["width"], size["height"], K, dist, spline), name
+
+
+def _spline(value: Any, error) -> SplineGrid:
+    """The splined model's ``spline`` object (``nx``, ``ny``: 4 or more knots; ``fov_x_deg``: 0 to 360), or
+    ``error``'s :class:`InputError`."""
+    expected = "an object with nx and ny (knots, 4 or more) and fov_x_deg (0 to 360 deg)"
+    if not isinstance(value, dict):
+        raise error("spline", "is missing" if value is None else f"is {shorten(value)}", expected)
+    nx, ny, fov = value.get("nx"), value.get("ny"), value.get("fov_x_deg")
+    if not (all(isinstance(k, int) and not isinstance(k, bool) and k >= 4 for k in (nx, ny))
+            and isinstance(fov, int | float) and not isinstance(fov, bool) and 0 < fov < 360):
+        raise error("spline", f"is {shorten(value)}", expected)
+    return SplineGrid(nx, ny, float(fov))
 
 
 def _numbers(value: Any, shape: tuple[int, ...]) -> np.ndarray | None:

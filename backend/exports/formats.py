@@ -7,11 +7,14 @@ from __future__ import annotations
 
 from typing import Literal
 
-ExportFormat = Literal["camera_info", "opencv", "camera-json", "rig", "kalibr", "urdf", "launch", "pose-table"]
+ExportFormat = Literal["camera_info", "opencv", "camera-json", "mrcal", "rig", "kalibr", "urdf", "launch",
+                       "pose-table"]
 EXPORT_FORMATS: dict[str, str] = {
     "camera_info": "ROS camera_info YAML (camera_calibration_parsers)",
     "opencv": "OpenCV FileStorage YAML",
-    "camera-json": "the camera JSON of the conventions: any model (photogrammetric included), with its sigmas",
+    "camera-json": "the camera JSON of the conventions: any model (photogrammetric and splined included), with its "
+                   "sigmas",
+    "mrcal": "mrcal's .cameramodel: pinhole-radtan (LENSMODEL_OPENCV5) and the splined model",
     "rig": "the rig's transforms with sigmas and static_transform_publisher lines",
     "kalibr": "Kalibr camchain YAML (T_cn_cnm1 chain)",
     "urdf": "URDF: one link per frame, one fixed joint per non-root frame (origin xyz, rpy)",

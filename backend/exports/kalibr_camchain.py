@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
+from backend.core.camera import DIST_NAMES, SPLINED_HINT, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError, shorten
 from backend.core.finite import require_finite
 from backend.core.transforms import invert
@@ -236,7 +236,8 @@ def kalibr_refusal(name: str, camera: CameraIntrinsics) -> str | None:
     it can."""
     if camera.model not in DISTORTION_MODELS:
         return (f"{name}: Kalibr's camchain cannot carry the {camera.model} model (it holds pinhole-radtan and "
-                f"pinhole-equi); export {name}'s camera JSON or OpenCV YAML, or solve it with pinhole-radtan")
+                f"pinhole-equi); export {name}'s camera JSON{SPLINED_HINT if camera.spline else ' or OpenCV YAML'}, "
+                "or solve it with pinhole-radtan")
     if abs(camera.K[0, 1]) > 1e-12 * abs(camera.K[0, 0]):
         return (f"{name}: K has skew {camera.K[0, 1]!r} px, which Kalibr's pinhole [fu, fv, pu, pv] cannot hold; "
                 "recalibrate without skew")
@@ -252,7 +253,7 @@ def kalibr_refusal(name: str, camera: CameraIntrinsics) -> str | None:
 
 def _kalibr_coeffs(name: str, camera: CameraIntrinsics) -> list[float]:
     """Kalibr's 4 coefficients of ``camera``, refusing what Kalibr cannot represent (:func:`kalibr_refusal`)."""
-    expected = len(DIST_NAMES[camera.model])
+    expected = len(camera.dist_names)
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, {name} holds {camera.dist.size}")
     refusal = kalibr_refusal(name, camera)

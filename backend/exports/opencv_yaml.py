@@ -46,6 +46,14 @@ _EXPECTED_FILE = (
 )
 
 
+def opencv_refusal(camera: CameraIntrinsics) -> str | None:
+    """Why the OpenCV YAML cannot carry ``camera``'s model, or None when it can (every model but the splined one)."""
+    if camera.spline is None:
+        return None
+    return ("the OpenCV YAML cannot carry the splined-stereographic model (its knots and field of view have no node); "
+            "write the camera JSON (camera.json) or mrcal's .cameramodel instead")
+
+
 def dump_opencv_yaml(camera: CameraIntrinsics, extra: dict[str, float | str] | None = None) -> str:
     """The camera as OpenCV FileStorage YAML text, with ``extra`` scalars appended.
 
@@ -54,6 +62,8 @@ def dump_opencv_yaml(camera: CameraIntrinsics, extra: dict[str, float | str] | N
     that is not a valid node name or clashes with :data:`CAMERA_KEYS`, and if
     ``camera`` holds more distortion coefficients than its model has; :class:`InputError` for a NaN or infinity.
     """
+    if (refusal := opencv_refusal(camera)) is not None:
+        raise InputError(refusal, "model")
     expected = len(DIST_NAMES[camera.model])
     if camera.dist.size != expected:
         raise ValueError(f"{camera.model} has {expected} distortion coefficients, the camera holds {camera.dist.size}")

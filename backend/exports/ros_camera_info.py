@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, CameraIntrinsics, CameraModelName
+from backend.core.camera import DIST_NAMES, ROS_DISTORTION_NAMES, SPLINED_HINT, CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError, shorten
 from backend.core.finite import require_finite
 from backend.exports.text_file import read_text, write_text
@@ -101,8 +101,8 @@ def ros_refusal(camera: CameraIntrinsics) -> str | None:
     if camera.model in ROS_DISTORTION_NAMES:
         return None
     return (f"camera_info cannot carry the {camera.model} model: ROS's distortion models here are "
-            f"{' and '.join(ROS_DISTORTION_NAMES.values())}; write the camera JSON (camera.json) or the OpenCV YAML, "
-            "or solve with pinhole-radtan")
+            f"{' and '.join(ROS_DISTORTION_NAMES.values())}; write the camera JSON (camera.json)"
+            f"{SPLINED_HINT if camera.spline else ' or the OpenCV YAML'}, or solve with pinhole-radtan")
 
 
 def write_camera_info(path: Path, camera: CameraIntrinsics, camera_name: str) -> None:

@@ -326,6 +326,19 @@ offset against the rig's clock (ms, 1-sigma), where one was measured and accepte
   {% for v in row %}<td class="n">{{ v | fixed(3) }}</td>{% endfor %}</tr>{% endfor %}
 </table>
 {% endif %}
+{% if r.splined is defined %}{% set sp = r.splined %}
+<p>mrcal's splined model <code>{{ sp.lensmodel }}</code>: {{ sp.knots[0] }}×{{ sp.knots[1] }} knots over
+  {{ sp.fov_x_deg }}° across, {{ sp.spline_values }} spline values measured {{ sp.measurements_per_value }} times
+  each; fx, fy, cx, cy are held, as mrcal holds them. {{ sp.detail }}. As OpenCV's pinhole-radtan (what ROS and
+  Kalibr can load; fitted at the views' corners): within {{ sp.opencv.max_residual_px | fixed(3) }} px there (RMS
+  {{ sp.opencv.rms_residual_px | fixed(3) }} px; its frame turned {{ sp.opencv.rotation_deg | fixed(2) }}°),
+  {{ sp.opencv.max_residual_over_image_px | fixed(3) }} px over the {{ (100 * sp.opencv.image_share_inverting) | round |
+  int }} % of the image where it inverts.</p>
+<pre class="knots">{% for row in sp.unconstrained_map %}{{ row }}
+{% endfor %}</pre>
+<p class="note">Knots: # reached by the corners, . under the image but reached by none (held smooth by the
+  regularization, extrapolated).</p>
+{% endif %}
 <h4>Verdict</h4>{{ reasons(r.verdict) }}
 {% for w in r.warnings %}<p class="warn">warning: {{ w }}</p>{% endfor %}
 {% if c.unreadable %}<p class="warn">views left out of the plots: {{ c.unreadable | join("; ") }}</p>{% endif %}

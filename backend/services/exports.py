@@ -12,7 +12,8 @@ from backend.exports.camera_json import dump_camera_json
 from backend.exports.formats import CONVENTION_FORMATS, CONVENTIONS, EXPORT_FORMATS, Convention, ExportFormat
 from backend.exports.frame_tree import ancestors
 from backend.exports.kalibr_camchain import dump_kalibr_camchain, kalibr_refusal
-from backend.exports.opencv_yaml import dump_opencv_yaml
+from backend.exports.mrcal_cameramodel import dump_mrcal_cameramodel, mrcal_refusal
+from backend.exports.opencv_yaml import dump_opencv_yaml, opencv_refusal
 from backend.exports.pose_table import dump_pose_table
 from backend.exports.rig_transforms import dump_rig_transforms
 from backend.exports.ros2_launch import dump_ros2_launch
@@ -20,7 +21,7 @@ from backend.exports.ros_camera_info import dump_camera_info, ros_refusal
 from backend.exports.urdf import dump_urdf
 from backend.store.session import Session
 
-MEDIA_TYPES: dict[str, str] = {"camera-json": "application/json", "urdf": "application/xml",
+MEDIA_TYPES: dict[str, str] = {"camera-json": "application/json", "mrcal": "text/plain", "urdf": "application/xml",
                                "launch": "text/x-python", "pose-table": "text/csv"}
 """The media type of each format that is not YAML (the others are ``application/yaml``)."""
 
@@ -37,19 +38,20 @@ def accepted_camera(session: Session, sensor: str) -> CameraIntrinsics:
 
 def camera_exports(name: str, camera: CameraIntrinsics) -> dict[str, str | None]:
     """Each one-camera export and whether it carries ``camera`` as it is: None if it does, else why not (what to
-    do instead). ``camera_info`` writes ROS's ``plumb_bob`` or ``equidistant``, ``opencv`` and ``camera-json`` any
-    model under its name, and Kalibr's camchain radtan [k1, k2, r1, r2] or equidistant, without a k3 that matters."""
-    return {"camera_info": ros_refusal(camera), "opencv": None, "camera-json": None,
-            "kalibr": kalibr_refusal(name, camera)}
+    do instead). ``camera_info`` writes ROS's ``plumb_bob`` or ``equidistant``, ``camera-json`` any model under its
+    name, ``opencv`` any but the splined model, ``mrcal`` pinhole-radtan and the splined model, and Kalibr's camchain
+    radtan [k1, k2, r1, r2] or equidistant, without a k3 that matters."""
+    return {"camera_info": ros_refusal(camera), "opencv": opencv_refusal(camera), "camera-json": None,
+            "mrcal": mrcal_refusal(camera), "kalibr": kalibr_refusal(name, camera)}
 
 
 def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, *,
                 convention: Convention | None = None, cameras: Sequence[str] | None = None) -> tuple[str, str]:
     """Return (file name, text) of one export of the session's rig.
 
-    ``sensor`` is the camera of camera_info, opencv and camera-json (the other formats ignore it); ``convention``
-    (default ``optical``) applies to rig, urdf and launch only; ``cameras`` (default: every camera Kalibr can
-    describe) to kalibr only. A choice given for a format it does not apply to is refused (422), as is an
+    ``sensor`` is the camera of camera_info, opencv, camera-json and mrcal (the other formats ignore it);
+    ``convention`` (default ``optical``) applies to rig, urdf and launch only; ``cameras`` (default: every camera
+    Kalibr can describe) to kalibr only. A choice given for a format it does not apply to is refused (422), as is an
     unknown format or convention. Data the rig lacks is refused naming the sensor: a camera without
     intrinsics, a frame that no edge of the rig graph (a mounting guess or an accepted calibration) connects
     to the root (409, with the frames it does connect to).
@@ -87,9 +89,11 @@ def export_text(session: Session, fmt: ExportFormat, sensor: str | None = None, 
     result_id = session.accepted(f"{sensor}/intrinsics")
     record = session.result(result_id) if result_id else None
     if fmt == "camera-json":
-        kept = ("rms_px", "std", "correlation", "photogrammetric", "board_flex")
+        kept = ("rms_px", "std", "correlation", "photogrammetric", "splined", "board_flex")
         return f"{sensor}.json", dump_camera_json(camera, sensor, {key: record[key] for key in kept
                                                                    if record and key in record})
+    if fmt == "mrcal":
+        return f"{sensor}.cameramodel", dump_mrcal_cameramodel(camera, sensor)
     extra = {"avg_reprojection_error": record["rms_px"]} if record else None
     return f"{sensor}_opencv.yaml", dump_opencv_yaml(camera, extra)
 

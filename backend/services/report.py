@@ -50,6 +50,8 @@ def intrinsics_parameters(camera: CameraReport) -> list[dict[str, Any]]:
     rows = [{"name": name, "value": K[i][j], "std": std.get(name)}
             for name, (i, j) in zip(("fx", "fy", "cx", "cy"), ((0, 0), (1, 1), (0, 2), (1, 2)), strict=True)]
     dist_std = std.get("dist") or []
+    if "splined" in record:  # fx..cy held; hundreds of control points: the knots are described beside the table
+        return [row | {"std": None} for row in rows]
     for k, name in enumerate(DIST_NAMES[record["camera"]["model"]]):
         rows.append({"name": name, "value": record["camera"]["dist"][k],
                      "std": dist_std[k] if k < len(dist_std) else None})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from backend.core.finite import first_non_finite
 from backend.core.rig import DEFAULT_MOUNT_SIGMA
@@ -39,12 +39,24 @@ FiniteTree = Annotated[dict[str, Any], AfterValidator(_finite_tree)]
 """Free-form settings (a device's options) in which every number must be finite."""
 
 
+class SplineModel(FiniteModel):
+    """The splined model's knots and field of view (:class:`~backend.core.splined.SplineGrid`)."""
+
+    order: Literal[3] = 3
+    nx: int = Field(ge=4, description="knots across")
+    ny: int = Field(ge=4, description="knots down")
+    fov_x_deg: float = Field(gt=0, lt=360, description="the field of view across the knots span (deg)")
+    mrcal: str | None = Field(None, description="mrcal's name of the model")
+
+
 class CameraModel(FiniteModel):
-    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric"]
+    model: Literal["pinhole-radtan", "fisheye-equidistant", "photogrammetric", "splined-stereographic"]
     width: int = Field(gt=0, description="image width (px)")
     height: int = Field(gt=0, description="image height (px)")
     K: list[list[float]] = Field(description="3x3 camera matrix (px), row-major")
-    dist: list[float] = Field(description="distortion coefficients in the model's OpenCV order")
+    dist: list[float] = Field(description="distortion coefficients in the model's OpenCV order (the splined model: "
+                                          "its control points, mrcal's order)")
+    spline: SplineModel | None = Field(None, description="the splined model's knots (that model only)")
 
     @field_validator("K")
     @classmethod
@@ -52,6 +64,15 @@ class CameraModel(FiniteModel):
         if len(K) != 3 or any(len(row) != 3 for row in K):
             raise ValueError("K must be 3x3")
         return K
+
+    @model_validator(mode="after")
+    def _spline_for_the_splined_model(self) -> CameraModel:
+        if (self.model == "splined-stereographic") != (self.spline is not None):
+            raise ValueError("the splined-stereographic model, and only it, has a spline")
+        if self.spline is not None and len(self.dist) != 2 * self.spline.nx * self.spline.ny:
+            raise ValueError(f"dist holds {len(self.dist)} control points; the spline's {self.spline.nx}x"
+                             f"{self.spline.ny} knots need {2 * self.spline.nx * self.spline.ny}")
+        return self
 
 
 class FrameModel(FiniteModel):

@@ -76,10 +76,17 @@ class IntrinsicsStep:
                 self.coverage_text = gui.add_markdown("No views yet.")
             with gui.add_folder("Solve"):
                 self.model = gui.add_dropdown("Model", options=["pinhole-radtan", "fisheye-equidistant",
-                                                                "photogrammetric", "auto"],
+                                                                "photogrammetric", "splined-stereographic", "auto"],
                                               hint="photogrammetric: c, xp, yp, K1-K3, P1, P2 and the affine A1, A2 "
-                                                   "(not for ROS); auto: compare the lens models on held-out views, "
-                                                   "solve with the recommended one")
+                                                   "(not for ROS); splined-stereographic: mrcal's splined model for "
+                                                   "wide and fisheye lenses (camera JSON only); auto: compare the lens "
+                                                   "models on held-out views, solve with the recommended one")
+                self.spline_knots = gui.add_vector2("Spline knots (0: from the views)", initial_value=(0, 0),
+                                                    min=(0, 0), max=(40, 40), step=1, visible=False,
+                                                    hint="knots across and down; 0 lets the solve choose them")
+                self.spline_fov = gui.add_number("Spline field across (°, 0: from the views)", initial_value=0.0,
+                                                 min=0.0, max=359.0, step=1.0, visible=False,
+                                                 hint="the field of view across that the knots span")
                 self.pixel_size = gui.add_number("Pixel size (µm, 0: unknown)", initial_value=0.0, min=0.0,
                                                  max=100.0, step=0.01, visible=False,
                                                  hint="the photogrammetric parameters are then given in mm too")
@@ -288,14 +295,19 @@ class IntrinsicsStep:
                                   estimate_tangential=self.tangential.value, fix_aspect=self.fix_aspect.value,
                                   drop_outliers=self.drop_outliers.value, board_flex=self.board_flex.value,
                                   reject_corners=self.reject_corners.value,
-                                  pixel_size_um=float(self.pixel_size.value) or None)
+                                  pixel_size_um=float(self.pixel_size.value) or None,
+                                  spline_knots=(tuple(int(k) for k in self.spline_knots.value)
+                                                if all(self.spline_knots.value) else None),
+                                  spline_fov_x_deg=float(self.spline_fov.value) or None)
 
     def _model_chosen(self) -> None:
         """Show the options of the chosen model: the photogrammetric model always estimates its ten parameters."""
         self.auto_for.visible = self.model.value == "auto"
         self.pixel_size.visible = self.model.value in ("photogrammetric", "auto")
-        for option in (self.k3, self.tangential, self.fix_aspect, self.board_flex):
-            option.visible = self.model.value != "photogrammetric"
+        self.spline_knots.visible = self.spline_fov.visible = self.model.value == "splined-stereographic"
+        for option in (self.k3, self.tangential, self.fix_aspect):
+            option.visible = self.model.value not in ("photogrammetric", "splined-stereographic")
+        self.board_flex.visible = self.model.value != "photogrammetric"
 
     def _solve(self) -> None:
         session, sensor = self.ctx.session, self.sensor
@@ -351,6 +363,8 @@ def parameters_markdown(record: dict) -> str:
     K = camera["K"]
     if "photogrammetric" in record:
         table = photogrammetric_markdown(record["photogrammetric"])
+    elif "splined" in record:
+        table = splined_markdown(record["splined"], K)
     else:
         rows = [("fx", K[0][0], std["fx"]), ("fy", K[1][1], std["fy"]), ("cx", K[0][2], std["cx"]),
                 ("cy", K[1][2], std["cy"])]
@@ -387,6 +401,22 @@ def flex_phrase(flex: dict | None) -> str:
         return f"{flex['status']}: {flex['detail']}"
     (x, y), (sx, sy) = flex["warp_mm"], flex["std_mm"]
     return f"x {x:+.3f} ± {sx:.3f} mm, y {y:+.3f} ± {sy:.3f} mm"
+
+
+def splined_markdown(block: dict, K: list[list[float]]) -> str:
+    """The splined model: its knots and field, fx, fy, cx, cy (held), where no corner reaches, and the OpenCV model
+    fitted to it."""
+    opencv = block["opencv"]
+    grid = "\n".join(f"    {row}" for row in block["unconstrained_map"])
+    return (f"mrcal's model:\n\n    {block['lensmodel']}\n\n"
+            f"{block['knots'][0]}×{block['knots'][1]} knots over {block['fov_x_deg']:g}° "
+            f"across, {block['spline_values']} spline values, {block['measurements_per_value']:g} measurements each. "
+            f"fx {K[0][0]:.2f}, fy {K[1][1]:.2f}, cx {K[0][2]:.2f}, cy {K[1][2]:.2f} px (held, as mrcal holds them)."
+            f"\n\nKnots (# reached by corners, . under the image but unreached):\n\n{grid}\n\n{block['detail']}."
+            "\n\nAs OpenCV's pinhole-radtan (for exports that cannot carry the spline; fitted at the views' "
+            f"corners): within {opencv['max_residual_px']:.3g} px there (RMS {opencv['rms_residual_px']:.3g} px; its "
+            f"frame turned {opencv['rotation_deg']:.2f}°), {opencv['max_residual_over_image_px']:.3g} px over the "
+            f"{opencv['image_share_inverting']:.0%} of the image where it inverts")
 
 
 def photogrammetric_markdown(block: dict) -> str:
@@ -430,7 +460,8 @@ def checks_markdown(record: dict) -> str:
         lines.append(f"**Model:** {comparison['reason']}")
         if comparison["candidates"]:
             rows = "\n".join(
-                f"| {c['model']}{' ' + mark('recommended', 'good') if c.get('recommended') else ''} | {c['n_dist']} | "
+                f"| {c['model']}{' ' + mark('recommended', 'good') if c.get('recommended') else ''} | "
+                f"{'—' if c['n_dist'] is None else c['n_dist']} | "
                 f"{'—' if c['held_out_rms_px'] is None else format(c['held_out_rms_px'], '.3f')} |"
                 for c in comparison["candidates"])
             lines.append(f"| model | dist coeffs | held-out RMS (px) |\n|---|---|---|\n{rows}")

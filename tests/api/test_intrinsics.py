@@ -383,16 +383,19 @@ def test_token(tmp_path: Path):
     app.state.studio.jobs.shutdown()
 
 
-@pytest.mark.slow
-def test_a_photogrammetric_solve_through_the_api_and_the_camera_json_export(client: TestClient, solved: dict):
-    session = solved["session"]
-    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve",
-                           json={"model": "photogrammetric", "pixel_size_um": 6.0})
+def solve_as_job(client: TestClient, session: str, body: dict) -> tuple[str, dict]:
+    """Solve camera ``cam``'s intrinsics with ``body`` as a job, waited for until done: the result's id and record."""
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve", json=body)
     assert response.status_code == 202, response.text
     status = wait_job(client, response.json()["id"])
     assert status["state"] == "done", status
-    rid = status["result_id"]
-    record = client.get(f"/api/sessions/{session}/results/{rid}").json()
+    return status["result_id"], client.get(f"/api/sessions/{session}/results/{status['result_id']}").json()
+
+
+@pytest.mark.slow
+def test_a_photogrammetric_solve_through_the_api_and_the_camera_json_export(client: TestClient, solved: dict):
+    session = solved["session"]
+    rid, record = solve_as_job(client, session, {"model": "photogrammetric", "pixel_size_um": 6.0})
     assert record["camera"]["model"] == "photogrammetric" and len(record["camera"]["dist"]) == 7
     assert record["photogrammetric"]["parameters"]["c"]["unit_mm"] == "mm"
     # judged where the 13 VGA views' boards reach, the lens is pinned (the halves agree); the image's corners, which
@@ -437,3 +440,28 @@ def test_the_board_can_be_held_flat_through_the_api(client: TestClient, solved: 
     assert bowed["board_flex"]["status"] == "solved" and flat["rms_px"] > bowed["rms_px"]
     assert_error(client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve", json={"board_flex": "bowed"}),
                  422, names="board_flex")
+
+
+@pytest.mark.slow
+def test_a_splined_solve_through_the_api_and_what_each_export_does_with_it(client: TestClient, solved: dict):
+    """The splined model through the API with the knots chosen from the views: the record names mrcal's model; once
+    accepted, camera_info refuses it naming the model and the camera JSON carries it, its knots and the fitted
+    OpenCV model. Knots out of range are a 422 naming the field."""
+    session = solved["session"]
+    rid, record = solve_as_job(client, session, {"model": "splined-stereographic", "spline_fov_x_deg": 80})
+    assert record["camera"]["model"] == "splined-stereographic"
+    nx, ny = record["settings"]["spline_knots"]
+    assert record["splined"]["knots"] == [nx, ny] and record["splined"]["measurements_per_value"] >= 5
+    assert record["splined"]["lensmodel"].endswith(f"Nx={nx}_Ny={ny}_fov_x_deg=80")
+    assert client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept",
+                       json={"result_id": rid, "confirm": True}).status_code == 200
+    refused = assert_error(client.get(f"/api/sessions/{session}/export/camera_info", params={"sensor": "cam"}), 422,
+                           names="splined-stereographic")
+    assert "OpenCV model fitted to the spline" in refused["message"]
+    document = client.get(f"/api/sessions/{session}/export/camera-json", params={"sensor": "cam"}).json()
+    assert document["spline"] == record["camera"]["spline"] and document["splined"] == record["splined"]
+    assert client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/accept",
+                       json={"result_id": solved["result_id"], "confirm": True}).status_code == 200
+    response = client.post(f"/api/sessions/{session}/sensors/cam/intrinsics/solve",
+                           json={"model": "splined-stereographic", "spline_knots": [3, 10]})
+    assert response.status_code == 422 and "spline_knots" in response.text

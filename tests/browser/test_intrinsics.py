@@ -246,3 +246,55 @@ def test_session_step_downloads_the_sessions_board(page: Page, studio: Studio) -
     saved = Path(download.value.path()).read_bytes()
     assert download.value.suggested_filename == sheet.filename
     assert saved == sheet.pdf  # the sheet test_target_pdf.py measures
+
+
+SPLINED_RESULT_RE = re.compile(r"(r\d{4}) \(not accepted\) · intrinsics[\s\S]*?splined-stereographic 1280×720")
+SPLINED_TEXTS = ("LENSMODEL_SPLINED_STEREOGRAPHIC_order=3", "Knots (# reached by corners", "As OpenCV's pinhole-radtan",
+                 "Board flex:", "Verdict:")
+"""What the panel states of a splined result: mrcal's model name, the knots map, the OpenCV fit, the flex, the
+verdict."""
+SPLINED_SOLVE_S = 180.0
+"""Bound on the splined solve of cam_wide's views (the OpenCV start, then the spline with the flex) on a loaded
+machine."""
+
+
+def test_splined_model_in_the_intrinsics_step(page: Page, studio: Studio) -> None:
+    """cam_wide's views (kept by :func:`test_intrinsics_step_with_simulated_camera`) solved with mrcal's splined model:
+    its own options replace k3's, and the result states the knots and the OpenCV fit, never the control points."""
+    camera = page.get_by_label("Camera", exact=True)
+    if camera.input_value() != "cam_wide":  # GUI state persists: the earlier test left it there
+        choose(page, "Camera", "cam_wide")
+    captures = studio.get("/api/sessions/demo/sensors/cam_wide/captures")
+    assert len(captures) > LIVE_VIEWS, "the views test_intrinsics_step_with_simulated_camera keeps come first"
+    earlier = {r["id"] for r in studio.get("/api/sessions/demo/results?sensor=cam_wide&kind=intrinsics")}
+
+    knots = page.get_by_text("Spline knots (0: from the views)", exact=True)
+    fov = page.get_by_text("Spline field across (°, 0: from the views)", exact=True)
+    k3 = page.get_by_label("Estimate k3", exact=True)
+    expect(k3).to_be_visible()
+    expect(knots).to_be_hidden()
+    choose(page, "Model", "splined-stereographic")
+    expect(knots).to_be_visible()
+    expect(fov).to_be_visible()
+    expect(k3).to_be_hidden()
+
+    button(page, "Solve").click()
+    match = wait_body(page, SPLINED_RESULT_RE, SPLINED_SOLVE_S)
+    result_id = match.group(1)
+    assert result_id not in earlier, (result_id, earlier)
+    body = poll(lambda: all(text in (body := _body(page)) for text in SPLINED_TEXTS) and body,
+                lambda: f"the splined result is incomplete:\n{_body(page)[-2000:]}")
+    assert "du_x[" not in body, "the panel lists the spline's control points"
+    record = studio.get(f"/api/sessions/demo/results/{result_id}")
+    assert record["camera"]["model"] == "splined-stereographic", record["camera"]
+    knot_rows = record["splined"]["unconstrained_map"]  # the map reads as a grid only in a monospace block
+    expect(page.locator("pre", has_text=knot_rows[len(knot_rows) // 2].strip())).to_be_visible()
+    print(f"cam_wide splined from {len(captures)} views: {record['splined']['lensmodel']}, rms "
+          f"{record['rms_px']:.3f} px, verdict {record['verdict']['level']}")
+
+    page.set_viewport_size(TALL_VIEWPORT)
+    try:
+        page.get_by_text(re.compile(r"^Knots \(# reached by corners")).scroll_into_view_if_needed()
+        page.screenshot(path=ARTIFACTS / "intrinsics_splined.png")
+    finally:
+        page.set_viewport_size(VIEWPORT)

@@ -118,7 +118,7 @@ def test_intrinsics_model_auto_says_which_model_won_and_why(left_images, tmp_pat
     assert comparison["status"] == "compared"
     models = [c["model"] for c in comparison["candidates"]]
     assert models == ["pinhole-radtan k1-k2", "fisheye-equidistant", "pinhole-radtan k1-k3", "photogrammetric",
-                      "pinhole-rational"]
+                      "pinhole-rational", "splined-stereographic"]
     assert all(0 < c["held_out_rms_px"] < 0.5 for c in comparison["candidates"])
     winner = next(c for c in comparison["candidates"] if c["recommended"])
     assert comparison["recommended"] == winner["model"] and comparison["reason"].startswith(winner["model"])
@@ -279,3 +279,43 @@ def test_the_photogrammetric_model_in_mm_to_camera_json(left_images, tmp_path: P
     assert c["sigma_mm"] == pytest.approx(c["sigma_px"] * 0.006)
     saved = json.loads((tmp_path / "camera.json").read_text())
     assert saved["photogrammetric"] == out["photogrammetric"] and saved["std"] == out["std"]
+
+
+def test_the_splined_model_options_are_checked_before_any_work(left_images, tmp_path: Path):
+    folder = copy_images(left_images[:3], tmp_path / "three")
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--model",
+                                               "splined-stereographic", "--out", str(tmp_path / "camera.yaml"),
+                                               "--json"))
+    assert error["input"] == "out" and "cannot carry the splined-stereographic model" in error["message"]
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--model",
+                                               "splined-stereographic", "--spline-knots", "12by10", "--json"))
+    assert error == {"message": "--spline-knots is '12by10'; expected the knots across and down as NXxNY, e.g. 12x10",
+                     "input": "spline-knots"}
+    error = assert_json_failure(cli_in_process("intrinsics", folder, "--board", BOARD, "--spline-fov", "80", "--json"))
+    assert error["input"] == "spline-fov" and "--model pinhole-radtan" in error["message"]
+
+
+@pytest.mark.slow
+def test_the_splined_model_to_camera_json(left_images, tmp_path: Path):
+    """mrcal's knots for the set (12x10 over 80 degrees): the JSON names mrcal's model, the knots no corner reaches
+    and the OpenCV model fitted to it; the camera JSON loads back as the same splined camera."""
+    from backend.exports.camera_json import load_camera
+
+    folder = copy_images(left_images, tmp_path / "images")
+    run = cli_in_process("intrinsics", folder, "--board", BOARD, "--model", "splined-stereographic",
+                         "--spline-knots", "12x10", "--spline-fov", "80", "--out", str(tmp_path / "camera.json"),
+                         "--json")
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    spline = out["splined"]
+    assert spline["lensmodel"] == "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=12_Ny=10_fov_x_deg=80"
+    assert 0 < spline["unconstrained_knots"] < spline["knots_under_image"] <= 120
+    assert len(spline["unconstrained_map"]) == 10 and spline["opencv"]["max_residual_px"] > 0
+    assert out["correlation"] == {"names": [], "matrix": []} and len(out["std"]["dist"]) == 240
+    camera, _ = load_camera(tmp_path / "camera.json")
+    assert camera.model == "splined-stereographic" and (camera.spline.nx, camera.spline.ny) == (12, 10)
+    np.testing.assert_array_equal(camera.dist, out["camera"]["dist"])
+    assert json.loads((tmp_path / "camera.json").read_text())["splined"] == spline
+    text = cli_in_process("intrinsics", folder, "--board", BOARD, "--model", "splined-stereographic",
+                          "--spline-knots", "12x10", "--spline-fov", "80")
+    assert text.returncode == 0 and "the OpenCV model fitted to it" in text.stdout, text.stderr

@@ -25,12 +25,13 @@ def test_the_card_says_which_exports_carry_the_lens():
     with_k3 = card_markdown(intrinsics_record(-0.03, "trusted"), None)
     assert "Exports that carry this lens: camera_info, opencv" in with_k3
     assert "- not kalibr: cam_wide: k3 = -0.03 moves the farthest image corner by" in with_k3
-    assert "Exports that carry this lens: camera_info, opencv, camera-json, kalibr" in card_markdown(
+    assert "Exports that carry this lens: camera_info, opencv, camera-json, mrcal, kalibr" in card_markdown(
         intrinsics_record(0.0, "trusted"), None)
     photogrammetric = intrinsics_record(0.0, "trusted")
     photogrammetric["camera"] |= {"model": "photogrammetric", "dist": [-1e-6, 0, 0, 0, 0, 1e-4, 0]}
     card = card_markdown(photogrammetric, None)
     assert "Exports that carry this lens: opencv, camera-json\n" in card
+    assert "- not mrcal: mrcal's .cameramodel cannot carry the photogrammetric model" in card
     assert "- not camera_info: camera_info cannot carry the photogrammetric model" in card
     assert "- not kalibr: cam_wide: Kalibr's camchain cannot carry the photogrammetric model" in card
 

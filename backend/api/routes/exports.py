@@ -34,7 +34,7 @@ def get_result(result_id: str, session: deps.SessionDep) -> dict[str, Any]:
 @router.get("/sessions/{name}/export/{fmt}", response_class=PlainTextResponse,
             responses={200: {"content": {"application/yaml": {}, "application/xml": {}, "text/x-python": {}}}})
 def export(fmt: ExportFormat, session: deps.SessionDep,
-           sensor: Annotated[str | None, Query(description="camera for camera_info / opencv")] = None,
+           sensor: Annotated[str | None, Query(description="camera for the one-camera formats")] = None,
            convention: Annotated[Convention | None, Query(
                description="rig / urdf / launch: 'optical' (default: cameras as their optical frames) or 'body' "
                            "(each camera a body frame with a CAM_optical_frame child)")] = None,

@@ -7,7 +7,8 @@ is projected through half ``b``; the two calibrations' camera frames may differ 
 solve fixes it through its own board poses), so one rotation, fitted over the grid with each point
 weighted by its expected difference, is taken out first (mrcal's ``show-projection-diff`` fits the same
 implied transform). The difference is compared, point by point, with the 1-sigma expected from both
-halves' projection uncertainties: ``sqrt(sigma_a^2 + sigma_b^2)``.
+halves' projection uncertainties: ``sqrt(sigma_a^2 + sigma_b^2)``. A splined model is judged only where both
+halves' boards reach: beyond them its knots are held by the regularization, whose sigma says nothing of the lens.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
+from backend.core.splined import rays_where_inverting
 from backend.core.verdict import CROSS_CHECK_SIGMAS
 
 CONSISTENT_FACTOR = CROSS_CHECK_SIGMAS
@@ -33,20 +35,26 @@ def grid_pixels(width: int, height: int, grid: tuple[int, int]) -> np.ndarray:
 
 
 def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: CameraIntrinsics,
-                          sigma_b_px: np.ndarray, grid: tuple[int, int]) -> dict[str, Any]:
+                          sigma_b_px: np.ndarray, grid: tuple[int, int],
+                          judged: np.ndarray | None = None) -> dict[str, Any]:
     """Compare two calibrations of one camera over ``grid`` (columns, rows).
 
     ``sigma_a_px`` and ``sigma_b_px`` are each half's (rows, cols) worst-direction projection 1-sigma (px) at
-    the grid's cells. Returns the per-cell difference (px), its ratio to the expected 1-sigma, the worst
-    ratio and where it is, the largest difference and where it is, and ``consistent`` (every ratio below
-    :data:`CONSISTENT_FACTOR`).
+    the grid's cells; ``judged`` (rows, cols) the cells compared (None: every cell; a cell where a splined model
+    does not invert never is). Returns the per-cell difference (px, 0 where not judged), its ratio to the expected
+    1-sigma, the worst ratio and where it is, the largest difference and where it is, and ``consistent`` (every
+    ratio below :data:`CONSISTENT_FACTOR`).
     """
     pixels = grid_pixels(a.width, a.height, grid)
     expected = np.hypot(np.asarray(sigma_a_px, float), np.asarray(sigma_b_px, float)).ravel()
-    rays_a, rays_b = a.rays(pixels), b.rays(pixels)
-    rotation, _ = Rotation.align_vectors(rays_b, rays_a, weights=1.0 / np.maximum(expected, 1e-6) ** 2)
-    seen_by_b = b.project(rotation.apply(rays_a))
-    diff = np.linalg.norm(seen_by_b - pixels, axis=1)
+    rays_a, rays_b = _rays(a, pixels), _rays(b, pixels)
+    compared = np.isfinite(rays_a[:, 0]) & np.isfinite(rays_b[:, 0])
+    if judged is not None and np.any(compared & np.ravel(judged)):
+        compared &= np.ravel(judged)
+    rotation, _ = Rotation.align_vectors(rays_b[compared], rays_a[compared],
+                                         weights=1.0 / np.maximum(expected[compared], 1e-6) ** 2)
+    diff = np.zeros(len(pixels))
+    diff[compared] = np.linalg.norm(b.project(rotation.apply(rays_a[compared])) - pixels[compared], axis=1)
     ratio = diff / np.maximum(expected, 1e-9)
     worst, largest = int(np.argmax(ratio)), int(np.argmax(diff))
     cols, rows = grid
@@ -64,3 +72,10 @@ def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: Camera
         "rotation_deg": float(np.degrees(rotation.magnitude())),
         "consistent": bool(ratio[worst] < CONSISTENT_FACTOR),
     }
+
+
+def _rays(camera: CameraIntrinsics, pixels: np.ndarray) -> np.ndarray:
+    """``camera``'s rays (N, 3) of ``pixels``; NaN where a splined model does not invert."""
+    if camera.spline is None:
+        return camera.rays(pixels)
+    return rays_where_inverting(camera.spline, camera.parameters, pixels)

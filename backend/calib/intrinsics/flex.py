@@ -12,6 +12,8 @@ turned into the board's frame (:func:`flex_columns`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -44,19 +46,26 @@ def flex_columns(J: np.ndarray, rvec: np.ndarray, basis: np.ndarray) -> np.ndarr
     return (J[:, 3:6] @ normal_camera)[:, None] * np.repeat(basis, 2, axis=0)
 
 
+Prior = Callable[[CameraIntrinsics], tuple[np.ndarray, np.ndarray]]
+"""A lens's prior residuals and their Jacobian by ``[fx, fy, cx, cy, dist...]`` (the splined model's
+regularization, :func:`backend.calib.intrinsics.splined.regularization`)."""
+
+
 def refine_with_flex(camera: CameraIntrinsics, free: np.ndarray, board: BoardSpec, detections: list[Detection],
-                     rvecs: list[np.ndarray], tvecs: list[np.ndarray]):
+                     rvecs: list[np.ndarray], tvecs: list[np.ndarray], solve_flex: bool = True,
+                     prior: Prior | None = None):
     """The least-squares solve of ``detections`` over the free intrinsics (``free``: the (n_all, n_free) map of
-    their changes to ``[fx, fy, cx, cy, dist...]``), every view's pose and the board's flex, from ``camera``, the
-    poses and ``board.warp_m``. Returns ``(K, dist, rvecs, tvecs, board)``, the board bowed by the solved flex."""
-    n_free, n_views = free.shape[1], len(detections)
+    their changes to ``[fx, fy, cx, cy, dist...]``), every view's pose and, with ``solve_flex``, the board's flex,
+    from ``camera``, the poses and ``board.warp_m``; a ``prior``'s rows are solved with the first view's (with no
+    pose columns). Returns ``(K, dist, rvecs, tvecs, board)``, the board bowed by the solved flex."""
+    n_free, n_views, n_flex = free.shape[1], len(detections), 2 * solve_flex
     start_vector = camera.parameters
     flat = [board.plane_xy[d.ids] for d in detections]
     basis = [board.warp_basis[d.ids] for d in detections]
 
     def unpack(params: np.ndarray) -> tuple[CameraIntrinsics, np.ndarray, np.ndarray]:
-        return (camera.with_parameters(start_vector + free @ params[:n_free]), params[n_free:n_free + 2],
-                params[n_free + 2:].reshape(n_views, 6))
+        return (camera.with_parameters(start_vector + free @ params[:n_free]),
+                params[n_free:n_free + 2] if solve_flex else board.warp_m, params[n_free + n_flex:].reshape(n_views, 6))
 
     def evaluate(params: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
         """Each view's residuals (2N,), Jacobian by the intrinsics and the flex (2N, n_free + 2) and by its pose."""
@@ -65,13 +74,18 @@ def refine_with_flex(camera: CameraIntrinsics, free: np.ndarray, board: BoardSpe
         for xy, b, detection, p in zip(flat, basis, detections, poses, strict=True):
             pixels, J = project_board(model, np.column_stack([xy, b @ warp]), p[:3], p[3:])
             residuals.append((pixels - detection.corners_px).ravel())
-            shared.append(np.column_stack([J[:, 6:] @ free, flex_columns(J, p[:3], b)]))
+            shared.append(np.column_stack([J[:, 6:] @ free, *([flex_columns(J, p[:3], b)] if solve_flex else [])]))
             pose.append(J[:, :6])
+        if prior is not None:
+            r, J = prior(model)
+            residuals[0] = np.concatenate([residuals[0], r])
+            shared[0] = np.vstack([shared[0], np.column_stack([J @ free, np.zeros((len(r), n_flex))])])
+            pose[0] = np.vstack([pose[0], np.zeros((len(r), 6))])
         return residuals, shared, pose
 
     poses = np.column_stack([np.reshape(rvecs, (n_views, 3)), np.reshape(tvecs, (n_views, 3))])
-    start = np.concatenate([np.zeros(n_free), board.warp_m, poses.ravel()])
-    model, warp, poses = unpack(levenberg_marquardt(evaluate, start, n_free + 2))
+    start = np.concatenate([np.zeros(n_free), board.warp_m if solve_flex else [], poses.ravel()])
+    model, warp, poses = unpack(levenberg_marquardt(evaluate, start, n_free + n_flex))
     return (model.K, model.dist, [p[:3].reshape(3, 1) for p in poses], [p[3:].reshape(3, 1) for p in poses],
             board.with_warp(warp))
 

@@ -2,7 +2,9 @@
 
 OpenCV does the solve (``calibrateCamera`` for ``pinhole-radtan``,
 ``fisheye.calibrate`` for ``fisheye-equidistant``); the ``photogrammetric`` model, which OpenCV cannot fit, is
-solved by :mod:`backend.calib.intrinsics.photogrammetric` from OpenCV's solve. A board's bow (mrcal's
+solved by :mod:`backend.calib.intrinsics.photogrammetric` from OpenCV's solve, and mrcal's splined model by
+:mod:`backend.calib.intrinsics.splined` (:func:`_splined_calibrate`, its regularization in the covariance as mrcal
+has it). A board's bow (mrcal's
 ``calobject_warp``) is then solved with the lens and the poses (:mod:`backend.calib.intrinsics.flex`), or held at
 zero and said why. OpenCV reports per-parameter standard deviations but not their covariance, so we rebuild the
 full problem's Jacobian from OpenCV's own analytic projection Jacobians (``projectPoints``) and
@@ -41,16 +43,17 @@ import numpy as np
 from backend.calib.board.coverage import view_parameters
 from backend.calib.board.detection import Detection
 from backend.calib.board.pose import board_pose
-from backend.calib.intrinsics import photogrammetric
+from backend.calib.intrinsics import photogrammetric, splined
 from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.crossval import grid_pixels, projection_difference
-from backend.calib.intrinsics.flex import FLEX_MAX_STD_M, flex_columns, flex_unsupported, refine_with_flex
+from backend.calib.intrinsics.flex import FLEX_MAX_STD_M, Prior, flex_columns, flex_unsupported, refine_with_flex
 from backend.calib.intrinsics.projection import project_board
 from backend.core.boards import BoardSpec
-from backend.core.camera import DIST_NAMES, CameraIntrinsics, CameraModelName
+from backend.core.camera import CameraIntrinsics, CameraModelName
 from backend.core.errors import InputError
 from backend.core.markers import marker_centres
 from backend.core.result import ProgressCallback, SolveResult, jackknife_std, no_progress
+from backend.core.splined import SplineGrid
 from backend.core.transforms import from_rvec_tvec, skew, to_rvec_tvec
 from backend.core.uncertainty import sigmas
 from backend.core.verdict import Verdict
@@ -75,6 +78,8 @@ MAX_REJECTED_SHARE = 0.25
 board pose, a smeared image), not a few corners, is bad."""
 MAX_REJECTION_ROUNDS = 5
 """Solve-and-reject rounds at most; each round's noise estimate no longer carries the corners rejected before."""
+KNOTS_RANGE = (4, 40)
+"""The knots a splined model may have across and down: a cubic spline needs 4; 40 x 40 is 3,200 spline values."""
 TERM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 SEED_RADIUS = 0.7
 """Views whose corners all lie within this fraction of the half-diagonal from the image centre seed a second
@@ -118,6 +123,22 @@ class IntrinsicsSettings:
     """Also calibrate each half of the views and compare them (:func:`_cross_validate`), the verdict's cross-check."""
     pixel_size_um: float | None = None
     """The sensor's pixel pitch (um): the photogrammetric model's parameters are then reported in mm too."""
+    spline_knots: tuple[int, int] | None = None
+    """splined-stereographic only: the knots across and down (None: chosen from the views, :func:`~backend.calib.
+    intrinsics.splined.choose_grid`; a solve's settings carry the knots it used)."""
+    spline_fov_x_deg: float | None = None
+    """splined-stereographic only: the field of view across (deg) the knots span (None: the image's plus a margin)."""
+
+    @property
+    def spline(self) -> SplineGrid | None:
+        """The splined model's grid these settings name (None until both the knots and the field are set)."""
+        if self.model != "splined-stereographic" or self.spline_knots is None or self.spline_fov_x_deg is None:
+            return None
+        return SplineGrid(*self.spline_knots, self.spline_fov_x_deg)
+
+    def camera(self, size: tuple[int, int], K: np.ndarray, dist: np.ndarray) -> CameraIntrinsics:
+        """The camera of a solve in these settings' model at ``size`` (width, height px)."""
+        return CameraIntrinsics(self.model, size[0], size[1], K, dist, self.spline)
 
 
 class Solve(NamedTuple):
@@ -212,6 +233,8 @@ class IntrinsicsResult(SolveResult):
     """With ``model="auto"``: the held-out comparison of the candidate models and the recommendation."""
     photogrammetric: dict[str, Any] | None = None
     """With the ``photogrammetric`` model: :func:`backend.calib.intrinsics.photogrammetric.report`."""
+    splined: dict[str, Any] | None = None
+    """With the ``splined-stereographic`` model: :func:`backend.calib.intrinsics.splined.knots_report`."""
     jackknife: dict[str, Any] | None = None
     """The views' jackknife beside the noise model's sigmas (:func:`_jackknife_report`), a cross-check; None when
     switched off."""
@@ -238,6 +261,7 @@ class IntrinsicsResult(SolveResult):
                                  if k not in ("difference_px", "expected_px")},
             "model_comparison": self.model_comparison,
             **({"photogrammetric": self.photogrammetric} if self.photogrammetric else {}),
+            **({"splined": self.splined} if self.splined else {}),
             "verdict": self.verdict.to_dict(),
             "seconds": self.seconds,
         }
@@ -280,12 +304,81 @@ def _calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], setti
     """The solve of ``views`` in ``settings.model``, from ``guess`` if given, with the board's flex when
     ``settings.board_flex`` and the target can bow (:func:`~backend.calib.intrinsics.flex.refine_with_flex`, from
     OpenCV's solve with ``board`` as given; its ``warp_m`` is the flex's start)."""
+    if settings.model == "splined-stereographic":
+        return _splined_calibrate(views, board, size, settings, guess)
     solve = _opencv_calibrate(views, board, size, settings, guess)
     if not settings.board_flex or flex_unsupported(board, settings.model):
         return solve
-    camera = CameraIntrinsics(settings.model, size[0], size[1], solve.K, solve.dist)
+    camera = settings.camera(size, solve.K, solve.dist)
     return Solve(*refine_with_flex(camera, _free_intrinsics(camera, settings), board, [v.detection for v in views],
                                    solve.rvecs, solve.tvecs))
+
+
+def _splined_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
+                       guess: CameraIntrinsics | None = None) -> Solve:
+    """mrcal's splined model (:mod:`backend.calib.intrinsics.splined`) solved from ``guess`` (the views posed by it),
+    or else from the views' OpenCV solve in :func:`_opencv_settings` (its flex and poses too), over the control
+    points, every view's pose and, when ``settings`` solve it, the board's flex, with mrcal's regularization."""
+    detections = [v.detection for v in views]
+    if guess is None:
+        K, dist, rvecs, tvecs, board = _calibrate(views, board, size, _opencv_settings(settings))
+        guess = splined.start_camera(CameraIntrinsics("pinhole-radtan", size[0], size[1], K, dist), settings.spline,
+                                     _measurements(detections))
+    else:
+        poses = [board_pose(guess, board, d) for d in detections]
+        if any(T is None for T in poses):
+            raise InputError("a view's board could not be posed from the starting camera", "views")
+        rvecs, tvecs = zip(*(to_rvec_tvec(T) for T in poses), strict=True)
+    return Solve(*refine_with_flex(guess, _free_intrinsics(guess, settings), board, detections, rvecs, tvecs,
+                                   solve_flex=_solves_flex(board, settings), prior=_prior(guess, detections)))
+
+
+def _opencv_settings(settings: IntrinsicsSettings) -> IntrinsicsSettings:
+    """The OpenCV solve a splined solve starts from: k1-k3 and tangential, ``settings``' aspect and flex."""
+    return replace(settings, model="pinhole-radtan", estimate_k3=True, estimate_tangential=True, jackknife=False,
+                   cross_validate=False, spline_knots=None, spline_fov_x_deg=None)
+
+
+def _measurements(detections: list[Detection]) -> int:
+    """The corner coordinates (x and y each) ``detections`` measure."""
+    return 2 * sum(len(d.ids) for d in detections)
+
+
+def _prior(camera: CameraIntrinsics, detections: list[Detection]) -> Prior | None:
+    """The splined model's regularization for a solve of ``detections`` (:func:`~backend.calib.intrinsics.splined.
+    regularization`); None for the other models."""
+    if camera.spline is None:
+        return None
+    n_measurements = _measurements(detections)
+    return lambda model: splined.regularization(model, n_measurements)
+
+
+def _resolved_spline(views: list[View], board: BoardSpec, size: tuple[int, int],
+                     settings: IntrinsicsSettings) -> IntrinsicsSettings:
+    """``settings`` with the splined model's knots and field of view set: as given, or chosen from the views'
+    OpenCV solve (:func:`~backend.calib.intrinsics.splined.choose_grid`). Refuses a test field, and knots the views'
+    corners cannot measure (:func:`~backend.calib.intrinsics.splined.check_measurements`). Other models' settings
+    are returned as they are."""
+    if settings.model != "splined-stereographic":
+        return settings
+    if not isinstance(board, BoardSpec):
+        raise InputError("the splined model is solved from board views, not a surveyed test field: solve the "
+                         "test field with the photogrammetric model", "model")
+    knots, fov = settings.spline_knots, settings.spline_fov_x_deg
+    if knots is not None and not all(KNOTS_RANGE[0] <= k <= KNOTS_RANGE[1] for k in knots):
+        raise InputError(f"spline_knots is {tuple(knots)}; expected the knots across and down, each "
+                         f"{KNOTS_RANGE[0]} to {KNOTS_RANGE[1]}", "spline_knots")
+    if fov is not None and not 0 < fov < 360:
+        raise InputError(f"spline_fov_x_deg is {fov}; expected the field of view across in degrees, between 0 and 360",
+                         "spline_fov_x_deg")
+    n_measurements = _measurements([v.detection for v in views])
+    if settings.spline is None:
+        K, dist, *_ = _opencv_calibrate(views, board, size, _opencv_settings(settings))
+        grid = splined.choose_grid(CameraIntrinsics("pinhole-radtan", size[0], size[1], K, dist), n_measurements,
+                                   settings.spline_knots, settings.spline_fov_x_deg)
+        settings = replace(settings, spline_knots=(grid.nx, grid.ny), spline_fov_x_deg=grid.fov_x_deg)
+    splined.check_measurements(settings.spline, len(views), [v.detection.corners_px for v in views], size)
+    return settings
 
 
 def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings,
@@ -307,7 +400,7 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
     scored, failure = [], None  # (RMS over all views in px, solve) of each solve that ran
     try:
         plain = _opencv_solve(views, board, size, settings)
-        scored.append((_solve_rms(views, size, settings.model, plain), plain))
+        scored.append((_solve_rms(views, size, settings, plain), plain))
     except InputError as exc:  # OpenCV's fisheye start can fail on a view the seeded solve gets past
         failure = exc
     if scored and scored[0][0] <= SETTLED_RMS_PX:
@@ -318,8 +411,8 @@ def _opencv_calibrate(views: list[View], board: BoardSpec, size: tuple[int, int]
     if MIN_VIEWS <= len(inner) < len(views):
         try:
             K, dist, *_ = _opencv_solve(inner, board, size, settings)
-            seeded = _opencv_solve(views, board, size, settings, CameraIntrinsics(settings.model, *size, K, dist))
-            scored.append((_solve_rms(views, size, settings.model, seeded), seeded))
+            seeded = _opencv_solve(views, board, size, settings, settings.camera(size, K, dist))
+            scored.append((_solve_rms(views, size, settings, seeded), seeded))
         except (InputError, cv2.error):  # the inner views alone do not pin the lens down
             pass
     if not scored:
@@ -344,17 +437,17 @@ def _photogrammetric_calibrate(views: list[View], board: BoardSpec, size: tuple[
                                          [v.detection.corners_px for v in views], list(rvecs), list(tvecs))
 
 
-def _solve_residuals(views: list[View], size: tuple[int, int], model: CameraModelName,
+def _solve_residuals(views: list[View], size: tuple[int, int], settings: IntrinsicsSettings,
                      solve: Solve) -> list[np.ndarray]:
-    """Each view's (N, 2) detected minus projected corners (px) under a ``solve`` of ``model``."""
-    camera = CameraIntrinsics(model, size[0], size[1], solve.K, solve.dist)
+    """Each view's (N, 2) detected minus projected corners (px) under a ``solve`` in ``settings``' model."""
+    camera = settings.camera(size, solve.K, solve.dist)
     return [v.detection.corners_px - project_board(camera, v.detection.object_points(solve.board), r, t)[0]
             for v, r, t in zip(views, solve.rvecs, solve.tvecs, strict=True)]
 
 
-def _solve_rms(views: list[View], size: tuple[int, int], model: CameraModelName, solve: Solve) -> float:
-    """Reprojection RMS (px) of ``views`` under a ``solve`` of ``model``."""
-    residuals = np.concatenate(_solve_residuals(views, size, model, solve))
+def _solve_rms(views: list[View], size: tuple[int, int], settings: IntrinsicsSettings, solve: Solve) -> float:
+    """Reprojection RMS (px) of ``views`` under a ``solve`` in ``settings``' model."""
+    residuals = np.concatenate(_solve_residuals(views, size, settings, solve))
     return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
 
 
@@ -405,7 +498,7 @@ def _reject_corners(views: list[View], board: BoardSpec, size: tuple[int, int], 
     for round_index in range(MAX_REJECTION_ROUNDS if settings.reject_corners else 0):
         _check_views(views, board)
         solve = _calibrate(views, board, size, settings)
-        residuals = _solve_residuals(views, size, settings.model, solve)
+        residuals = _solve_residuals(views, size, settings, solve)
         noise_px = np.sqrt(np.mean(np.concatenate(residuals) ** 2))
         lengths = [np.linalg.norm(r, axis=1) for r in residuals]
         outliers = [length > CORNER_OUTLIER_SIGMAS * max(noise_px, np.median(length) / MEDIAN_RESIDUAL_SIGMAS)
@@ -482,11 +575,12 @@ def planar_start(views: list[View], board: BoardSpec, size: tuple[int, int]) -> 
 def _free_intrinsics(camera: CameraIntrinsics, settings: IntrinsicsSettings) -> np.ndarray:
     """Matrix A (n_all x n_free) mapping free intrinsic parameters to [fx, fy, cx, cy, dist...].
 
-    The photogrammetric model has one principal distance: ``fy`` moves with ``fx`` as with ``fix_aspect``.
+    The photogrammetric model has one principal distance: ``fy`` moves with ``fx`` as with ``fix_aspect``. The
+    splined model holds ``fx, fy, cx, cy`` as mrcal does: the spline takes up what they would.
     """
-    names = ["fx", "fy", "cx", "cy", *DIST_NAMES[camera.model]]
-    tied = settings.fix_aspect or camera.model == "photogrammetric"
-    fixed = set()
+    names = ["fx", "fy", "cx", "cy", *camera.dist_names]
+    tied = (settings.fix_aspect or camera.model == "photogrammetric") and camera.spline is None
+    fixed = {"fx", "fy", "cx", "cy"} if camera.spline is not None else set()
     if camera.model == "pinhole-radtan":
         fixed |= set() if settings.estimate_k3 else {"k3"}
         fixed |= set() if settings.estimate_tangential else {"p1", "p2"}
@@ -510,7 +604,8 @@ def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, r
     flex along x and y (m; the last two, :func:`~backend.calib.intrinsics.flex.flex_columns`).
 
     ``rvecs``/``tvecs`` are OpenCV's poses of the used views; excluded views get a
-    pose by PnP so their residuals can still be shown. Covariance units are px^2
+    pose by PnP so their residuals can still be shown. The splined model's regularization (:func:`_prior`) enters as
+    mrcal's does. Covariance units are px^2
     for fx, fy, cx, cy and the distortion coefficients' units squared (unitless in OpenCV's models).
     """
     n_free = A.shape[1]
@@ -541,11 +636,21 @@ def _covariance(camera: CameraIntrinsics, views: list[View], board: BoardSpec, r
     r = np.concatenate(rows_r)
     dof = max(len(r) - jac.shape[1], 1)
     sigma2 = float(r @ r / dof)
+    prior = _prior(camera, [v.detection for v, u in zip(views, used, strict=True) if u])
+    prior_rows = np.zeros((0, jac.shape[1]))
+    if prior is not None:
+        J_prior = prior(camera)[1] @ A
+        prior_rows = np.zeros((len(J_prior), jac.shape[1]))
+        prior_rows[:, :n_free] = J_prior
     # Scale columns to unit norm first: focal lengths (~1e3 px) and k3 (~1e-1) differ by
     # orders of magnitude, and the scaled normal matrix inverts to full precision.
-    scale = 1.0 / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
+    scale = 1.0 / np.maximum(np.linalg.norm(np.vstack([jac, prior_rows]), axis=0), 1e-300)
     normal = (jac * scale).T @ (jac * scale)
-    cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
+    if prior is None:
+        cov_all = sigma2 * scale[:, None] * np.linalg.pinv(normal, hermitian=True) * scale[None, :]
+    else:  # mrcal's: the prior shapes the solution, but only the corners carry noise (N^-1 J_c^T J_c N^-1)
+        inverse = np.linalg.pinv(normal + (prior_rows * scale).T @ (prior_rows * scale), hermitian=True)
+        cov_all = sigma2 * scale[:, None] * (inverse @ normal @ inverse) * scale[None, :]
     cov_all = 0.5 * (cov_all + cov_all.T)
     return residuals, A @ cov_all[:n_free, :n_free] @ A.T, cov_all
 
@@ -634,7 +739,10 @@ def _noise_model_projection(camera: CameraIntrinsics, cov_all: np.ndarray, A: np
     grid = _sigma_grid(full, cov_all)
     covered = _covered_cells(camera, corners_px)
     sigma = np.asarray(grid["sigma_px"])
+    beyond = ("held by the splined model's regularization, not measured: the sigma there understates the error"
+              if camera.spline is not None else "extrapolated")
     return grid | {"method": "noise model, the camera free to turn against the boards (mrcal's)",
+                   "beyond_reach": beyond,
                    "covered": covered.tolist(), "covered_share": float(covered.mean()),
                    "max_covered_px": float(sigma[covered].max()) if covered.any() else None,
                    "max_uncovered_px": float(sigma[~covered].max()) if not covered.all() else None}
@@ -683,7 +791,7 @@ def _through_the_lens(views: list[View], board: BoardSpec, size: tuple[int, int]
     if any(v.detection.marker_corners_px is None for v in views):
         return views
     K, dist, *_ = _calibrate(views, board, size, settings)
-    camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
+    camera = settings.camera(size, K, dist)
     return [View(v.name, replace(v.detection, corners_px=marker_centres(v.detection.marker_corners_px, camera)))
             for v in views]
 
@@ -697,7 +805,7 @@ def _with_corners(views: list[View], corner_set: str) -> list[View]:
 
 def _fit_rms(views: list[View], board: BoardSpec, size: tuple[int, int], settings: IntrinsicsSettings) -> float:
     """Reprojection RMS (px) of a plain solve (no uncertainty) on ``views``."""
-    return _solve_rms(views, size, settings.model, _calibrate(views, board, size, settings))
+    return _solve_rms(views, size, settings, _calibrate(views, board, size, settings))
 
 
 def _pick_corners(views: list[View], board: BoardSpec, size: tuple[int, int],
@@ -766,14 +874,15 @@ def _cross_validate(views: list[View], board: BoardSpec, size: tuple[int, int],
             K, dist, rvecs, tvecs, solved_board = _calibrate(half, board, size, settings)
         except InputError as exc:
             return {"status": "not made", "detail": f"a half of the views cannot be solved alone: {exc.message}"}
-        camera = CameraIntrinsics(settings.model, size[0], size[1], K, dist)
+        camera = settings.camera(size, K, dist)
         A = _free_intrinsics(camera, settings)
         _, _, cov_all = _covariance(camera, half, solved_board, rvecs, tvecs, np.ones(len(half), bool), A,
                                     _solves_flex(solved_board, settings))
         sigma = _noise_model_projection(camera, cov_all, A, rvecs, [v.detection.corners_px for v in half])
-        halves.append((camera, np.array(sigma["sigma_px"])))
-    (a, sigma_a), (b, sigma_b) = halves
-    diff = projection_difference(a, sigma_a, b, sigma_b, UNCERTAINTY_GRID)
+        halves.append((camera, np.array(sigma["sigma_px"]), np.array(sigma["covered"])))
+    (a, sigma_a, covered_a), (b, sigma_b, covered_b) = halves
+    diff = projection_difference(a, sigma_a, b, sigma_b, UNCERTAINTY_GRID,
+                                 covered_a & covered_b if a.spline is not None else None)
     detail = f"the halves ({len(views[0::2])} and {len(views[1::2])} views) " + _difference_phrase(diff)
     return {"status": "consistent" if diff["consistent"] else "inconsistent", "detail": detail, **diff}
 
@@ -815,6 +924,7 @@ def calibrate_intrinsics(
                              view.name)
     progress(0.05, "picking the corner set that fits better")
     _check_views(views, board)
+    settings = _resolved_spline(views, board, image_size, settings)
     views, kept, rejected, solve, corners = _picked_and_rejected(views, board, image_size, settings, progress)
     kept_by_name = {v.name: v for v in kept}
     views = [kept_by_name.get(v.name, v) for v in views]  # a view dropped whole keeps its corners, unused
@@ -823,7 +933,7 @@ def calibrate_intrinsics(
     while True:
         active = [v for v, u in zip(views, used, strict=True) if u]
         K, dist, rvecs, tvecs, board = solve
-        camera = CameraIntrinsics(settings.model, image_size[0], image_size[1], K, dist)
+        camera = settings.camera(image_size, K, dist)
         progress(0.6 + 0.2 * outliers_dropped, "estimating uncertainty")
         A = _free_intrinsics(camera, settings)
         residuals, cov, cov_all = _covariance(camera, views, board, rvecs, tvecs, used, A,
@@ -848,9 +958,10 @@ def calibrate_intrinsics(
             "tilt the board by 20-40 degrees in some views and fill more of the image",
             "views",
         )
-    names = ["fx", "fy", "cx", "cy", *DIST_NAMES[settings.model]]
+    names = ["fx", "fy", "cx", "cy", *camera.dist_names]
     estimated = std_all > 0
-    corr_cov = cov[np.ix_(estimated, estimated)]
+    correlated = estimated & (camera.spline is None)  # a spline's hundreds of control points: no table
+    corr_cov = cov[np.ix_(correlated, correlated)]
     d = np.sqrt(np.diag(corr_cov))
     correlation = corr_cov / np.outer(d, d)
     active = [v for v, u in zip(views, used, strict=True) if u]
@@ -869,13 +980,16 @@ def calibrate_intrinsics(
     warnings += [f"{v.name}: {len(v.rejected.ids)} of {len(v.ids)} corners were outliers, more than "
                  f"{MAX_REJECTED_SHARE:.0%}: the view was dropped" for v in view_results
                  if v.rejected is not None and v.rejected.view_dropped]
-    correlation_names = [n for n, e in zip(names, estimated, strict=True) if e]
+    correlation_names = [n for n, e in zip(names, correlated, strict=True) if e]
     model_report = None
     if settings.model == "photogrammetric":  # one principal distance c: fy is fx, and is left out of the tables
         kept = [k for k, n in enumerate(correlation_names) if n != "fy"]
         correlation, correlation_names = correlation[np.ix_(kept, kept)], photogrammetric.INTERIOR
         model_report = photogrammetric.report(camera, np.delete(std_all, 1), correlation, cov_all, rvecs, tvecs,
                                               [v.name for v in active], settings.pixel_size_um)
+    spline_report = (splined.knots_report(camera, [v.detection.corners_px for v in active],
+                                          _measurements([v.detection for v in active]))
+                     if camera.spline is not None else None)
     flex_report = _flex_report(board, settings, cov_all, flex_note)
     progress(1.0, "done")
     return IntrinsicsResult(
@@ -892,9 +1006,11 @@ def calibrate_intrinsics(
         seconds=time.perf_counter() - started,
         corners=corners,
         cross_validation=cross_validation,
-        verdict=intrinsics_verdict(projection, cross_validation, flex_report, jackknife),
+        verdict=intrinsics_verdict(projection, cross_validation, flex_report, jackknife,
+                                   splined=camera.spline is not None),
         warnings=warnings,
         photogrammetric=model_report,
+        splined=spline_report,
         board_flex=flex_report,
         jackknife=jackknife,
     )

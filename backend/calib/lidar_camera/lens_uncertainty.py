@@ -50,7 +50,10 @@ class LensUncertainty:
     def from_sigmas(cls, camera: CameraIntrinsics, sigmas: list[float], source: str) -> LensUncertainty:
         """From ``fx, fy, cx, cy`` (photogrammetric: ``c, xp, yp``) and each of ``camera``'s distortion coefficients'
         1-sigma, in that order (uncorrelated); :class:`InputError` naming ``source`` for a wrong count or a negative
-        sigma."""
+        sigma, or a splined lens (its control points are not given one by one)."""
+        if camera.spline is not None:
+            raise InputError("a splined lens's sigmas cannot be given one by one: solve its intrinsics in the session "
+                             "and accept them", source)
         names = [*k_entries(camera.model), *DIST_NAMES[camera.model]]
         if len(sigmas) != len(names) or not all(np.isfinite(s) and s >= 0 for s in sigmas):
             raise InputError(f"expected {len(names)} sigmas of 0 or more, for {', '.join(names)} ({camera.model}); got "
@@ -59,8 +62,12 @@ class LensUncertainty:
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> LensUncertainty | None:
-        """From an intrinsics result's record (its ``std`` and ``correlation``); None when it holds no sigma."""
+        """From an intrinsics result's record (its ``std`` and ``correlation``); None when it holds no sigma, or for a
+        splined lens, whose hundreds of control points are not moved one by one (its result's sigma map speaks for
+        it)."""
         std, model = record.get("std") or {}, record["camera"]["model"]
+        if model == "splined-stereographic":
+            return None
         pinhole = {name: std.get(name) for name in K_ENTRIES}
         if model == "photogrammetric":  # c is fx and fy together
             pinhole = {"c": std.get("fx"), "xp": std.get("cx"), "yp": std.get("cy")}
