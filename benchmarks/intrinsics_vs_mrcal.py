@@ -137,6 +137,7 @@ for name, path in job["models"].items():
         "projection_sigma_px": {"centre": float(sigma[job["centre"]]), "worst": float(sigma[unprojected].max())},
         "grid_cells_not_inverted": int(np.count_nonzero(~unprojected)),
         "max_projection_difference_px": float(difference.max()),
+        "cells": {"sigma_px": sigma.tolist(), "inverted": unprojected.tolist()},
     }
 print(json.dumps(figures))
 """
@@ -176,7 +177,8 @@ def sigma_figures(projection_uncertainty: dict, inverted: np.ndarray) -> dict:
 
 def ours(views: list[View], board: BoardSpec, size: tuple[int, int], spline: SplineGrid):
     """The studio's solve as reported, the same with the board flat, and the splined model's solve on ``spline``;
-    returns (result, figures)."""
+    returns (result, figures, cells): ``cells`` per mrcal solve it is compared with, the per-cell sigma and whether
+    the model inverts there."""
     settings = IntrinsicsSettings(estimate_k3=True, cross_validate=False)
     result = calibrate_intrinsics(views, board, size, settings)
     flat = calibrate_intrinsics(views, board, size, replace(settings, board_flex=False, jackknife=False))
@@ -204,7 +206,11 @@ def ours(views: list[View], board: BoardSpec, size: tuple[int, int], spline: Spl
                            "verdict": splined.verdict.level, "seconds": splined.seconds},
                "grid_cells_not_inverted": int(np.count_nonzero(~inverted)),
                "camera": result.camera.to_dict(), "seconds": result.seconds}
-    return result, figures
+    cells = {"a_opencv5_plain": (flat.projection_uncertainty, inverted),
+             "b_opencv5_flex_outliers": (result.projection_uncertainty, inverted),
+             "c_splined": (splined.projection_uncertainty, splined_inverted)}
+    return result, figures, {solve: {"sigma_px": np.ravel(unc["sigma_px"]), "inverted": mask,
+                                     "reached": np.ravel(unc["covered"])} for solve, (unc, mask) in cells.items()}
 
 
 def write_corners_cache(path: Path, views: list[View], board: BoardSpec, corner_set: str) -> int:
@@ -252,10 +258,13 @@ def mrcal_figures(models: dict[str, str], camera: CameraIntrinsics, missing: int
     return json.loads(run.stdout)
 
 
-def ratios(our_figures: dict, mrcal: dict) -> dict:
+def ratios(our_figures: dict, mrcal: dict, our_cells: dict, their_cells: dict) -> dict:
     """ours / mrcal's for RMS and the projection sigma (centre, worst), like for like: our flat-board solve against
-    mrcal's plain OPENCV5 (a), our result (flex solved) against mrcal's default (b); each worst sigma is over the
-    grid cells where its own model inverts; our splined solve against mrcal's (c)."""
+    mrcal's plain OPENCV5 (a), our result (flex solved) against mrcal's default (b), our splined solve against
+    mrcal's (c). ``sigma_worst`` takes each side's worst over the grid cells where its own model inverts;
+    ``sigma_worst_where_both`` over the cells where both do (a polynomial fitted to a fisheye folds at different
+    cells in each tool), ``sigma_worst_where_reached`` over those of them the views' boards reach (the verdict's
+    figure; near a fold the sigma grows without bound, so two fits that fold apart differ most there)."""
     result = {}
     like_for_like = {"a_opencv5_plain": our_figures["flat"], "b_opencv5_flex_outliers": our_figures,
                      "c_splined": our_figures["splined"]}
@@ -268,6 +277,13 @@ def ratios(our_figures: dict, mrcal: dict) -> dict:
                                           / theirs["projection_sigma_px"]["centre"]),
                          "sigma_worst": (like["projection_sigma_px"]["worst_where_inverted"]
                                          / theirs["projection_sigma_px"]["worst"])}
+        ours_cells, mrcal_cells = our_cells[solve], their_cells[solve]
+        both = ours_cells["inverted"] & np.asarray(mrcal_cells["inverted"], bool)
+        reached = both & ours_cells["reached"]
+        for name, cells in (("sigma_worst_where_both", both), ("sigma_worst_where_reached", reached)):
+            if cells.any():
+                result[solve][name] = float(ours_cells["sigma_px"][cells].max()
+                                            / np.asarray(mrcal_cells["sigma_px"])[cells].max())
     return result
 
 
@@ -280,7 +296,7 @@ def evaluate(calibration_set: CalibrationSet, version: str | None) -> dict:
     views = [View(name, d) for name, d in detections if d is not None]
     size = views[0].detection.image_size
     log(f"{calibration_set.name}: the studio's solve on {len(views)} views ...")
-    result, our_figures = ours(views, board, size, SplineGrid.from_mrcal_name(calibration_set.spline))
+    result, our_figures, our_cells = ours(views, board, size, SplineGrid.from_mrcal_name(calibration_set.spline))
     if version is None:
         return {"ours": our_figures}
     with tempfile.TemporaryDirectory(prefix="intrinsics_vs_mrcal_") as tmp:
@@ -293,9 +309,11 @@ def evaluate(calibration_set: CalibrationSet, version: str | None) -> dict:
                                     lensmodel or calibration_set.spline, options)
         models = {solve: run["model"] for solve, run in runs.items() if "model" in run}
         figures = mrcal_figures(models, result.camera, missing) if models else {}
+    their_cells = {solve: figures[solve].pop("cells") for solve in figures}
     mrcal = {solve: {**figures.get(solve, {}), **{k: v for k, v in run.items() if k != "model"}}
              for solve, run in runs.items()}
-    return {"ours": our_figures, "mrcal": mrcal, "ratios_ours_over_mrcal": ratios(our_figures, mrcal)}
+    return {"ours": our_figures, "mrcal": mrcal,
+            "ratios_ours_over_mrcal": ratios(our_figures, mrcal, our_cells, their_cells)}
 
 
 def main():

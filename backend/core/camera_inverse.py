@@ -100,7 +100,8 @@ def fold_radius(camera: CameraIntrinsics, corners: np.ndarray) -> float:
     radii = np.tan(np.radians(np.linspace(0.0, FOLD_SEARCH_MAX_DEG, FOLD_SEARCH_STEPS)))
     xy = radii[None, :, None] * directions[:, None, :]
     pixels = camera.project_normalised(xy.reshape(-1, 2)).reshape(len(directions), len(radii), 2)
-    outward = np.diff(np.linalg.norm(pixels - centre, axis=2), axis=1) > 0
+    # outward from where the axis itself lands (the principal point, but for a spline's correction there)
+    outward = np.diff(np.linalg.norm(pixels - pixels[:, :1], axis=2), axis=1) > 0
     if outward.all():
         return float(radii[-1])
     return float(radii[np.argmin(outward, axis=1)[~outward.all(axis=1)].min()])

@@ -24,6 +24,7 @@ from backend.calib.intrinsics.solver import (
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.projection import project_cloud
 from backend.core.splined import SplineGrid, rays_where_inverting
 from backend.exports.camera_json import dump_camera_json, load_camera_json
 from backend.exports.kalibr_camchain import kalibr_refusal
@@ -58,6 +59,20 @@ def test_projection_is_mrcals_and_inverts():
     assert GRID.mrcal_name == "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=8_Ny=6_fov_x_deg=100"
     with pytest.raises(ValueError, match="order-3"):
         SplineGrid.from_mrcal_name("LENSMODEL_SPLINED_STEREOGRAPHIC_order=2_Nx=8_Ny=6_fov_x_deg=100")
+
+
+def test_lidar_points_are_overlaid_through_the_spline():
+    """:func:`project_cloud` (the LiDAR overlay's projection) keeps the points the splined camera sees, where it
+    puts them: the fold search starts where the axis lands, which a spline's correction moves off the principal
+    point (from the principal point it found a fold at once and kept no point)."""
+    rng = np.random.default_rng(1)
+    points = rng.normal(0.0, 1.0, (20000, 3)) * (1.0, 1.0, 2.0) + (0.0, 0.0, 0.5)
+    points[:, 2] = np.abs(points[:, 2])
+    projection = project_cloud(points, np.eye(4), CAMERA)
+    pixels = CAMERA.project(points)
+    seen = ((pixels >= -0.5) & (pixels < np.array(CAMERA.image_size) - 0.5)).all(axis=1) & (points[:, 2] > 0.01)
+    assert set(projection.index) <= set(np.flatnonzero(seen)) and len(projection.index) > 0.95 * seen.sum()
+    assert projection.uv == pytest.approx(pixels[projection.index], abs=1e-3)
 
 
 def test_board_projection_jacobian_matches_finite_differences():
