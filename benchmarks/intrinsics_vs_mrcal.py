@@ -67,7 +67,7 @@ from backend.calib.intrinsics.crossval import grid_pixels
 from backend.calib.intrinsics.solver import UNCERTAINTY_GRID, IntrinsicsSettings, View, calibrate_intrinsics
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
-from backend.core.splined import SplineGrid, rays_where_inverting
+from backend.core.splined import SplineGrid
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MRCAL_PYTHON = "/usr/bin/python3"
@@ -161,11 +161,8 @@ def uncertainty_grid(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, 
     """The studio's uncertainty grid: cell-centre pixels (N, 2), ``camera``'s rays there (N, 3), and whether
     ``camera`` projects each ray back onto its pixel (N,)."""
     pixels = grid_pixels(camera.width, camera.height, UNCERTAINTY_GRID)
-    if camera.spline is None:
-        rays = camera.rays(pixels)
-    else:  # NaN where the spline folds; such a cell is not inverted, and mrcal is given a ray on the axis there
-        rays = rays_where_inverting(camera.spline, camera.parameters, pixels)
-        rays[np.isnan(rays[:, 0])] = (0.0, 0.0, 1.0)
+    rays = camera.rays_where_inverting(pixels)
+    rays[np.isnan(rays[:, 0])] = (0.0, 0.0, 1.0)  # a cell where a spline folds is not inverted; mrcal gets the axis
     return pixels, rays, np.linalg.norm(camera.project(rays) - pixels, axis=1) < ROUND_TRIP_PX
 
 

@@ -60,18 +60,17 @@ def run_intrinsics(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"--pixel-size-um is {args.pixel_size_um}; expected the pixel pitch in micrometres "
                          "(0 to 1000, e.g. 4.8)", "pixel-size-um")
     suffix = args.out.suffix.lower() if args.out is not None else None
+    writes_camera_info = args.out is not None and suffix not in (".json", ".cameramodel")
     if suffix == ".cameramodel" and args.model in ("fisheye-equidistant", "photogrammetric"):
         raise InputError(f"--out {args.out} is mrcal's .cameramodel, which cannot carry the {args.model} model; write "
                          "the camera JSON instead (--out camera.json)", "out")
-    if args.out is not None and suffix not in (".json", ".cameramodel") and args.model in ("photogrammetric",
-                                                                                           "splined-stereographic"):
+    if writes_camera_info and args.model in ("photogrammetric", "splined-stereographic"):
         raise InputError(f"--out {args.out} is ROS camera_info YAML, which cannot carry the {args.model} model; "
                          "write the camera JSON instead (--out camera.json)", "out")
     if (args.spline_knots or args.spline_fov is not None) and args.model != "splined-stereographic":
         raise InputError(f"--spline-knots and --spline-fov shape the splined model; they do not apply to --model "
                          f"{args.model}", "spline-knots" if args.spline_knots else "spline-fov")
-    auto_for = ("camera_info" if args.out is not None and suffix not in (".json", ".cameramodel")
-                and args.model == "auto" else args.auto_for)
+    auto_for = "camera_info" if writes_camera_info and args.model == "auto" else args.auto_for
     settings = IntrinsicsSettings(model=args.model, auto_for=auto_for, estimate_k3=args.k3,
                                   estimate_tangential=not args.no_tangential, fix_aspect=args.fix_aspect,
                                   drop_outliers=args.drop_outliers, pixel_size_um=args.pixel_size_um,

@@ -185,6 +185,13 @@ class CameraIntrinsics:
         rays = np.column_stack([xy, np.ones(len(xy))])
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
+    def rays_where_inverting(self, pixels: np.ndarray) -> np.ndarray:
+        """:meth:`rays`, with NaN rays at the pixels where a splined model folds over (has no inverse) instead of
+        refusing them all; the other models' inverses always give a ray."""
+        if self.spline is not None:
+            return splined.rays_where_inverting(self.spline, self.parameters, pixels)
+        return self.rays(pixels)
+
     @property
     def fov_y_rad(self) -> float:
         """Vertical field of view of the undistorted pinhole (rad), for drawing frusta."""

@@ -46,14 +46,14 @@ def convert(camera: CameraIntrinsics, model: CameraModelName) -> Conversion:
     """
     pair = (camera.model, model)
     if pair == ("photogrammetric", "pinhole-radtan"):
-        start, unpack = _opencv_start(camera), _opencv_camera
+        start, unpack = _opencv_start(camera), opencv_camera
         note = "A1 and A2 have no OpenCV counterpart: fx, fy and the distortion were fitted over the image"
     elif pair == ("pinhole-radtan", "photogrammetric"):
         start, unpack = _photogrammetric_start(camera), photogrammetric_camera
         note = "fx != fy has no exact photogrammetric counterpart: c, A1 and the distortion were fitted over the image"
     else:
         raise ValueError(f"no conversion from {camera.model} to {model}")
-    xy = camera.undistort_points(_grid(camera))
+    xy = camera.undistort_points(pixel_grid(camera))
     target = camera.project_normalised(xy)
 
     def residual(params: np.ndarray) -> np.ndarray:
@@ -67,9 +67,9 @@ def convert(camera: CameraIntrinsics, model: CameraModelName) -> Conversion:
                       "exact: the models share these terms" if exact else note)
 
 
-def _grid(camera: CameraIntrinsics) -> np.ndarray:
-    cols, rows = GRID
-    u, v = np.meshgrid(np.linspace(0, camera.width - 1, cols), np.linspace(0, camera.height - 1, rows))
+def pixel_grid(camera: CameraIntrinsics, columns: int = GRID[0], rows: int = GRID[1]) -> np.ndarray:
+    """(columns * rows, 2) pixels spread evenly over ``camera``'s image, its edges included, row by row."""
+    u, v = np.meshgrid(np.linspace(0, camera.width - 1, columns), np.linspace(0, camera.height - 1, rows))
     return np.column_stack([u.ravel(), v.ravel()])
 
 
@@ -80,7 +80,8 @@ def _opencv_start(camera: CameraIntrinsics) -> np.ndarray:
     return np.r_[c * (1.0 + A1), c, camera.K[0, 2], camera.K[1, 2], photogrammetric.opencv_coefficients(c, camera.dist)]
 
 
-def _opencv_camera(source: CameraIntrinsics, params: np.ndarray) -> CameraIntrinsics:
+def opencv_camera(source: CameraIntrinsics, params: np.ndarray) -> CameraIntrinsics:
+    """The ``pinhole-radtan`` camera of ``[fx, fy, cx, cy, k1, k2, p1, p2, k3]`` ``params`` at ``source``'s size."""
     fx, fy, cx, cy = params[:4]
     return CameraIntrinsics("pinhole-radtan", source.width, source.height,
                             np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), params[4:9])

@@ -69,11 +69,6 @@ class SplineGrid:
         """Knot spans per unit of ``u``: ``nx - 3`` spans cover the field across, ``2 * 2 tan(fov / 4)``."""
         return (self.nx - 3) / (4.0 * np.tan(np.radians(self.fov_x_deg) / 4.0))
 
-    def knots(self) -> tuple[np.ndarray, np.ndarray]:
-        """The knots' ``u`` along x (nx,) and y (ny,) (mrcal's ``knots_for_splined_models``)."""
-        return ((np.arange(self.nx) - (self.nx - 1) / 2) / self.knots_per_u,
-                (np.arange(self.ny) - (self.ny - 1) / 2) / self.knots_per_u)
-
     def support(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """For each ``u`` (N, 2): the 16 knots under it as flat indices ``iy nx + ix`` (N, 16), their weights (N,
         16) and the weights' derivatives by ``u_x`` and ``u_y`` (N, 16 each)."""

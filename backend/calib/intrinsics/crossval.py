@@ -19,7 +19,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
-from backend.core.splined import rays_where_inverting
 from backend.core.verdict import CROSS_CHECK_SIGMAS
 
 CONSISTENT_FACTOR = CROSS_CHECK_SIGMAS
@@ -47,7 +46,7 @@ def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: Camera
     """
     pixels = grid_pixels(a.width, a.height, grid)
     expected = np.hypot(np.asarray(sigma_a_px, float), np.asarray(sigma_b_px, float)).ravel()
-    rays_a, rays_b = _rays(a, pixels), _rays(b, pixels)
+    rays_a, rays_b = a.rays_where_inverting(pixels), b.rays_where_inverting(pixels)
     compared = np.isfinite(rays_a[:, 0]) & np.isfinite(rays_b[:, 0])
     if judged is not None and np.any(compared & np.ravel(judged)):
         compared &= np.ravel(judged)
@@ -72,10 +71,3 @@ def projection_difference(a: CameraIntrinsics, sigma_a_px: np.ndarray, b: Camera
         "rotation_deg": float(np.degrees(rotation.magnitude())),
         "consistent": bool(ratio[worst] < CONSISTENT_FACTOR),
     }
-
-
-def _rays(camera: CameraIntrinsics, pixels: np.ndarray) -> np.ndarray:
-    """``camera``'s rays (N, 3) of ``pixels``; NaN where a splined model does not invert."""
-    if camera.spline is None:
-        return camera.rays(pixels)
-    return rays_where_inverting(camera.spline, camera.parameters, pixels)

@@ -23,6 +23,7 @@ from backend.calib.board.pose import board_pose
 from backend.calib.intrinsics import photogrammetric
 from backend.calib.intrinsics.checks import intrinsics_verdict
 from backend.calib.intrinsics.flex import refine_with_flex
+from backend.calib.intrinsics.projection import project_board
 from backend.calib.intrinsics.solver import (
     TERM_CRITERIA,
     IntrinsicsResult,
@@ -121,8 +122,7 @@ def _held_out_residuals(settings: IntrinsicsSettings, K: np.ndarray, dist: np.nd
         rvec, tvec = to_rvec_tvec(T)
         *_, rvecs, tvecs, _ = refine_with_flex(camera, np.zeros((len(camera.parameters), 0)), board,
                                                [view.detection], [rvec], [tvec], solve_flex=False)
-        return img.reshape(-1, 2) - camera.project(obj.reshape(-1, 3) @ cv2.Rodrigues(rvecs[0])[0].T
-                                                   + tvecs[0].ravel())
+        return img.reshape(-1, 2) - project_board(camera, obj, rvecs[0], tvecs[0])[0]
     if model == "photogrammetric":
         camera = CameraIntrinsics(model, size[0], size[1], K, dist)
         T = board_pose(camera, board, view.detection)

@@ -20,8 +20,9 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from backend.core.camera import CameraIntrinsics
+from backend.core.camera_conversion import opencv_camera, pixel_grid
 from backend.core.errors import InputError
-from backend.core.splined import SplineGrid, rays_where_inverting, stereographic
+from backend.core.splined import SplineGrid, stereographic
 
 MEASUREMENTS_PER_VALUE = 5.0
 """The knots chosen (:func:`choose_grid`) leave at least this many corner measurements (x and y each count) per
@@ -48,26 +49,22 @@ def image_u(camera: CameraIntrinsics, columns: int = 64, rows: int = 48) -> np.n
     """Stereographic ``u`` (N, 2) of a grid of the image's pixels under ``camera``; where it does not invert (a
     polynomial fitted to a wide lens folds before the image's edge), the equidistant guess: the pixel's distance from
     the principal point over the focal length is its angle off the axis (a fisheye's, wider than a pinhole's)."""
-    pixels = _pixel_grid(camera, columns, rows)
+    pixels = pixel_grid(camera, columns, rows)
     inverting, rays = _inverting_rays(camera, pixels)
-    rest = pixels[~(pixels[:, None, :] == inverting[None, :, :]).all(axis=2).any(axis=1)] if len(inverting) else pixels
-    xy = (rest - camera.K[:2, 2]) / np.diag(camera.K)[:2]
+    xy = (pixels[~inverting] - camera.K[:2, 2]) / np.diag(camera.K)[:2]
     angle = np.linalg.norm(xy, axis=1, keepdims=True)
     guessed = 2 * np.tan(np.minimum(angle, np.pi * 0.99) / 2) * xy / np.maximum(angle, 1e-12)
     return np.vstack([stereographic(rays)[0], guessed])
 
 
 def _inverting_rays(camera: CameraIntrinsics, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The ``pixels`` (N, 2) where ``camera`` inverts (its ray projects back within :data:`ROUND_TRIP_PX`), and their
-    rays."""
+    """Which of the ``pixels`` (N, 2) ``camera`` inverts (N,) (a ray in front that projects back within
+    :data:`ROUND_TRIP_PX`), and those pixels' rays."""
     with np.errstate(all="ignore"):
-        if camera.spline is not None:
-            rays = rays_where_inverting(camera.spline, camera.parameters, pixels)
-        else:
-            rays = camera.rays(pixels)
+        rays = camera.rays_where_inverting(pixels)
         ok = np.all(np.isfinite(rays), axis=1) & (rays[:, 2] > 0)
         ok[ok] = np.linalg.norm(camera.project(rays[ok]) - pixels[ok], axis=1) < ROUND_TRIP_PX
-    return pixels[ok], rays[ok]
+    return ok, rays[ok]
 
 
 def choose_grid(camera: CameraIntrinsics, n_measurements: int, knots: tuple[int, int] | None = None,
@@ -151,7 +148,8 @@ def start_camera(opencv: CameraIntrinsics, grid: SplineGrid, n_measurements: int
     """The splined camera that best reproduces the OpenCV lens ``opencv`` over the image (a :data:`START_GRID` of
     pixels, those where it inverts), with ``opencv``'s ``K``: the control points by linear least squares, with
     :func:`regularization`'s rows."""
-    pixels, rays = _inverting_rays(opencv, _pixel_grid(opencv, *START_GRID))
+    pixels = pixel_grid(opencv, *START_GRID)
+    inverting, rays = _inverting_rays(opencv, pixels)
     u, _ = stereographic(rays)
     zero = CameraIntrinsics("splined-stereographic", opencv.width, opencv.height, opencv.K,
                             np.zeros(grid.n_control), grid)
@@ -162,7 +160,7 @@ def start_camera(opencv: CameraIntrinsics, grid: SplineGrid, n_measurements: int
     A[2 * rows, 2 * index] = f[0] * weights
     A[2 * rows + 1, 2 * index + 1] = f[1] * weights
     _, J_regularization = regularization(zero, n_measurements)
-    b = (pixels - c - f * u).ravel()
+    b = (pixels[inverting] - c - f * u).ravel()
     control = np.linalg.lstsq(np.vstack([A, J_regularization[:, 4:]]),
                               np.concatenate([b, np.zeros(grid.n_control)]), rcond=None)[0]
     return zero.with_parameters(np.r_[zero.parameters[:4], control])
@@ -176,10 +174,10 @@ def knots_report(camera: CameraIntrinsics, corners_px: list[np.ndarray], n_measu
     image: what an export that cannot carry the spline gets)."""
     grid = camera.spline
     under_image = grid.touched_knots(image_u(camera))
-    corners, rays = _inverting_rays(camera, np.vstack(corners_px))
+    corners = np.vstack(corners_px)
+    inverting, rays = _inverting_rays(camera, corners)
     reached = grid.touched_knots(stereographic(rays)[0])
     unreached = under_image & ~reached
-    image_pixels = _pixel_grid(camera, *START_GRID)
     rows = ["".join("#" if r else ("." if i else " ") for r, i in zip(row_r, row_i, strict=True))
             for row_r, row_i in zip(reached, under_image, strict=True)]
     return {"lensmodel": grid.mrcal_name, "knots": [grid.nx, grid.ny], "fov_x_deg": grid.fov_x_deg,
@@ -190,7 +188,7 @@ def knots_report(camera: CameraIntrinsics, corners_px: list[np.ndarray], n_measu
             "detail": (f"{int(unreached.sum())} of the {int(under_image.sum())} knots under the image have no corner "
                        "near them: there the model is held smooth by the regularization, not measured, and its sigma "
                        "understates the error"),
-            "opencv": opencv_fit(camera, rays, corners, image_pixels)}
+            "opencv": opencv_fit(camera, rays, corners[inverting], pixel_grid(camera, *START_GRID))}
 
 
 def opencv_fit(camera: CameraIntrinsics, rays: np.ndarray, pixels: np.ndarray,
@@ -204,10 +202,7 @@ def opencv_fit(camera: CameraIntrinsics, rays: np.ndarray, pixels: np.ndarray,
     start = np.r_[camera.parameters[:4], np.zeros(5), np.zeros(3)]
 
     def fitted(params: np.ndarray) -> tuple[CameraIntrinsics, Rotation]:
-        fx, fy, cx, cy = params[:4]
-        return (CameraIntrinsics("pinhole-radtan", camera.width, camera.height,
-                                 [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], params[4:9]),
-                Rotation.from_rotvec(params[9:]))
+        return opencv_camera(camera, params), Rotation.from_rotvec(params[9:])
 
     def residual(params: np.ndarray) -> np.ndarray:
         opencv, turn = fitted(params)
@@ -216,16 +211,10 @@ def opencv_fit(camera: CameraIntrinsics, rays: np.ndarray, pixels: np.ndarray,
     opencv, turn = fitted(least_squares(residual, start, x_scale="jac", method="lm").x)
     at_corners = np.linalg.norm(opencv.project(turn.apply(rays)) - pixels, axis=1)
     inverting, opencv_rays = _inverting_rays(opencv, image_pixels)
-    over_image = np.linalg.norm(camera.project(turn.inv().apply(opencv_rays)) - inverting, axis=1)
+    over_image = np.linalg.norm(camera.project(turn.inv().apply(opencv_rays)) - image_pixels[inverting], axis=1)
     return {"camera": opencv.to_dict(), "rotation_deg": float(np.degrees(turn.magnitude())),
             "max_residual_px": float(at_corners.max()), "rms_residual_px": float(np.sqrt(np.mean(at_corners**2))),
             "max_residual_over_image_px": float(over_image.max(initial=0.0)),
-            "image_share_inverting": len(inverting) / len(image_pixels),
+            "image_share_inverting": float(inverting.mean()),
             "note": "fitted at the views' corners, the camera's frame turned by rotation_deg (the spline's frame is "
                     "set by the boards); beyond the corners the two part ways"}
-
-
-def _pixel_grid(camera: CameraIntrinsics, columns: int, rows: int) -> np.ndarray:
-    """(columns * rows, 2) pixels spread evenly over ``camera``'s image, its edges included."""
-    u_px, v_px = np.meshgrid(np.linspace(0, camera.width - 1, columns), np.linspace(0, camera.height - 1, rows))
-    return np.column_stack([u_px.ravel(), v_px.ravel()])
