@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.core.camera import CameraIntrinsics
-from backend.core.errors import InputError
+from backend.core.errors import InputError, shorten
 from backend.core.finite import require_finite
 from backend.core.splined import SplineGrid
 from backend.exports.text_file import read_text
@@ -70,10 +70,14 @@ def load_mrcal_cameramodel(path: Path) -> CameraIntrinsics:
         raise InputError(f"{path}: field 'lensmodel' is {lensmodel!r}; expected {OPENCV5} or "
                          "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=.._Ny=.._fov_x_deg=..", str(path)) from None
     count = 9 if spline is None else 4 + spline.n_control
-    intrinsics = np.asarray(document.get("intrinsics", []), float).ravel()
+    values = document.get("intrinsics")
+    try:
+        intrinsics = np.asarray(values, float).ravel()
+    except (TypeError, ValueError):  # a string, a dict, a ragged list
+        intrinsics = np.full(1, np.nan)
     size = document.get("imagersize")
-    if intrinsics.size != count or not np.all(np.isfinite(intrinsics)):
-        raise InputError(f"{path}: field 'intrinsics' holds {intrinsics.size} values; expected {count} finite numbers "
+    if not isinstance(values, list | tuple) or intrinsics.size != count or not np.all(np.isfinite(intrinsics)):
+        raise InputError(f"{path}: field 'intrinsics' is {shorten(values)}; expected a list of {count} finite numbers "
                          f"for {lensmodel}", str(path))
     if not (isinstance(size, list | tuple) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
         raise InputError(f"{path}: field 'imagersize' is {size!r}; expected [width, height] in pixels", str(path))

@@ -125,7 +125,12 @@ def test_mrcal_cameramodel_round_trip_and_refusals(tmp_path):
     assert opencv.model == "pinhole-radtan" and opencv.project(POINTS) == pytest.approx(PINHOLE.project(POINTS))
     with pytest.raises(InputError, match="cannot carry the fisheye-equidistant model"):
         dump_mrcal_cameramodel(FISHEYE, "cam")
-    path.write_text(path.read_text().replace("LENSMODEL_OPENCV5", "LENSMODEL_CAHVOR"))
+    written = path.read_text()
+    for bad in ("[ 'fx', 1.0 ]", "{ 'fx': 500.0 }", "[ 1.0, 2.0 ]"):
+        path.write_text(written.replace(written[written.index("["):written.index("]") + 1], bad, 1))
+        with pytest.raises(InputError, match="field 'intrinsics' is .*; expected a list of 9 finite numbers"):
+            load_mrcal_cameramodel(path)
+    path.write_text(written.replace("LENSMODEL_OPENCV5", "LENSMODEL_CAHVOR"))
     with pytest.raises(InputError, match="field 'lensmodel' is 'LENSMODEL_CAHVOR'"):
         load_mrcal_cameramodel(path)
 
