@@ -36,6 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ci.add_argument("--knots-per-second", type=float, default=50.0, metavar="HZ",
                     help="knots of the trajectory spline per second (default 50)")
     ci.add_argument("--gravity", type=float, default=9.80665, metavar="M_S2", help="gravity's magnitude (m/s²)")
+    ci.add_argument("--imu-model", choices=("calibrated", "scale-misalignment"), default="calibrated",
+                    help="the IMU's model, as Kalibr's --imu-models: calibrated (ideal axes; default) or "
+                         "scale-misalignment (also fits the axes' scale, misalignment and the gyro's g-sensitivity); "
+                         "the other model is fitted as a cross-check either way")
     ci.add_argument("--json", action="store_true", help="print the result as one JSON object")
     ci.set_defaults(handler=prints_summary(run_camera_imu))
 
@@ -73,7 +77,8 @@ def run_camera_imu(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"expected 5 to 400 knots per second, got {args.knots_per_second}", "--knots-per-second")
     if not 9.7 <= args.gravity <= 9.9:
         raise InputError(f"expected gravity's magnitude on Earth, 9.7 to 9.9 m/s², got {args.gravity}", "--gravity")
-    settings = CameraImuSettings(knots_per_s=args.knots_per_second, gravity_m_s2=args.gravity)
+    settings = CameraImuSettings(knots_per_s=args.knots_per_second, gravity_m_s2=args.gravity,
+                                 imu_model=args.imu_model)
     result = solve_files(args.camera, args.images or args.detections, args.imu, args.board, settings,
                          progress_to_stderr(False), imu_topic=args.imu_topic)
     _report(result)

@@ -3,7 +3,8 @@
 The IMU's pose in the board's frame moves along sums of sines (so its angular rate and acceleration are exact
 derivatives); the camera, rigidly attached by ``T_cam_imu``, sees the AprilGrid's corners at 20 Hz on its own clock,
 which runs ``offset_s`` behind the IMU's (Kalibr's ``t_imu = t_cam + offset``). Pixels, rates and specific forces
-carry white noise and the IMU constant biases.
+carry white noise and the IMU constant biases; the IMU's axes are ideal unless ``intrinsics`` scale and misalign
+them (Kalibr's ``scale-misalignment`` model).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from backend.calib.camera_imu.imu_model import ImuIntrinsics
 from backend.calib.camera_imu.observations import BoardObservations, format_detections_csv
 from backend.core.boards import BoardSpec
 from backend.core.camera import CameraIntrinsics
@@ -50,8 +52,10 @@ class CameraImuRecording:
 def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: int = 0, pixel_sigma: float = 0.3,
                        gyro_sigma: float = 0.003, accel_sigma: float = 0.03, camera_hz: float = 20.0,
                        imu_hz: float = 200.0, rotation_amplitude_rad: float = 0.35,
-                       translation_amplitude_m: float = 0.15) -> CameraImuRecording:
-    """A recording of ``duration_s`` (camera clock from 1000 s, IMU clock ``offset_s`` ahead)."""
+                       translation_amplitude_m: float = 0.15,
+                       intrinsics: ImuIntrinsics | None = None) -> CameraImuRecording:
+    """A recording of ``duration_s`` (camera clock from 1000 s, IMU clock ``offset_s`` ahead), the IMU measuring
+    through ``intrinsics`` (None: ideal axes)."""
     rng = np.random.default_rng(seed)
     frequencies = rng.uniform(0.25, 1.1, size=(2, 3, 3))  # (rotation|translation, axis, component)
     phases = rng.uniform(0, 2 * np.pi, size=(2, 3, 3))
@@ -102,6 +106,10 @@ def simulate_recording(duration_s: float = 24.0, offset_s: float = 0.023, seed: 
     accel_bias = rng.normal(0, 0.1, 3)
     rates = np.einsum("nij,nj->ni", right_jacobians(phi), phi_rate)
     force = np.einsum("nji,nj->ni", R_board_imu, acceleration - GRAVITY_BOARD)
+    if intrinsics is not None:
+        rates_gyro, force_gyro = rates @ intrinsics.R_gyro_accel.T, force @ intrinsics.R_gyro_accel.T
+        rates = rates_gyro @ intrinsics.gyro_M.T + force_gyro @ intrinsics.g_sensitivity.T
+        force = force @ intrinsics.accel_M.T
     imu = ImuSamples(epoch + offset_s + t_imu,  # the IMU's clock reads offset_s more at the same instant
                      rates + gyro_bias + rng.normal(0, gyro_sigma, rates.shape),
                      force + accel_bias + rng.normal(0, accel_sigma, force.shape))

@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
+from scipy.spatial.transform import Rotation
+
 from backend.calib.camera_imu import service as camera_imu_service
 from backend.calib.lidar_imu import service as lidar_imu_service
 from backend.core.errors import InputError
@@ -54,6 +57,11 @@ class CameraImuStep:
                                            hint="a camera seeing the board, or a 3D LiDAR in a static scene")
             self.imu = gui.add_dropdown("IMU", options=[NONE])
             self.board = gui.add_text("Board", initial_value=DEFAULT_BOARD)
+            self.imu_model = gui.add_dropdown(
+                "IMU model", options=camera_imu_service.IMU_MODELS,
+                hint="calibrated: the IMU's axes as they are; scale-misalignment: also fit their scale and "
+                     "misalignment (a MEMS IMU without a factory calibration). The other model is fitted as a "
+                     "cross-check either way (Kalibr's --imu-models)")
             self.imu_upload = gui.add_upload_button("IMU samples (CSV)", mime_type="text/csv")
             self.record_button = gui.add_button("Record the IMU", color="green",
                                                 hint="read the IMU's device live; its samples become the IMU file")
@@ -172,8 +180,9 @@ class CameraImuStep:
         except InputError as exc:
             self.ctx.notify("Cannot solve camera to IMU", exc.message, error=True)
             return
+        settings = camera_imu_service.CameraImuSettings(imu_model=self.imu_model.value)
         self.jobs.run(f"camera-IMU of {camera} and {imu}", lambda progress: camera_imu_service.solve_session(
-            session, imu, camera, imu_csv, detections_csv, board, progress=progress), self._fill_history)
+            session, imu, camera, imu_csv, detections_csv, board, settings, progress), self._fill_history)
 
     def _solve_lidar(self, session: Session, lidar: str, imu: str) -> None:
         if "imu" not in self._files:
@@ -207,6 +216,24 @@ class CameraImuStep:
         used = ("" if "frames_used" not in diagnostics else f" · {diagnostics['frames_used']} of "
                 f"{diagnostics['frames_total']} frames, {diagnostics['corners_dropped']} corners dropped as outliers")
         self.offset_text.content = "" if record is None else (
-            f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_{record['parent']} + offset){used}")
+            f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_{record['parent']} + offset){used}"
+            + imu_model_text(diagnostics))
         self.excitation_image.image = to_rgb(excitation_bars(diagnostics.get("excitation")))
         self.signals_image.image = to_rgb(fitted_signals(diagnostics.get("signals")))
+
+
+def imu_model_text(diagnostics: dict) -> str:
+    """The IMU model a camera-IMU result used and, for ``scale-misalignment``, what it found (markdown)."""
+    if "imu_model" not in diagnostics:
+        return ""  # a LiDAR-IMU result
+    intrinsics = diagnostics.get("imu_intrinsics")
+    if intrinsics is None:
+        return f"\n\nIMU model **{diagnostics['imu_model']}** (the IMU's axes taken as they are)"
+    accel, gyro = np.array(intrinsics["accel_M"]), np.array(intrinsics["gyro_M"])
+    turn_deg = np.degrees(Rotation.from_matrix(intrinsics["R_gyro_accel"]).magnitude())
+    return ("\n\nIMU model **scale-misalignment**: accelerometer scale "
+            f"{' / '.join(f'{v:.4f}' for v in np.diag(accel))}, misalignment up to "
+            f"{np.degrees(np.abs(np.tril(accel, -1)).max()):.2f}°; gyro scale "
+            f"{' / '.join(f'{v:.4f}' for v in np.diag(gyro))}, misalignment up to "
+            f"{np.degrees(np.abs(np.tril(gyro, -1)).max()):.2f}°, its triad turned {turn_deg:.2f}° from the "
+            "accelerometer's")

@@ -38,15 +38,18 @@ def client(tmp_path_factory):
         yield client
 
 
-def _post(client: TestClient, imu: bytes, detections: bytes, camera: str = "cam0", sensor: str = "imu0"):
-    return client.post(SOLVE.replace("imu0", sensor), data={"camera": camera, "board": BOARD},
+def _post(client: TestClient, imu: bytes, detections: bytes, camera: str = "cam0", sensor: str = "imu0",
+          **fields: str):
+    return client.post(SOLVE.replace("imu0", sensor), data={"camera": camera, "board": BOARD, **fields},
                        files={"imu": ("imu.csv", imu, "text/csv"), "detections": ("corners.csv", detections,
                                                                                    "text/csv")})
 
 
 def test_a_recording_is_solved_kept_and_accepted(client: TestClient, recording) -> None:
+    """With the ``scale-misalignment`` IMU model asked for: the ideal simulated IMU's scale and misalignment come
+    back as identity, and the ``calibrated`` model is the cross-check."""
     imu, detections = recording_files(recording)
-    started = _post(client, imu, detections)
+    started = _post(client, imu, detections, imu_model="scale-misalignment")
     assert started.status_code == 202, started.text
     job = wait_job(client, started.json()["id"], timeout_s=600)
     assert job["state"] == "done", job
@@ -54,6 +57,12 @@ def test_a_recording_is_solved_kept_and_accepted(client: TestClient, recording) 
     listed = client.get(SOLVE).json()
     assert [r["result_id"] for r in listed] == [result_id] and listed[0]["camera"] == "cam0"
     assert abs(listed[0]["time_offset_s"] - 0.023) < 1e-3, listed[0]["time_offset_s"]
+    assert listed[0]["imu_model"] == "scale-misalignment"
+    intrinsics = listed[0]["imu_intrinsics"]
+    assert np.allclose(intrinsics["accel_M"], np.eye(3), atol=5e-3), intrinsics
+    assert np.allclose(intrinsics["gyro_M"], np.eye(3), atol=5e-3), intrinsics
+    assert any(r.startswith("IMU model: fitted with the calibrated model instead") for r in
+               listed[0]["verdict"]["reasons"]), listed[0]["verdict"]
     record = client.get(f"/api/sessions/rig/results/{result_id}").json()
     assert (record["kind"], record["parent"], record["child"]) == ("camera_imu", "cam0", "imu0")
     assert sorted(record["files"]) == ["detections.csv", "imu.csv"]
@@ -80,6 +89,10 @@ def test_bad_files_and_sensors_are_refused_naming_them(client: TestClient, recor
     assert other_columns.status_code == 422 and other_columns.json()["error"]["input"] == "corners.csv"
     not_an_imu = _post(client, imu, detections, sensor="cam0")
     assert not_an_imu.status_code == 404 and "is not an IMU of the rig" in not_an_imu.json()["error"]["message"]
+    unknown_model = _post(client, imu, detections, imu_model="scale-misalignment-size-effect")
+    assert unknown_model.status_code == 422 and unknown_model.json()["error"]["input"] == "imu_model", (
+        unknown_model.text)
+    assert "'calibrated' or 'scale-misalignment'" in unknown_model.json()["error"]["message"]
     no_lens = _post(client, imu, detections, camera="cam1")
     assert no_lens.status_code == 422 and "cam1 has no intrinsics yet" in no_lens.json()["error"]["message"]
     assert len(client.get(SOLVE).json()) <= 1  # nothing was kept from the refused uploads

@@ -216,7 +216,8 @@ def test_clocks_and_imu_steps_in_the_browser(page: Page) -> None:
     cam_front and lidar_top together and the time offset measured from that recording finds lidar_top's clock
     (:data:`DEMO_LIDAR_CLOCK_OFFSET_S` ahead), shown with its plot and accepted into the table of clocks; the board is
     held still again after (a measurement too uncertain to accept, on a busy machine, is shown with its sigma and
-    left out). Step 10 offers the demo's cameras and LiDARs against an IMU (the demo has none yet)."""
+    left out). Step 10 offers the demo's cameras and LiDARs against an IMU (the demo has none yet), and Kalibr's two
+IMU models."""
     unfold(page, "11 · Clocks", button(page, "Measure the time offset"))
     clocks = page.locator("table", has_text="clock offset (ms)").filter(visible=True)
     for sensor in ("cam_front", "lidar_top", "scanner_2d"):
@@ -264,5 +265,9 @@ def test_clocks_and_imu_steps_in_the_browser(page: Page) -> None:
     box.click()
     for sensor in (DEMO_CAMERA, DEMO_LIDAR):
         expect(page.get_by_role("option", name=sensor, exact=True)).to_be_visible()
+    page.keyboard.press("Escape")
+    page.get_by_label("IMU model", exact=True).click()  # Kalibr's IMU models, the other one the cross-check
+    for model in ("calibrated", "scale-misalignment"):
+        expect(page.get_by_role("option", name=model, exact=True)).to_be_visible()
     page.keyboard.press("Escape")
     page.screenshot(path=ARTIFACTS / "studio_imu_step.png")

@@ -279,6 +279,8 @@ def test_the_command_names_the_imu_topics_it_needs(tmp_path: Path) -> None:
     error = json.loads(run.stdout)["error"]
     assert error["input"] == str(bag) and "no IMU topic '/imu'" in error["message"]
     assert "sensor_msgs/msg/Imu topics: /imu0" in error["message"]
+    run = cli_in_process("camera-imu", *common, "--imu", bag, "--imu-topic", "/imu0", "--imu-model", "size-effect")
+    assert run.returncode == 2 and "invalid choice: 'size-effect'" in run.stderr  # Kalibr's other two only
     run = cli_in_process("lidar-imu", "--scans", tmp_path, "--imu", bag, "--json")
     assert run.returncode == 2 and "--imu-topic" in run.stderr and "topics: /imu0" in run.stderr
     (tmp_path / "imu.csv").write_text("#t_ns,wx,wy,wz,ax,ay,az\n")

@@ -1,6 +1,7 @@
 """Step 10, *Camera to IMU*, in an in-process studio on a session made without a board: a simulated recording's two
-files uploaded, solved as a job, the result shown (the time offset, the card with its verdict, the excitation and
-signal plots) and kept; a solve without both files, or with a board the corners are not on, refused with a toast and
+files uploaded, solved as a job with the ``scale-misalignment`` IMU model picked, the result shown (the time offset,
+the IMU's scale found, the card with its verdict naming the other model's cross-check, the excitation and signal
+plots) and kept; a solve without both files, or with a board the corners are not on, refused with a toast and
 nothing kept."""
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ def test_the_step_solves_an_uploaded_recording(tmp_path, free_port) -> None:
         assert session.results("imu0") == []
 
         step.board.value = "aprilgrid:6x6:0.088:0.3"
+        assert step.imu_model.options == ("calibrated", "scale-misalignment") and step.imu_model.value == "calibrated"
+        step.imu_model.value = "scale-misalignment"
         step._solve()
         empty_signals = to_rgb(fitted_signals(None))
         poll(lambda: step.signals_image.image.shape != empty_signals.shape or (
@@ -55,6 +58,10 @@ def test_the_step_solves_an_uploaded_recording(tmp_path, free_port) -> None:
         result_id = step.history.selected
         offset = re.search(r"Time offset \*\*(-?\d+\.\d+) ms\*\* ± (\d+\.\d+)", step.offset_text.content)
         assert offset and abs(float(offset.group(1)) - 23.0) < 1.0, step.offset_text.content
+        scales = re.search(r"IMU model \*\*scale-misalignment\*\*: accelerometer scale (\d\.\d+) / (\d\.\d+) / "
+                           r"(\d\.\d+)", step.offset_text.content)
+        assert scales and all(abs(float(v) - 1.0) < 0.005 for v in scales.groups()), step.offset_text.content
+        assert "IMU model: fitted with the calibrated model instead" in step.card.text.content
         assert f"**{result_id}** (not accepted) · camera_imu · spline" in step.card.text.content
         assert "**cam0 → imu0**" in step.card.text.content and "Verdict:" in step.card.text.content
         for image, empty in ((step.excitation_image.image, excitation_bars(None)),

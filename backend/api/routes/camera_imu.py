@@ -3,7 +3,7 @@ rig's camera-IMU edge."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, File, Form, UploadFile
 
@@ -11,6 +11,7 @@ from backend.api.routes import deps
 from backend.api.schemas import JobStatus
 from backend.api.uploads import UploadRoute, read_csv_upload, upload_limit
 from backend.calib.camera_imu import service
+from backend.calib.camera_imu.service import CameraImuSettings
 from backend.core.limits import MAX_TABLE_MB
 
 router = APIRouter(prefix="/sessions/{name}/sensors/{sensor}/camera-imu", tags=["camera-imu"],
@@ -24,14 +25,18 @@ def solve(sensor: str, session: deps.SessionDep, jobs: deps.JobsDep,
           board: Annotated[str, Form(max_length=200, description="the board, e.g. aprilgrid:6x6:0.088:0.3")],
           imu: Annotated[UploadFile, File(description="IMU samples: CSV t_ns,wx,wy,wz,ax,ay,az")],
           detections: Annotated[UploadFile, File(description="the board's corners: CSV t_ns,u_px,v_px,x_m,y_m,"
-                                                             "z_m,tag_id,corner")]) -> dict[str, Any]:
+                                                             "z_m,tag_id,corner")],
+          imu_model: Annotated[Literal["calibrated", "scale-misalignment"], Form(
+              description="the IMU's model (Kalibr's names): calibrated, or scale-misalignment to fit the axes' "
+                          "scale and misalignment too")] = "calibrated") -> dict[str, Any]:
     """Solve ``T_camera_imu`` and the time offset (``t_imu = t_cam + offset``) in the background, through the
     camera's intrinsics in the rig; the files are checked first (a 422 names the one at fault), then kept with the
     result. Poll ``/api/jobs/{id}`` for ``result_id``; accept it with ``POST /api/sessions/{name}/accept``."""
     imu_csv, detections_csv = read_csv_upload(imu, "imu"), read_csv_upload(detections, "detections")
     service.read_recording(session, sensor, camera, imu_csv, detections_csv, board)  # fail fast, before queueing
     job = jobs.submit(f"camera-IMU of {camera} and {sensor}", lambda progress: service.solve_session(
-        session, sensor, camera, imu_csv, detections_csv, board, progress=progress))
+        session, sensor, camera, imu_csv, detections_csv, board, CameraImuSettings(imu_model=imu_model),
+        progress=progress))
     return job.status() | {"result_id": None}
 
 

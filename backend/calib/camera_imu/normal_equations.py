@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from scipy.linalg import solveh_banded
 
 from backend.calib.camera_imu.spline import UniformSpline
-from backend.calib.camera_imu.trajectory import N_SHARED, VALUES, Linearised
+from backend.calib.camera_imu.trajectory import VALUES, Linearised
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,7 @@ class NormalEquations:
     H_cc: np.ndarray
     """The coefficients' block in LAPACK's upper banded form ``(bandwidth + 1, V n)``."""
     H_cs: np.ndarray
-    """(V n, N_SHARED)."""
+    """(V n, S), S the shared parameters."""
     H_ss: np.ndarray
     g_c: np.ndarray
     g_s: np.ndarray
@@ -55,10 +55,11 @@ def assemble(parts: list[Linearised], spline: UniformSpline) -> NormalEquations:
     """The Gauss-Newton normal equations of ``parts`` over ``[coefficients (V n), shared]``."""
     n = spline.n_coefficients * VALUES
     H_cc = sp.csr_array((n, n))
-    H_cs = np.zeros((n, N_SHARED))
-    H_ss = np.zeros((N_SHARED, N_SHARED))
+    n_shared = parts[0].by_shared.shape[1]
+    H_cs = np.zeros((n, n_shared))
+    H_ss = np.zeros((n_shared, n_shared))
     g_c = np.zeros(n)
-    g_s = np.zeros(N_SHARED)
+    g_s = np.zeros(n_shared)
     for part in parts:
         H_ss += part.by_shared.T @ part.by_shared
         g_s += part.by_shared.T @ part.residuals
@@ -66,7 +67,7 @@ def assemble(parts: list[Linearised], spline: UniformSpline) -> NormalEquations:
         local = np.concatenate([J for *_, J in part.by_values], axis=2)  # (G, rows, V q)
         groups, rows, width = local.shape
         residuals = part.residuals.reshape(groups, rows)
-        shared = part.by_shared.reshape(groups, rows, N_SHARED)
+        shared = part.by_shared.reshape(groups, rows, n_shared)
         H_local = _sum_by_time(time_index, np.einsum("gri,grj->gij", local, local), len(times))
         H_cross = _sum_by_time(time_index, np.einsum("gri,grj->gij", local, shared), len(times))
         g_local = _sum_by_time(time_index, np.einsum("gri,gr->gi", local, residuals), len(times))
@@ -74,7 +75,7 @@ def assemble(parts: list[Linearised], spline: UniformSpline) -> NormalEquations:
         blocks = sp.bsr_array((H_local, np.arange(len(times)), np.arange(len(times) + 1)),
                               shape=(len(times) * width, len(times) * width))
         H_cc = H_cc + lift.T @ (blocks @ lift)
-        H_cs += lift.T @ H_cross.reshape(-1, N_SHARED)
+        H_cs += lift.T @ H_cross.reshape(-1, n_shared)
         g_c += lift.T @ g_local.ravel()
     bandwidth = VALUES * (spline.degree + 1) - 1
     return NormalEquations(_upper_band(sp.coo_array(H_cc), bandwidth), H_cs, H_ss, g_c, g_s)

@@ -13,12 +13,15 @@ from backend.calib._session import check_camera, check_imu
 from backend.calib.camera_imu.checks import (
     Excitation,
     HalvesCheck,
+    ModelCheck,
     excitation,
     halves_check,
     judge,
+    model_check,
     refuse_unexcited,
-    with_halves,
+    widened,
 )
+from backend.calib.camera_imu.imu_model import IMU_MODELS as IMU_MODELS  # the studio's choices
 from backend.calib.camera_imu.observations import (
     BoardObservations,
     check_board_points,
@@ -45,8 +48,9 @@ MIN_HALF_S = 10.0
 def solve_recording(camera: CameraIntrinsics, observations: BoardObservations, imu: ImuSamples,
                     settings: CameraImuSettings = DEFAULT_SETTINGS, warnings: list[str] | None = None,
                     progress: ProgressCallback = no_progress) -> TransformResult:
-    """Fit, cross-check on the two halves, and judge: ``T_camera_imu`` with its covariance and verdict; the time
-    offset (``t_imu = t_cam + offset``) and everything behind the numbers in ``diagnostics``."""
+    """Fit, cross-check on the two halves and with the other IMU model, and judge: ``T_camera_imu`` with its
+    covariance and verdict; the time offset (``t_imu = t_cam + offset``) and everything behind the numbers in
+    ``diagnostics``."""
     started = time.perf_counter()
     seen = imu.between(observations.t_s[0] - settings.max_offset_s, observations.t_s[-1] + settings.max_offset_s)
     if len(seen.t_s) < 100:
@@ -54,13 +58,16 @@ def solve_recording(camera: CameraIntrinsics, observations: BoardObservations, i
                          f"{observations.t_s[-1]:.3f} s: the two streams do not overlap in time", "imu")
     motion = excitation(seen)
     refuse_unexcited(motion)
-    fit = solve_camera_imu(camera, observations, imu, settings, lambda f, m: progress(0.6 * f, m))
+    fit = solve_camera_imu(camera, observations, imu, settings, lambda f, m: progress(0.4 * f, m))
+    model: ModelCheck | None = None
+    if settings.model_check:
+        model = model_check(camera, observations, imu, fit, settings, lambda f, m: progress(0.4 + 0.2 * f, m))
     halves: HalvesCheck | None = None
     if observations.t_s[-1] - observations.t_s[0] >= 2 * MIN_HALF_S:
         halves = halves_check(camera, observations, imu, settings, lambda f, m: progress(0.6 + 0.38 * f, m))
-    widened = with_halves(fit, halves)
-    verdict = judge(fit, motion, halves, np.sqrt(np.diag(widened.covariance)))
-    return _result(widened, fit, motion, halves, verdict, [*(warnings or []), *fit.warnings],
+    wide = widened(fit, halves, model)
+    verdict = judge(fit, motion, halves, model, np.sqrt(np.diag(wide.covariance)))
+    return _result(wide, fit, motion, halves, model, verdict, [*(warnings or []), *fit.warnings],
                    time.perf_counter() - started, settings)
 
 
@@ -121,8 +128,9 @@ def camera_imu_results(session: Session, imu_sensor: str) -> list[dict]:
             for record in session.results(imu_sensor, KIND)]
 
 
-def _result(fit: CameraImuFit, raw: CameraImuFit, motion: Excitation, halves: HalvesCheck | None, verdict: Verdict,
-            warnings: list[str], seconds: float, settings: CameraImuSettings) -> TransformResult:
+def _result(fit: CameraImuFit, raw: CameraImuFit, motion: Excitation, halves: HalvesCheck | None,
+            model: ModelCheck | None, verdict: Verdict, warnings: list[str], seconds: float,
+            settings: CameraImuSettings) -> TransformResult:
     """The fit (``fit``: its sigmas widened by the halves; ``raw``: as solved) as a transform result: covariance in
     :data:`~backend.core.result.TRANSFORM_PARAMETERS` order (translation along the camera's axes, rotation about the
     IMU's)."""
@@ -144,6 +152,12 @@ def _result(fit: CameraImuFit, raw: CameraImuFit, motion: Excitation, halves: Ha
                                 "time_s": float(np.sqrt(raw.covariance[6, 6]))},
             "halves": None if halves is None else {"difference": halves.difference.tolist(),
                                                    "expected": halves.expected.tolist()},
+            "imu_model": settings.imu_model,
+            "imu_intrinsics": None if raw.imu_intrinsics is None else raw.imu_intrinsics.to_dict(),
+            "model_check": None if model is None else {
+                "model": model.model, "converged": model.fit.converged, "difference": model.difference.tolist(),
+                "imu_intrinsics": (None if model.fit.imu_intrinsics is None
+                                   else model.fit.imu_intrinsics.to_dict())},
             "excitation": motion.to_dict(), "noise_sigmas": dict(raw.sigmas),
             "gyro_bias_rad_s": raw.gyro_bias_rad_s.tolist(), "accel_bias_m_s2": raw.accel_bias_m_s2.tolist(),
             "gravity_board_m_s2": raw.gravity_board_m_s2.tolist(),
@@ -159,5 +173,7 @@ def summary(result: TransformResult) -> dict:
     return {"T_cam_imu": result.T_parent_child.tolist(), "time_offset_s": diagnostics["time_offset_s"],
             "std": result.std | {"time_s": diagnostics["time_offset_std_s"]}, "residuals": dict(result.residuals),
             "excitation": diagnostics["excitation"], "verdict": result.verdict.to_dict(),
+            "imu_model": result.settings.get("imu_model", "calibrated"),
+            "imu_intrinsics": diagnostics.get("imu_intrinsics"),
             "converged": result.converged, "warnings": list(result.warnings), "seconds": result.seconds}
 

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from backend.calib.camera_imu import normal_equations
+from backend.calib.camera_imu.imu_model import IMU_MODELS, ImuIntrinsics
 from backend.calib.camera_imu.observations import BoardObservations, board_poses
 from backend.calib.camera_imu.spline import UniformSpline
 from backend.calib.camera_imu.time_offset import RateAlignment, align_rates, rates_from_rotations
@@ -67,6 +68,17 @@ class CameraImuSettings:
     start_sigmas: tuple[float, float, float] = (1.0, 0.01, 0.1)
     """The noise sigmas of the first round: pixels (px), gyro (rad/s), accelerometer (m/s²) per sample; each
     round re-estimates them from the residuals."""
+    imu_model: str = "calibrated"
+    """The IMU's model (:data:`~backend.calib.camera_imu.imu_model.IMU_MODELS`, Kalibr's names): ``calibrated``
+    takes its axes as ideal, ``scale-misalignment`` also fits their scale and misalignment."""
+    model_check: bool = True
+    """Fit the recording again with the other IMU model and widen the sigmas to the difference (the cross-check
+    of :func:`~backend.calib.camera_imu.checks.model_check`)."""
+
+    def __post_init__(self) -> None:
+        if self.imu_model not in IMU_MODELS:
+            raise InputError(f"imu_model must be one of {', '.join(IMU_MODELS)}, not {self.imu_model!r}",
+                             "imu_model")
 
 
 DEFAULT_SETTINGS = CameraImuSettings()
@@ -80,7 +92,8 @@ class CameraImuFit:
     offset_s: float
     covariance: np.ndarray
     """15x15 over the shared parameters (:data:`~backend.calib.camera_imu.trajectory.SHARED`): rotation in rad about
-    the camera's axes, translation in m, offset in s, biases, gravity's two angles."""
+    the camera's axes, translation in m, offset in s, biases, gravity's two angles; then, with the
+    ``scale-misalignment`` model, the IMU's 24 intrinsics."""
     sigmas: dict[str, float]
     """The noise sigmas (:data:`NOISE_KINDS`) the last round used, estimated from the residuals."""
     residual_rms: dict[str, float]
@@ -90,6 +103,8 @@ class CameraImuFit:
     accel_bias_m_s2: np.ndarray
     """(3,) accelerometer bias (m/s²)."""
     gravity_board_m_s2: np.ndarray
+    imu_intrinsics: ImuIntrinsics | None
+    """The IMU's scale and misalignment (``scale-misalignment``), None with the ``calibrated`` model."""
     alignment: RateAlignment
     """The angular-rate alignment the fit started from (an independent estimate of rotation and offset)."""
     frames_used: int
@@ -167,8 +182,9 @@ def solve_camera_imu(camera: CameraIntrinsics, observations: BoardObservations, 
     return CameraImuFit(
         T_cam_imu=state.T_cam_imu, offset_s=state.offset_s, covariance=covariance, sigmas=sigmas,
         residual_rms=residual_rms, gyro_bias_rad_s=state.gyro_bias_rad_s, accel_bias_m_s2=state.accel_bias_m_s2,
-        gravity_board_m_s2=state.gravity_board_m_s2, alignment=alignment, frames_used=len(usable),
-        frames_total=len(observations.t_s), corners_used=len(kept.frame), corners_dropped=dropped,
+        gravity_board_m_s2=state.gravity_board_m_s2, imu_intrinsics=state.intrinsics, alignment=alignment,
+        frames_used=len(usable), frames_total=len(observations.t_s), corners_used=len(kept.frame),
+        corners_dropped=dropped,
         converged=converged, iterations=iterations, signals=_signals(state, imu_used), warnings=warnings)
 
 
@@ -181,8 +197,9 @@ def _initial_state(spline: UniformSpline, imu_times: np.ndarray, T_cam_board: np
     R0 = rotations.mean().as_matrix()
     phi = (Rotation.from_matrix(R0.T) * rotations).as_rotvec()
     coefficients = spline.fit(imu_times, np.column_stack([T_board_imu[:, :3, 3], phi]))
+    intrinsics = ImuIntrinsics.ideal() if settings.imu_model == "scale-misalignment" else None
     state = TrajectoryState(spline, coefficients, R0, T_cam_imu, alignment.offset_s, alignment.bias_a_rad_s.copy(),
-                            np.zeros(3), np.array([0.0, 0.0, -settings.gravity_m_s2]))
+                            np.zeros(3), np.array([0.0, 0.0, -settings.gravity_m_s2]), intrinsics)
     position_rate2 = spline.basis(imu.t_s, 2) @ coefficients[:, POSITION]
     _, R_board_imu = state.poses(imu.t_s)
     gravity = np.mean(position_rate2 - np.einsum("nij,nj->ni", R_board_imu, imu.accel_m_s2), axis=0)

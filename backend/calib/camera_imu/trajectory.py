@@ -10,7 +10,9 @@ it, each whitened by its own noise sigma:
 - a board corner seen by the camera at ``t_cam``: the board point mapped through the pose at ``t_cam + offset``
   (Kalibr's ``t_imu = t_cam + offset``) and the extrinsic ``T_cam_imu``, projected by the (fixed) lens;
 - a gyro sample: ``J_r(phi) dphi/dt + b_g``;
-- an accelerometer sample: ``R_board_imu^T (d2p/dt2 - g_board) + b_a``.
+- an accelerometer sample: ``R_board_imu^T (d2p/dt2 - g_board) + b_a``;
+
+both through the IMU's scale and misalignment when the fit has them (:mod:`~backend.calib.camera_imu.imu_model`).
 
 The Jacobians are analytic except where a finite difference is cheaper and as exact in practice (the lens's
 derivative by the normalised coordinates; the gyro's by ``phi``), and are returned per measurement by the six
@@ -24,6 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from backend.calib.camera_imu import imu_model
+from backend.calib.camera_imu.imu_model import ImuIntrinsics, lower_triangle_jacobian
 from backend.calib.camera_imu.observations import BoardObservations
 from backend.calib.camera_imu.spline import UniformSpline
 from backend.core.camera import CameraIntrinsics
@@ -42,6 +46,8 @@ SLICES = dict(zip(SHARED, (slice(a - n, a) for a, n in zip(np.cumsum(SHARED_SIZE
 """Where each shared parameter sits in the shared block (rotation: a left perturbation of ``R_cam_imu`` in the
 camera's axes, rad; translation of ``T_cam_imu`` in m; offset in s; biases in rad/s and m/s²; gravity: two angles
 (rad) about the axes perpendicular to it."""
+INTRINSICS = slice(N_SHARED, N_SHARED + imu_model.SIZE)
+"""Where the IMU's intrinsics follow the shared parameters in a ``scale-misalignment`` fit."""
 _LENS_STEP = 1e-7
 """Step (in normalised image units) of the finite difference of the lens's projection."""
 
@@ -61,9 +67,16 @@ class TrajectoryState:
     accel_bias_m_s2: np.ndarray
     gravity_board_m_s2: np.ndarray
     """(3,) gravity in the board's frame (m/s²); its length stays fixed."""
+    intrinsics: ImuIntrinsics | None = None
+    """The IMU's scale and misalignment (``scale-misalignment``), or None for an ideal IMU (``calibrated``)."""
+
+    @property
+    def n_shared(self) -> int:
+        """Parameters after the spline's coefficients: :data:`SHARED`, then the IMU's intrinsics if fitted."""
+        return N_SHARED + (imu_model.SIZE if self.intrinsics is not None else 0)
 
     def stepped(self, step: np.ndarray) -> TrajectoryState:
-        """The state moved by ``step`` (the spline's coefficients, then :data:`SHARED`)."""
+        """The state moved by ``step`` (the spline's coefficients, then :data:`SHARED` and :data:`INTRINSICS`)."""
         n = self.coefficients.size
         shared = step[n:]
         R = Rotation.from_rotvec(shared[SLICES["rot_cam_imu"]]).as_matrix() @ self.T_cam_imu[:3, :3]
@@ -74,7 +87,8 @@ class TrajectoryState:
                        offset_s=self.offset_s + float(shared[SLICES["offset"]][0]),
                        gyro_bias_rad_s=self.gyro_bias_rad_s + shared[SLICES["gyro_bias"]],
                        accel_bias_m_s2=self.accel_bias_m_s2 + shared[SLICES["accel_bias"]],
-                       gravity_board_m_s2=Rotation.from_rotvec(tilt).apply(self.gravity_board_m_s2))
+                       gravity_board_m_s2=Rotation.from_rotvec(tilt).apply(self.gravity_board_m_s2),
+                       intrinsics=None if self.intrinsics is None else self.intrinsics.stepped(shared[INTRINSICS]))
 
     def poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (N, 3; m) and orientations ``R_board_imu`` (N, 3, 3) at IMU times ``times_s``."""
@@ -106,7 +120,7 @@ class Linearised:
     residuals come in G groups of ``rows`` (group ``g`` is residuals ``g * rows ...``), group ``g`` touching the
     spline's ``order``-th derivative at ``times[time[g]]``."""
     by_shared: np.ndarray
-    """(R, N_SHARED) Jacobian by the shared parameters."""
+    """(R, n_shared) Jacobian by the shared parameters (:attr:`TrajectoryState.n_shared`)."""
 
 
 def camera_residuals(state: TrajectoryState, camera: CameraIntrinsics, observations: BoardObservations,
@@ -126,7 +140,7 @@ def camera_residuals(state: TrajectoryState, camera: CameraIntrinsics, observati
     pixels = camera.project_normalised(xy)
     residuals = ((pixels - observations.pixels_px) / sigma_px).ravel()
     if not with_jacobian:
-        return Linearised(residuals, [], np.zeros((0, N_SHARED)))
+        return Linearised(residuals, [], np.zeros((0, state.n_shared)))
     lens = np.stack([(camera.project_normalised(xy + step) - pixels) / _LENS_STEP
                      for step in (np.array([_LENS_STEP, 0.0]), np.array([0.0, _LENS_STEP]))], axis=2)  # (M, 2, 2)
     perspective = np.zeros((len(z), 2, 3))
@@ -137,50 +151,72 @@ def camera_residuals(state: TrajectoryState, camera: CameraIntrinsics, observati
     by_phi = P @ R_ci @ skew(points_imu) @ right_jacobians(phi)[frame]
     by_values = np.concatenate([by_position, by_phi], axis=2)  # (M, 2, VALUES)
     rate = state.spline.basis(times, 1) @ state.coefficients
-    shared = np.zeros((len(z), 2, N_SHARED))
+    shared = np.zeros((len(z), 2, state.n_shared))
     shared[:, :, SLICES["rot_cam_imu"]] = -P @ skew(points_cam - t_ci)
     shared[:, :, SLICES["trans_cam_imu"]] = P
     shared[:, :, SLICES["offset"]] = (by_values @ rate[frame][:, :, None])
-    return Linearised(residuals, [(times, 0, frame, by_values)], shared.reshape(-1, N_SHARED))
+    return Linearised(residuals, [(times, 0, frame, by_values)], shared.reshape(-1, state.n_shared))
 
 
 def imu_residuals(state: TrajectoryState, imu: ImuSamples, sigma_gyro: float, sigma_accel: float,
                   with_jacobian: bool = True) -> tuple[Linearised, Linearised]:
     """Whitened gyro and accelerometer residuals (3 per sample each, in ``sigma_gyro`` rad/s and ``sigma_accel``
-    m/s²) and their Jacobians."""
+    m/s²) and their Jacobians, through the state's IMU model (:mod:`~backend.calib.camera_imu.imu_model`)."""
     t = imu.t_s
     spline = state.spline
     values, rates, accelerations = (spline.basis(t, d) @ state.coefficients for d in range(3))
     phi, phi_rate = values[:, ROTATION], rates[:, ROTATION]
     J_r = right_jacobians(phi)
     omega = np.einsum("nij,nj->ni", J_r, phi_rate)
-    gyro = ((omega + state.gyro_bias_rad_s - imu.gyro_rad_s) / sigma_gyro).ravel()
     R_board_imu = state.orientations(phi)
     R_imu_board = np.transpose(R_board_imu, (0, 2, 1))
     force = np.einsum("nij,nj->ni", R_imu_board, accelerations[:, POSITION] - state.gravity_board_m_s2)
-    accel = ((force + state.accel_bias_m_s2 - imu.accel_m_s2) / sigma_accel).ravel()
+    intrinsics = state.intrinsics or ImuIntrinsics.ideal()
+    M_a = intrinsics.accel_M
+    gyro_omega = intrinsics.gyro_M @ intrinsics.R_gyro_accel  # the gyro's measurement of the rate
+    gyro_force = intrinsics.g_sensitivity @ intrinsics.R_gyro_accel  # ... and of the specific force
+    gyro = ((omega @ gyro_omega.T + force @ gyro_force.T + state.gyro_bias_rad_s - imu.gyro_rad_s)
+            / sigma_gyro).ravel()
+    accel = ((force @ M_a.T + state.accel_bias_m_s2 - imu.accel_m_s2) / sigma_accel).ravel()
     if not with_jacobian:
-        empty = np.zeros((0, N_SHARED))
+        empty = np.zeros((0, state.n_shared))
         return Linearised(gyro, [], empty), Linearised(accel, [], empty)
     index = np.arange(len(t))
     step = 1e-7
-    gyro_by_phi = np.stack([(np.einsum("nij,nj->ni", right_jacobians(phi + step * e), phi_rate) - omega) / step
-                            for e in np.eye(3)], axis=2)
-    gyro_values = _placed(len(t), (ROTATION, gyro_by_phi)) / sigma_gyro
-    gyro_rates = _placed(len(t), (ROTATION, J_r)) / sigma_gyro
-    gyro_shared = np.zeros((len(t), 3, N_SHARED))
-    gyro_shared[:, :, SLICES["gyro_bias"]] = np.eye(3) / sigma_gyro
-    accel_values = _placed(len(t), (ROTATION, skew(force) @ J_r)) / sigma_accel
-    accel_accelerations = _placed(len(t), (POSITION, R_imu_board)) / sigma_accel
-    accel_shared = np.zeros((len(t), 3, N_SHARED))
-    accel_shared[:, :, SLICES["accel_bias"]] = np.eye(3) / sigma_accel
+    omega_by_phi = np.stack([(np.einsum("nij,nj->ni", right_jacobians(phi + step * e), phi_rate) - omega) / step
+                             for e in np.eye(3)], axis=2)
+    force_by_phi = skew(force) @ J_r
     by_gravity = skew(np.broadcast_to(state.gravity_board_m_s2, (len(t), 3))) @ gravity_basis(
         state.gravity_board_m_s2)  # d g / d angles = -[g]x E; the force takes -R^T of it
-    accel_shared[:, :, SLICES["gravity"]] = R_imu_board @ by_gravity / sigma_accel
-    return (Linearised(gyro, [(t, 0, index, gyro_values), (t, 1, index, gyro_rates)],
-                       gyro_shared.reshape(-1, N_SHARED)),
-            Linearised(accel, [(t, 0, index, accel_values), (t, 2, index, accel_accelerations)],
-                       accel_shared.reshape(-1, N_SHARED)))
+    force_by_gravity = R_imu_board @ by_gravity
+    gyro_shared = np.zeros((len(t), 3, state.n_shared))
+    gyro_shared[:, :, SLICES["gyro_bias"]] = np.eye(3)
+    accel_shared = np.zeros((len(t), 3, state.n_shared))
+    accel_shared[:, :, SLICES["accel_bias"]] = np.eye(3)
+    accel_shared[:, :, SLICES["gravity"]] = M_a @ force_by_gravity
+    gyro_blocks = [(t, 0, index, _placed(len(t), (ROTATION, gyro_omega @ omega_by_phi + gyro_force @ force_by_phi))),
+                   (t, 1, index, _placed(len(t), (ROTATION, gyro_omega @ J_r)))]
+    if state.intrinsics is not None:
+        gyro_blocks.append((t, 2, index, _placed(len(t), (POSITION, gyro_force @ R_imu_board))))
+        gyro_shared[:, :, SLICES["gravity"]] = gyro_force @ force_by_gravity
+        accel_shared[:, :, INTRINSICS][:, :, imu_model.ACCEL_M] = lower_triangle_jacobian(force)  # into the view
+        omega_gyro, force_gyro = omega @ intrinsics.R_gyro_accel.T, force @ intrinsics.R_gyro_accel.T
+        by_intrinsics = gyro_shared[:, :, INTRINSICS]
+        by_intrinsics[:, :, imu_model.GYRO_M] = lower_triangle_jacobian(omega_gyro)
+        by_intrinsics[:, :, imu_model.GYRO_ROTATION] = (-intrinsics.gyro_M @ skew(omega_gyro)
+                                                        - intrinsics.g_sensitivity @ skew(force_gyro))
+        by_intrinsics[:, :, imu_model.G_SENSITIVITY] = np.einsum("ij,nk->nijk", np.eye(3), force_gyro).reshape(
+            len(t), 3, 9)
+    accel_blocks = [(t, 0, index, _placed(len(t), (ROTATION, M_a @ force_by_phi))),
+                    (t, 2, index, _placed(len(t), (POSITION, M_a @ R_imu_board)))]
+    return (_whitened(gyro, gyro_blocks, gyro_shared, sigma_gyro),
+            _whitened(accel, accel_blocks, accel_shared, sigma_accel))
+
+
+def _whitened(residuals: np.ndarray, blocks: list, shared: np.ndarray, sigma: float) -> Linearised:
+    """The IMU residuals' :class:`Linearised`, the Jacobians divided by the noise ``sigma``."""
+    return Linearised(residuals, [(times, order, index, J / sigma) for times, order, index, J in blocks],
+                      shared.reshape(len(residuals), -1) / sigma)
 
 
 def _placed(count: int, *blocks: tuple[slice, np.ndarray]) -> np.ndarray:

@@ -2,10 +2,12 @@
 
 Two references: EuRoC's own calibration (the set's README; Kalibr), and Basalt's independent calibration of the same
 sensor from EuRoC's calibration recordings (``VladyslavUsenko/basalt``, ``data/euroc_ds_calib.json``, ``T_imu_cam``
-of cam0). The two references disagree by 7.8 mm in translation. Our fit lands 1.7 mm from Basalt's and 7.3 mm from
-EuRoC's, with EuRoC's rotation within 0.07 deg and a time offset within 0.1 ms of zero (the sensor is
-hardware-synchronised). The issue's goal of 5 mm from EuRoC's translation is not met, and this test says so rather
-than widening it: the translation is held against Basalt's calibration and the rotation against EuRoC's.
+of cam0). The two references disagree by 8.0 mm in translation. Our fit (the ``calibrated`` IMU model) lands 1.5 mm
+from Basalt's and 7.5 mm from EuRoC's, with EuRoC's rotation within 0.07 deg and a time offset within 0.1 ms of zero
+(the sensor is hardware-synchronised). The issue's goal of 5 mm from EuRoC's translation is not met, and this test
+says so rather than widening it: the translation is held against Basalt's calibration and the rotation against
+EuRoC's. The reported sigma, widened to the two halves' spread and to the ``scale-misalignment`` model's difference
+(5.6 mm: the recording cannot tell the IMU models apart), covers the distance to both references.
 """
 
 from __future__ import annotations
@@ -70,12 +72,19 @@ def test_translation_agrees_with_basalts_calibration_within_its_sigma(summary: d
     # sigma (along the camera's axes, the reported order) covers the difference to Basalt's, in the IMU's axes
     in_camera_m = np.array(summary["T_cam_imu"])[:3, :3] @ from_basalt_m
     assert (np.abs(in_camera_m) < 3 * np.array(summary["std"]["trans_m"])).all()
-    assert np.linalg.norm(from_euroc_m) < 10e-3  # EuRoC's and Basalt's own calibrations are 7.8 mm apart
+    assert np.linalg.norm(from_euroc_m) < 10e-3  # EuRoC's and Basalt's own calibrations are 8.0 mm apart
+    euroc_in_camera_m = np.array(summary["T_cam_imu"])[:3, :3] @ from_euroc_m
+    assert (np.abs(euroc_in_camera_m) < 3 * np.array(summary["std"]["trans_m"])).all(), (euroc_in_camera_m,
+                                                                                          summary["std"])
 
 
 def test_the_verdict_names_what_holds_it_back(summary: dict) -> None:
-    """The two halves disagree by 0.2 deg: the rotation sigma is above its tolerance, so ``check``, not trusted."""
+    """The two halves disagree by 0.2 deg and the IMU models by 0.2 deg and 5.6 mm: the sigmas are above their
+    tolerances, so ``check``, not trusted."""
     verdict = summary["verdict"]
     assert verdict["level"] == "check", verdict
     assert any("rotation sigma" in r and "above the tolerance" in r for r in verdict["reasons"]), verdict
     assert any(r.startswith("two halves") for r in verdict["reasons"]), verdict
+    assert any(r.startswith("IMU model: fitted with the scale-misalignment model instead") for r in
+               verdict["reasons"]), verdict
+    assert summary["imu_model"] == "calibrated" and summary["imu_intrinsics"] is None

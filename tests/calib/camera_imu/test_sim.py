@@ -1,4 +1,5 @@
-"""Camera-IMU calibration on a simulated recording with a known extrinsic, a 23 ms time offset and IMU biases."""
+"""Camera-IMU calibration on a simulated recording with a known extrinsic, a 23 ms time offset and IMU biases; and
+with an IMU whose axes are scaled and misaligned."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from backend.calib.camera_imu.imu_model import ImuIntrinsics
 from backend.calib.camera_imu.service import solve_recording
 from backend.core.errors import InputError
 from backend.core.result import TransformResult
@@ -53,3 +55,38 @@ def test_motion_about_too_few_axes_is_refused_before_the_fit() -> None:
     slow = simulate_recording(duration_s=6.0, rotation_amplitude_rad=0.02, seed=1)
     with pytest.raises(InputError, match=r"did not turn the IMU about its x and y and z axis.*wave the rig"):
         solve_recording(slow.camera, slow.observations, slow.imu)
+
+
+MISALIGNED = ImuIntrinsics(np.array([[1.01, 0, 0], [0.004, 0.995, 0], [-0.006, 0.008, 1.006]]),
+                           np.array([[0.99, 0, 0], [0.005, 1.008, 0], [0.003, -0.004, 1.004]]),
+                           Rotation.from_rotvec([0.004, -0.006, 0.003]).as_matrix(), np.zeros((3, 3)))
+"""A MEMS IMU's errors: scales off by up to 1 %, axes misaligned by up to 0.5 deg, the gyro triad turned 0.45 deg."""
+
+
+def test_an_imu_with_scale_and_misalignment_widens_the_calibrated_sigma_to_cover_its_error() -> None:
+    """The ``calibrated`` fit of such an IMU is off by more than its white-noise sigma; its ``scale-misalignment``
+    cross-check recovers the truth and the IMU's errors, and the reported sigma (widened to the two models'
+    difference) covers the calibrated fit's error. 18 s: no two-halves check, so the IMU model is the only
+    widening."""
+    recording = simulate_recording(duration_s=18.0, offset_s=0.023, seed=2, intrinsics=MISALIGNED)
+    result = solve_recording(recording.camera, recording.observations, recording.imu)
+    T, truth = result.T_parent_child, recording.T_cam_imu
+    error_m = T[:3, 3] - truth[:3, 3]
+    error_deg = np.degrees(Rotation.from_matrix(T[:3, :3] @ truth[:3, :3].T).as_rotvec())  # about the camera's axes
+    white_m = np.array(result.diagnostics["white_noise_std"]["trans_m"])
+    assert (np.abs(error_m) > 5 * white_m).any(), (error_m, white_m)  # a bias the white-noise sigma does not see
+    assert (np.abs(error_m) < 3 * np.array(result.std["trans_m"])).all(), (error_m, result.std)
+    rotation_std_deg = np.degrees(np.sqrt(np.diag(result.covariance)[3:]))  # the covariance's, about the IMU's axes
+    assert np.linalg.norm(error_deg) < 3 * np.linalg.norm(rotation_std_deg), (error_deg, rotation_std_deg)
+    assert any(r.startswith("IMU model: fitted with the scale-misalignment model instead") for r in
+               result.verdict.reasons) and result.verdict.level != "trusted", result.verdict.reasons
+
+    check = result.diagnostics["model_check"]
+    assert check["model"] == "scale-misalignment" and check["converged"]
+    other = check["imu_intrinsics"]
+    assert np.allclose(other["accel_M"], MISALIGNED.accel_M, atol=2.5e-3), other["accel_M"]  # 0.25 %
+    assert np.allclose(other["gyro_M"], MISALIGNED.gyro_M, atol=1e-3), other["gyro_M"]
+    turn = Rotation.from_matrix(np.array(other["R_gyro_accel"]) @ MISALIGNED.R_gyro_accel.T).magnitude()
+    assert np.degrees(turn) < 0.05, np.degrees(turn)
+    difference = np.array(check["difference"])
+    assert np.linalg.norm(error_m + difference[3:6]) < 1e-3, (error_m, difference)  # the other model: the truth
