@@ -137,8 +137,8 @@ class ResultCard:
         self.revert_choice = gui.add_dropdown(
             "If it disagrees", options=[KEEP_BOTH], visible=False,
             hint="keep this result over an accepted one it disagrees with: that one is reverted in the same step")
-        self.accept_button = gui.add_button("Accept", hint="shows what accepting would move in the rig; nothing is "
-                                            "written until *Confirm accept*")
+        self.accept_button = gui.add_button("Accept", disabled=True, hint="shows what accepting would move in the "
+                                            "rig; nothing is written until *Confirm accept*")
         self.preview_text = gui.add_markdown("")
         self.apply_button = gui.add_button("Confirm accept", visible=False)
         self.accept_button.on_click(lambda _: self.preview())
@@ -154,6 +154,7 @@ class ResultCard:
         self.preview_text.content = ""
         self.revert_choice.visible = False
         self.confirm.show_for(None if record is None else StoredResult(record).verdict.level)
+        self.accept_button.disabled = record is None  # nothing to accept yet
         self.text.content = self.empty_text if record is None else card_markdown(record, accepted_id)
 
     def preview(self) -> None:

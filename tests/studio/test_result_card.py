@@ -49,7 +49,9 @@ def test_accept_previews_first_and_a_reject_is_previewed_then_refused(tmp_path, 
         ctx = StudioContext(server, store, jobs, RigScene(server))
         ctx.session = session
         card = ResultCard(ctx)
+        assert card.accept_button.disabled  # no result yet: nothing to accept
         card.show(session.result(record["id"]), None)
+        assert not card.accept_button.disabled  # a reject is previewed, to say why it cannot be accepted
         card.preview()
         assert f"Accepting {record['id']} would:" in card.preview_text.content
         assert "It cannot be accepted: its verdict is reject (a test record)." in card.preview_text.content
@@ -57,6 +59,8 @@ def test_accept_previews_first_and_a_reject_is_previewed_then_refused(tmp_path, 
         card.accept()  # nothing previewed that can be accepted: nothing happens
         assert session.accepted("cam_wide/intrinsics") is None and session.acceptance_log == []
         np.testing.assert_equal(session.rig.get("cam_wide").intrinsics, None)
+        card.show(None, None)
+        assert card.accept_button.disabled
     finally:
         jobs.shutdown()
         server.stop()
