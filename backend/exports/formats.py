@@ -16,7 +16,7 @@ EXPORT_FORMATS: dict[str, str] = {
                    "sigmas",
     "mrcal": "mrcal's .cameramodel: pinhole-radtan (LENSMODEL_OPENCV5) and the splined model",
     "rig": "the rig's transforms with sigmas and static_transform_publisher lines",
-    "kalibr": "Kalibr camchain YAML (T_cn_cnm1 chain)",
+    "kalibr": "Kalibr camchain YAML (T_cn_cnm1 chain; with an IMU, camchain-imucam)",
     "urdf": "URDF: one link per frame, one fixed joint per non-root frame (origin xyz, rpy)",
     "launch": "ROS 2 Python launch file: one tf2_ros static_transform_publisher per frame",
     "pose-table": "CSV of the depth nodes' poses in the world: X, Y, Z (m), RotZ, RotY, RotX (deg), 1-sigma",

@@ -1,4 +1,5 @@
-"""A camera rig as Kalibr's ``camchain.yaml`` (what ``kalibr_calibrate_cameras`` writes).
+"""A camera rig as Kalibr's ``camchain.yaml`` (what ``kalibr_calibrate_cameras`` writes), or with an IMU as its
+``camchain-imucam.yaml`` (what ``kalibr_calibrate_imu_camera`` writes, and visual-inertial stacks read).
 
 Layout (one ``camN`` mapping per camera, ``cam0`` first, in the rig's order)::
 
@@ -10,6 +11,8 @@ Layout (one ``camN`` mapping per camera, ``cam0`` first, in the rig's order)::
       intrinsics: [fu, fv, pu, pv]             # px
       resolution: [width, height]              # px
       rostopic: /cam_front/image_raw
+      T_cam_imu: [...]                         # camchain-imucam only: 4x4, maps IMU points into cam0
+      timeshift_cam_imu: 0.0                   # camchain-imucam only: s, t_imu = t_cam + timeshift
     cam1:
       T_cn_cnm1:                               # 4x4, rows, translation in metres
       - [r11, r12, r13, tx]
@@ -48,8 +51,11 @@ distortion is read as ``pinhole-radtan`` with zero coefficients.
 
 Floats are written at full precision (Python ``repr``); intrinsics are always
 written as floats and the resolution as integers, as Kalibr's reader checks.
-``T_cam_imu``, ``timeshift_cam_imu`` and any other key of a camera are ignored
-on load; ``cam_overlaps`` is checked but not returned.
+``T_cam_imu`` (Kalibr's "imu0 to cam0": the ``T_a_b`` of the conventions,
+mapping points in the IMU's frame into the camera's) and ``timeshift_cam_imu``
+(Kalibr's ``t_imu = t_cam + shift``, s) are written for each camera when an IMU
+is given. They, and any other key of a camera, are ignored on load;
+``cam_overlaps`` is checked but not returned.
 """
 
 from __future__ import annotations
@@ -94,6 +100,7 @@ def dump_kalibr_camchain(
     T_ref_cam: Mapping[str, np.ndarray],
     topics: Mapping[str, str] | None = None,
     overlaps: Mapping[str, Sequence[str]] | None = None,
+    imu: tuple[Mapping[str, np.ndarray], Mapping[str, float]] | None = None,
 ) -> str:
     """Kalibr camchain YAML text of ``cameras`` (cam0, cam1, ... in the given order).
 
@@ -102,7 +109,8 @@ def dump_kalibr_camchain(
     relative poses are written, as ``T_cn_cnm1 = inv(T_ref_cam[N]) @
     T_ref_cam[N-1]``. ``topics`` gives the ``rostopic`` per name (default
     :func:`default_topic`); ``overlaps`` the names each camera shares views with
-    (default: every other camera). Raises :class:`InputError` naming the camera
+    (default: every other camera). ``imu`` is ``(T_cam_imu, timeshift_cam_imu)`` by camera name (4x4 in m; s):
+    a camchain-imucam. Raises :class:`InputError` naming the camera
     for a repeated name, a missing or non-rigid ``T_ref_cam``, a NaN or infinity in ``K`` or the
     distortion, a skewed ``K`` or a
     ``k3`` Kalibr's radtan cannot hold (see :data:`K3_TOLERANCE_PX`), and
@@ -129,6 +137,8 @@ def dump_kalibr_camchain(
                     f"{names}", name
                 )
         entry: dict[str, Any] = {}
+        if imu is not None:
+            entry["T_cam_imu"] = [floats(row) for row in _rigid(imu[0], name, "T_cam_imu")]
         if i > 0:
             entry["T_cn_cnm1"] = [floats(row) for row in invert(poses[i]) @ poses[i - 1]]
         entry |= {
@@ -140,6 +150,8 @@ def dump_kalibr_camchain(
             "resolution": [int(camera.width), int(camera.height)],
             "rostopic": str(topics.get(name, default_topic(name))),
         }
+        if imu is not None:
+            entry["timeshift_cam_imu"] = float(imu[1][name])
         document[f"cam{i}"] = entry
     return dump_yaml(document)
 
@@ -212,12 +224,13 @@ def _name(topic: Any, index: int, taken: set[str]) -> str | None:
     return None if fallback in taken else fallback
 
 
-def _rigid(T_ref_cam: Mapping[str, np.ndarray], name: str) -> np.ndarray:
-    if name not in T_ref_cam:
-        raise InputError(f"no T_ref_cam for camera {shorten(name)}; known: {sorted(T_ref_cam)}", name)
-    T = np.asarray(T_ref_cam[name], dtype=float)
+def _rigid(transforms: Mapping[str, np.ndarray], name: str, what: str = "T_ref_cam") -> np.ndarray:
+    """Camera ``name``'s transform of ``transforms`` (``what`` names them), refused unless a rigid 4x4."""
+    if name not in transforms:
+        raise InputError(f"no {what} for camera {shorten(name)}; known: {sorted(transforms)}", name)
+    T = np.asarray(transforms[name], dtype=float)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not _is_rigid(T):
-        raise InputError(f"T_ref_cam of {name!r} is not a rigid 4x4 transform: {T.tolist()}", name)
+        raise InputError(f"{what} of {name!r} is not a rigid 4x4 transform: {T.tolist()}", name)
     return T
 
 

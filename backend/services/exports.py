@@ -123,6 +123,9 @@ def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> s
     left out, and fewer than two left raise one (409) naming those without intrinsics and why the others were
     left out. One named camera
     gives a one-camera camchain (what ``kalibr_calibrate_imu_camera`` takes for a single camera).
+    With an IMU connected to the root, it is Kalibr's camchain-imucam: each camera also gets ``T_cam_imu`` to the
+    rig's first such IMU and ``timeshift_cam_imu`` from the two sensors' clock offsets (a comment at the top names
+    the IMU, and any other IMU not written).
     """
     rig = session.rig
     unconnected = solve_rig(session).unconnected
@@ -141,11 +144,21 @@ def kalibr_camchain(session: Session, cameras: Sequence[str] | None = None) -> s
         chosen = [_kalibr_camera(rig, name) for name in cameras]
         _refuse_unconnected(unconnected, rig, cameras)
     reference = chosen[0].name
+    imus = [frame for frame in rig.sensors("imu") if frame.name not in unconnected]
+    imu, header = None, ""
+    if imus:
+        T_cam_imu = {frame.name: rig.T_a_b(frame.name, imus[0].name) for frame in chosen}
+        timeshift = {frame.name: imus[0].clock_offset_s - frame.clock_offset_s for frame in chosen}
+        imu = (T_cam_imu, timeshift)
+        others = f" (the rig's first IMU; not written: {', '.join(f.name for f in imus[1:])})" if imus[1:] else ""
+        header = (f"# camchain-imucam: T_cam_imu maps points in IMU {imus[0].name}{others} into each camera; "
+                  "timeshift_cam_imu (s) is t_imu = t_cam + timeshift\n")
     text = dump_kalibr_camchain(
         [(frame.name, frame.intrinsics) for frame in chosen],
         {frame.name: rig.T_a_b(reference, frame.name) for frame in chosen},
+        imu=imu,
     )
-    return "".join(f"# left out: {reason}\n" for reason in skipped) + text
+    return header + "".join(f"# left out: {reason}\n" for reason in skipped) + text
 
 
 def _describable_cameras(rig: Rig, unconnected: Mapping[str, Sequence[str]]

@@ -1,4 +1,5 @@
-"""Kalibr camchain export: round trip, the T_cn_cnm1 chain, Kalibr's field rules, refusals, bad files, the session."""
+"""Kalibr camchain export: round trip, the T_cn_cnm1 chain, Kalibr's field rules, refusals, bad files, the session;
+with an IMU, the camchain-imucam keys."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from fastapi.testclient import TestClient
 from backend.api.app import create_app
 from backend.core.camera import CameraIntrinsics
 from backend.core.errors import InputError
+from backend.core.rig import Frame
 from backend.core.transforms import from_xyz_ypr, invert
 from backend.exports.kalibr_camchain import K3_TOLERANCE_PX, dump_kalibr_camchain, load_kalibr_camchain
 from backend.services import exports as export_service
@@ -264,7 +266,8 @@ def session(tmp_path: Path):
 
 
 def test_export_text_kalibr(session) -> None:
-    assert export_service.EXPORT_FORMATS["kalibr"] == "Kalibr camchain YAML (T_cn_cnm1 chain)"
+    assert export_service.EXPORT_FORMATS["kalibr"] == ("Kalibr camchain YAML (T_cn_cnm1 chain; with an IMU, "
+                                                       "camchain-imucam)")
     filename, text = export_service.export_text(session, "kalibr")
     assert filename == "stereo_rig_camchain.yaml"
     cameras, T_ref_cam = load_kalibr_camchain(text)
@@ -276,6 +279,28 @@ def test_export_text_kalibr(session) -> None:
     np.testing.assert_allclose(T_ref_cam["cam_wide"], rig.T_a_b("cam_front", "cam_wide"), rtol=0, atol=1e-12)
     T_c1_c0 = np.array(yaml.safe_load(text)["cam1"]["T_cn_cnm1"])
     np.testing.assert_allclose(T_c1_c0, rig.T_a_b("cam_wide", "cam_front"), rtol=0, atol=1e-12)
+
+
+def test_with_an_imu_the_export_is_kalibrs_camchain_imucam(session) -> None:
+    """Each camera gets ``T_cam_imu`` (IMU points into the camera, from the rig) and ``timeshift_cam_imu``
+    (``t_imu = t_cam + shift``, from the clock offsets); the first IMU is written, the comment names both."""
+    rig = session.rig
+    rig.add(Frame("imu0", "base_link", from_xyz_ypr(np.array([0.02, -0.07, 0.01]), np.radians([90.0, 1.0, -2.0])),
+                  kind="imu", clock_offset_s=0.0123))
+    rig.add(Frame("imu1", "base_link", kind="imu"))
+    rig.get("cam_wide").clock_offset_s = -0.004
+    _, text = export_service.export_text(session, "kalibr")
+    assert text.startswith("# camchain-imucam: T_cam_imu maps points in IMU imu0 (the rig's first IMU; not written: "
+                           "imu1) into each camera; timeshift_cam_imu (s) is t_imu = t_cam + timeshift\n"), text
+    document = yaml.safe_load(text)
+    for index, name in enumerate(["cam_front", "cam_wide"]):
+        entry = document[f"cam{index}"]
+        np.testing.assert_allclose(entry["T_cam_imu"], rig.T_a_b(name, "imu0"), rtol=0, atol=1e-12)
+        assert entry["timeshift_cam_imu"] == pytest.approx(0.0123 - rig.get(name).clock_offset_s, abs=1e-15)
+        assert list(entry)[0] == "T_cam_imu" and list(entry)[-1] == "timeshift_cam_imu"  # Kalibr's (sorted) order
+    cameras, T_ref_cam = load_kalibr_camchain(text)  # Kalibr's camchain reader ignores the IMU's keys; so do we
+    assert [name for name, _ in cameras] == ["cam_front", "cam_wide"]
+    np.testing.assert_allclose(T_ref_cam["cam_wide"], rig.T_a_b("cam_front", "cam_wide"), rtol=0, atol=1e-12)
 
 
 def test_export_text_kalibr_refusals(session) -> None:
