@@ -217,18 +217,19 @@ class CameraImuStep:
                 f"{diagnostics['frames_total']} frames, {diagnostics['corners_dropped']} corners dropped as outliers")
         self.offset_text.content = "" if record is None else (
             f"Time offset **{offset_ms:.3f} ms** ± {offset_std_ms:.3f} (t_imu = t_{record['parent']} + offset){used}"
-            + imu_model_text(diagnostics))
+            + imu_model_text(record))
         self.excitation_image.image = to_rgb(excitation_bars(diagnostics.get("excitation")))
         self.signals_image.image = to_rgb(fitted_signals(diagnostics.get("signals")))
 
 
-def imu_model_text(diagnostics: dict) -> str:
+def imu_model_text(record: dict) -> str:
     """The IMU model a camera-IMU result used and, for ``scale-misalignment``, what it found (markdown)."""
-    if "imu_model" not in diagnostics:
-        return ""  # a LiDAR-IMU result
-    intrinsics = diagnostics.get("imu_intrinsics")
+    model = record.get("settings", {}).get("imu_model")
+    if model is None:
+        return ""  # a LiDAR-IMU result (or a camera-IMU result kept before the choice existed)
+    intrinsics = record["diagnostics"]["imu_intrinsics"]
     if intrinsics is None:
-        return f"\n\nIMU model **{diagnostics['imu_model']}** (the IMU's axes taken as they are)"
+        return f"\n\nIMU model **{model}** (the IMU's axes taken as they are)"
     accel, gyro = np.array(intrinsics["accel_M"]), np.array(intrinsics["gyro_M"])
     turn_deg = np.degrees(Rotation.from_matrix(intrinsics["R_gyro_accel"]).magnitude())
     return ("\n\nIMU model **scale-misalignment**: accelerometer scale "

@@ -26,7 +26,7 @@ def solve(sensor: str, session: deps.SessionDep, jobs: deps.JobsDep,
           imu: Annotated[UploadFile, File(description="IMU samples: CSV t_ns,wx,wy,wz,ax,ay,az")],
           detections: Annotated[UploadFile, File(description="the board's corners: CSV t_ns,u_px,v_px,x_m,y_m,"
                                                              "z_m,tag_id,corner")],
-          imu_model: Annotated[Literal["calibrated", "scale-misalignment"], Form(
+          imu_model: Annotated[Literal[service.IMU_MODELS], Form(
               description="the IMU's model (Kalibr's names): calibrated, or scale-misalignment to fit the axes' "
                           "scale and misalignment too")] = "calibrated") -> dict[str, Any]:
     """Solve ``T_camera_imu`` and the time offset (``t_imu = t_cam + offset``) in the background, through the

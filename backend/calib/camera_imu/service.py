@@ -152,7 +152,6 @@ def _result(fit: CameraImuFit, raw: CameraImuFit, motion: Excitation, halves: Ha
                                 "time_s": float(np.sqrt(raw.covariance[6, 6]))},
             "halves": None if halves is None else {"difference": halves.difference.tolist(),
                                                    "expected": halves.expected.tolist()},
-            "imu_model": settings.imu_model,
             "imu_intrinsics": None if raw.imu_intrinsics is None else raw.imu_intrinsics.to_dict(),
             "model_check": None if model is None else {
                 "model": model.model, "converged": model.fit.converged, "difference": model.difference.tolist(),
@@ -173,7 +172,7 @@ def summary(result: TransformResult) -> dict:
     return {"T_cam_imu": result.T_parent_child.tolist(), "time_offset_s": diagnostics["time_offset_s"],
             "std": result.std | {"time_s": diagnostics["time_offset_std_s"]}, "residuals": dict(result.residuals),
             "excitation": diagnostics["excitation"], "verdict": result.verdict.to_dict(),
-            "imu_model": result.settings.get("imu_model", "calibrated"),
+            "imu_model": result.settings.get("imu_model", "calibrated"),  # results kept before the choice existed
             "imu_intrinsics": diagnostics.get("imu_intrinsics"),
             "converged": result.converged, "warnings": list(result.warnings), "seconds": result.seconds}
 
